@@ -1,0 +1,32 @@
+# Two commands on a fresh machine: `make demo` and `make test` (both set everything up first).
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.rt2-installed
+JOBS   ?= 2
+
+.PHONY: setup demo test test-all bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e ".[train,test]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/rt2 demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q -n $(JOBS)
+
+# Long experiments marked `slow` (full studies); not part of `make test`.
+test-all: $(STAMP)
+	$(PY) -m pytest -q -n $(JOBS) -m ""
+
+bench: $(STAMP)
+	$(VENV)/bin/rt2 bench estimator
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

@@ -1,0 +1,1 @@
+"""Experiments and benchmarks of the paper, each behind an ``rt2`` command."""
