@@ -31,7 +31,8 @@ def check_array(value, name: str, shape: tuple, *, dtype=float, where: str = "")
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{prefix}{name} must be numeric, got {describe(value)}") from exc
     if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
-        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        dims = ["N" if s is None else str(s) for s in shape]
+        want = "(" + ", ".join(dims) + ("," if len(dims) == 1 else "") + ")"
         raise ValueError(f"{prefix}{name} must have shape {want}, got shape {arr.shape}")
     return arr
 
