@@ -1,0 +1,188 @@
+"""BallDetector: detections on synthetic scenes, ROI mode and fallback, the frame-set layout, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tracker import BallDetector, DetectorOptions, Detections
+from tracker.detection.synthetic import ORANGE_RGB, draw_disk, hand_made_model, synthetic_scene
+
+MODEL = hand_made_model(ORANGE_RGB)
+
+
+def _scene(seed, **kw):
+    return synthetic_scene(np.random.default_rng(seed), **kw)
+
+
+# -- smoke -------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("method", ["paper", "ours"])
+def test_smoke_finds_the_ball(method):
+    image, centers, diam = _scene(0)
+    det = BallDetector(MODEL, DetectorOptions(method=method)).detect(image)
+    assert isinstance(det, Detections) and len(det) >= 1 and not det.used_roi
+    assert np.linalg.norm(det.uv_px[0] - centers[0]) < 0.3
+    assert 0.5 <= det.scores[0] <= 1.0
+
+
+def test_no_ball_no_detection():
+    image, _, _ = _scene(1, n_balls=0)
+    for method in ("paper", "ours"):
+        assert len(BallDetector(MODEL, DetectorOptions(method=method)).detect(image)) == 0
+
+
+# -- shapes and layout ---------------------------------------------------------------------------------
+def test_detection_fields_and_box_convention():
+    image = np.full((60, 80, 3), 90, np.uint8)
+    image[20:26, 30:34] = ORANGE_RGB  # rows 20..25, cols 30..33
+    det = BallDetector(MODEL, DetectorOptions(min_fill_ratio=0.0)).detect(image)
+    assert det.uv_px.shape == (1, 2) and det.scores.shape == (1,) and det.boxes_xywh.shape == (1, 4)
+    np.testing.assert_allclose(det.uv_px[0], [31.5, 22.5], atol=1e-9)
+    np.testing.assert_array_equal(det.boxes_xywh[0], [30, 20, 4, 6])  # COCO: top-left pixel spans [0, 1]
+    assert det.areas_px[0] == 24
+
+
+def test_top_k_candidates_and_paper_single():
+    image = np.full((100, 160, 3), 80, np.uint8)
+    truth = [(30.3, 40.6), (120.2, 70.1), (80.7, 20.4)]
+    for c in truth:
+        draw_disk(image, c, 9.0, ORANGE_RGB)
+    ours = BallDetector(MODEL, DetectorOptions(max_candidates=4)).detect(image)
+    assert len(ours) == 3
+    d = np.linalg.norm(ours.uv_px[:, None] - np.array(truth)[None], axis=2)
+    assert np.all(d.min(axis=1) < 0.2) and len(set(d.argmin(axis=1))) == 3
+    assert np.all(np.diff(ours.scores) <= 0)  # best first
+    paper = BallDetector(MODEL, DetectorOptions(method="paper")).detect(image)
+    assert len(paper) == 1
+    np.testing.assert_allclose(paper.uv_px[0], ours.uv_px[0])
+
+
+def test_detect_frameset_layout():
+    imgs = [_scene(s)[0] for s in (2, 3)]
+    centers = [_scene(s)[1][0] for s in (2, 3)]
+    empty = _scene(4, n_balls=0)[0]
+    det = BallDetector(MODEL, DetectorOptions(max_candidates=3))
+    uv, scores, dets = det.detect_frameset([imgs[0], None, empty, imgs[1]])
+    assert uv.shape == (4, 3, 2) and scores.shape == (4, 3) and len(dets) == 4
+    assert np.isnan(uv[1]).all() and np.isnan(uv[2]).all() and np.isnan(scores[1]).all()
+    np.testing.assert_allclose(uv[0, 0], centers[0], atol=0.3)
+    np.testing.assert_allclose(uv[3, 0], centers[1], atol=0.3)
+    for i in (0, 3):  # NaN padding after the real candidates
+        m = len(dets[i])
+        assert np.isfinite(uv[i, :m]).all() and np.isnan(uv[i, m:]).all() and np.isnan(scores[i, m:]).all()
+    uv_p, scores_p, _ = BallDetector(MODEL, DetectorOptions(method="paper")).detect_frameset(imgs)
+    assert uv_p.shape == (2, 1, 2) and scores_p.shape == (2, 1)
+
+
+def test_area_range_defaults_to_the_model_and_options_override():
+    import dataclasses
+
+    image = np.full((60, 80, 3), 90, np.uint8)
+    draw_disk(image, (30.0, 30.0), 6.0, ORANGE_RGB)  # ~28 px
+    strict = dataclasses.replace(MODEL, area_range_px=np.array([50.0, 100.0]))
+    det = BallDetector(strict)
+    assert det.area_range_px == (50.0, 100.0) and len(det.detect(image)) == 0
+    assert len(BallDetector(strict, DetectorOptions(min_area_px=5)).detect(image)) == 1
+    assert len(BallDetector(strict, DetectorOptions(method="paper")).detect(image)) == 1  # no shape test
+
+
+# -- ROI mode ------------------------------------------------------------------------------------------
+def test_roi_used_and_equal_to_full_frame():
+    image, centers, _ = _scene(5, diameter_px=(10, 10))
+    det = BallDetector(MODEL)
+    full = det.detect(image)
+    roi = det.detect(image, roi_center_px=centers[0] + [7.0, -5.0])
+    assert roi.used_roi and not full.used_roi
+    np.testing.assert_allclose(roi.uv_px[0], full.uv_px[0], atol=1e-4)
+    np.testing.assert_allclose(roi.boxes_xywh[0], full.boxes_xywh[0])
+
+
+def test_roi_falls_back_to_full_frame():
+    image, centers, _ = _scene(6, diameter_px=(10, 10))
+    det = BallDetector(MODEL, DetectorOptions(roi_half_size_px=16))
+    far = centers[0] + [200.0 if centers[0][0] < 320 else -200.0, 0.0]
+    res = det.detect(image, roi_center_px=far)  # window without the ball
+    assert not res.used_roi and np.linalg.norm(res.uv_px[0] - centers[0]) < 0.3
+    res = det.detect(image, roi_center_px=[-500.0, -500.0])  # prediction outside the image
+    assert not res.used_roi and len(res) >= 1
+    res = det.detect(image, roi_center_px=[np.nan, np.nan])  # no prediction
+    assert not res.used_roi and len(res) >= 1
+    # the window edge cuts the ball: truncated blob -> full frame, centre unbiased
+    res = det.detect(image, roi_center_px=centers[0] + [16.0 + 2.0, 0.0])
+    assert not res.used_roi and np.linalg.norm(res.uv_px[0] - centers[0]) < 0.3
+
+
+def test_roi_at_image_border_is_not_truncation():
+    image = np.full((100, 100, 3), 80, np.uint8)
+    draw_disk(image, (3.0, 50.0), 8.0, ORANGE_RGB)  # cut by the image edge, not by the window
+    res = BallDetector(MODEL, DetectorOptions(min_fill_ratio=0.0)).detect(image, roi_center_px=(10.0, 50.0))
+    assert res.used_roi and len(res) == 1
+
+
+# -- accuracy on synthetic scenes ----------------------------------------------------------------------
+def test_subpixel_centre_accuracy():
+    rng = np.random.default_rng(8)
+    det = BallDetector(MODEL)
+    errs = []
+    for _ in range(60):
+        image, centers, _ = synthetic_scene(rng, diameter_px=(6, 20))
+        res = det.detect(image)
+        errs.append(np.linalg.norm(res.uv_px[0] - centers[0]) if len(res) else np.inf)
+    errs = np.array(errs)
+    assert np.isfinite(errs).all()
+    assert np.median(errs) < 0.1 and np.percentile(errs, 95) < 0.3
+
+
+# -- backends agree ------------------------------------------------------------------------------------
+def test_numba_and_python_backends_agree_on_scenes():
+    for seed in range(5):
+        image, _, _ = _scene(20 + seed, n_balls=3)
+        a = BallDetector(MODEL, DetectorOptions(backend="numba")).detect(image)
+        b = BallDetector(MODEL, DetectorOptions(backend="python")).detect(image)
+        np.testing.assert_array_equal(a.uv_px, b.uv_px)
+        np.testing.assert_array_equal(a.boxes_xywh, b.boxes_xywh)
+
+
+# -- bad input -----------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(method="magic"), r"method must be one of \('paper', 'ours'\), got 'magic'"),
+        (dict(t_high=1.5), "t_high must be a probability"),
+        (dict(t_high=0.3, t_low=0.6), "need t_low < t_high"),
+        (dict(max_candidates=0), "max_candidates must be a positive integer"),
+        (dict(max_candidates=20, max_seeds=4), "max_seeds"),
+        (dict(min_area_px=50, max_area_px=10), "min_area_px"),
+        (dict(min_fill_ratio=2.0), "min_fill_ratio"),
+        (dict(max_aspect=0.5), "max_aspect"),
+        (dict(backend="gpu"), "backend"),
+    ],
+)
+def test_bad_options(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        DetectorOptions(**kwargs)
+
+
+def test_bad_detector_arguments():
+    with pytest.raises(ValueError, match="model must be a BallSegmentationModel"):
+        BallDetector("model.npz")
+    with pytest.raises(ValueError, match="options must be a DetectorOptions"):
+        BallDetector(MODEL, {"method": "paper"})
+    with pytest.raises(ValueError, match="need t_low < t_high"):
+        BallDetector(MODEL, DetectorOptions(t_low=0.6))  # model's t_high is 0.5
+
+
+def test_bad_images_and_rois():
+    det = BallDetector(MODEL)
+    with pytest.raises(ValueError, match="image must have dtype uint8"):
+        det.detect(np.zeros((10, 10, 3), np.float64))
+    with pytest.raises(ValueError, match=r"images\[1\] must have shape \(H, W, 3\)"):
+        det.detect_frameset([np.zeros((10, 10, 3), np.uint8), np.zeros((10, 10), np.uint8)])
+    with pytest.raises(ValueError, match=r"images\[0\] is empty"):
+        det.detect_frameset([np.zeros((10, 0, 3), np.uint8)])
+    with pytest.raises(ValueError, match="at least one camera"):
+        det.detect_frameset([])
+    with pytest.raises(ValueError, match=r"roi_center_px must have shape \(2,\)"):
+        det.detect(np.zeros((10, 10, 3), np.uint8), roi_center_px=[1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match=r"roi_centers_px must have shape \(2, 2\)"):
+        det.detect_frameset([np.zeros((10, 10, 3), np.uint8)] * 2, roi_centers_px=np.zeros((3, 2)))

@@ -1,0 +1,217 @@
+"""BallSegmentationModel: logits against a plain numpy correlation, windows, file I/O and bad input."""
+
+from __future__ import annotations
+
+import zipfile
+
+import numpy as np
+import pytest
+
+from tracker import BallSegmentationModel
+from tracker.detection.model import MODEL_FORMAT, check_image, logit, sigmoid
+from tracker.detection.synthetic import ORANGE_RGB, hand_made_model, synthetic_scene
+
+
+def _random_model(rng, colour_order="RGB", input_transform="linear"):
+    return BallSegmentationModel(
+        kernel=rng.normal(size=(5, 5, 3)),
+        bias=float(rng.normal()),
+        colour_order=colour_order,
+        input_scale=rng.uniform(0.002, 0.01, 3),
+        input_offset=rng.normal(size=3),
+        input_transform=input_transform,
+        log_offset_dn=5.0,
+        t_high=0.6,
+        t_low=0.3,
+        description="test",
+    )
+
+
+def _numpy_logits(model, image):
+    """Reference: scale the input, pad by reflection (OpenCV REFLECT_101) and correlate, in float64."""
+    order = [0, 1, 2] if model.colour_order == "RGB" else [2, 1, 0]
+    t = image[:, :, order].astype(np.float64)
+    t = np.log(t + model.log_offset_dn) if model.input_transform == "log" else t
+    x = t * model.input_scale + model.input_offset
+    pad = np.pad(x, ((2, 2), (2, 2), (0, 0)), mode="reflect")
+    h, w = image.shape[:2]
+    out = np.full((h, w), model.bias)
+    for i in range(5):
+        for j in range(5):
+            out += pad[i : i + h, j : j + w] @ model.kernel[i, j].astype(np.float64)
+    return out
+
+
+# -- smoke -------------------------------------------------------------------------------------------
+def test_smoke_probability_is_high_on_the_ball():
+    rng = np.random.default_rng(0)
+    image, centers, _ = synthetic_scene(rng, diameter_px=(14, 14))
+    p = hand_made_model(ORANGE_RGB).probability(image)
+    u, v = np.rint(centers[0]).astype(int)
+    assert p[v, u] > 0.8
+    assert np.median(p) < 0.05
+
+
+# -- shapes and exactness ----------------------------------------------------------------------------
+@pytest.mark.parametrize("transform", ["linear", "log"])
+@pytest.mark.parametrize("colour_order", ["RGB", "BGR"])
+@pytest.mark.parametrize("shape", [(480, 640, 3), (7, 5, 3), (1, 1, 3)])
+def test_logits_equal_numpy_correlation(shape, colour_order, transform):
+    rng = np.random.default_rng(1)
+    model = _random_model(rng, colour_order, transform)
+    image = rng.integers(0, 256, shape, dtype=np.uint8)
+    got = model.logits(image)
+    assert got.shape == shape[:2] and got.dtype == np.float32
+    want = _numpy_logits(model, image)
+    np.testing.assert_allclose(got, want, atol=2e-4 * (1 + np.abs(want).max()))
+
+
+@pytest.mark.parametrize("transform", ["linear", "log"])
+def test_window_equals_full_frame(transform):
+    rng = np.random.default_rng(2)
+    model = _random_model(rng, input_transform=transform)
+    image = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)
+    full = model.logits(image)
+    for window in [(10, 20, 74, 84), (0, 0, 64, 64), (100, 60, 160, 120), (0, 119, 160, 120)]:
+        x0, y0, x1, y1 = window
+        np.testing.assert_allclose(model.logits(image, window), full[y0:y1, x0:x1], atol=1e-5)
+
+
+def test_probability_is_sigmoid_of_logits_and_threshold_equivalence():
+    rng = np.random.default_rng(3)
+    model = _random_model(rng)
+    image = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    lg = model.logits(image)
+    p = model.probability(image)
+    np.testing.assert_allclose(p, sigmoid(lg), atol=1e-6)
+    for t in (0.1, 0.5, 0.9):  # B > T  <=>  logit(B) > logit(T): why Algorithm 1 can run on logits
+        assert np.array_equal(sigmoid(lg) > t, lg > logit(t))
+
+
+# -- files -------------------------------------------------------------------------------------------
+def test_save_load_roundtrip(tmp_path):
+    model = _random_model(np.random.default_rng(4), "BGR", "log")
+    path = model.save(tmp_path / "m.npz")
+    back = BallSegmentationModel.load(path)
+    np.testing.assert_array_equal(back.kernel, model.kernel)
+    np.testing.assert_array_equal(back.area_range_px, model.area_range_px)
+    for name in ("bias", "colour_order", "t_high", "t_low", "description", "input_transform", "log_offset_dn"):
+        assert getattr(back, name) == getattr(model, name)
+    np.testing.assert_array_equal(back.input_scale, model.input_scale)
+    image = np.random.default_rng(5).integers(0, 256, (30, 30, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(back.logits(image), model.logits(image))
+    with np.load(path, allow_pickle=False) as npz:  # no pickle anywhere
+        assert str(npz["format"]) == MODEL_FORMAT
+
+
+def _write_fields(path, **fields):
+    np.savez(path, **{k: np.asarray(v) for k, v in fields.items()})
+    return path
+
+
+def _fields(model):
+    return dict(
+        format=MODEL_FORMAT, version=1, kernel=model.kernel, bias=model.bias, colour_order=model.colour_order,
+        input_scale=model.input_scale, input_offset=model.input_offset, t_high=model.t_high, t_low=model.t_low,
+        input_transform=model.input_transform, log_offset_dn=model.log_offset_dn, area_range_px=model.area_range_px,
+    )
+
+
+# -- bad input ---------------------------------------------------------------------------------------
+def test_load_corrupted_file(tmp_path):
+    path = tmp_path / "bad.npz"
+    path.write_bytes(b"not a zip file at all")
+    with pytest.raises(ValueError, match=r"bad\.npz.*not a readable \.npz"):
+        BallSegmentationModel.load(path)
+    good = _random_model(np.random.default_rng(6)).save(tmp_path / "good.npz")
+    truncated = tmp_path / "truncated.npz"
+    truncated.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(ValueError, match="truncated.npz"):
+        BallSegmentationModel.load(truncated)
+
+
+def test_load_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.npz"):
+        BallSegmentationModel.load(tmp_path / "nope.npz")
+
+
+def test_load_wrong_kernel_size(tmp_path):
+    f = _fields(_random_model(np.random.default_rng(7)))
+    f["kernel"] = np.zeros((3, 3, 3))
+    with pytest.raises(ValueError, match=r"k3\.npz.*field 'kernel'.*\(5, 5, 3\).*\(3, 3, 3\)"):
+        BallSegmentationModel.load(_write_fields(tmp_path / "k3.npz", **f))
+
+
+@pytest.mark.parametrize("field", ["kernel", "bias", "format", "version", "t_high", "input_scale", "input_transform", "area_range_px"])
+def test_load_missing_field(tmp_path, field):
+    f = _fields(_random_model(np.random.default_rng(8)))
+    del f[field]
+    with pytest.raises(ValueError, match=rf"missing\.npz: missing field '{field}'"):
+        BallSegmentationModel.load(_write_fields(tmp_path / "missing.npz", **f))
+
+
+@pytest.mark.parametrize(
+    "field, value, match",
+    [
+        ("format", "something-else", "field 'format'"),
+        ("version", 99, "field 'version' is 99"),
+        ("bias", np.nan, "field 'bias' must be finite"),
+        ("bias", np.zeros(2), "field 'bias' must be a scalar"),
+        ("colour_order", "HSV", "colour_order must be one of"),
+        ("t_high", 0.1, "0 < t_low < t_high < 1"),
+        ("input_scale", np.ones(4), "input_scale must have 3 values"),
+        ("input_transform", "sqrt", "input_transform must be one of"),
+        ("log_offset_dn", -1.0, "log_offset_dn must be a positive number"),
+        ("area_range_px", [50.0, 10.0], "area_range_px must be"),
+    ],
+)
+def test_load_bad_field(tmp_path, field, value, match):
+    f = _fields(_random_model(np.random.default_rng(9)))
+    f[field] = value
+    with pytest.raises(ValueError, match=match):
+        BallSegmentationModel.load(_write_fields(tmp_path / "f.npz", **f))
+
+
+def test_load_refuses_pickled_object_arrays(tmp_path):
+    f = _fields(_random_model(np.random.default_rng(10)))
+    f["kernel"] = np.array([{"a": 1}], dtype=object)
+    path = tmp_path / "pickled.npz"
+    np.savez(path, **f)
+    assert zipfile.is_zipfile(path)
+    with pytest.raises(ValueError, match="pickled.npz"):
+        BallSegmentationModel.load(path)
+
+
+def test_save_wrong_suffix(tmp_path):
+    with pytest.raises(ValueError, match=r"\.npz"):
+        _random_model(np.random.default_rng(11)).save(tmp_path / "m.pt")
+
+
+def test_constructor_bad_kernel():
+    with pytest.raises(ValueError, match=r"kernel must have shape \(5, 5, 3\), got shape \(5, 5\)"):
+        BallSegmentationModel(kernel=np.zeros((5, 5)), bias=0.0)
+    with pytest.raises(ValueError, match="kernel must be finite"):
+        BallSegmentationModel(kernel=np.full((5, 5, 3), np.inf), bias=0.0)
+
+
+@pytest.mark.parametrize(
+    "image, match",
+    [
+        (np.zeros((10, 10, 3), np.float32), "dtype uint8, got float32"),
+        (np.zeros((10, 10), np.uint8), r"shape \(H, W, 3\).*got shape \(10, 10\)"),
+        (np.zeros((10, 10, 4), np.uint8), r"3 colour channels, got shape \(10, 10, 4\)"),
+        (np.zeros((0, 10, 3), np.uint8), "image is empty"),
+        ([[1, 2, 3]], "numpy array"),
+    ],
+)
+def test_bad_images(image, match):
+    with pytest.raises(ValueError, match=match):
+        check_image(image)
+    with pytest.raises(ValueError, match=match):
+        hand_made_model().logits(image)
+
+
+def test_bad_window():
+    image = np.zeros((20, 30, 3), np.uint8)
+    with pytest.raises(ValueError, match="window must satisfy"):
+        hand_made_model().logits(image, (0, 0, 31, 10))

@@ -1,0 +1,7 @@
+"""Ball detection per camera: the single-convolution segmentation model and Algorithm 1 (paper section 2.1)."""
+
+from tracker.detection.blobs import Blobs, find_blobs
+from tracker.detection.detector import METHODS, BallDetector, DetectorOptions, Detections
+from tracker.detection.model import BallSegmentationModel, check_image
+
+__all__ = ["BallDetector", "BallSegmentationModel", "Blobs", "DetectorOptions", "Detections", "METHODS", "check_image", "find_blobs"]

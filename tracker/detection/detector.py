@@ -1,0 +1,243 @@
+"""Ball detection per camera: the segmentation model + Algorithm 1, full frame or around a predicted pixel.
+
+``BallDetector.detect`` turns one RGB image into ball candidates; ``detect_frameset`` turns the
+images of a frame set into the ``(n_cams, k, 2)`` NaN-padded pixels and ``(n_cams, k)`` scores that
+the robust estimator takes (``RobustTriangulator.estimate(uv)``).
+
+Methods (``DetectorOptions.method``):
+
+* ``"paper"`` — the paper's Algorithm 1 as published: argmax, ``T_h`` test, flood fill above
+  ``T_l``; one candidate, no shape test.
+* ``"ours"`` — the top-K variant: up to ``max_candidates`` blobs (each a connected component of
+  ``{B > T_l}`` with peak ``>= T_h``, best first), each passing a shape test (area, fill ratio,
+  aspect). The robust estimator then picks the candidate the other cameras agree with.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracker._checks import describe
+from tracker.detection.blobs import find_blobs
+from tracker.detection.model import BallSegmentationModel, check_image, logit, sigmoid
+
+__all__ = ["BallDetector", "DetectorOptions", "Detections", "METHODS"]
+
+#: detection methods (see the module docstring)
+METHODS = ("paper", "ours")
+
+
+@dataclass(frozen=True)
+class DetectorOptions:
+    """Options of :class:`BallDetector`.
+
+    method : "paper" (Algorithm 1, one candidate) or "ours" (top-K with a shape test)
+    t_high, t_low : Algorithm 1 thresholds ``T_h``, ``T_l`` as probabilities; ``None`` = the model's
+        recommended values (chosen on its training validation split)
+    max_candidates : K, candidates reported per image by "ours" ("paper" reports at most 1)
+    max_seeds : blobs grown per image at most by "ours", accepted or not (bounds the time per image)
+    roi_half_size_px : half side of the search window around a predicted pixel
+    min_area_px, max_area_px : accepted blob area ("ours"); ``None`` = the model's recommended
+        ``area_range_px`` (from the ball sizes it was trained on)
+    min_fill_ratio : accepted blob area / box area ("ours"; a disk fills pi/4 ~ 0.79 of its box)
+    max_aspect : accepted box long side / short side ("ours"; motion blur stretches the ball)
+    backend : flood-fill implementation, "numba" or "python" (reference)
+    """
+
+    method: str = "ours"
+    t_high: float | None = None
+    t_low: float | None = None
+    max_candidates: int = 4
+    max_seeds: int = 16
+    roi_half_size_px: int = 32
+    min_area_px: int | None = None
+    max_area_px: int | None = None
+    min_fill_ratio: float = 0.3
+    max_aspect: float = 4.0
+    backend: str = "numba"
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"DetectorOptions.method must be one of {METHODS}, got {self.method!r}")
+        for name in ("t_high", "t_low"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
+                raise ValueError(f"DetectorOptions.{name} must be a probability in (0, 1) or None, got {v!r}")
+        if self.t_high is not None and self.t_low is not None and not self.t_low < self.t_high:
+            raise ValueError(f"DetectorOptions: need t_low < t_high, got t_low={self.t_low}, t_high={self.t_high}")
+        for name in ("max_candidates", "max_seeds", "roi_half_size_px", "min_area_px", "max_area_px"):
+            v = getattr(self, name)
+            if v is None and name in ("min_area_px", "max_area_px"):
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"DetectorOptions.{name} must be a positive integer, got {v!r}")
+        if self.max_seeds < self.max_candidates:
+            raise ValueError(f"DetectorOptions: max_seeds ({self.max_seeds}) must be >= max_candidates ({self.max_candidates})")
+        if self.min_area_px is not None and self.max_area_px is not None and self.min_area_px > self.max_area_px:
+            raise ValueError(f"DetectorOptions: min_area_px ({self.min_area_px}) > max_area_px ({self.max_area_px})")
+        if not 0.0 <= self.min_fill_ratio <= 1.0:
+            raise ValueError(f"DetectorOptions.min_fill_ratio must be in [0, 1], got {self.min_fill_ratio!r}")
+        if not self.max_aspect >= 1.0:
+            raise ValueError(f"DetectorOptions.max_aspect must be >= 1, got {self.max_aspect!r}")
+        if self.backend not in ("numba", "python"):
+            raise ValueError(f"DetectorOptions.backend must be 'numba' or 'python', got {self.backend!r}")
+
+    @property
+    def k(self) -> int:
+        """Candidates per image in the ``detect_frameset`` layout."""
+        return 1 if self.method == "paper" else self.max_candidates
+
+
+@dataclass(frozen=True, eq=False)
+class Detections:
+    """Ball candidates in one image, best first.
+
+    uv_px : (k, 2) sub-pixel centres, distorted pixels (u = column, v = row; (0, 0) = centre of the top-left pixel)
+    scores : (k,) peak ball probability of each candidate, in [T_h, 1]
+    boxes_xywh : (k, 4) boxes around each candidate's pixels, COCO convention ``[x, y, w, h]``
+        (the top-left pixel spans [0, 1] x [0, 1]), so they compare directly with COCO labels
+    areas_px : (k,) pixels per candidate
+    used_roi : True when the candidates come from the window around the predicted pixel
+    """
+
+    uv_px: np.ndarray
+    scores: np.ndarray
+    boxes_xywh: np.ndarray
+    areas_px: np.ndarray
+    used_roi: bool = False
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+    @classmethod
+    def empty(cls, used_roi: bool = False) -> "Detections":
+        return cls(np.zeros((0, 2)), np.zeros(0), np.zeros((0, 4)), np.zeros(0, dtype=np.int64), used_roi)
+
+
+class BallDetector:
+    """The segmentation model plus Algorithm 1, per image.
+
+    model : :class:`BallSegmentationModel`
+    options : :class:`DetectorOptions` (thresholds default to the model's recommended ones)
+    """
+
+    def __init__(self, model: BallSegmentationModel, options: DetectorOptions | None = None):
+        if not isinstance(model, BallSegmentationModel):
+            raise ValueError(f"model must be a BallSegmentationModel, got {describe(model)}")
+        options = DetectorOptions() if options is None else options
+        if not isinstance(options, DetectorOptions):
+            raise ValueError(f"options must be a DetectorOptions, got {describe(options)}")
+        t_high = model.t_high if options.t_high is None else options.t_high
+        t_low = model.t_low if options.t_low is None else options.t_low
+        if not t_low < t_high:
+            raise ValueError(f"need t_low < t_high, got t_low={t_low} and t_high={t_high} (options and model defaults combined)")
+        self.model = model
+        self.options = options
+        self.t_high, self.t_low = float(t_high), float(t_low)
+        self._th_logit, self._tl_logit = logit(self.t_high), logit(self.t_low)  # B > T  <=>  logit(B) > logit(T)
+        min_area = model.area_range_px[0] if options.min_area_px is None else options.min_area_px
+        max_area = model.area_range_px[1] if options.max_area_px is None else options.max_area_px
+        if not min_area <= max_area:
+            raise ValueError(f"need min_area_px <= max_area_px, got {min_area} and {max_area} (options and model defaults combined)")
+        self.area_range_px = (float(min_area), float(max_area))
+        if options.method == "paper":
+            self._blob_kw = dict(max_blobs=1, max_seeds=1)
+        else:
+            self._blob_kw = dict(
+                max_blobs=options.max_candidates,
+                max_seeds=options.max_seeds,
+                min_area_px=min_area,
+                max_area_px=max_area,
+                min_fill_ratio=options.min_fill_ratio,
+                max_aspect=options.max_aspect,
+            )
+        self._blob_kw["backend"] = options.backend
+
+    def __repr__(self) -> str:
+        return f"BallDetector(method={self.options.method!r}, t_high={self.t_high}, t_low={self.t_low})"
+
+    # -- one image -------------------------------------------------------------------------------
+    def detect(self, image: np.ndarray, roi_center_px=None) -> Detections:
+        """Ball candidates in one image.
+
+        image : (H, W, 3) uint8 RGB
+        roi_center_px : optional (2,) predicted ball pixel (u, v): search the window of half side
+            ``roi_half_size_px`` around it first; fall back to the full frame when the window has no
+            candidate or its best candidate touches the window's edge inside the image (truncated)
+        returns :class:`Detections`, best first
+        """
+        check_image(image)
+        if roi_center_px is None:
+            return self._detect_full(image)
+        roi = np.asarray(roi_center_px, dtype=float)
+        if roi.shape != (2,):
+            raise ValueError(f"roi_center_px must have shape (2,) (u, v), got {describe(roi_center_px)}")
+        if not np.isfinite(roi).all():
+            return self._detect_full(image)  # no prediction
+        return self._detect_roi(image, roi)
+
+    def _detect_full(self, image) -> Detections:
+        logits = self.model._logits(image)
+        blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, **self._blob_kw)
+        return _to_detections(blobs, 0, 0, False)
+
+    def _detect_roi(self, image, roi) -> Detections:
+        h, w = image.shape[:2]
+        half = self.options.roi_half_size_px
+        cu, cv = int(round(roi[0])), int(round(roi[1]))
+        x0, x1 = max(cu - half, 0), min(cu + half, w)
+        y0, y1 = max(cv - half, 0), min(cv + half, h)
+        if x0 >= x1 or y0 >= y1:  # the prediction is outside the image
+            return self._detect_full(image)
+        logits = np.ascontiguousarray(self.model._logits_window(image, x0, y0, x1, y1))
+        blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, **self._blob_kw)
+        if len(blobs) == 0:
+            return self._detect_full(image)
+        bx0, by0, bx1, by1 = blobs.boxes[0]
+        truncated = (bx0 == 0 and x0 > 0) or (by0 == 0 and y0 > 0) or (bx1 == x1 - x0 - 1 and x1 < w) or (by1 == y1 - y0 - 1 and y1 < h)
+        if truncated:
+            return self._detect_full(image)
+        return _to_detections(blobs, x0, y0, True)
+
+    # -- a frame set -----------------------------------------------------------------------------
+    def detect_frameset(self, images, roi_centers_px=None):
+        """Detect in every camera's image of a frame set, in the robust estimator's layout.
+
+        images : sequence of n_cams (H, W, 3) uint8 RGB images, or None where a camera gave no frame
+        roi_centers_px : optional (n_cams, 2) predicted pixels; NaN rows = no prediction for that camera
+        returns ``uv (n_cams, k, 2)`` distorted pixels and ``scores (n_cams, k)``, NaN-padded where a
+            camera has fewer than k = ``options.k`` candidates, and the list of :class:`Detections`
+        """
+        images = list(images)
+        n = len(images)
+        if n == 0:
+            raise ValueError("images must hold at least one camera's image, got an empty sequence")
+        if roi_centers_px is not None:
+            rois = np.asarray(roi_centers_px, dtype=float)
+            if rois.shape != (n, 2):
+                raise ValueError(f"roi_centers_px must have shape ({n}, 2) for {n} images, got {describe(roi_centers_px)}")
+        k = self.options.k
+        uv = np.full((n, k, 2), np.nan)
+        scores = np.full((n, k), np.nan)
+        dets = []
+        for i, image in enumerate(images):
+            if image is None:
+                dets.append(Detections.empty())
+                continue
+            check_image(image, f"images[{i}]")
+            d = self.detect(image, None if roi_centers_px is None else rois[i])
+            m = len(d)
+            uv[i, :m] = d.uv_px
+            scores[i, :m] = d.scores
+            dets.append(d)
+        return uv, scores, dets
+
+
+def _to_detections(blobs, x0: int, y0: int, used_roi: bool) -> Detections:
+    uv = blobs.centers_px + np.array([x0, y0], dtype=np.float64)
+    b = blobs.boxes
+    boxes = np.stack([b[:, 0] + x0, b[:, 1] + y0, b[:, 2] - b[:, 0] + 1, b[:, 3] - b[:, 1] + 1], axis=1).astype(np.float64)
+    return Detections(uv, sigmoid(blobs.peak_logits), boxes, blobs.areas_px, used_roi)
+

@@ -1,0 +1,315 @@
+"""The single-convolution ball segmentation model (paper section 2.1, figure "single convolutional unit").
+
+One 5x5 convolution over the RGB image plus a bias gives each pixel's ball *logit*; the sigmoid of
+it is the ball probability image ``B`` of Algorithm 1. The model is constant after training and
+loads from a small ``.npz`` file (no pickle).
+
+Conventions:
+
+* ``kernel[i, j, c]`` multiplies input pixel ``(row + i - 2, col + j - 2)``, channel ``c`` in
+  ``colour_order``: a *correlation*, exactly what ``cv2.filter2D`` and ``torch.nn.Conv2d`` compute.
+* The input is transformed per channel before the convolution:
+  ``x = input_scale * T(pixel) + input_offset`` (channels in ``colour_order``) with
+  ``T(p) = p`` (``input_transform="linear"``, the paper's raw RGB) or ``T(p) = log(p + log_offset_dn)``
+  (``"log"``: a filter whose channel weights cancel is then blind to exposure and shading, so it
+  tests chromaticity; a per-channel 256-entry lookup table at run time). Scale and offset are folded
+  into an effective kernel and bias at construction, so inference is three ``cv2.filter2D`` calls on
+  ``T`` of the raw channels, summed.
+* Borders are reflected without repeating the edge pixel (``cv2.BORDER_REFLECT_101``, which is
+  ``padding_mode="reflect"`` in torch).
+* The sigmoid is monotonic, so a threshold ``T`` on the probability equals the threshold
+  ``log(T / (1 - T))`` on the logit: Algorithm 1 runs on logits and the full-frame sigmoid is skipped.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from tracker._checks import describe
+
+__all__ = ["BallSegmentationModel", "INPUT_TRANSFORMS", "KERNEL_SIZE", "MODEL_FORMAT", "MODEL_VERSION", "check_image", "logit", "sigmoid", "transform_lut"]
+
+KERNEL_SIZE = 5  #: the paper's 5x5 filter
+MODEL_FORMAT = "rt2-ball-segmentation"
+MODEL_VERSION = 1
+COLOUR_ORDERS = ("RGB", "BGR")
+#: per-channel input transforms T(p) of uint8 pixel values p (see the module docstring)
+INPUT_TRANSFORMS = ("linear", "log")
+_HALF = KERNEL_SIZE // 2
+_BORDER = cv2.BORDER_REFLECT_101
+
+
+def logit(p: float) -> float:
+    """Probability in (0, 1) -> logit ``log(p / (1 - p))``."""
+    return math.log(p / (1.0 - p))
+
+
+def sigmoid(x):
+    """Logit -> probability, for scalars or arrays (float64)."""
+    return 1.0 / (1.0 + np.exp(-np.asarray(x, dtype=np.float64)))
+
+
+def transform_lut(input_transform: str, log_offset_dn: float = 8.0) -> np.ndarray:
+    """(256,) float32 table of ``T(p)`` for p = 0..255."""
+    p = np.arange(256, dtype=np.float64)
+    if input_transform == "linear":
+        return p.astype(np.float32)
+    if input_transform == "log":
+        return np.log(p + log_offset_dn).astype(np.float32)
+    raise ValueError(f"input_transform must be one of {INPUT_TRANSFORMS}, got {input_transform!r}")
+
+
+def check_image(image, name: str = "image") -> np.ndarray:
+    """Validate an (H, W, 3) uint8 RGB image; returns it unchanged (no copy)."""
+    if not isinstance(image, np.ndarray):
+        raise ValueError(f"{name} must be an (H, W, 3) uint8 numpy array, got {describe(image)}")
+    if image.dtype != np.uint8:
+        raise ValueError(f"{name} must have dtype uint8, got {image.dtype} (shape {image.shape})")
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"{name} must have shape (H, W, 3) with 3 colour channels, got shape {image.shape}")
+    if image.shape[0] == 0 or image.shape[1] == 0:
+        raise ValueError(f"{name} is empty: shape {image.shape}")
+    return image
+
+
+@dataclass(frozen=True, eq=False)
+class BallSegmentationModel:
+    """A 5x5x3 linear filter + bias whose sigmoid is the per-pixel ball probability.
+
+    kernel : (5, 5, 3) float32 weights, last axis in ``colour_order``, applied to scaled input
+    bias : float, added to every pixel's logit
+    colour_order : "RGB" or "BGR", channel order of ``kernel``, ``input_scale``, ``input_offset``
+    input_scale, input_offset : (3,) per-channel scaling of the transformed input before the filter
+    input_transform : "linear" (raw pixel values) or "log" (``log(p + log_offset_dn)``)
+    log_offset_dn : offset inside the log, pixel values (damps the noise of dark pixels)
+    t_high, t_low : recommended Algorithm 1 thresholds (probabilities, 0 < t_low < t_high < 1),
+        chosen on the training run's validation split
+    area_range_px : (2,) recommended accepted blob area [min, max], pixels (from the training labels)
+    description : provenance (training command, data)
+    """
+
+    kernel: np.ndarray
+    bias: float
+    colour_order: str = "RGB"
+    input_scale: np.ndarray = field(default_factory=lambda: np.full(3, 1.0 / 255.0))
+    input_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    input_transform: str = "linear"
+    log_offset_dn: float = 8.0
+    t_high: float = 0.5
+    t_low: float = 0.25
+    area_range_px: np.ndarray = field(default_factory=lambda: np.array([3.0, 3000.0]))
+    description: str = ""
+    # Derived at construction: the kernel for T(uint8 RGB channels) with the scaling folded in.
+    _kernels_rgb: tuple = field(init=False, repr=False, compare=False)
+    _bias_eff: float = field(init=False, repr=False, compare=False)
+    _lut: np.ndarray | None = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        where = "BallSegmentationModel"
+        kernel = np.asarray(self.kernel)
+        if kernel.shape != (KERNEL_SIZE, KERNEL_SIZE, 3):
+            raise ValueError(f"{where}: kernel must have shape (5, 5, 3), got shape {kernel.shape}")
+        if not np.issubdtype(kernel.dtype, np.number):
+            raise ValueError(f"{where}: kernel must be numeric, got dtype {kernel.dtype}")
+        kernel = kernel.astype(np.float32)
+        scale = np.asarray(self.input_scale, dtype=np.float64).reshape(-1)
+        offset = np.asarray(self.input_offset, dtype=np.float64).reshape(-1)
+        for name, arr in (("input_scale", scale), ("input_offset", offset)):
+            if arr.shape != (3,):
+                raise ValueError(f"{where}: {name} must have 3 values (one per channel), got shape {arr.shape}")
+        for name, arr in (("kernel", kernel), ("input_scale", scale), ("input_offset", offset)):
+            if not np.isfinite(arr).all():
+                raise ValueError(f"{where}: {name} must be finite")
+        if self.colour_order not in COLOUR_ORDERS:
+            raise ValueError(f"{where}: colour_order must be one of {COLOUR_ORDERS}, got {self.colour_order!r}")
+        bias = float(self.bias)
+        if not math.isfinite(bias):
+            raise ValueError(f"{where}: bias must be finite, got {self.bias!r}")
+        t_high, t_low = float(self.t_high), float(self.t_low)
+        if not (0.0 < t_low < t_high < 1.0):
+            raise ValueError(f"{where}: thresholds must satisfy 0 < t_low < t_high < 1, got t_low={t_low}, t_high={t_high}")
+        if self.input_transform not in INPUT_TRANSFORMS:
+            raise ValueError(f"{where}: input_transform must be one of {INPUT_TRANSFORMS}, got {self.input_transform!r}")
+        log_offset = float(self.log_offset_dn)
+        if not (math.isfinite(log_offset) and log_offset > 0):
+            raise ValueError(f"{where}: log_offset_dn must be a positive number, got {self.log_offset_dn!r}")
+        area = np.asarray(self.area_range_px, dtype=np.float64).reshape(-1)
+        if area.shape != (2,) or not np.isfinite(area).all() or not 1 <= area[0] <= area[1]:
+            raise ValueError(f"{where}: area_range_px must be [min, max] with 1 <= min <= max, got {self.area_range_px!r}")
+        area.setflags(write=False)
+        object.__setattr__(self, "area_range_px", area)
+        object.__setattr__(self, "log_offset_dn", log_offset)
+        for name, arr in (("kernel", kernel), ("input_scale", scale), ("input_offset", offset)):
+            arr.setflags(write=False)
+        object.__setattr__(self, "kernel", kernel)
+        object.__setattr__(self, "input_scale", scale)
+        object.__setattr__(self, "input_offset", offset)
+        object.__setattr__(self, "bias", bias)
+        object.__setattr__(self, "t_high", t_high)
+        object.__setattr__(self, "t_low", t_low)
+        # Fold the scaling: sum_c K_c * (s_c x_c + o_c) = sum_c (s_c K_c) * x_c + sum_c o_c sum(K_c).
+        # Exact with reflected borders (a constant image stays constant under reflection).
+        order = [0, 1, 2] if self.colour_order == "RGB" else [2, 1, 0]  # RGB channel -> kernel channel
+        k64 = kernel.astype(np.float64)
+        kernels = tuple(np.ascontiguousarray((k64[:, :, order[c]] * scale[order[c]]).astype(np.float32)) for c in range(3))
+        bias_eff = bias + float(sum(offset[c] * k64[:, :, c].sum() for c in range(3)))
+        object.__setattr__(self, "_kernels_rgb", kernels)
+        object.__setattr__(self, "_bias_eff", bias_eff)
+        lut = None if self.input_transform == "linear" else transform_lut(self.input_transform, log_offset)
+        object.__setattr__(self, "_lut", lut)
+
+    # -- inference -----------------------------------------------------------------------------
+    @property
+    def kernel_rgb_uint8(self) -> np.ndarray:
+        """(5, 5, 3) float32 effective kernel for ``T`` of the uint8 RGB channels (scaling folded in)."""
+        return np.stack(self._kernels_rgb, axis=-1)
+
+    @property
+    def bias_uint8(self) -> float:
+        """Effective bias for ``T`` of the uint8 RGB channels (scaling folded in)."""
+        return self._bias_eff
+
+    def transformed(self, image: np.ndarray) -> np.ndarray:
+        """(H, W, 3) float32 ``T(image)`` (RGB), the input of the effective kernel."""
+        check_image(image)
+        lut = transform_lut(self.input_transform, self.log_offset_dn)
+        return lut[image]
+
+    def logits(self, image: np.ndarray, window=None) -> np.ndarray:
+        """Per-pixel ball logit.
+
+        image : (H, W, 3) uint8 RGB
+        window : optional ``(x0, y0, x1, y1)`` pixel bounds (x1, y1 exclusive, inside the image):
+            compute only this window; the values equal the full-frame ones there
+        returns (h, w) float32 logits (the whole image, or the window)
+        """
+        check_image(image)
+        if window is None:
+            return self._logits(image)
+        x0, y0, x1, y1 = (int(v) for v in window)
+        h, w = image.shape[:2]
+        if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+            raise ValueError(f"window must satisfy 0 <= x0 < x1 <= {w} and 0 <= y0 < y1 <= {h}, got {tuple(window)}")
+        return self._logits_window(image, x0, y0, x1, y1)
+
+    def probability(self, image: np.ndarray, window=None) -> np.ndarray:
+        """Per-pixel ball probability ``B`` (paper Algorithm 1 input): (h, w) float32 in [0, 1]."""
+        return sigmoid(self.logits(image, window)).astype(np.float32)
+
+    def _logits(self, image: np.ndarray) -> np.ndarray:
+        # Three 5x5 filters on the float32 channels, summed: the fastest exact way we measured
+        # (filter2D on uint8 input with a float kernel, or on interleaved channels, is 2-10x slower).
+        chans = cv2.split(image)
+        out = None
+        for c in range(3):
+            x = chans[c].astype(np.float32) if self._lut is None else cv2.LUT(chans[c], self._lut)
+            r = cv2.filter2D(x, -1, self._kernels_rgb[c], borderType=_BORDER)
+            out = r if out is None else cv2.add(out, r, dst=out)
+        out += np.float32(self._bias_eff)
+        return out
+
+    def _logits_window(self, image, x0, y0, x1, y1) -> np.ndarray:
+        h, w = image.shape[:2]
+        # Crop with a 2-pixel margin where the image has one, so the window's values are exact.
+        cx0, cy0 = max(x0 - _HALF, 0), max(y0 - _HALF, 0)
+        cx1, cy1 = min(x1 + _HALF, w), min(y1 + _HALF, h)
+        crop = self._logits(np.ascontiguousarray(image[cy0:cy1, cx0:cx1]))
+        return crop[y0 - cy0 : y0 - cy0 + (y1 - y0), x0 - cx0 : x0 - cx0 + (x1 - x0)]
+
+    # -- files ---------------------------------------------------------------------------------
+    def save(self, path) -> Path:
+        """Write the model to ``path`` (.npz, no pickle); returns the path."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            raise ValueError(f"model file must end in .npz, got {str(path)!r}")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(
+            path,
+            format=np.array(MODEL_FORMAT),
+            version=np.array(MODEL_VERSION),
+            kernel=self.kernel,
+            bias=np.array(self.bias),
+            colour_order=np.array(self.colour_order),
+            input_scale=self.input_scale,
+            input_offset=self.input_offset,
+            input_transform=np.array(self.input_transform),
+            log_offset_dn=np.array(self.log_offset_dn),
+            t_high=np.array(self.t_high),
+            t_low=np.array(self.t_low),
+            area_range_px=self.area_range_px,
+            description=np.array(self.description),
+        )
+        return path
+
+    @classmethod
+    def load(cls, path) -> "BallSegmentationModel":
+        """Read a model written by :meth:`save`; ``ValueError`` naming the file and field otherwise."""
+        path = Path(path)
+        src = str(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"model file {src!r} does not exist")
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                data = {k: npz[k] for k in npz.files}
+        except Exception as exc:  # zipfile.BadZipFile, OSError, ValueError (pickled arrays), EOFError
+            raise ValueError(f"{src}: not a readable .npz model file ({type(exc).__name__}: {exc})") from None
+        fmt = _scalar(data, "format", str, src)
+        if fmt != MODEL_FORMAT:
+            raise ValueError(f"{src}: field 'format' must be {MODEL_FORMAT!r}, got {fmt!r}")
+        version = _scalar(data, "version", int, src)
+        if version != MODEL_VERSION:
+            raise ValueError(f"{src}: field 'version' is {version}, this rt2 reads version {MODEL_VERSION}")
+        kernel = _field(data, "kernel", src)
+        if kernel.shape != (KERNEL_SIZE, KERNEL_SIZE, 3):
+            raise ValueError(f"{src}: field 'kernel' must have shape (5, 5, 3) (a 5x5 filter over 3 channels), got shape {kernel.shape}")
+        try:
+            return cls(
+                kernel=kernel,
+                bias=_scalar(data, "bias", float, src),
+                colour_order=_scalar(data, "colour_order", str, src),
+                input_scale=_field(data, "input_scale", src),
+                input_offset=_field(data, "input_offset", src),
+                input_transform=_scalar(data, "input_transform", str, src),
+                log_offset_dn=_scalar(data, "log_offset_dn", float, src),
+                t_high=_scalar(data, "t_high", float, src),
+                t_low=_scalar(data, "t_low", float, src),
+                area_range_px=_field(data, "area_range_px", src),
+                description=_scalar(data, "description", str, src) if "description" in data else "",
+            )
+        except ValueError as exc:
+            raise ValueError(f"{src}: {exc}") from None
+
+
+def _field(data: dict, key: str, src: str) -> np.ndarray:
+    if key not in data:
+        raise ValueError(f"{src}: missing field {key!r} (fields present: {sorted(data)})")
+    arr = data[key]
+    if not (np.issubdtype(arr.dtype, np.number) or arr.dtype.kind == "U"):
+        raise ValueError(f"{src}: field {key!r} has unsupported dtype {arr.dtype}")
+    return arr
+
+
+def _scalar(data: dict, key: str, kind: type, src: str):
+    arr = _field(data, key, src)
+    if arr.shape != ():
+        raise ValueError(f"{src}: field {key!r} must be a scalar, got shape {arr.shape}")
+    if kind is str:
+        if arr.dtype.kind != "U":
+            raise ValueError(f"{src}: field {key!r} must be a string, got dtype {arr.dtype}")
+        return str(arr)
+    if not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{src}: field {key!r} must be a number, got dtype {arr.dtype}")
+    value = arr.item()
+    if kind is int:
+        if not float(value).is_integer():
+            raise ValueError(f"{src}: field {key!r} must be an integer, got {value!r}")
+        return int(value)
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{src}: field {key!r} must be finite, got {value!r}")
+    return value
