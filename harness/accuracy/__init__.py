@@ -1,0 +1,37 @@
+"""The accuracy experiment (paper Sec. 3.2): a ball on the WAM's end effector, the robot's kinematics as ground truth.
+
+``rt2 accuracy`` runs it (:mod:`.cli`), ``rt2 reevaluate`` re-runs trackers on its session log
+(:mod:`.reevaluate`). Modules: :mod:`.config` (AccuracyConfig), :mod:`.motion` (the simulated WAM at the
+camera clock), :mod:`.scene` (what the cameras see), :mod:`.faults`, :mod:`.trackers`, :mod:`.frames`
+(render + track per frame set), :mod:`.registration` (Kabsch/Umeyama, trimmed), :mod:`.evaluate`,
+:mod:`.stats`, :mod:`.figure`, :mod:`.session_log`, :mod:`.experiment`. See docs/accuracy.md.
+"""
+
+from harness.accuracy.config import AccuracyConfig
+from harness.accuracy.evaluate import TrackRecord, evaluate
+from harness.accuracy.experiment import AccuracyResult, run_accuracy
+from harness.accuracy.faults import FaultPlan
+from harness.accuracy.motion import MotionOptions, RobotMotion, simulate_motion
+from harness.accuracy.registration import RegistrationInfo, RegistrationOptions, fit_rigid, register_rigid
+from harness.accuracy.scene import SceneOptions, SessionScene
+from harness.accuracy.stats import JSON_KEYS, error_stats
+
+__all__ = [
+    "AccuracyConfig",
+    "AccuracyResult",
+    "FaultPlan",
+    "JSON_KEYS",
+    "MotionOptions",
+    "RegistrationInfo",
+    "RegistrationOptions",
+    "RobotMotion",
+    "SceneOptions",
+    "SessionScene",
+    "TrackRecord",
+    "error_stats",
+    "evaluate",
+    "fit_rigid",
+    "register_rigid",
+    "run_accuracy",
+    "simulate_motion",
+]

@@ -1,0 +1,114 @@
+"""``rt2 accuracy``: the paper's accuracy experiment (Sec. 3.2) in the simulated lab. See docs/accuracy.md.
+
+    rt2 accuracy --quick                       # about a minute: 600 frame sets
+    rt2 accuracy --seed 0 --out out/accuracy   # the default run (4000 frame sets, the README's figures)
+    rt2 accuracy --inject-faults --json errs.json --log-images all
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+from harness.accuracy.config import DEFAULT_FRAMES, DEFAULT_LOG_IMAGES, QUICK_FRAMES, AccuracyConfig
+from harness.accuracy.scene import SCENES
+from harness.accuracy.stats import TRACKER_KINDS, check_goals, fmt, format_goals, format_table
+from harness.logs.codecs import IMAGE_FORMATS
+
+__all__ = ["add_arguments", "format_report", "run"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help=f"a run of about a minute ({QUICK_FRAMES} frame sets)")
+    parser.add_argument("--seed", type=int, default=0, help="seeds robot, scene and sensor noise (default 0)")
+    parser.add_argument("--out", default="out/accuracy", metavar="DIR",
+                        help="folder for the figure (PNG, PDF), accuracy.json, summary.json, session.mcap (default out/accuracy)")
+    parser.add_argument("--frames", type=int, default=None, metavar="N",
+                        help=f"frame sets (default {DEFAULT_FRAMES}, --quick {QUICK_FRAMES})")
+    parser.add_argument("--rate-hz", type=float, default=200.0, metavar="R", help="camera frame rate (default 200)")
+    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), metavar="W",
+                        help="worker processes rendering and tracking segments of frames (default: 2, or 1 on one core)")
+    parser.add_argument("--json", metavar="PATH", help="also write the per-tracker error statistics here (a JSON list)")
+    parser.add_argument("--rig", default="lab4_vga", help="rig name or file (default lab4_vga)")
+    parser.add_argument("--model", default=None, metavar="PATH", help="segmentation model .npz (default data/models/ball_seg_default.npz)")
+    parser.add_argument("--trackers", nargs="+", default=list(TRACKER_KINDS), choices=TRACKER_KINDS, help="trackers to run")
+    parser.add_argument("--eps-px", type=float, default=None, metavar="E", help="rt2 estimators' consistency threshold, px")
+    parser.add_argument("--scene", default="default", choices=sorted(SCENES),
+                        help="default (person in white, white clutter), harsh (orange shirt, orange cup, box and juggling ball), clean (arm and ball only)")
+    parser.add_argument("--inject-faults", action="store_true",
+                        help="a camera without frames for a stretch, wrong-size frames, a timestamp going back")
+    g = parser.add_argument_group("session log (DIR/session.mcap, see docs/logging.md)")
+    g.add_argument("--log-images", default=str(DEFAULT_LOG_IMAGES), metavar="all|none|N",
+                   help=f"images to record: all, none, or every N-th frame set (default {DEFAULT_LOG_IMAGES}); detections are always recorded")
+    g.add_argument("--log-image-format", default="png", choices=sorted(IMAGE_FORMATS),
+                   help="png (default, lossless: re-evaluation from images is exact), jpeg, raw")
+    g.add_argument("--no-log", action="store_true", help="write no session log")
+
+
+def config_from_args(args) -> AccuracyConfig:
+    frames = args.frames if args.frames is not None else (QUICK_FRAMES if args.quick else DEFAULT_FRAMES)
+    if args.model is not None and not Path(args.model).is_file():
+        raise FileNotFoundError(f"--model {args.model!r}: no such file")
+    return AccuracyConfig(seed=args.seed, n_frames=frames, rate_hz=args.rate_hz, rig=args.rig, model=args.model,
+                          trackers=tuple(args.trackers), eps_px=args.eps_px, inject_faults=args.inject_faults,
+                          scene=SCENES[args.scene])
+
+
+def format_report(figures: dict, rows: list, *, header: str = "") -> str:
+    """The printed summary: registration, the table beside the paper, error bands, goals, faults."""
+    reg = figures["registration"]
+    lines = [header] if header else []
+    lines.append(f"registration ({reg['tracker']} OK positions, frames 0-{figures['n_register'] - 1}): "
+                 f"{reg['inliers']}/{reg['pairs']} pairs kept, residual RMS {reg['rms_cm']:.2f} cm, max {reg['max_cm']:.2f} cm; "
+                 f"uncertainty at the scored points {reg['std_at_scored_p90_cm']:.2f} cm (p90, 1 sigma); "
+                 f"vs the true mount {reg['vs_true_mount']['rotation_deg']:.3f} deg, {reg['vs_true_mount']['translation_cm']:.2f} cm")
+    if not reg["well_conditioned"]:
+        lines.append(f"WARNING: the registration points (spread {reg['spread_cm'][0]:.1f} x {reg['spread_cm'][1]:.1f} x "
+                     f"{reg['spread_cm'][2]:.1f} cm, std) fix the transform only to {reg['std_at_scored_p90_cm']:.2f} cm at the "
+                     "scored points: the errors below include that (use more frames)")
+    lines.append(f"scored: {figures['n_scored']} frame sets (frames {figures['n_register']}-{figures['n_frames'] - 1})\n")
+    lines.append(format_table(rows))
+    lines.append("\nshare of frames with a position in the paper's error bands:")
+    lines.append(f"  {'tracker':10} {'<5cm':>8} {'5-10cm':>8} {'20-35cm':>8} {'>1m':>8} {'>10m':>8}")
+    for kind, m in figures["modes"].items():
+        vals = " ".join("       -" if v is None else f"{100 * v:7.2f}%" for v in m.values())
+        lines.append(f"  {kind:10} {vals}")
+    lines.append("\ngoals (issue 5):")
+    lines.append(format_goals(check_goals(rows)))
+    faults = figures.get("faults", {})
+    if faults.get("injected"):
+        lines.append("\ninjected faults:")
+        lines += [f"  {p}" for p in faults["plan"]]
+        for fault, entry in faults["by_kind"].items():
+            per = "; ".join(f"{k}: {v['with_position']} with a position (median error "
+                            f"{fmt(v['median_error_cm'], '.2f')} cm), {v['flagged']} flagged"
+                            for k, v in entry.items() if isinstance(v, dict))
+            lines.append(f"  {fault} ({entry['frames']} frame sets): {per}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from harness.accuracy.experiment import run_accuracy
+
+    config = config_from_args(args)
+    res = run_accuracy(config, args.out, workers=args.workers, log=not args.no_log, log_images=args.log_images,
+                       image_format=args.log_image_format)
+    m = res.motion_info
+    header = (f"rt2 accuracy: seed {config.seed}, {config.n_frames} frame sets at {config.rate_hz:g} Hz "
+              f"({config.n_frames / config.rate_hz:.1f} s), rig {config.rig}, {args.workers} worker(s), "
+              f"{res.timing['wall_s']:.0f} s\n"
+              f"robot: {m['via_points']} via points, ball speed median {m['ball_speed_mps']['median']:.2f} m/s "
+              f"(max {m['ball_speed_mps']['max']:.2f}); ground truth (FK of reported joints) vs true ball: "
+              f"median {m['gt_vs_true_mm']['median']:.1f} mm, max {m['gt_vs_true_mm']['max']:.1f} mm")
+    print(format_report(res.figures, res.rows, header=header))
+    t = res.truth
+    if t.get("registered_ground_truth_mm"):
+        print("\nagainst the TRUE ball (simulation only; median / p99 / max, mm): " + "; ".join(
+            f"{k[:-3]} {v['median']:.1f} / {v['p99']:.1f} / {v['max']:.1f}" for k, v in t.items() if v))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(res.rows, indent=1) + "\n")
+    print("\nwrote: " + ", ".join(str(p) for p in res.paths.values()))
+    return 0

@@ -1,0 +1,220 @@
+"""The accuracy experiment end to end (paper Sec. 3.2): robot, frames, trackers, registration, figures, log.
+
+    result = run_accuracy(AccuracyConfig(seed=0, n_frames=600), "out/accuracy", workers=2)
+    result.rows        # the --json list: one dict per tracker (mean_cm, ..., frac_missing)
+    result.figures     # everything measured (registration, error bands, faults); no timing in it
+
+Steps: simulate the WAM along a seeded trajectory (:mod:`.motion`); per frame set render the four
+cameras and run every tracker on the same images (:mod:`.frames`, in worker processes by segment);
+register the robot base to the camera world on the first ``register_fraction`` of the run and score the
+rest (:mod:`.evaluate`); write the histogram (PNG, PDF), ``accuracy.json`` (the ``--json`` list),
+``summary.json`` (figures + timing) and the session log ``session.mcap`` into the output folder.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from harness.accuracy.config import DEFAULT_LOG_IMAGES, AccuracyConfig
+from harness.accuracy.evaluate import TrackRecord, evaluate
+from harness.accuracy.figure import plot_histogram
+from harness.accuracy.frames import FrameProducer, calibrate, init_worker, run_segment
+from harness.accuracy.motion import simulate_motion
+from harness.accuracy.session_log import AccuracyLogWriter
+from harness.accuracy.stats import check_goals
+from harness.logs import check_log_images
+from harness.rigs import resolve_rig
+from harness.robot import SimWamOptions
+from robot_models import WamKinematics, load_robot_config
+
+__all__ = ["AccuracyResult", "run_accuracy", "write_outputs"]
+
+#: below this many frames between logged images, workers would ship too many images: run in one process
+_MIN_LOG_EVERY_FOR_WORKERS = 10
+
+
+@dataclass
+class AccuracyResult:
+    """What :func:`run_accuracy` measured and wrote.
+
+    rows : the ``--json`` list; figures : every figure (JSON-able, no timing); errors : {tracker: (n_scored,)
+    metres, NaN = no position}; timing : wall time, frame rate, tracker latencies; paths : {what: Path}
+    """
+
+    config: AccuracyConfig
+    rows: list
+    figures: dict
+    errors: dict
+    timing: dict
+    motion_info: dict
+    tracker_stats: dict
+    rtblob_calibration: dict | None = None
+    truth: dict = field(default_factory=dict)
+    paths: dict = field(default_factory=dict)
+
+
+def _robot(config):
+    cfg = load_robot_config()
+    kin = WamKinematics.from_config(cfg)
+    sim = SimWamOptions.from_mapping(dict(cfg.simulator), where="data/robot/wam.yaml: simulator")
+    return kin, sim
+
+
+def _check_model(config) -> None:
+    if any(k != "rtblob" for k in config.trackers) and not config.model_path().is_file():
+        raise FileNotFoundError(f"segmentation model {str(config.model_path())!r} not found; train one with "
+                                "`rt2 train` or pass --model PATH")
+
+
+def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool = True,
+                 log_images=DEFAULT_LOG_IMAGES, image_format: str = "png", log_flush_s: float = 1.0,
+                 progress: bool = True) -> AccuracyResult:
+    """Run the experiment (see the module docstring); outputs go to ``out_dir`` (created, files replaced).
+
+    workers : processes rendering and tracking segments (1 = this process); log : write ``session.mcap``
+    with images every ``log_images`` frame sets ("all", "none", N) in ``image_format``, flushed at least
+    every ``log_flush_s`` seconds; progress : a tqdm bar on stderr
+    """
+    if not isinstance(config, AccuracyConfig):
+        raise ValueError(f"config must be an AccuracyConfig, got {type(config).__name__}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    every = check_log_images(log_images) if log else 0
+    _check_model(config)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    rig = resolve_rig(config.rig)
+    kin, sim_options = _robot(config)
+    motion = simulate_motion(kin, config.n_frames, config.rate_hz, seed=config.seed, options=config.motion,
+                             sim_options=sim_options)
+    n = config.n_frames
+    records = {kind: TrackRecord.empty(n) for kind in config.trackers}
+    latency = {kind: np.full(n, np.nan) for kind in config.trackers}
+    stats: dict = {}
+    session = {}
+
+    def open_log(rtblob_cal):  # called once RTBlob's calibration is known (it goes into the metadata)
+        session["rtblob_calibration"] = rtblob_cal
+        if log:
+            session["writer"] = AccuracyLogWriter(out / "session.mcap", config, rig, motion, kin, rtblob_calibration=rtblob_cal,
+                                                  log_images=every or "none", image_format=image_format, overwrite=True,
+                                                  flush_period_s=log_flush_s)
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=n, desc="accuracy", unit="frame", file=sys.stderr, disable=not progress, smoothing=0.05)
+    try:
+        for fr in _frames(config, rig, motion, kin, open_log, workers, every, stats, bar):
+            writer = session.get("writer")
+            for kind, obs in fr.observations.items():
+                records[kind].put(fr.index, obs)
+                latency[kind][fr.index] = obs.latency_s
+            if writer is not None:
+                writer.write_frame(fr)
+        t_frames = time.perf_counter() - t0
+        figures, errors = evaluate(config, records, motion.gt_world_m, np.ones(n, bool), motion.T_base_to_world, rig.names)
+        timing = {
+            "wall_s": round(time.perf_counter() - t0, 2), "frames_wall_s": round(t_frames, 2), "workers": workers,
+            "latency_ms": {k: {"p50": round(float(np.nanmedian(v)) * 1e3, 3), "p99": round(float(np.nanpercentile(v, 99)) * 1e3, 3)}
+                           for k, v in latency.items()},
+        }
+        result = AccuracyResult(config, figures["rows"], figures, errors, timing, motion.info, stats,
+                                rtblob_calibration=session.get("rtblob_calibration"),
+                                truth=_against_truth(config, records, motion, figures))
+        write_outputs(result, out)
+        if session.get("writer") is not None:
+            session.pop("writer").finish(figures, extra={"timing": timing})
+            result.paths["log"] = out / "session.mcap"
+    except BaseException as exc:
+        if session.get("writer") is not None:
+            session.pop("writer").close(error=f"{type(exc).__name__}: {exc}")
+        raise
+    finally:
+        bar.close()
+    return result
+
+
+def _against_truth(config, records, motion, figures) -> dict:
+    """What only a simulation knows (summary.json, not the figures): over the scored frames, each tracker's
+    and the registered ground truth's distance to where the ball really was (FK of the true joints), mm."""
+    T = np.asarray(figures["registration"]["T_base_to_world"])
+    true = motion.ball_true_world_m
+    scored = np.arange(config.n_frames) >= config.n_register
+    gt_reg = motion.gt_base_m @ T[:3, :3].T + T[:3, 3]
+
+    def q(e):
+        e = e[scored]
+        e = e[np.isfinite(e)] * 1e3
+        return {"median": round(float(np.median(e)), 3), "p99": round(float(np.percentile(e, 99)), 3),
+                "max": round(float(e.max()), 3)} if e.size else None
+
+    out = {"registered_ground_truth_mm": q(np.linalg.norm(gt_reg - true, axis=1))}
+    out.update({f"{k}_mm": q(np.linalg.norm(r.position_m - true, axis=1)) for k, r in records.items()})
+    return out
+
+
+def _add_stats(total: dict, part: dict) -> None:
+    for kind, d in part.items():
+        acc = total.setdefault(kind, {})
+        for key, v in d.items():
+            acc[key] = acc.get(key, 0) + v
+
+
+def _frames(config, rig, motion, kin, open_log, workers: int, every: int, stats: dict, bar):
+    """Yield FrameResults in frame order, from this process or from a pool of worker processes;
+    ``open_log(rtblob_calibration)`` is called before the first frame."""
+    segments = config.segments()
+    one_process = workers == 1 or len(segments) == 1 or (0 < every < _MIN_LOG_EVERY_FOR_WORKERS)
+    if one_process:
+        producer = FrameProducer(config, rig, motion, kin.link_radii_m, log_images_every=every)
+        cal = producer.calibration()
+        open_log(cal)
+        producer.start(cal)
+        try:
+            for a, b in segments:
+                for fr in producer.segment(a, b):
+                    bar.update(1)
+                    yield fr
+                _add_stats(stats, producer.stats())
+        finally:
+            producer.close()
+        return
+    ctx = get_context("spawn")  # fresh interpreters: no forked locks from OpenCV / numba threads
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(segments)), mp_context=ctx, initializer=init_worker,
+                               initargs=(config, rig, motion, kin.link_radii_m, every))
+    try:
+        cal = pool.submit(calibrate).result()
+        open_log(cal)
+        for frames, seg_stats in pool.map(run_segment, [(a, b, cal) for a, b in segments]):
+            _add_stats(stats, seg_stats)
+            bar.update(len(frames))
+            yield from frames
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)  # on an error, do not start the remaining segments
+
+
+def write_outputs(result: AccuracyResult, out: Path, *, stem: str = "accuracy") -> dict:
+    """Histogram (PNG, PDF), the --json list and summary.json into ``out``; returns and records the paths."""
+    cfg = result.config
+    title = (f"accuracy: ball on the WAM, {cfg.n_frames} frame sets at {cfg.rate_hz:g} Hz, seed {cfg.seed}, "
+             f"{result.figures['n_scored']} scored")
+    png, pdf = plot_histogram(result.errors, [out / f"{stem}_hist.png", out / f"{stem}_hist.pdf"], title=title)
+    js = out / f"{stem}.json"
+    js.write_text(json.dumps(result.rows, indent=1) + "\n")
+    summary = out / "summary.json"
+    doc = {"config": cfg.to_dict(), "figures": result.figures, "goals": [list(g) for g in check_goals(result.rows)],
+           "motion": result.motion_info, "rtblob_calibration": result.rtblob_calibration,
+           "against_true_ball": result.truth,
+           "tracker_stats": result.tracker_stats, "timing": result.timing}
+    summary.write_text(json.dumps(doc, indent=1, default=float) + "\n")
+    result.paths.update({"png": png, "pdf": pdf, "json": js, "summary": summary})
+    return result.paths

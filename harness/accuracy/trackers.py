@@ -1,0 +1,62 @@
+"""The three trackers of the accuracy experiment, built the same way for the live run and for re-evaluation.
+
+* ``rt2``: ``tracker.Tracker(rig, "rt2")`` (top-K detector, ROI, robust estimator ``method="ours"``);
+* ``rt2-paper``: ``tracker.Tracker(rig, "rt2-paper")`` (Algorithm 1 + Algorithm 2 as published);
+* ``rtblob``: ``tracker.Tracker(rig, "rtblob")`` with ``RTBlobOptions(template_radius_px=...,
+  reference_rgb=...)`` from :func:`harness.accuracy.calibration.calibrate_rtblob` (``rtblob_setup=
+  "calibrated"``, the default) or ``RTBlobOptions()`` (``"default"``).
+
+Re-evaluation from logged detections re-runs only the estimator: :func:`estimator_for` builds the same
+``RobustTriangulator`` the rt2 trackers use.
+"""
+
+from __future__ import annotations
+
+from tracker import RobustOptions, RobustTriangulator, RTBlobOptions, make_tracker
+from tracker.pipeline import load_model
+
+__all__ = ["DETECTION_SUFFIX", "DETECTOR_METHOD", "ESTIMATOR_METHOD", "build_trackers", "detections_camera", "estimator_for", "rtblob_options"]
+
+#: detector and estimator method of each rt2 kind (as tracker.pipeline uses them)
+DETECTOR_METHOD = {"rt2": "ours", "rt2-paper": "paper"}
+ESTIMATOR_METHOD = {"rt2": "ours", "rt2-paper": "paper"}
+#: the logged detections of each rt2 kind go to camera name + suffix (``/camera/cam0.rt2-paper/detections``)
+DETECTION_SUFFIX = {"rt2": "", "rt2-paper": ".rt2-paper"}
+
+
+def detections_camera(kind: str, camera: str) -> str:
+    """The camera name the detections of tracker ``kind`` are logged under."""
+    return camera + DETECTION_SUFFIX[kind]
+
+
+def rtblob_options(calibration: dict | None) -> RTBlobOptions:
+    """RTBlobOptions from a calibration ``{"template_radius_px": [...], "reference_rgb": [...]}`` (None: defaults)."""
+    if calibration is None:
+        return RTBlobOptions()
+    return RTBlobOptions(template_radius_px=tuple(calibration["template_radius_px"]),
+                         reference_rgb=tuple(calibration["reference_rgb"]))
+
+
+def build_trackers(config, rig, model=None, rtblob_calibration: dict | None = None) -> dict:
+    """{kind: tracker.Tracker} for ``config.trackers``. model : BallSegmentationModel or path (default: the
+    config's); rtblob_calibration : see :func:`rtblob_options` (required when ``rtblob_setup="calibrated"``)."""
+    out = {}
+    for kind in config.trackers:
+        if kind == "rtblob":
+            if config.rtblob_setup == "calibrated" and rtblob_calibration is None:
+                raise ValueError("rtblob_setup='calibrated' needs the calibration (harness.accuracy.calibration.calibrate_rtblob)")
+            out[kind] = make_tracker(kind, rig, rtblob_options=rtblob_options(
+                rtblob_calibration if config.rtblob_setup == "calibrated" else None))
+        else:
+            if model is None:
+                model = load_model(config.model_path())
+            out[kind] = make_tracker(kind, rig, model=model, eps_px=config.eps_px)
+    return out
+
+
+def estimator_for(kind: str, rig, eps_px=None) -> RobustTriangulator:
+    """The robust estimator tracker ``kind`` ("rt2" or "rt2-paper") runs, for re-evaluation from detections."""
+    if kind not in ESTIMATOR_METHOD:
+        raise ValueError(f"tracker {kind!r} has no robust estimator to re-run; valid: {sorted(ESTIMATOR_METHOD)}")
+    options = RobustOptions() if eps_px is None else RobustOptions(eps_px=float(eps_px))
+    return RobustTriangulator(rig, options, method=ESTIMATOR_METHOD[kind])

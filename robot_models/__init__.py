@@ -1,0 +1,11 @@
+"""rt2 robot models: the 7-DOF Barrett WAM's URDF, its configuration, kinematics and IK over Pinocchio.
+
+Imports nothing else of rt2 (see docs/architecture.md). Poses are in the lab world frame, metres.
+"""
+
+from robot_models.config import DEFAULT_CONFIG_PATH, DEFAULT_URDF_PATH, RobotConfig, load_robot_config, mount_transform
+from robot_models.ik import IkOptions, solve_ik
+from robot_models.kinematics import LINK_CHAIN, REQUIRED_FRAMES, WamKinematics
+
+__all__ = ["DEFAULT_CONFIG_PATH", "DEFAULT_URDF_PATH", "IkOptions", "LINK_CHAIN", "REQUIRED_FRAMES", "RobotConfig",
+           "WamKinematics", "load_robot_config", "mount_transform", "solve_ik"]

@@ -1,0 +1,538 @@
+"""tracker.Tracker: the per-frame pipeline (detection, ROI prediction, robust estimate, faults).
+
+Sections: smoke per kind, shapes, ROI logic, faults, threads, bad input, consistency with the
+estimator, the motion predictor, statistics, real data (a real launcher flight), the benchmark.
+Rendered frames use the lab4_vga rig and the hand-made colour model (no trained weights needed).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tracker import (
+    BallObservation,
+    DetectorOptions,
+    FrameSet,
+    RobustOptions,
+    RobustTriangulator,
+    Status,
+    Tracker,
+    TrackerOptions,
+    make_tracker,
+)
+from tracker._pipeline_roi import MotionPredictor, project_point, project_point_numba
+from tracker.detection.synthetic import draw_disk, hand_made_model
+from tracker.pipeline import TRACKER_KINDS
+
+DT_S = 0.005
+X0_M = np.array([-1.0, 0.1, 1.3])
+V_MPS = np.array([-4.0, 0.3, 0.5])
+
+
+# -- shared scene -----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def rig():
+    from harness.rigs import resolve_rig
+
+    return resolve_rig("lab4_vga")
+
+
+@pytest.fixture(scope="module")
+def renderer(rig):
+    from harness.render import Renderer
+
+    return Renderer(rig, seed=0)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return hand_made_model()
+
+
+def _kw(kind, model):
+    """Constructor arguments per kind: the hand-made model, or RTBlob with a brightness-invariant
+    colour (the rendered ball at nominal exposure is too dark for RTBlob's default RGB orange)."""
+    if kind == "rtblob":
+        from tracker import RTBlobOptions
+
+        return dict(rtblob_options=RTBlobOptions(colour_space="chromaticity", colour_sigma=0.08))
+    return dict(model=model)
+
+
+def _scene(X, v=V_MPS, f=0):
+    """One orange ball in the empty lab; gain 2 makes it as bright as the hand-made model wants."""
+    from harness.render import Ball, Exposure, Scene
+
+    return Scene(balls=(Ball(X, velocity_mps=v, colour="orange"),), exposure=Exposure(gain=2.0), frame_index=f)
+
+
+@pytest.fixture(scope="module")
+def flight(renderer):
+    """12 frame sets of a ball flying at constant velocity (clean lab, nominal exposure), and its truth."""
+    X = X0_M + V_MPS * DT_S * np.arange(12)[:, None]
+    sets = [FrameSet(f * DT_S, tuple(renderer.render(_scene(X[f], f=f))), f) for f in range(12)]
+    return sets, X
+
+
+def _run(trk, framesets):
+    return [trk.process_with_info(fs) for fs in framesets]
+
+
+def _drawn_frameset(rig, points_px, t_s, index=0, seed=0):
+    """Grey noisy images with an orange disk at each (n_cams, m, 2) pixel (NaN rows skipped)."""
+    rng = np.random.default_rng([seed, index])
+    images = []
+    for i, cam in enumerate(rig):
+        W, H = cam.image_size
+        img = np.clip(rng.normal(100, 4, (H, W, 3)), 0, 255).astype(np.uint8)
+        for uv in points_px[i]:
+            if np.isfinite(uv).all():
+                draw_disk(img, uv, 10.0, (245, 120, 20))
+        images.append(img)
+    return FrameSet(t_s, tuple(images), index)
+
+
+# -- smoke ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("kind", TRACKER_KINDS)
+def test_smoke_each_kind_finds_the_ball(kind, rig, model, flight):
+    sets, X = flight
+    trk = make_tracker(kind, rig, **_kw(kind, model))
+    obs = [trk.process(fs) for fs in sets[:4]]
+    for o, x in zip(obs, X):
+        assert isinstance(o, BallObservation)
+        assert o.tracker == kind
+        assert o.status is Status.OK
+        assert o.latency_s > 0
+        tol = 0.03 if kind.startswith("rt2") else 0.10
+        assert np.linalg.norm(o.position_m - x) < tol, (kind, o.position_m, x)
+
+
+def test_rt2_accuracy_on_a_clean_flight(rig, model, flight):
+    sets, X = flight
+    obs = [Tracker(rig, model=model).process(fs) for fs in sets]
+    err = np.array([np.linalg.norm(o.position_m - x) for o, x in zip(obs, X)])
+    assert (err < 0.02).all(), err  # a few px of shading bias at ~3 m; the estimator itself is sub-mm
+    assert all(o.support == 4 for o in obs)
+
+
+# -- shapes -----------------------------------------------------------------------------------------
+def test_observation_fields_and_shapes(rig, model, flight):
+    sets, _ = flight
+    o, info = Tracker(rig, model=model).process_with_info(sets[0])
+    n, k = len(rig), DetectorOptions().max_candidates
+    assert o.uv_px.shape == (n, 2) and o.inliers.shape == (n,) and o.inliers.dtype == bool
+    assert o.position_m.shape == (3,) and o.covariance_m2.shape == (3, 3)
+    assert np.allclose(o.covariance_m2, o.covariance_m2.T) and (np.linalg.eigvalsh(o.covariance_m2) > 0).all()
+    assert info.uv_candidates_px.shape == (n, k, 2) and info.scores.shape == (n, k)
+    assert info.roi_center_px.shape == (n, 2) and info.used_roi.shape == (n,)
+    assert o.t_s == sets[0].t_s and o.notes == ()
+    paper = Tracker(rig, "rt2-paper", model=model).process_with_info(sets[0])[1]
+    assert paper.uv_candidates_px.shape == (n, 1, 2)
+
+
+# -- ROI --------------------------------------------------------------------------------------------
+def test_roi_used_after_the_first_frame(rig, model, flight):
+    sets, _ = flight
+    trk = Tracker(rig, model=model)
+    res = _run(trk, sets)
+    assert not res[0][1].used_roi.any()  # nothing to predict from yet
+    assert all(info.used_roi.all() for _, info in res[1:])
+    assert np.isnan(res[0][1].roi_center_px).all() and np.isfinite(res[2][1].roi_center_px).all()
+    assert trk.stats.predictions == len(sets) - 1
+    assert trk.stats.roi_searches == 4 * (len(sets) - 1) and trk.stats.full_frame_searches == 4
+    assert trk.stats.roi_misses == 0 and trk.stats.ok == len(sets)
+
+
+def test_window_search_gives_the_full_frame_pixels(rig, model, flight):
+    """The window's logits equal the full frame's, so the ball's pixel must be identical (this also
+    checks the sub-image offsets)."""
+    sets, _ = flight
+    roi = _run(Tracker(rig, model=model), sets[:6])
+    full = _run(Tracker(rig, model=model, roi=False), sets[:6])
+    for (a, ia), (b, _) in zip(roi[1:], full[1:]):
+        assert ia.used_roi.all()
+        np.testing.assert_allclose(a.uv_px, b.uv_px, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(a.position_m, b.position_m, rtol=0, atol=1e-9)
+
+
+def test_a_camera_without_the_ball_costs_no_full_frame_while_the_others_agree(rig, model):
+    # The ball flies; camera 3 never sees it (occluded). Its empty window is not followed by a
+    # full-frame search because cameras 0-2 confirm the ball.
+    trk = Tracker(rig, model=model)
+    X = X0_M + V_MPS * DT_S * np.arange(5)[:, None]
+    for f in range(5):
+        px = rig.project(X[f])[:, None].copy()
+        px[3] = np.nan
+        o, info = trk.process_with_info(_drawn_frameset(rig, px, f * DT_S, f))
+        assert o.status is Status.OK and o.support == 3 and o.notes == ()
+        assert not info.retried
+    st = trk.stats
+    assert st.full_frame_searches == 4 and st.roi_searches == 16 and st.roi_misses == 4 and st.full_frame_retries == 0
+
+
+def test_roi_prediction_is_constant_velocity(rig, model, flight):
+    sets, X = flight
+    trk = Tracker(rig, model=model)
+    res = _run(trk, sets[:4])
+    pred = rig.project(X[3])  # predicted from frames 1 and 2: X2 + (X2 - X1), truth moves linearly
+    assert np.abs(res[3][1].roi_center_px - pred).max() < 3.0
+
+
+def test_roi_off_and_paper_search_full_frames(rig, model, flight):
+    sets, _ = flight
+    for trk in (Tracker(rig, model=model, roi=False), Tracker(rig, "rt2-paper", model=model)):
+        res = _run(trk, sets[:4])
+        assert not any(info.used_roi.any() for _, info in res)
+        assert trk.stats.predictions == 0 and trk.stats.full_frame_searches == 16
+
+
+def test_roi_falls_back_when_the_ball_jumps(rig, model, renderer, flight):
+    sets, X = flight
+    trk = Tracker(rig, model=model)
+    _run(trk, sets[:4])
+    X_jump = X[4] + np.array([0.0, 0.5, 0.0])  # 50 cm away: far outside every window
+    fs = FrameSet(sets[4].t_s, tuple(renderer.render(_scene(X_jump, f=4))), 4)
+    o, info = trk.process_with_info(fs)
+    assert o.status is Status.OK and np.linalg.norm(o.position_m - X_jump) < 0.03
+    assert not info.used_roi.any() and info.retried
+    assert trk.stats.roi_misses == 4 and trk.stats.full_frame_retries == 1
+    assert o.notes == ("window search gave too_few_observations; full frame searched in cam0, cam1, cam2, cam3",)
+
+
+def test_full_frame_retry_when_windows_hold_inconsistent_objects(rig, model):
+    # The ball moves along a line; at frame 3 it jumps away and cameras 2 and 3 see an unrelated
+    # orange disk exactly where the ball was predicted. The windows of cameras 0, 1 are empty, those
+    # of 2, 3 hold the disks, which do not agree: the pipeline re-searches all four full frames and
+    # confirms the ball with all four.
+    trk = Tracker(rig, model=model)
+    X = X0_M + V_MPS * DT_S * np.arange(4)[:, None]
+    for f in range(3):
+        o = trk.process(_drawn_frameset(rig, rig.project(X[f])[:, None], f * DT_S, f))
+        assert o.status is Status.OK
+    X_jump = X[3] + np.array([0.0, -0.4, 0.1])
+    pts = np.full((4, 2, 2), np.nan)
+    pts[:, 0] = rig.project(X_jump)
+    pred = rig.project(X[3])
+    pts[2, 1] = pred[2] + [2.0, -1.0]
+    pts[3, 1] = pred[3] + [-3.0, 6.0]  # not the projection of one 3D point with camera 2's disk
+    o, info = trk.process_with_info(_drawn_frameset(rig, pts, 3 * DT_S, 3))
+    assert info.retried and trk.stats.full_frame_retries == 1
+    assert o.status is Status.OK and o.support == 4
+    assert np.linalg.norm(o.position_m - X_jump) < 0.01
+    assert len(o.notes) == 1 and o.notes[0].endswith("; full frame searched in cam0, cam1, cam2, cam3")
+    # without the retry the same frame stays at two cameras
+    trk2 = Tracker(rig, model=model, retry_full_frame=False)
+    for f in range(3):
+        trk2.process(_drawn_frameset(rig, rig.project(X[f])[:, None], f * DT_S, f))
+    o2 = trk2.process(_drawn_frameset(rig, pts, 3 * DT_S, 3))
+    assert o2.status is not Status.OK
+
+
+def test_no_prediction_after_a_gap_or_reset(rig, model, flight):
+    sets, _ = flight
+    trk = Tracker(rig, model=model, max_gap_s=0.012)
+    _run(trk, sets[:3])
+    late = FrameSet(sets[2].t_s + 0.02, sets[3].images, 3)  # 20 ms later > max_gap_s
+    assert not trk.process_with_info(late)[1].used_roi.any()
+    trk.reset()
+    assert not trk.process_with_info(FrameSet(1.0, sets[4].images, 4))[1].used_roi.any()
+    assert trk.process_with_info(FrameSet(1.005, sets[5].images, 5))[1].used_roi.all()
+
+
+# -- faults -----------------------------------------------------------------------------------------
+def test_missing_and_wrong_frames_mid_run_are_flagged(rig, model, flight):
+    sets, X = flight
+    trk = Tracker(rig, model=model)
+    _run(trk, sets[:3])
+    bad = [
+        (None, "camera cam2: no frame"),
+        (np.zeros((240, 320, 3), np.uint8), "camera cam2: frame is 320x240 px but the camera is calibrated for 640x480"),
+        (sets[3].images[2].astype(np.float32), "camera cam2: frame must have dtype uint8"),
+        (sets[3].images[2][:, :, 0], "camera cam2: frame must be an (H, W, 3) uint8 RGB array"),
+        ("not an image", "camera cam2: frame must be an (H, W, 3) uint8 RGB array"),
+    ]
+    for j, (image, note) in enumerate(bad):
+        f = 3 + j
+        images = list(sets[f].images)
+        images[2] = image
+        o = trk.process(FrameSet(sets[f].t_s, tuple(images), f))
+        assert any(s.startswith(note) for s in o.notes), o.notes
+        assert o.status is Status.OK and o.support == 3 and not o.inliers[2]
+        assert np.isnan(o.uv_px[2]).all()
+        assert np.linalg.norm(o.position_m - X[f]) < 0.03
+    assert trk.stats.missing_frames == 1 and trk.stats.bad_frames == 4 and trk.stats.dropped_cameras == 5
+    o = trk.process(sets[8])  # and back to normal
+    assert o.notes == () and o.support == 4
+
+
+def test_all_frames_missing_gives_no_position(rig, model):
+    o = Tracker(rig, model=model).process(FrameSet(0.0, (None,) * 4))
+    assert o.status is Status.TOO_FEW_OBSERVATIONS and o.position_m is None and o.covariance_m2 is None
+    assert len(o.notes) == 4
+
+
+def test_rtblob_faults_are_notes_not_exceptions(rig, flight):
+    sets, _ = flight
+    trk = make_tracker("rtblob", rig, **_kw("rtblob", None))
+    images = list(sets[0].images)
+    images[1] = images[1].astype(np.int16)
+    images[3] = None
+    o = trk.process(FrameSet(0.0, tuple(images)))
+    assert o.tracker == "rtblob"
+    assert sum(s.startswith("camera cam1: frame must have dtype uint8") for s in o.notes) == 1
+    assert sum(s == "camera cam3: no frame" for s in o.notes) == 1
+    assert trk.stats.bad_frames == 1 and trk.stats.missing_frames == 1
+
+
+@pytest.mark.parametrize("kind", TRACKER_KINDS)
+def test_non_monotonic_timestamps_are_flagged(kind, rig, model, flight):
+    sets, _ = flight
+    trk = make_tracker(kind, rig, **_kw(kind, model))
+    _run(trk, sets[:3])
+    for t in (sets[1].t_s, sets[1].t_s):  # backwards, then repeated
+        o, info = trk.process_with_info(FrameSet(t, sets[3].images, 3))
+        assert any(s.startswith("non-monotonic timestamp") for s in o.notes), o.notes
+        assert not info.used_roi.any()  # the motion prediction was reset
+        assert o.status is Status.OK
+    assert trk.stats.non_monotonic == 2
+    o = trk.process(FrameSet(sets[2].t_s + DT_S, sets[4].images, 4))
+    assert not any("non-monotonic" in s for s in o.notes)
+
+
+# -- threads ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("roi", [False, True])
+def test_two_workers_give_identical_observations(rig, model, flight, roi):
+    sets, _ = flight
+    one = _run(Tracker(rig, model=model, roi=roi), sets)
+    with Tracker(rig, model=model, roi=roi, workers=2, threads_for_roi=True) as trk2:
+        two = _run(trk2, sets)
+    for (a, ia), (b, ib) in zip(one, two):
+        assert a.status is b.status and a.support == b.support and a.notes == b.notes
+        np.testing.assert_array_equal(a.position_m, b.position_m)
+        np.testing.assert_array_equal(a.covariance_m2, b.covariance_m2)
+        np.testing.assert_array_equal(a.inliers, b.inliers)
+        np.testing.assert_array_equal(a.uv_px, b.uv_px)
+        np.testing.assert_array_equal(ia.uv_candidates_px, ib.uv_candidates_px)
+        np.testing.assert_array_equal(ia.used_roi, ib.used_roi)
+
+
+def test_closed_tracker_refuses_work(rig, model, flight):
+    trk = Tracker(rig, model=model, workers=2)
+    trk.close()
+    with pytest.raises(ValueError, match="closed"):
+        trk.process(flight[0][0])
+
+
+# -- bad input --------------------------------------------------------------------------------------
+def test_bad_frameset_raises(rig, model, flight):
+    sets, _ = flight
+    trk = Tracker(rig, model=model)
+    with pytest.raises(ValueError, match="frameset must be a tracker.FrameSet, got"):
+        trk.process(list(sets[0].images))
+    with pytest.raises(ValueError, match=r"frameset.images must hold one image \(or None\) per camera, 4 .*got 3 images"):
+        trk.process(FrameSet(0.0, sets[0].images[:3]))
+    with pytest.raises(ValueError, match="frameset.images .* got 'abc'"):
+        trk.process(FrameSet(0.0, "abc"))
+    with pytest.raises(ValueError, match="frameset.t_s must be a finite number of seconds, got nan"):
+        trk.process(FrameSet(float("nan"), sets[0].images))
+    assert trk.stats.frames == 0  # nothing counted for rejected input
+
+
+def test_bad_construction_raises(rig, model):
+    with pytest.raises(ValueError, match=r"unknown tracker kind 'rt3'; valid: \['rt2', 'rt2-paper', 'rtblob'\]"):
+        make_tracker("rt3", rig, model=model)
+    with pytest.raises(ValueError, match=r"unknown tracker kind 'RT2'"):
+        Tracker(rig, "RT2", model=model)
+    with pytest.raises(ValueError, match="rig must be a tracker.Rig"):
+        Tracker("lab4_vga", model=model)
+    with pytest.raises(ValueError, match=r"unknown Tracker option\(s\) \['wrokers'\]"):
+        Tracker(rig, model=model, wrokers=2)
+    with pytest.raises(ValueError, match="TrackerOptions.workers must be an integer >= 1, got 0"):
+        Tracker(rig, model=model, workers=0)
+    with pytest.raises(ValueError, match="TrackerOptions.max_gap_s must be a positive number"):
+        TrackerOptions(max_gap_s=-1.0)
+    with pytest.raises(ValueError, match="TrackerOptions.eps_px"):
+        TrackerOptions(eps_px=float("inf"))
+    with pytest.raises(ValueError, match="kind 'rtblob' has no ROI"):
+        make_tracker("rtblob", rig, roi=True)
+    with pytest.raises(ValueError, match="kind 'rtblob' takes no model"):
+        make_tracker("rtblob", rig, model=model)
+    with pytest.raises(ValueError, match="workers must be 1"):
+        make_tracker("rtblob", rig, workers=2)
+    with pytest.raises(ValueError, match="kind 'rt2-paper' uses detector method 'paper', got detector_options.method='ours'"):
+        Tracker(rig, "rt2-paper", model=model, detector_options=DetectorOptions())
+    with pytest.raises(ValueError, match=r"detector_options.max_candidates \(6\) exceeds"):
+        Tracker(rig, model=model, detector_options=DetectorOptions(max_candidates=6, max_seeds=16))
+    with pytest.raises(ValueError, match="model must be a BallSegmentationModel or a path"):
+        Tracker(rig, model=42)
+    with pytest.raises(FileNotFoundError, match="nope.npz"):
+        Tracker(rig, model="/nonexistent/nope.npz")
+    with pytest.raises(ValueError, match="rtblob_options apply to kind 'rtblob' only"):
+        from tracker import RTBlobOptions
+
+        Tracker(rig, model=model, rtblob_options=RTBlobOptions())
+
+
+def test_eps_px_reaches_the_estimator(rig, model):
+    assert Tracker(rig, model=model, eps_px=3.5)._estimator.options.eps_px == 3.5
+    trk = Tracker(rig, model=model, estimator_options=RobustOptions(eps_px=4.0, min_support=2))
+    assert trk._estimator.options.eps_px == 4.0 and trk._estimator.options.min_support == 2
+
+
+# -- consistency with the estimator -----------------------------------------------------------------
+@pytest.mark.parametrize("kind", ["rt2", "rt2-paper"])
+def test_observation_agrees_with_the_estimator(kind, rig, model, flight):
+    sets, _ = flight
+    trk = Tracker(rig, kind, model=model)
+    est = RobustTriangulator(rig, method="ours" if kind == "rt2" else "paper")
+    for o, info in _run(trk, sets[:5]):
+        X, ei = est.estimate(info.uv_candidates_px)
+        np.testing.assert_array_equal(o.position_m, X)
+        np.testing.assert_array_equal(o.inliers, ei.inliers)
+        assert o.support == ei.support and o.status is ei.status
+        assert (np.isfinite(o.uv_px).all(axis=1) == o.inliers).all()
+        # the pixel used per camera is one of its candidates, and agrees with the position
+        for i in np.flatnonzero(o.inliers):
+            assert np.any(np.all(info.uv_candidates_px[i] == o.uv_px[i], axis=1))
+        err = np.linalg.norm(rig.project(o.position_m)[o.inliers] - o.uv_px[o.inliers], axis=1)
+        assert (err <= est.options.eps_px).all()
+
+
+# -- the motion predictor ---------------------------------------------------------------------------
+def test_project_point_matches_rig_project(rig):
+    s = rig.stacked()
+    rng = np.random.default_rng(3)
+    for X in rng.uniform([-3, -2, 0], [1, 2, 3.6], size=(50, 3)):
+        np.testing.assert_allclose(project_point(X, s["R"], s["t"], s["K"], s["dist8"]), rig.project(X), rtol=0, atol=1e-9)
+    behind = rig[0].center_world + np.array([0.0, 0.0, 1.0])  # above a ceiling camera looking down
+    assert np.isnan(project_point(behind, s["R"], s["t"], s["K"], s["dist8"])[0]).all()
+
+
+def test_numba_projection_matches_numpy_reference(rig, ewand_rig):
+    rng = np.random.default_rng(4)
+    for r, lo, hi in ((rig, [-3, -2, 0], [1, 2, 3.6]), (ewand_rig, [-2, -2, 0.5], [2, 2, 6.0])):
+        s = {k: np.ascontiguousarray(v) for k, v in r.stacked().items()}
+        for X in np.concatenate([rng.uniform(lo, hi, size=(40, 3)), [r[0].center_world + [0, 0, -1.0]]]):
+            ref = project_point(X, s["R"], s["t"], s["K"], s["dist8"])
+            out = project_point_numba(X, s["R"], s["t"], s["K"], s["dist8"], np.empty((len(r), 2)))
+            np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-9)
+            assert (np.isnan(out) == np.isnan(ref)).all()
+    with pytest.raises(ValueError, match=r"unknown projection backend 'cuda'; valid: \['numba', 'numpy'\]"):
+        MotionPredictor(rig, 0.05, backend="cuda")
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_motion_predictor_rules(rig, backend):
+    p = MotionPredictor(rig, max_gap_s=0.05, backend=backend)
+    assert p.predict(0.0) is None
+    p.update(0.0, np.array([0.0, 0.0, 1.0]))
+    np.testing.assert_array_equal(p.predict(0.01), [0.0, 0.0, 1.0])  # one estimate: last position
+    p.update(0.01, np.array([-0.05, 0.0, 1.01]))
+    np.testing.assert_allclose(p.predict(0.02), [-0.1, 0.0, 1.02])  # constant velocity
+    assert p.predict(0.07) is None  # the newest estimate is older than max_gap_s
+    assert p.predict(0.01) is None  # time did not advance
+    p.update(0.08, np.array([-0.4, 0.0, 1.0]))  # previous estimate 70 ms older: last position only
+    np.testing.assert_array_equal(p.predict(0.085), [-0.4, 0.0, 1.0])
+    np.testing.assert_allclose(p.predict_pixels(0.085), rig.project(np.array([-0.4, 0.0, 1.0])), atol=1e-9)
+    p.reset()
+    assert p.predict(0.09) is None and p.predict_pixels(0.09) is None
+
+
+# -- statistics -------------------------------------------------------------------------------------
+def test_detection_noise_statistics(rig, model, renderer):
+    """Seeded sensor noise: 8 renders of one still ball; the positions scatter by far less than a
+    centimetre and the reported covariance is not wildly off that scatter."""
+    from harness.render import Renderer
+
+    X = np.array([-1.2, -0.2, 1.1])
+    pos, covs = [], []
+    for seed in range(8):
+        r = Renderer(rig, seed=seed)
+        o = Tracker(rig, model=model).process(FrameSet(0.0, tuple(r.render(_scene(X, v=np.zeros(3))))))
+        assert o.status is Status.OK
+        pos.append(o.position_m)
+        covs.append(o.covariance_m2)
+    pos = np.array(pos)
+    spread = pos.std(axis=0)
+    assert (spread < 0.003).all(), spread
+    sigma_pred = np.sqrt(np.diag(np.mean(covs, axis=0)))
+    assert (spread < 3 * sigma_pred).all(), (spread, sigma_pred)
+
+
+# -- real data: a real launcher flight ----------------------------------------------------------------
+def test_roi_follows_a_real_launcher_flight(rig, model, renderer, real_data):
+    """Ball positions and timestamps of a real flight (MPI launcher, ~180 Hz, uneven dt, a table
+    bounce; docs in shared/data/real/README.md) mapped into the lab frame toward the robot, rendered,
+    tracked: the window search must follow it through the bounce."""
+    d = np.genfromtxt(real_data / "mpi_launcher_trajectories" / "no_spin_robot_simple.csv", delimiter=",", names=True)
+    m = d["traj"] == 0
+    X = np.stack([1.0 - d["x_m"][m], -d["y_m"][m], d["z_m"][m]], axis=1)  # launcher at x = +1, toward -x
+    V = np.stack([-d["vx_mps"][m], -d["vy_mps"][m], d["vz_mps"][m]], axis=1)
+    t = d["t_s"][m]
+    keep = (X[:, 0] < 0.3) & (X[:, 0] > -2.2)  # inside the lab4 workspace
+    X, V, t = X[keep], V[keep], t[keep]
+    assert len(t) > 60 and np.ptp(np.diff(t)) > 1e-3  # really uneven sampling
+    trk = Tracker(rig, model=model)
+    err = []
+    for f in range(len(t)):
+        fs = FrameSet(float(t[f]), tuple(renderer.render(_scene(X[f], v=V[f], f=f))), f)
+        o = trk.process(fs)
+        assert o.status is Status.OK, (f, o.notes)
+        err.append(np.linalg.norm(o.position_m - X[f]))
+    assert np.median(err) < 0.02
+    st = trk.stats
+    assert st.roi_searches >= 0.95 * 4 * (len(t) - 1), st
+    assert st.full_frame_retries == 0
+
+
+# -- benchmark --------------------------------------------------------------------------------------
+def test_tracking_sequence_is_seeded():
+    from harness.studies.bench_pipeline import tracking_sequence
+
+    a = tracking_sequence(5, 60)
+    b = tracking_sequence(5, 60)
+    c = tracking_sequence(6, 60)
+    np.testing.assert_array_equal(a[2], b[2])
+    assert [s.balls[0].position_m.tolist() for s in a[1]] == [s.balls[0].position_m.tolist() for s in b[1]]
+    assert [len(s.capsules) + len(s.spheres) + len(s.boxes) for s in a[1]] == [len(s.capsules) + len(s.spheres) + len(s.boxes) for s in b[1]]
+    assert not np.array_equal(a[2], c[2])
+    from harness import lab
+
+    assert ((a[2] >= lab.LAB4_WORKSPACE_M[0]) & (a[2] <= lab.LAB4_WORKSPACE_M[1])).all()
+    assert (np.diff(a[0]) > 0).all()
+
+
+def test_bench_rows(rig, model, renderer):
+    from harness.studies.bench_pipeline import bench, tracking_sequence
+
+    t_s, scenes, X, flight = tracking_sequence(1, 40)
+    sets = [FrameSet(float(t), tuple(renderer.render(s)), i) for i, (t, s) in enumerate(zip(t_s, scenes))]
+    rows = bench(rig, model, sets, X, flight, workers_list=(1,), repeats=1, warmup=2, progress=False)
+    assert {(r["tracker"], r["mode"], r["variant"]) for r in rows} == {("rt2", "full", ""), ("rt2", "roi", ""), ("rt2-paper", "full", ""), ("rtblob", "full", "rgb"), ("rtblob", "full", "chromaticity")}
+    assert all(r["workers"] == 1 for r in rows)
+    for r in rows:
+        assert {"mode", "framesets_per_s", "p50_ms", "p99_ms", "tracker", "workers"} <= set(r)
+        assert r["framesets_per_s"] > 0 and 0 < r["p50_ms"] <= r["p99_ms"] and r["cpu_per_wall"] > 0 and r["cpu_ms_per_set"] > 0
+    json.dumps(rows)
+
+
+def test_bench_cli_rejects_bad_arguments(capsys):
+    from harness.cli import main
+
+    assert main(["bench", "pipeline", "--frames", "3"]) == 2
+    assert "--frames must be >= 30, got 3" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_bench_cli_writes_json(tmp_path, capsys):
+    from harness.cli import main
+
+    out = tmp_path / "bench.json"
+    assert main(["bench", "pipeline", "--frames", "30", "--repeats", "1", "--workers", "1", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert len(rows) == 5 and all({"mode", "framesets_per_s", "p50_ms", "p99_ms", "tracker", "workers"} <= set(r) for r in rows)
+    text = capsys.readouterr().out
+    assert "goal rt2 full workers=1" in text and "goal rt2 roi workers=1" in text

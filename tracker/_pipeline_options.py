@@ -1,0 +1,173 @@
+"""Options, counters and evidence of :class:`tracker.Tracker`, and how it is put together.
+
+Kept apart from :mod:`tracker.pipeline` (the per-frame code) so that both stay short. Public names
+are re-exported by :mod:`tracker.pipeline`; see docs/pipeline.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from tracker._checks import describe
+from tracker.detection import BallSegmentationModel, DetectorOptions
+from tracker.robust import RobustOptions
+
+__all__ = ["DEFAULT_MODEL", "KINDS", "TRACKER_KINDS", "PipelineInfo", "TrackerOptions", "TrackerStats", "detector_options_for", "estimator_options_for", "load_model", "with_overrides"]
+
+#: the shipped segmentation model (``rt2 train`` writes it)
+DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "data" / "models" / "ball_seg_default.npz"
+
+#: kind -> (detector method, estimator method, ROI by default); rtblob has neither
+KINDS = {
+    "rt2": ("ours", "ours", True),
+    "rt2-paper": ("paper", "paper", False),
+    "rtblob": (None, None, False),
+}
+TRACKER_KINDS = tuple(KINDS)
+
+
+@dataclass(frozen=True)
+class TrackerOptions:
+    """Options of :class:`Tracker`; keyword arguments of ``Tracker(...)`` override single fields.
+
+    roi : search a window around the predicted ball pixel first (None = the kind's default: on for
+        ``rt2``, off for ``rt2-paper``; ``rtblob`` has no ROI). Window size:
+        ``DetectorOptions.roi_half_size_px``
+    max_gap_s : confirmed estimates older than this give no prediction, seconds
+    retry_full_frame : when the window search ends without a confirmed (``OK``) estimate, search the
+        full frames of the cameras that searched a window, and estimate again
+        (the full-frame fallback; off: windows only while a prediction exists)
+    workers : threads that run the detector calls of one frame set (1 = the calling thread only)
+    threads_for_roi : use the threads also when every camera searches a window (off: measured
+        slower, the thread hand-off costs more than a 64x64 window, see docs/pipeline.md)
+    eps_px : the estimator's consistency threshold, pixels (None = ``estimator_options.eps_px``)
+    """
+
+    roi: bool | None = None
+    max_gap_s: float = 0.05
+    retry_full_frame: bool = True
+    workers: int = 1
+    threads_for_roi: bool = False
+    eps_px: float | None = None
+
+    def __post_init__(self):
+        if self.roi is not None and not isinstance(self.roi, (bool, np.bool_)):
+            raise ValueError(f"TrackerOptions.roi must be True, False or None, got {self.roi!r}")
+        for name in ("retry_full_frame", "threads_for_roi"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"TrackerOptions.{name} must be True or False, got {getattr(self, name)!r}")
+        g = self.max_gap_s
+        if isinstance(g, bool) or not isinstance(g, (int, float, np.floating, np.integer)) or not (math.isfinite(g) and g > 0):
+            raise ValueError(f"TrackerOptions.max_gap_s must be a positive number of seconds, got {g!r}")
+        w = self.workers
+        if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or w < 1:
+            raise ValueError(f"TrackerOptions.workers must be an integer >= 1, got {w!r}")
+        e = self.eps_px
+        if e is not None and (isinstance(e, bool) or not isinstance(e, (int, float, np.floating, np.integer)) or not (math.isfinite(e) and e > 0)):
+            raise ValueError(f"TrackerOptions.eps_px must be a positive number of pixels or None, got {e!r}")
+
+
+@dataclass
+class TrackerStats:
+    """Running counters of a :class:`Tracker` (cumulative; ``reset(clear_stats=True)`` zeroes them).
+
+    frames : frame sets processed
+    positions, ok : observations with a position; with ``Status.OK``
+    predictions : frame sets that had a predicted ball position (ROI on)
+    roi_searches : camera images searched in a window around the predicted pixel
+    roi_misses : of those, windows without a ball candidate (incl. a prediction outside the image)
+    full_frame_searches : camera images searched over the full frame (no prediction, or a retry)
+    full_frame_retries : frame sets re-searched on full frames after the windows gave no OK estimate
+    missing_frames : camera images that were None (no frame delivered)
+    bad_frames : camera images of the wrong size, dtype or channels (skipped)
+    non_monotonic : frame sets whose time did not increase (motion prediction reset)
+    """
+
+    frames: int = 0
+    positions: int = 0
+    ok: int = 0
+    predictions: int = 0
+    roi_searches: int = 0
+    roi_misses: int = 0
+    full_frame_searches: int = 0
+    full_frame_retries: int = 0
+    missing_frames: int = 0
+    bad_frames: int = 0
+    non_monotonic: int = 0
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @property
+    def dropped_cameras(self) -> int:
+        """Camera images not used because of a missing or bad frame."""
+        return self.missing_frames + self.bad_frames
+
+
+@dataclass(frozen=True, eq=False)
+class PipelineInfo:
+    """What :meth:`Tracker.process_with_info` knows beyond the observation (per rig camera).
+
+    uv_candidates_px : (n_cams, k, 2) every candidate the detector reported, distorted pixels, NaN-padded
+    scores : (n_cams, k) their scores (peak ball probability; RTBlob: the peak response), NaN-padded
+    roi_center_px : (n_cams, 2) the predicted pixel each window was centred on, NaN where none
+    used_roi : (n_cams,) bool, the camera's candidates come from the window search (not the full frame)
+    retried : a full-frame retry happened
+    estimate : the estimator's :class:`EstimateInfo` (rt2 kinds) or :class:`RTBlobInfo` (rtblob)
+    """
+
+    uv_candidates_px: np.ndarray
+    scores: np.ndarray
+    roi_center_px: np.ndarray
+    used_roi: np.ndarray
+    retried: bool
+    estimate: object
+
+
+def with_overrides(options, overrides: dict) -> TrackerOptions:
+    if options is None:
+        options = TrackerOptions()
+    elif not isinstance(options, TrackerOptions):
+        raise ValueError(f"options must be a TrackerOptions, got {describe(options)}")
+    if overrides:
+        valid = [f.name for f in fields(TrackerOptions)]
+        unknown = sorted(set(overrides) - set(valid))
+        if unknown:
+            raise ValueError(f"unknown Tracker option(s) {unknown}; valid: {valid} and model, detector_options, estimator_options, rtblob_options")
+        options = replace(options, **overrides)
+    return options
+
+
+def load_model(model=None) -> BallSegmentationModel:
+    """A :class:`BallSegmentationModel` from itself, a path, or None (the shipped default model)."""
+    if isinstance(model, BallSegmentationModel):
+        return model
+    path = DEFAULT_MODEL if model is None else model
+    if not isinstance(path, (str, Path)):
+        raise ValueError(f"model must be a BallSegmentationModel or a path to one (.npz), got {describe(model)}")
+    if not Path(path).is_file():
+        hint = " (the default model; train one with `rt2 train` or pass model=)" if model is None else ""
+        raise FileNotFoundError(f"model file {str(path)!r} does not exist{hint}")
+    return BallSegmentationModel.load(path)
+
+
+def detector_options_for(kind: str, method: str, given) -> DetectorOptions:
+    if given is None:
+        return DetectorOptions(method=method)
+    if not isinstance(given, DetectorOptions):
+        raise ValueError(f"detector_options must be a DetectorOptions, got {describe(given)}")
+    if given.method != method:
+        raise ValueError(f"kind {kind!r} uses detector method {method!r}, got detector_options.method={given.method!r}")
+    return given
+
+
+def estimator_options_for(given, eps_px) -> RobustOptions:
+    if given is None:
+        given = RobustOptions()
+    elif not isinstance(given, RobustOptions):
+        raise ValueError(f"estimator_options must be a RobustOptions, got {describe(given)}")
+    return given if eps_px is None else replace(given, eps_px=float(eps_px))
