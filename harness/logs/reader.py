@@ -1,0 +1,313 @@
+"""SessionLogReader: stream a session log back in log-time order, decoded to numpy and tracker types.
+
+Reading never loads the file: chunks are read one at a time and merged by log time, so memory is
+bounded by the chunks that overlap in time (one image chunk and one state chunk for our logs).
+Unfinished or damaged files are read through the recovery scan of :mod:`harness.logs._index`.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import heapq
+import json
+import math
+import struct
+import warnings
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+from mcap.records import Message
+from mcap_protobuf.decoder import DecoderFactory
+
+from harness.logs import codecs
+from harness.logs._index import DECODE_ERRORS, FileIndex, RecoveryReport, build_index, load_chunk, scan
+from harness.logs.topics import LogError
+
+__all__ = ["SessionLogReader", "LogMessage", "LogSummary", "TopicStats"]
+
+
+@dataclass(frozen=True)
+class LogMessage:
+    """One message: ``data`` is decoded (see docs/logging.md) unless read with ``decode=False`` (bytes)."""
+
+    topic: str
+    schema: str
+    log_time_ns: int
+    sequence: int  # the frame index for per-frame messages
+    data: object
+
+    @property
+    def t_s(self) -> float:
+        return self.log_time_ns * 1e-9
+
+
+@dataclass(frozen=True)
+class TopicStats:
+    schema: str
+    message_encoding: str
+    count: int
+
+
+@dataclass(frozen=True)
+class LogSummary:
+    """What a log holds; ``to_dict()`` is the JSON of ``rt2 log info --json``."""
+
+    path: str
+    size_bytes: int
+    finished_cleanly: bool
+    start_s: float
+    end_s: float
+    n_messages: int
+    n_chunks: int
+    chunk_compressions: dict
+    topics: dict  # topic -> TopicStats
+    session: dict
+    environment: dict
+    session_end: dict | None
+    metadata_names: tuple
+    attachments: tuple  # ((name, media_type, size_bytes), ...)
+    recovery: RecoveryReport | None = None
+    problems: tuple = field(default=())
+
+    @property
+    def duration_s(self) -> float:
+        return max(self.end_s - self.start_s, 0.0)
+
+    def to_dict(self) -> dict:
+        d = {k: getattr(self, k) for k in ("path", "size_bytes", "finished_cleanly", "start_s", "end_s", "n_messages",
+                                           "n_chunks", "chunk_compressions", "session", "environment", "session_end")}
+        d["duration_s"] = self.duration_s
+        d["topics"] = {t: {"schema": s.schema, "message_encoding": s.message_encoding, "count": s.count,
+                           "rate_hz": s.count / self.duration_s if self.duration_s > 0 else None}
+                       for t, s in self.topics.items()}
+        d["metadata"] = list(self.metadata_names)
+        d["attachments"] = [{"name": n, "media_type": m, "size_bytes": s} for n, m, s in self.attachments]
+        d["recovery"] = None if self.recovery is None else {
+            "reason": self.recovery.reason, "text": self.recovery.text, "recovered_chunks": self.recovery.recovered_chunks,
+            "recovered_messages": self.recovery.recovered_messages, "lost_bytes": self.recovery.lost_bytes,
+            "lost_log_time_s": self.recovery.lost_log_time_s,
+            "skipped_chunks": [{"offset": o, "error": e} for o, e in self.recovery.skipped_chunks]}
+        d["problems"] = list(self.problems)
+        return d
+
+
+def _decode_json_value(text: str):
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text  # written by another tool: keep the plain string
+
+
+class SessionLogReader:
+    """Read a session log written by :class:`~harness.logs.SessionLogWriter` (or any MCAP file).
+
+    Opening indexes the file (summary, or recovery scan for an unfinished file) and raises
+    :class:`~harness.logs.LogError` only when the file is not MCAP at all. Damage found while
+    reading is reported as a ``RuntimeWarning`` and collected in ``problems``; the rest is read.
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self._index: FileIndex = build_index(self.path)
+        self._file = open(self.path, "rb")
+        self._protobuf = DecoderFactory()
+        self._decoders: dict[int, object] = {}
+        self.problems: list[str] = list(self._index.problems)
+        for p in self._index.problems:
+            warnings.warn(f"{self.path}: {p}", RuntimeWarning, stacklevel=2)
+
+    # -- what is in the file -------------------------------------------------------------------
+    @property
+    def finished_cleanly(self) -> bool:
+        return self._index.finished
+
+    @property
+    def recovery(self) -> RecoveryReport | None:
+        return self._index.recovery
+
+    def topics(self) -> list[str]:
+        return sorted({c.topic for c in self._index.channels.values()})
+
+    def metadata(self, name: str) -> dict:
+        """Metadata record ``name`` with its values decoded from JSON."""
+        try:
+            raw = self._index.metadata[name]
+        except KeyError:
+            raise LogError(f"{self.path}: no metadata record {name!r}; this log has {sorted(self._index.metadata)}") from None
+        return {k: _decode_json_value(v) for k, v in raw.items()}
+
+    def attachment(self, name: str) -> bytes:
+        """The bytes of attachment ``name`` (CRC-checked)."""
+        try:
+            offset, length, _, size = self._index.attachments[name]
+        except KeyError:
+            raise LogError(f"{self.path}: no attachment {name!r}; this log has {sorted(self._index.attachments)}") from None
+        self._file.seek(offset + 9)
+        body = self._file.read(length - 9)
+        stored = struct.unpack("<I", body[-4:])[0] if len(body) >= 4 else None
+        if stored is None or (stored and zlib.crc32(body[:-4]) != stored):
+            raise LogError(f"{self.path}: attachment {name!r} at offset {offset} is damaged (CRC mismatch)")
+        return bytes(body[-4 - size: -4])
+
+    def rig(self):
+        """The ``tracker.Rig`` attached as ``rig.yaml``."""
+        import yaml
+
+        from tracker.rig import Rig
+
+        source = f"{self.path}: attachment rig.yaml"
+        try:
+            data = yaml.safe_load(self.attachment("rig.yaml"))
+        except yaml.YAMLError as exc:
+            raise LogError(f"{source}: not valid YAML: {exc}") from None
+        return Rig.from_dict(data, source=source)
+
+    def figures(self) -> dict:
+        """{name: figures dict} of every ``/figures/<name>`` message (the last one per name)."""
+        out = {}
+        names = [t for t in self.topics() if t.startswith("/figures/")]
+        for m in self.messages(names) if names else ():
+            out[m.topic[len("/figures/"):]] = m.data
+        return out
+
+    def summary(self) -> LogSummary:
+        idx = self._index
+        topics = {}
+        for cid, ch in sorted(idx.channels.items(), key=lambda kv: kv[1].topic):
+            schema = idx.schemas.get(ch.schema_id)
+            topics[ch.topic] = TopicStats(schema.name if schema else "", ch.message_encoding, idx.counts.get(cid, 0))
+        comps: dict[str, int] = {}
+        for c in idx.chunks:
+            if c.compression is not None:
+                key = c.compression or "none"
+                comps[key] = comps.get(key, 0) + 1
+        md = {name: self.metadata(name) for name in ("session", "environment", "session_end") if name in idx.metadata}
+        return LogSummary(
+            path=str(self.path), size_bytes=idx.size_bytes, finished_cleanly=idx.finished,
+            start_s=idx.start_ns * 1e-9, end_s=idx.end_ns * 1e-9, n_messages=sum(idx.counts.values()),
+            n_chunks=sum(comps.values()), chunk_compressions=comps, topics=topics,
+            session=md.get("session", {}), environment=md.get("environment", {}), session_end=md.get("session_end"),
+            metadata_names=tuple(sorted(idx.metadata)),
+            attachments=tuple((n, a[2], a[3]) for n, a in sorted(idx.attachments.items())),
+            recovery=idx.recovery, problems=tuple(self.problems))
+
+    def verify(self) -> list[str]:
+        """Read every record and check every chunk's CRC; return the problems found (empty = intact)."""
+        with open(self.path, "rb") as f:
+            idx = scan(f, self.path, self._index.size_bytes, "verify")
+        rec = idx.recovery
+        cut = not rec.data_complete and rec.lost_bytes and not self._index.finished
+        return idx.problems + ([f"the data section is cut off: {rec.lost_bytes} bytes after offset {rec.good_bytes} "
+                                "are not readable"] if cut else [])
+
+    # -- messages -------------------------------------------------------------------------------
+    def _select(self, topics) -> set:
+        if topics is None:
+            return set(self._index.channels)
+        patterns = [topics] if isinstance(topics, str) else list(topics)
+        have = {c.topic: cid for cid, c in self._index.channels.items()}
+        chosen = set()
+        for p in patterns:
+            if not isinstance(p, str):
+                raise LogError(f"topics must be strings or glob patterns, got {p!r}")
+            hits = [cid for t, cid in have.items() if fnmatch.fnmatchcase(t, p)]
+            if not hits:
+                raise LogError(f"{self.path}: no topic matches {p!r}; topics: {sorted(have)}")
+            chosen.update(hits)
+        return chosen
+
+    def messages(self, topics=None, start_s: float | None = None, end_s: float | None = None, *,
+                 decode: bool = True) -> Iterator[LogMessage]:
+        """Messages with ``start_s <= t < end_s`` on ``topics`` (names or glob patterns such as
+        ``"/camera/*/image"``; None = all), in log-time order (ties in file order).
+        """
+        wanted = self._select(topics)  # validated here, before the first message is asked for
+        for name, v in (("start_s", start_s), ("end_s", end_s)):
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise LogError(f"{name} must be a finite number of seconds or None, got {v!r}")
+        lo = None if start_s is None else int(round(start_s * 1e9))
+        hi = None if end_s is None else int(round(end_s * 1e9))
+        return self._merge(wanted, lo, hi, decode)
+
+    def _merge(self, wanted: set, lo, hi, decode: bool) -> Iterator[LogMessage]:
+        chunks = [c for c in self._index.chunks
+                  if (c.channel_ids is None or c.channel_ids & wanted)
+                  and (lo is None or c.end_ns >= lo) and (hi is None or c.start_ns < hi)]
+        chunks.sort(key=lambda c: (c.start_ns, c.offset))
+        heap: list = []
+        i = 0
+        while True:
+            # Load every chunk that may hold a message earlier than the earliest one queued.
+            while i < len(chunks) and (not heap or chunks[i].start_ns <= heap[0][0]):
+                self._push_chunk(heap, chunks[i], i, wanted, lo, hi)
+                i += 1
+            if not heap:
+                return
+            t, _, _, msg = heapq.heappop(heap)
+            yield self._message(msg, decode)
+
+    def _push_chunk(self, heap, info, order, wanted, lo, hi) -> None:
+        try:
+            records = load_chunk(self._file, info)
+        except DECODE_ERRORS as exc:
+            text = f"damaged chunk at offset {info.offset} skipped ({type(exc).__name__}: {exc})"
+            if text not in self.problems:
+                self.problems.append(text)
+                warnings.warn(f"{self.path}: {text}", RuntimeWarning, stacklevel=3)
+            return
+        for k, r in enumerate(records):
+            if isinstance(r, Message) and r.channel_id in wanted and (lo is None or r.log_time >= lo) \
+                    and (hi is None or r.log_time < hi):
+                heapq.heappush(heap, (r.log_time, order, k, r))
+
+    def _message(self, msg: Message, decode: bool) -> LogMessage:
+        ch = self._index.channels[msg.channel_id]
+        schema = self._index.schemas.get(ch.schema_id)
+        name = schema.name if schema else ""
+        data = msg.data
+        if decode:
+            try:
+                data = self._decode(ch, schema, msg)
+            except DECODE_ERRORS as exc:
+                raise LogError(f"{self.path}: cannot decode the {name or 'schemaless'} message on {ch.topic} at "
+                               f"log time {msg.log_time * 1e-9:.6f} s: {exc}") from None
+        return LogMessage(topic=ch.topic, schema=name, log_time_ns=msg.log_time, sequence=msg.sequence, data=data)
+
+    def _decode(self, ch, schema, msg: Message):
+        name = schema.name if schema else ""
+        if ch.message_encoding == "json":
+            doc = json.loads(msg.data)
+            if name == "rt2.BallObservation":
+                return codecs.decode_observation(doc)
+            if name == "rt2.Detections":
+                return codecs.decode_detections(doc)
+            if name == "rt2.GroundTruthBall":
+                return codecs.decode_ground_truth(doc)
+            if name == "rt2.Figures":
+                return doc["figures"]
+            return doc
+        if ch.message_encoding == "protobuf" and schema is not None:
+            dec = self._decoders.get(ch.id)
+            if dec is None:
+                dec = self._decoders[ch.id] = self._protobuf.decoder_for("protobuf", schema)
+            pb = dec(msg.data)
+            if name in ("foxglove.CompressedImage", "foxglove.RawImage"):
+                return codecs.decode_image(pb)
+            if name == "foxglove.FrameTransforms":
+                return codecs.decode_transforms(pb)
+            if name == "foxglove.JointStates":
+                return codecs.decode_joint_states(pb, msg.log_time * 1e-9)
+            return pb
+        return bytes(msg.data)
+
+    # -- lifetime -------------------------------------------------------------------------------
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> "SessionLogReader":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
