@@ -10,15 +10,34 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 __all__ = ["COMMANDS", "main"]
 
 #: command words -> (module, one-line help). Groups ("sim", "bench", ...) come from the prefixes.
 COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
-    ("demo",): ("harness.demo", "the main job: a short study, printed as a table"),
+    ("demo",): ("harness.demo", "the main job: a quick accuracy experiment (ball on the WAM, 3 trackers), printed as a table"),
+    ("accuracy",): ("harness.accuracy.cli", "accuracy experiment (paper Sec. 3.2): ball on the simulated WAM, kinematics as ground truth, RT2 vs RTBlob"),
+    ("reevaluate",): ("harness.reevaluate", "re-run a tracker on a recorded session log (images or detections) and recompute its figures"),
     ("sim", "table1"): ("harness.studies.table1", "simulation study of the robust estimator (paper Table 1)"),
+    ("sim", "dataset"): ("harness.studies.sim_dataset", "render a labelled synthetic ball data set (PNG + COCO annotations.json)"),
+    ("bench", "renderer"): ("harness.studies.bench_renderer", "frames/s of the synthetic camera renderer on one core, per scene type"),
     ("bench", "estimator"): ("harness.studies.bench_estimator", "run time of the robust estimator vs cameras (paper Table 2)"),
+    ("train",): ("harness.train_detector", "train the 5x5 ball segmentation model from COCO box labels"),
+    ("eval", "detector"): ("harness.studies.eval_detector", "ball detector recall, outlier rate and centre error on labelled images"),
+    ("eval", "filters"): ("harness.studies.eval_filters", "ball filters raw vs ransac_kalman: prediction error on real/simulated flights, clean and with outliers"),
+    ("bench", "detector"): ("harness.studies.bench_detector", "ms per VGA frame of the ball detector, full frame and ROI, vs torch"),
+    ("bench", "rtblob"): ("harness.studies.bench_rtblob", "ms per VGA frame of the RTBlob baseline (colour likelihood + disk FFT + max)"),
+    ("bench", "pipeline"): ("harness.studies.bench_pipeline", "frame sets/s and latency (p50/p99) of the whole tracker, 4 VGA cameras, full frame and ROI"),
+    ("log", "info"): ("harness.logs.cli", "topics, counts, duration and provenance of a session log; recovery of unfinished logs"),
+    ("bench", "log"): ("harness.studies.bench_log", "session-log write/read throughput, 4 VGA cameras at 200 Hz, per image format"),
+    ("sim", "reach"): ("harness.robot.cli_reach", "WAM racket reachability over the hitting region (IK on a grid)"),
+    ("sim", "wam"): ("harness.robot.cli_wam", "simulated WAM on a seeded ball-mount trajectory: tracking and reported-vs-true ball error"),
+    ("bench", "robot"): ("harness.robot.cli_bench", "run time of batched FK, Jacobian, IK and simulated WAM ticks (numba vs numpy)"),
+    ("sim", "fit-flight"): ("harness.studies.fit_flight", "fit the ball flight/bounce model to 88 real launcher flights; held-out prediction error"),
+    ("learn", "promp"): ("harness.studies.learn_promp", "learn the WAM hitting ProMP from the scripted teacher (MAP vs ML, held-out fit)"),
+    ("play",): ("harness.play.cli", "playing sessions: served balls, tracker, filter, ProMP hitting policy, simulated WAM; success rates (`rt2 play compare`)"),
 }
 
 GROUP_HELP = {
@@ -26,6 +45,7 @@ GROUP_HELP = {
     "bench": "speed benchmarks (medians, ratios against a baseline run in the same process)",
     "eval": "evaluate a component on held-out data",
     "log": "inspect session logs",
+    "learn": "learn movement primitives from demonstrations",
 }
 
 
@@ -59,6 +79,9 @@ def main(argv: list[str] | None = None) -> int:
     cmd = " ".join(w for w in (getattr(args, "_cmd0", None), getattr(args, "_cmd1", None)) if w)
     try:
         return int(args._run(args) or 0)
+    except BrokenPipeError:  # output piped into `head` & co.: stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except (ValueError, FileNotFoundError, PermissionError, IsADirectoryError) as exc:
         print(f"rt2 {cmd}: error: {exc}", file=sys.stderr)
         return 2

@@ -4,7 +4,12 @@ Imports nothing else of rt2 (see docs/architecture.md).
 """
 
 from tracker.camera import Camera
+from tracker.detection import BallDetector, BallSegmentationModel, DetectorOptions, Detections
 from tracker.observation import BallObservation, FrameSet, Status
 from tracker.rig import Rig
+from tracker.robust import EstimateBatch, EstimateInfo, RobustOptions, RobustTriangulator
+from tracker.triangulation import refine_point, triangulate, triangulate_linear, triangulate_pairs
+from tracker.rtblob import RTBlobDetector, RTBlobOptions, RTBlobTracker
+from tracker.pipeline import Tracker, TrackerOptions, make_tracker
 
-__all__ = ["BallObservation", "Camera", "FrameSet", "Rig", "Status"]
+__all__ = ["BallDetector", "BallObservation", "BallSegmentationModel", "Camera", "DetectorOptions", "Detections", "FrameSet", "RTBlobDetector", "RTBlobOptions", "RTBlobTracker", "Rig", "Status", "EstimateBatch", "EstimateInfo", "RobustOptions", "RobustTriangulator", "refine_point", "triangulate", "triangulate_linear", "triangulate_pairs", "Tracker", "TrackerOptions", "make_tracker"]

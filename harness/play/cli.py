@@ -1,0 +1,156 @@
+"""``rt2 play`` and ``rt2 play compare``: playing sessions in closed loop, success rates with Wilson 95 % CIs.
+
+    rt2 play --tracker rt2 --filter raw --balls 100 --seed 0 [--source synthetic|vision] [--workers 2]
+    rt2 play compare --balls 500 --seed 0 [--trackers rt2 rtblob] [--filters raw ransac_kalman]
+    rt2 play profile --balls 20 --seed 0            # measure the synthetic profiles from the vision source
+
+``compare`` plays the same served balls (same seed) with every tracker x filter combination. Output: a
+table on stdout, ``--json PATH`` (a list of objects with keys tracker, filter, balls, successes,
+success_rate, ci_low, ci_high, source, outcomes, ...), a bar chart ``<out>/play_<mode>_<source>_s<seed>.png``
+and ``.pdf``, and one MCAP session log per configuration in ``--out`` (``--no-log`` to skip; images are
+off unless ``--log-images``). See docs/play.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+from pathlib import Path
+
+from harness.play.experiment import DEFAULT_PROMP, PlayConfig, run_configuration, summarise
+from harness.play.profiles import PROFILES, load_profiles, profile_for
+
+MODES = ("play", "compare", "profile")
+FILTER_NAMES = ("raw", "ransac_kalman")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("mode", nargs="?", default="play", choices=MODES,
+                        help="play (one configuration, default), compare (trackers x filters), profile (measure "
+                             "the synthetic source's numbers from the vision source)")
+    parser.add_argument("--tracker", default="rt2", help=f"tracker of `rt2 play`: {', '.join(PROFILES)} (default rt2)")
+    parser.add_argument("--filter", default="raw", help=f"ball filter of `rt2 play`: {', '.join(FILTER_NAMES)} (default raw)")
+    parser.add_argument("--trackers", nargs="+", default=["rt2", "rtblob"], help="trackers of `compare` (default rt2 rtblob)")
+    parser.add_argument("--filters", nargs="+", default=list(FILTER_NAMES), help="filters of `compare` (default both)")
+    parser.add_argument("--balls", type=int, default=100, help="served balls per configuration (default 100)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the serves and the session noise (default 0)")
+    parser.add_argument("--source", default="synthetic", choices=("synthetic", "vision"),
+                        help="observations: synthetic (noise + outliers of the tracker's profile, fast) or vision "
+                             "(rendered cameras + the real tracker)")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes (results do not depend on it)")
+    parser.add_argument("--rate-hz", type=float, default=None, help="tracker frame rate (default: rt2 180, rtblob 60)")
+    parser.add_argument("--latency-ms", type=float, default=None, help="tracker latency (default 10 ms)")
+    parser.add_argument("--profile-json", type=Path, default=None, help="synthetic profiles from this JSON (rt2 play profile --json)")
+    parser.add_argument("--promp", type=Path, default=DEFAULT_PROMP, help=f"hitting ProMP (default {DEFAULT_PROMP})")
+    parser.add_argument("--json", type=Path, default=None, help="write the results here")
+    parser.add_argument("--out", type=Path, default=Path("out/play"), help="figure and session logs (default out/play)")
+    parser.add_argument("--no-log", action="store_true", help="write no session logs")
+    parser.add_argument("--log-images", type=int, default=0, metavar="N",
+                        help="vision source: log the images of every N-th frame set (default 0: none)")
+    parser.add_argument("--no-figure", action="store_true", help="draw no figure")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _check(args) -> None:
+    if args.balls < 1:
+        raise ValueError(f"--balls must be >= 1, got {args.balls}")
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    if args.rate_hz is not None and not args.rate_hz > 0:
+        raise ValueError(f"--rate-hz must be > 0, got {args.rate_hz}")
+    if args.latency_ms is not None and not 0 <= args.latency_ms < 1000:
+        raise ValueError(f"--latency-ms must be in [0, 1000), got {args.latency_ms}")
+    if args.log_images < 0:
+        raise ValueError(f"--log-images must be >= 0, got {args.log_images}")
+    if not args.promp.is_file():
+        raise FileNotFoundError(f"--promp: no such file {args.promp}")
+    for f in ([args.filter] if args.mode == "play" else args.filters):
+        if f not in FILTER_NAMES:
+            raise ValueError(f"unknown filter {f!r}; valid: {list(FILTER_NAMES)}")
+    if args.log_images and args.source != "vision":
+        raise ValueError("--log-images needs --source vision (the synthetic source makes no images)")
+
+
+def _configs(args, profiles) -> list[PlayConfig]:
+    pairs = [(args.tracker, args.filter)] if args.mode == "play" else [(t, f) for t in args.trackers for f in args.filters]
+    out = []
+    for tracker, filt in pairs:
+        prof = profile_for(tracker, profiles).with_timing(args.rate_hz, None if args.latency_ms is None else args.latency_ms / 1e3)
+        out.append(PlayConfig(tracker, filt, args.source, prof, str(args.promp), record=not args.no_log,
+                              record_images_every=args.log_images))
+    return out
+
+
+def _open_log(args, config: PlayConfig):
+    from harness.logs import SessionLogWriter
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / f"play_{config.tracker}_{config.filter}_{config.source}_s{args.seed}.mcap"
+    meta = {"kind": "play", "seed": args.seed, "ball_slot_s": 10.0,
+            "config": {"tracker": config.tracker, "filter": config.filter, "source": config.source,
+                       "balls": args.balls, "profile": config.resolved_profile().__dict__, "promp": config.promp_path}}
+    log = SessionLogWriter(path, metadata=meta, log_images="all" if args.log_images else "none", overwrite=True)
+    return log, path
+
+
+def run(args) -> int:
+    _check(args)
+    profiles = load_profiles(args.profile_json) if args.profile_json else dict(PROFILES)
+    if args.mode == "profile":
+        from harness.play.measure import run_profile
+
+        return run_profile(args, profiles)
+    from policies.promp import ProMP
+    from robot_models import WamKinematics
+
+    kin = WamKinematics.default()
+    ProMP.load(args.promp, robot_id=str(kin.model.name), joint_names=kin.joint_names)  # fails here, not in a worker
+    rows, logs = [], []
+    for config in _configs(args, profiles):
+        log, path = _open_log(args, config) if not args.no_log else (None, None)
+        try:
+            def on_ball(i, result, record, serve, _log=log, _tracker=config.tracker):
+                if _log is not None:
+                    from harness.play.log import write_ball
+
+                    write_ball(_log, i, _tracker, result, record, serve, kinematics=kin)
+
+            results = run_configuration(config, balls=args.balls, seed=args.seed, workers=args.workers,
+                                        progress=not args.quiet, on_ball=on_ball)
+            row = summarise(config, results, args.seed)
+            if log is not None:
+                log.write_figures("summary", row)
+        finally:
+            if log is not None:
+                log.close()
+        if path is not None:
+            row["log"] = str(path)
+            logs.append(path)
+        rows.append(row)
+    _print(rows, args)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(rows, indent=1))
+    if not args.no_figure:
+        from harness.play.figure import draw
+
+        for p in draw(rows, args.out / f"play_{args.mode}_{args.source}_s{args.seed}", title=_title(args)):
+            print(f"figure: {p}")
+    for p in logs:
+        print(f"session log: {p}")
+    return 0
+
+
+def _title(args) -> str:
+    return (f"rt2 play {args.mode}: {args.balls} balls, seed {args.seed}, {args.source} observations "
+            f"({datetime.date.today().isoformat()})")
+
+
+def _print(rows, args) -> None:
+    print(f"rt2 play {args.mode}  source {args.source}  balls {args.balls}  seed {args.seed}")
+    print(f"{'tracker':<10} {'filter':<14} {'Hz':>5} {'success':>9} {'rate':>6} {'95% CI (Wilson)':>17}  outcomes")
+    for r in rows:
+        outcomes = ", ".join(f"{k} {v}" for k, v in sorted(r["outcomes"].items(), key=lambda kv: -kv[1]))
+        print(f"{r['tracker']:<10} {r['filter']:<14} {r['rate_hz']:>5.0f} {r['successes']:>4}/{r['balls']:<4} "
+              f"{100 * r['success_rate']:>5.1f}% [{100 * r['ci_low']:5.1f}, {100 * r['ci_high']:5.1f}] %  {outcomes}")

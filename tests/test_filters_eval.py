@@ -1,0 +1,56 @@
+"""``rt2 eval filters`` (harness/studies/eval_filters.py): rows, determinism, CLI and bad arguments."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from harness.cli import main
+from harness.studies.eval_filters import METRICS, inject_outliers, run_study
+
+KEYS = {"source", "filter", "outlier_rate", "metric", "n", "failed", "median_cm", "p90_cm", "outliers_rejected",
+        "clean_rejected"}
+
+
+def test_inject_outliers_rate_and_distance():
+    X = np.zeros((20000, 3))
+    Z, mask = inject_outliers(X, 0.05, np.random.default_rng(0))
+    assert abs(mask.mean() - 0.05) < 0.005
+    d = np.linalg.norm(Z - X, axis=1)
+    assert (d[~mask] == 0).all() and d[mask].min() >= 0.3 and d[mask].max() <= 3.0
+
+
+def test_study_rows_and_same_seed_same_figures(real_data):
+    a = run_study(3, 0.1, n_sim=2, max_flights=3, progress=False)
+    b = run_study(3, 0.1, n_sim=2, max_flights=3, progress=False)
+    assert a == b
+    assert len(a) == 2 * 2 * 2 * len(METRICS)  # sources x rates x filters x metrics
+    assert all(KEYS <= set(r) for r in a)
+    rk = [r for r in a if r["filter"] == "ransac_kalman" and r["outlier_rate"] > 0]
+    assert all(r["outliers_rejected"] in (None, 1.0) for r in rk)
+
+
+def test_cli_writes_json_and_rejects_bad_arguments(tmp_path, capsys):
+    out = tmp_path / "rows.json"
+    assert main(["eval", "filters", "--no-real", "--sim", "2", "--seed", "1", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert {r["filter"] for r in rows} == {"raw", "ransac_kalman"} and {r["source"] for r in rows} == {"sim"}
+    assert "cross@-300ms" in capsys.readouterr().out
+    for argv, msg in ((["--outlier-rate", "1.5"], "outlier-rate"), (["--filters", "kalman"], "unknown filter"),
+                      (["--no-real"], "need flights")):
+        assert main(["eval", "filters", *argv]) == 2
+        assert msg in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_full_study_goals(real_data):
+    """The figures of docs/filters.md: all 88 real flights and 100 simulated serves, 5 % outliers."""
+    rows = run_study(0, 0.05, n_sim=100, progress=False)
+    get = {(r["source"], r["filter"], r["outlier_rate"], r["metric"]): r for r in rows}
+    for src in ("real", "sim"):
+        clean = get[src, "ransac_kalman", 0.0, "+200ms"]["median_cm"]
+        assert get[src, "ransac_kalman", 0.05, "+200ms"]["median_cm"] < 1.2 * clean
+        assert get[src, "raw", 0.05, "+200ms"]["median_cm"] > 2.0 * get[src, "raw", 0.0, "+200ms"]["median_cm"]
+        assert get[src, "ransac_kalman", 0.05, "+200ms"]["outliers_rejected"] == 1.0
