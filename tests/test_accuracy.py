@@ -46,6 +46,20 @@ def test_config_round_trips_through_json():
     assert AccuracyConfig(n_frames=600, segment_frames=250).segments() == [(0, 250), (250, 500), (500, 600)]
 
 
+def test_registration_frames_interleave_with_the_scored_ones():
+    c = AccuracyConfig(n_frames=4000)  # 200 Hz, blocks of 0.25 s = 50 frames, 30 % register
+    m = c.register_mask
+    assert m.shape == (4000,) and c.n_register == m.sum() == 1200
+    blocks = m.reshape(80, 50)
+    assert (blocks.all(axis=1) | ~blocks.any(axis=1)).all()  # whole blocks
+    starts = np.flatnonzero(blocks[:, 0])
+    assert not blocks[0, 0] and np.diff(starts).max() <= 4  # spread over the whole run, the first block scored
+    first = c.with_(register_layout="first")
+    assert first.register_mask[:1200].all() and not first.register_mask[1200:].any()
+    half = AccuracyConfig(n_frames=48, rate_hz=50.0, register_fraction=0.5)  # short run: blocks of 48 // 10 frames
+    assert half.register_mask.reshape(12, 4)[:, 0].tolist() == [False, True] * 6
+
+
 def test_motion_is_sampled_at_the_camera_clock():
     from robot_models import WamKinematics
 
@@ -85,6 +99,8 @@ def test_scene_has_arm_ball_person_and_distractors():
     ({"register_fraction": 0.99}, "register_fraction"),
     ({"rtblob_setup": "magic"}, "rtblob_setup"),
     ({"rate_hz": 0.0}, "rate_hz"),
+    ({"register_layout": "random"}, "register_layout"),
+    ({"register_block_s": 0.0}, "register_block_s"),
 ])
 def test_bad_config_raises(kwargs, match):
     with pytest.raises(ValueError, match=match):

@@ -28,6 +28,8 @@ def test_outputs_exist_and_json_has_the_keys(accuracy_session):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["config"]["seed"] == 3 and summary["rtblob_calibration"]["reference_rgb"][0] > 50
     assert result.figures["n_register"] == 24 and result.figures["n_scored"] == 24
+    # the second segment's warm-up (frames 0-23 again) is not counted
+    assert all(s["frames"] == 48 for s in result.tracker_stats.values())
 
 
 # -- the session log ----------------------------------------------------------------------------------------
@@ -39,8 +41,27 @@ def test_session_log_holds_what_reevaluation_and_viewers_need(accuracy_session):
         session = log.metadata("session")
         assert session["kind"] == "accuracy" and session["config"]["n_frames"] == 48
         assert session["candidates_per_camera"] == {"rt2": 4, "rt2-paper": 1}
-        assert {a[0] for a in s.attachments} == {"rig.yaml", "model.npz"}
+        assert {a[0] for a in s.attachments} == {"rig.yaml", "rig_true.yaml", "model.npz"}
         assert log.rig().names == ["cam0", "cam1", "cam2", "cam3"]
+        # rig.yaml is the estimated calibration the trackers used, rig_true.yaml the one the images were rendered with
+        cal = session["calibration_error"]
+        assert cal["enabled"] and cal["reprojection_px"]["mean"] == pytest.approx(1.3, abs=0.01)
+        assert set(session["rig_attachments"]) == {"rig.yaml", "rig_true.yaml"}
+        import yaml
+
+        from harness.rigs import resolve_rig
+        from tracker import Rig
+
+        true_rig = Rig.from_dict(yaml.safe_load(log.attachment("rig_true.yaml")))
+        for a, b, c in zip(log.rig(), true_rig, resolve_rig("lab4_vga")):
+            assert np.array_equal(b.K, c.K) and np.array_equal(b.R_world_to_cam, c.R_world_to_cam)
+            assert not np.array_equal(a.R_world_to_cam, b.R_world_to_cam)
+        # frame sets are delivered with the camera's timestamps: the true capture time plus the clock error
+        t_obs = np.array([m.data.t_s for m in log.messages("/tracker/rt2/ball")])
+        t_gt = np.array([m.data.t_s for m in log.messages("/ground_truth/ball")])
+        clock = t_obs - t_gt
+        clock[36] += 1.5 / 50.0  # the injected non-monotonic timestamp fault
+        assert np.abs(clock).max() < 0.012 and np.abs(clock).min() > 0 and np.std(clock) > 1e-5
         topics = s.topics
         for t in ("/camera/cam0/image", "/camera/cam3/detections", "/camera/cam0.rt2-paper/detections", "/tracker/rt2/ball",
                   "/tracker/rtblob/ball", "/ground_truth/ball", "/robot/joint_states", "/robot/command", "/tf",
@@ -97,6 +118,24 @@ def test_cli_runs_and_writes_json(accuracy_session, tmp_path, capsys):
     assert "registration (rt2 OK positions" in text and "goals (issue 5)" in text and "accuracy_hist.png" in text
     rows = json.loads(js.read_text())
     assert [r["tracker"] for r in rows] == ["rt2", "rtblob"] and all(list(r) == list(JSON_KEYS) for r in rows)
+
+
+def test_cli_ideal_switches_the_realism_off(accuracy_session, tmp_path, capsys):
+    """``--ideal``: the trackers get the rig the images were rendered with, the clocks agree; the log then
+    has no rig_true.yaml and the frame sets carry the true capture times."""
+    _, out = accuracy_session
+    code = main(["accuracy", "--frames", "40", "--rate-hz", "50", "--workers", "1", "--seed", "3", "--ideal",
+                 "--model", str(out / "model.npz"), "--trackers", "rt2", "--log-images", "none", "--out", str(tmp_path / "i")])
+    text = capsys.readouterr().out
+    assert code == 0 and "exact (the rig the images were rendered with)" in text and "clocks synchronised" in text
+    with SessionLogReader(tmp_path / "i" / "session.mcap") as log:
+        assert {a[0] for a in log.summary().attachments} == {"rig.yaml", "model.npz"}
+        assert log.metadata("session")["calibration_error"] == {"enabled": False}
+        t_obs = [m.data.t_s for m in log.messages("/tracker/rt2/ball")]
+        t_gt = [m.data.t_s for m in log.messages("/ground_truth/ball")]
+    assert t_obs == t_gt
+    code = main(["accuracy", "--ideal", "--reprojection-px", "2", "--workers", "1", "--out", str(tmp_path / "x")])
+    assert code == 2 and "--reprojection-px" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("argv, match", [

@@ -13,7 +13,7 @@ import pytest
 
 from harness.cli import main
 from harness.play.experiment import ball_seeds, wilson_interval
-from harness.play.profiles import PROFILES, TrackerProfile, load_profiles, profile_for
+from harness.play.profiles import PAPER_PROFILES, PROFILES, TrackerProfile, load_profiles, profile_for
 
 JSON_KEYS = {"tracker", "filter", "balls", "successes", "success_rate", "ci_low", "ci_high"}
 
@@ -47,6 +47,8 @@ def test_profiles_defaults_and_file(tmp_path):
     p.write_text(json.dumps({"rt2": {"noise_std_m": 0.004, "p_miss": 0.2}}))
     got = load_profiles(p)
     assert got["rt2"].noise_std_m == 0.004 and got["rt2"].p_miss == 0.2 and got["rtblob"] == PROFILES["rtblob"]
+    assert load_profiles(p, PAPER_PROFILES)["rtblob"] == PAPER_PROFILES["rtblob"]  # on top of another set
+    assert PAPER_PROFILES["rtblob"].p_outlier > 0 and PROFILES["rtblob"].p_outlier == 0  # the paper's vs our lab's RTBlob
     p.write_text(json.dumps({"rt2": {"noise_mm": 4}}))
     with pytest.raises(ValueError, match=r"prof\.json: tracker 'rt2': unknown field\(s\) \['noise_mm'\]"):
         load_profiles(p)
@@ -91,8 +93,10 @@ def test_session_json_deterministic_and_independent_of_workers(tmp_path, capsys)
     (row,) = a
     assert JSON_KEYS <= set(row) and row["balls"] == 3 and row["source"] == "synthetic"
     assert row["ci_low"] <= row["success_rate"] <= row["ci_high"]
-    assert sum(row["outcomes"].values()) == 3
+    assert sum(row["outcomes"].values()) == 3 and row["profiles"] == "vision"
     assert "rt2        raw" in capsys.readouterr().out
+    (paper,) = _play(tmp_path, "p", "--no-log", "--profiles", "paper", "--tracker", "rtblob")
+    assert paper["profiles"] == "paper" and paper["balls"] == 3
 
 
 def test_session_log_has_every_ball(tmp_path):
@@ -146,6 +150,7 @@ def test_ball_that_never_arrives_is_no_attempt():
     (["--workers", "0"], "--workers must be >= 1"),
     (["--log-images", "5"], "--log-images needs --source vision"),
     (["--promp", "/nonexistent/promp.npz"], "no such file"),
+    (["--scene", "busy"], "unknown --scene 'busy'"),
 ])
 def test_bad_arguments_exit_2(argv, match, tmp_path, capsys):
     assert main(["play", "--balls", "1", "--out", str(tmp_path), "--quiet", *argv]) == 2
@@ -183,5 +188,6 @@ def test_measure_profile_counts_misses_outliers_and_noise():
     assert r["frames_seen"] == 1000
     assert r["p_miss"] == pytest.approx(0.1) and r["p_outlier"] == pytest.approx(0.08) and r["p_wild"] == pytest.approx(0.02)
     assert r["noise_std_m"] == pytest.approx(0.002, rel=0.1)
+    assert r["outlier_offset_m"] == pytest.approx([0.3, 0.3])  # p10-p90 of the outliers' errors
     with pytest.raises(ValueError, match="no frame sets"):
         measure_profile([], lab4_vga_rig())

@@ -3,7 +3,8 @@
 ``rt2 accuracy`` runs it (:mod:`.cli`), ``rt2 reevaluate`` re-runs trackers on its session log
 (:mod:`.reevaluate`). Modules: :mod:`.config` (AccuracyConfig), :mod:`.motion` (the simulated WAM at the
 camera clock), :mod:`.scene` (what the cameras see), :mod:`.faults`, :mod:`.trackers`, :mod:`.frames`
-(render + track per frame set), :mod:`.registration` (Kabsch/Umeyama, trimmed), :mod:`.evaluate`,
+(render + track per frame set), :mod:`.rig_error` (the trackers' calibration error), :mod:`.distractors`
+(distractors that come and go), :mod:`.registration` (Kabsch/Umeyama, trimmed), :mod:`.evaluate`,
 :mod:`.stats`, :mod:`.figure`, :mod:`.session_log`, :mod:`.experiment`. See docs/accuracy.md.
 """
 
@@ -13,12 +14,14 @@ from harness.accuracy.experiment import AccuracyResult, run_accuracy
 from harness.accuracy.faults import FaultPlan
 from harness.accuracy.motion import MotionOptions, RobotMotion, simulate_motion
 from harness.accuracy.registration import RegistrationInfo, RegistrationOptions, fit_rigid, register_rigid
+from harness.accuracy.rig_error import CalibrationErrorOptions, estimated_rig
 from harness.accuracy.scene import SceneOptions, SessionScene
 from harness.accuracy.stats import JSON_KEYS, error_stats
 
 __all__ = [
     "AccuracyConfig",
     "AccuracyResult",
+    "CalibrationErrorOptions",
     "FaultPlan",
     "JSON_KEYS",
     "MotionOptions",
@@ -29,6 +32,7 @@ __all__ = [
     "SessionScene",
     "TrackRecord",
     "error_stats",
+    "estimated_rig",
     "evaluate",
     "fit_rigid",
     "register_rigid",

@@ -3,6 +3,7 @@
     rt2 accuracy --quick                       # about a minute: 600 frame sets
     rt2 accuracy --seed 0 --out out/accuracy   # the default run (4000 frame sets, the README's figures)
     rt2 accuracy --inject-faults --json errs.json --log-images all
+    rt2 accuracy --ideal                       # exact calibration and synchronised clocks (the old, ideal run)
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 from harness.accuracy.config import DEFAULT_FRAMES, DEFAULT_LOG_IMAGES, QUICK_FRAMES, AccuracyConfig
@@ -17,7 +19,7 @@ from harness.accuracy.scene import SCENES
 from harness.accuracy.stats import TRACKER_KINDS, check_goals, fmt, format_goals, format_table
 from harness.logs.codecs import IMAGE_FORMATS
 
-__all__ = ["add_arguments", "format_report", "run"]
+__all__ = ["add_arguments", "events_line", "format_report", "realism_line", "run"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,6 +41,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="default (person in white, white clutter), harsh (orange shirt, orange cup, box and juggling ball), clean (arm and ball only)")
     parser.add_argument("--inject-faults", action="store_true",
                         help="a camera without frames for a stretch, wrong-size frames, a timestamp going back")
+    r = parser.add_argument_group("realism (docs/accuracy.md); on by default")
+    r.add_argument("--ideal", action="store_true",
+                   help="switch every realism effect off: trackers get the exact rig, camera and robot clocks agree")
+    r.add_argument("--no-calibration-error", action="store_true", help="the trackers get the exact (true) rig")
+    r.add_argument("--no-clock-error", action="store_true", help="no camera-to-robot clock offset or jitter")
+    r.add_argument("--reprojection-px", type=float, default=None, metavar="PX",
+                   help="mean re-projection error of the trackers' calibration (default 1.3 px, the paper's)")
     g = parser.add_argument_group("session log (DIR/session.mcap, see docs/logging.md)")
     g.add_argument("--log-images", default=str(DEFAULT_LOG_IMAGES), metavar="all|none|N",
                    help=f"images to record: all, none, or every N-th frame set (default {DEFAULT_LOG_IMAGES}); detections are always recorded")
@@ -51,16 +60,23 @@ def config_from_args(args) -> AccuracyConfig:
     frames = args.frames if args.frames is not None else (QUICK_FRAMES if args.quick else DEFAULT_FRAMES)
     if args.model is not None and not Path(args.model).is_file():
         raise FileNotFoundError(f"--model {args.model!r}: no such file")
-    return AccuracyConfig(seed=args.seed, n_frames=frames, rate_hz=args.rate_hz, rig=args.rig, model=args.model,
-                          trackers=tuple(args.trackers), eps_px=args.eps_px, inject_faults=args.inject_faults,
-                          scene=SCENES[args.scene])
+    config = AccuracyConfig(seed=args.seed, n_frames=frames, rate_hz=args.rate_hz, rig=args.rig, model=args.model,
+                            trackers=tuple(args.trackers), eps_px=args.eps_px, inject_faults=args.inject_faults,
+                            scene=SCENES[args.scene])
+    if args.reprojection_px is not None:
+        if args.ideal or args.no_calibration_error:
+            raise ValueError("--reprojection-px sets the calibration error: it cannot go with --ideal or --no-calibration-error")
+        if not 0 < args.reprojection_px <= 50:
+            raise ValueError(f"--reprojection-px must be in (0, 50] px, got {args.reprojection_px!r}")
+        config = config.with_(calibration_error=replace(config.calibration_error, target_reprojection_px=args.reprojection_px))
+    return config.idealised(calibration=args.ideal or args.no_calibration_error, clock=args.ideal or args.no_clock_error)
 
 
 def format_report(figures: dict, rows: list, *, header: str = "") -> str:
     """The printed summary: registration, the table beside the paper, error bands, goals, faults."""
     reg = figures["registration"]
     lines = [header] if header else []
-    lines.append(f"registration ({reg['tracker']} OK positions, frames 0-{figures['n_register'] - 1}): "
+    lines.append(f"registration ({reg['tracker']} OK positions of {figures['n_register']} frames, {figures.get('register_layout', 'first')}): "
                  f"{reg['inliers']}/{reg['pairs']} pairs kept, residual RMS {reg['rms_cm']:.2f} cm, max {reg['max_cm']:.2f} cm; "
                  f"uncertainty at the scored points {reg['std_at_scored_p90_cm']:.2f} cm (p90, 1 sigma); "
                  f"vs the true mount {reg['vs_true_mount']['rotation_deg']:.3f} deg, {reg['vs_true_mount']['translation_cm']:.2f} cm")
@@ -68,7 +84,7 @@ def format_report(figures: dict, rows: list, *, header: str = "") -> str:
         lines.append(f"WARNING: the registration points (spread {reg['spread_cm'][0]:.1f} x {reg['spread_cm'][1]:.1f} x "
                      f"{reg['spread_cm'][2]:.1f} cm, std) fix the transform only to {reg['std_at_scored_p90_cm']:.2f} cm at the "
                      "scored points: the errors below include that (use more frames)")
-    lines.append(f"scored: {figures['n_scored']} frame sets (frames {figures['n_register']}-{figures['n_frames'] - 1})\n")
+    lines.append(f"scored: {figures['n_scored']} frame sets (the frames that do not register)\n")
     lines.append(format_table(rows))
     lines.append("\nshare of frames with a position in the paper's error bands:")
     lines.append(f"  {'tracker':10} {'<5cm':>8} {'5-10cm':>8} {'20-35cm':>8} {'>1m':>8} {'>10m':>8}")
@@ -89,6 +105,34 @@ def format_report(figures: dict, rows: list, *, header: str = "") -> str:
     return "\n".join(lines)
 
 
+def realism_line(config, calibration_error: dict, motion_info: dict) -> str:
+    """One line: the calibration error the trackers' rig has and the clock error (or that they are off)."""
+    c = calibration_error or {"enabled": False}
+    if c.get("enabled"):
+        cal = (f"trackers' calibration: re-projection error {c['reprojection_px']['mean']:.2f} px mean "
+               f"(p95 {c['reprojection_px']['p95']:.2f}), 3D {c['triangulation_after_rigid_mm']['median']:.1f} mm median "
+               f"after a rigid fit, on {c['n_points']} workspace points")
+    else:
+        cal = "trackers' calibration: exact (the rig the images were rendered with)"
+    clock = motion_info.get("clock", {})
+    if config.motion.clock_offset_std_s or config.motion.clock_jitter_std_s:
+        clk = (f"camera clock {clock.get('offset_ms', 0):+.2f} ms off the robot's, jitter {clock.get('jitter_std_ms', 0):.2f} ms "
+               f"(ground truth moved {clock.get('gt_shift_mm', {}).get('median', 0):.2f} mm median)")
+    else:
+        clk = "clocks synchronised"
+    return f"realism: {cal}; {clk}"
+
+
+def events_line(events: dict) -> str:
+    """One line: the distractor episodes of the run (the scene's orange balls that come and go)."""
+    if not events:
+        return "distractors that come and go: none"
+    h, r = events["held_orange_ball"], events["rolling_ball"]
+    return (f"distractors that come and go: a held orange ball {100 * h['share_of_time']:.0f} % of the time "
+            f"({h['episodes']} episode(s), {h['with_tosses']} with tosses), a ball rolling on the floor "
+            f"{100 * r['share_of_time']:.0f} % ({r['episodes']})")
+
+
 def run(args) -> int:
     from harness.accuracy.experiment import run_accuracy
 
@@ -101,7 +145,8 @@ def run(args) -> int:
               f"{res.timing['wall_s']:.0f} s\n"
               f"robot: {m['via_points']} via points, ball speed median {m['ball_speed_mps']['median']:.2f} m/s "
               f"(max {m['ball_speed_mps']['max']:.2f}); ground truth (FK of reported joints) vs true ball: "
-              f"median {m['gt_vs_true_mm']['median']:.1f} mm, max {m['gt_vs_true_mm']['max']:.1f} mm")
+              f"median {m['gt_vs_true_mm']['median']:.1f} mm, max {m['gt_vs_true_mm']['max']:.1f} mm\n"
+              f"{realism_line(config, res.calibration_error, m)}\n{events_line(res.scene_events)}")
     print(format_report(res.figures, res.rows, header=header))
     t = res.truth
     if t.get("registered_ground_truth_mm"):

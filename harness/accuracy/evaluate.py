@@ -3,7 +3,7 @@
 Both ``rt2 accuracy`` and ``rt2 reevaluate`` call :func:`evaluate` on the same kind of arrays, so with the
 same inputs they produce the same figures, bit for bit:
 
-1. registration (frames ``< config.n_register``): the registration tracker's ``OK`` positions against the
+1. registration (the frames of ``config.register_mask``): the registration tracker's ``OK`` positions against the
    ground truth in the robot base frame, :func:`register_rigid` (Kabsch/Umeyama, trimmed re-fit);
 2. scoring (the other frames): per tracker the distance to the registered ground truth
    (:func:`harness.accuracy.stats.error_stats`), the paper's error bands, and the injected faults.
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.accuracy.config import AccuracyConfig
-from harness.accuracy.faults import FaultPlan
+from harness.accuracy.faults import FaultPlan, affected_frames
 from harness.accuracy.motion import world_to_base
 from harness.accuracy.registration import register_rigid, registration_std, transform_difference
 from harness.accuracy.stats import error_stats, mode_shares
@@ -76,17 +76,17 @@ def evaluate(config: AccuracyConfig, records: dict, gt_world_m, gt_present, T_ba
     ref = config.registration_tracker
     if ref not in records:
         raise ValueError(f"registration needs tracker {ref!r}, got records of {sorted(records)}")
-    frame = np.arange(n)
     present = np.asarray(gt_present, bool) & np.all([r.present for r in records.values()], axis=0)
-    reg = present & (frame < config.n_register) & records[ref].ok
+    in_reg = config.register_mask
+    reg = present & in_reg & records[ref].ok & ~affected_frames(fault_plan_of(config, len(camera_names)), n)  # faulted frames never register
     if reg.sum() < config.registration.min_pairs:
-        raise ValueError(f"only {int(reg.sum())} frames of the first {config.n_register} have an OK {ref} position "
+        raise ValueError(f"only {int(reg.sum())} of the {config.n_register} registration frames have an OK {ref} position "
                          f"and ground truth; registration needs {config.registration.min_pairs}")
     T, info = register_rigid(gt_base[reg], records[ref].position_m[reg], config.registration)
     gt_reg = gt_base @ T[:3, :3].T + T[:3, 3]
-    scored = present & (frame >= config.n_register)
+    scored = present & ~in_reg
     if not scored.any():
-        raise ValueError(f"no frame after the registration part (frames >= {config.n_register}) to score")
+        raise ValueError(f"no frame outside the {config.n_register} registration frames to score")
     rot_deg, trans_m = transform_difference(T, T_base_to_world_nominal)
     reg_std = float(np.percentile(registration_std(gt_base[reg][info.inliers], info.rms_m, gt_base[scored]), 90))
     rows, modes, errors = [], {}, {}
@@ -101,6 +101,7 @@ def evaluate(config: AccuracyConfig, records: dict, gt_world_m, gt_present, T_ba
         "n_frames": n,
         "n_present": int(present.sum()),
         "n_register": config.n_register,
+        "register_layout": config.register_layout,
         "n_scored": int(scored.sum()),
         "registration": {
             "tracker": ref, "pairs": info.n_pairs, "inliers": info.n_inliers, "iterations": info.iterations,

@@ -28,6 +28,9 @@ from harness.accuracy.evaluate import TrackRecord, evaluate
 from harness.accuracy.figure import plot_histogram
 from harness.accuracy.frames import FrameProducer, calibrate, init_worker, run_segment
 from harness.accuracy.motion import simulate_motion
+from harness.accuracy.registration import register_rigid
+from harness.accuracy.scene import SessionScene
+from harness.accuracy.rig_error import estimated_rig
 from harness.accuracy.session_log import AccuracyLogWriter
 from harness.accuracy.stats import check_goals
 from harness.logs import check_log_images
@@ -47,6 +50,8 @@ class AccuracyResult:
 
     rows : the ``--json`` list; figures : every figure (JSON-able, no timing); errors : {tracker: (n_scored,)
     metres, NaN = no position}; timing : wall time, frame rate, tracker latencies; paths : {what: Path}
+    calibration_error : what the trackers' rig error is (:func:`harness.accuracy.rig_error.estimated_rig`'s info)
+    scene_events : the distractor episodes during the run (:meth:`harness.accuracy.distractors.DistractorSchedule.summary`)
     """
 
     config: AccuracyConfig
@@ -56,7 +61,9 @@ class AccuracyResult:
     timing: dict
     motion_info: dict
     tracker_stats: dict
+    scene_events: dict = field(default_factory=dict)
     rtblob_calibration: dict | None = None
+    calibration_error: dict = field(default_factory=dict)
     truth: dict = field(default_factory=dict)
     paths: dict = field(default_factory=dict)
 
@@ -92,7 +99,9 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    rig = resolve_rig(config.rig)
+    rig = resolve_rig(config.rig)  # the TRUE rig: the renderer draws with it
+    box = rig.workspace_m if rig.workspace_m is not None else config.motion.box_world_m  # where the error is measured
+    tracker_rig, cal_error = estimated_rig(rig, config.calibration_error, seed=config.seed, workspace_m=box)  # what the trackers get
     kin, sim_options = _robot(config)
     motion = simulate_motion(kin, config.n_frames, config.rate_hz, seed=config.seed, options=config.motion,
                              sim_options=sim_options)
@@ -105,7 +114,8 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
     def open_log(rtblob_cal):  # called once RTBlob's calibration is known (it goes into the metadata)
         session["rtblob_calibration"] = rtblob_cal
         if log:
-            session["writer"] = AccuracyLogWriter(out / "session.mcap", config, rig, motion, kin, rtblob_calibration=rtblob_cal,
+            session["writer"] = AccuracyLogWriter(out / "session.mcap", config, tracker_rig, motion, kin, true_rig=rig,
+                                                  calibration_error=cal_error, rtblob_calibration=rtblob_cal,
                                                   log_images=every or "none", image_format=image_format, overwrite=True,
                                                   flush_period_s=log_flush_s)
 
@@ -113,7 +123,7 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
 
     bar = tqdm(total=n, desc="accuracy", unit="frame", file=sys.stderr, disable=not progress, smoothing=0.05)
     try:
-        for fr in _frames(config, rig, motion, kin, open_log, workers, every, stats, bar):
+        for fr in _frames(config, rig, tracker_rig, motion, kin, open_log, workers, every, stats, bar):
             writer = session.get("writer")
             for kind, obs in fr.observations.items():
                 records[kind].put(fr.index, obs)
@@ -127,8 +137,10 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
             "latency_ms": {k: {"p50": round(float(np.nanmedian(v)) * 1e3, 3), "p99": round(float(np.nanpercentile(v, 99)) * 1e3, 3)}
                            for k, v in latency.items()},
         }
+        events = SessionScene(kin.link_radii_m, motion.T_base_to_world[:3, 3], config.scene, seed=config.seed).events
         result = AccuracyResult(config, figures["rows"], figures, errors, timing, motion.info, stats,
-                                rtblob_calibration=session.get("rtblob_calibration"),
+                                scene_events=events.summary(float(motion.t_s[-1]), float(motion.t_s[0])),
+                                rtblob_calibration=session.get("rtblob_calibration"), calibration_error=cal_error,
                                 truth=_against_truth(config, records, motion, figures))
         write_outputs(result, out)
         if session.get("writer") is not None:
@@ -145,10 +157,21 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
 
 def _against_truth(config, records, motion, figures) -> dict:
     """What only a simulation knows (summary.json, not the figures): over the scored frames, each tracker's
-    and the registered ground truth's distance to where the ball really was (FK of the true joints), mm."""
+    and the registered ground truth's distance to where the ball really was (FK of the true joints), mm.
+
+    The trackers work in the estimated rig's world frame, which differs from the true one by a small rigid
+    motion when the calibration has errors: the true ball is first mapped into it by a rigid fit of the true
+    ball to the registration tracker's OK positions over the registration frames (trimmed, as the
+    registration; an oracle registration without the robot's joint errors)."""
     T = np.asarray(figures["registration"]["T_base_to_world"])
     true = motion.ball_true_world_m
-    scored = np.arange(config.n_frames) >= config.n_register
+    in_reg = config.register_mask
+    scored = ~in_reg
+    ref = records[config.registration_tracker]
+    pairs = in_reg & ref.ok & np.isfinite(ref.position_m[:, 0])
+    if pairs.sum() >= 10:
+        T_true_to_est, _ = register_rigid(true[pairs], ref.position_m[pairs], config.registration)
+        true = true @ T_true_to_est[:3, :3].T + T_true_to_est[:3, 3]
     gt_reg = motion.gt_base_m @ T[:3, :3].T + T[:3, 3]
 
     def q(e):
@@ -169,13 +192,13 @@ def _add_stats(total: dict, part: dict) -> None:
             acc[key] = acc.get(key, 0) + v
 
 
-def _frames(config, rig, motion, kin, open_log, workers: int, every: int, stats: dict, bar):
+def _frames(config, rig, tracker_rig, motion, kin, open_log, workers: int, every: int, stats: dict, bar):
     """Yield FrameResults in frame order, from this process or from a pool of worker processes;
     ``open_log(rtblob_calibration)`` is called before the first frame."""
     segments = config.segments()
     one_process = workers == 1 or len(segments) == 1 or (0 < every < _MIN_LOG_EVERY_FOR_WORKERS)
     if one_process:
-        producer = FrameProducer(config, rig, motion, kin.link_radii_m, log_images_every=every)
+        producer = FrameProducer(config, rig, motion, kin.link_radii_m, tracker_rig=tracker_rig, log_images_every=every)
         cal = producer.calibration()
         open_log(cal)
         producer.start(cal)
@@ -190,7 +213,7 @@ def _frames(config, rig, motion, kin, open_log, workers: int, every: int, stats:
         return
     ctx = get_context("spawn")  # fresh interpreters: no forked locks from OpenCV / numba threads
     pool = ProcessPoolExecutor(max_workers=min(workers, len(segments)), mp_context=ctx, initializer=init_worker,
-                               initargs=(config, rig, motion, kin.link_radii_m, every))
+                               initargs=(config, rig, tracker_rig, motion, kin.link_radii_m, every))
     try:
         cal = pool.submit(calibrate).result()
         open_log(cal)
@@ -206,13 +229,14 @@ def write_outputs(result: AccuracyResult, out: Path, *, stem: str = "accuracy") 
     """Histogram (PNG, PDF), the --json list and summary.json into ``out``; returns and records the paths."""
     cfg = result.config
     title = (f"accuracy: ball on the WAM, {cfg.n_frames} frame sets at {cfg.rate_hz:g} Hz, seed {cfg.seed}, "
-             f"{result.figures['n_scored']} scored")
+             f"{result.figures['n_scored']} scored\n{cfg.realism}")
     png, pdf = plot_histogram(result.errors, [out / f"{stem}_hist.png", out / f"{stem}_hist.pdf"], title=title)
     js = out / f"{stem}.json"
     js.write_text(json.dumps(result.rows, indent=1) + "\n")
     summary = out / "summary.json"
     doc = {"config": cfg.to_dict(), "figures": result.figures, "goals": [list(g) for g in check_goals(result.rows)],
-           "motion": result.motion_info, "rtblob_calibration": result.rtblob_calibration,
+           "motion": result.motion_info, "calibration_error": result.calibration_error, "scene_events": result.scene_events,
+           "rtblob_calibration": result.rtblob_calibration,
            "against_true_ball": result.truth,
            "tracker_stats": result.tracker_stats, "timing": result.timing}
     summary.write_text(json.dumps(doc, indent=1, default=float) + "\n")

@@ -1,7 +1,8 @@
 """Injected camera faults (``rt2 accuracy --inject-faults``): what a real acquisition does now and then.
 
-Issue 5 section 6. A :class:`FaultPlan` is a pure function of the frame count and the rig, placed in the
-evaluation part of the run (after the registration part) so the statistics feel it:
+Issue 5 section 6. A :class:`FaultPlan` is a pure function of the frame count and the rig, placed at fixed shares of the
+run; a faulted frame never registers the robot (:func:`harness.accuracy.evaluate.evaluate`), and the
+statistics of each fault are over the scored frames it hits:
 
 * ``no_frame``: one camera delivers no frame for a stretch (5 % of the run, at least 1 frame) from 45 %
   of the run: its image is None;

@@ -8,15 +8,19 @@ moves, and the kinematics of the joint angles the robot *reports* is the ground 
   ``box_world_m``, long enough to cover every frame;
 * the :class:`harness.robot.SimulatedWam` runs it at 500 Hz (ticks ``j / 500`` s); the command starts
   at ``start_s`` and the first camera frame is taken at the same instant;
-* the cameras expose frame ``k`` centred on ``t_k = start_s + k / rate_hz`` (the camera clock, assumed
-  synchronised with the robot clock);
+* the cameras expose frame ``k`` centred on ``t_k = start_s + k / rate_hz`` (robot clock); the frame set
+  is delivered with the camera's timestamp ``t_camera_k = t_k + offset + jitter_k``: the camera clock
+  mapped to the robot clock is off by a constant ``offset`` ~ N(0, ``clock_offset_std_s``) drawn per
+  session and a per-frame ``jitter_k`` ~ N(0, ``clock_jitter_std_s``) (both 0: synchronised clocks);
 * where the ball really is at ``t_k``: FK of the TRUE joint angles, linearly interpolated between the
   two ticks around ``t_k`` (the arm moves continuously); its velocity, for motion blur, is the central
   difference of that over +-1 ms;
 * the ground truth the experiment uses: FK of the REPORTED joint angles (zero-offset bias, encoder
-  quantisation and noise included), linearly interpolated to ``t_k`` from the 500 Hz samples
-  (``gt_sampling="interpolate"``, what an offline analysis of time-stamped logs does) or the last
-  tick at or before ``t_k`` (``"hold"``, what a live loop reading the robot at frame arrival gets).
+  quantisation and noise included), linearly interpolated to the frame's timestamp ``t_camera_k`` from
+  the 500 Hz samples (``gt_sampling="interpolate"``, what an offline analysis of time-stamped logs
+  does) or the last tick at or before it (``"hold"``, what a live loop reading the robot at frame
+  arrival gets). A clock error thus moves the ground truth along the path by speed x error
+  (0.4 m/s x 2 ms = 0.8 mm).
 
 Ground truth is in the robot BASE frame (the camera world frame is what registration has to find);
 :attr:`RobotMotion.gt_world_m` maps it into the world with the nominal mount, for logs and viewers.
@@ -45,6 +49,8 @@ class MotionOptions:
     speed_fraction, accel_fraction : share of the WAM's joint velocity / acceleration limits used
     start_s : robot time of the first frame and of the start of the command, seconds
     gt_sampling : "interpolate" or "hold" (see the module docstring)
+    clock_offset_std_s, clock_jitter_std_s : camera-to-robot clock error, seconds: a constant offset
+        drawn per session and a per-frame jitter (0, 0: synchronised clocks)
     """
 
     box_world_m: tuple = BALL_BOX_WORLD_M
@@ -53,6 +59,8 @@ class MotionOptions:
     accel_fraction: float = 0.4
     start_s: float = 0.1
     gt_sampling: str = "interpolate"
+    clock_offset_std_s: float = 0.002
+    clock_jitter_std_s: float = 0.0003
 
     def __post_init__(self):
         box = np.asarray(self.box_world_m, float)
@@ -66,6 +74,10 @@ class MotionOptions:
                 raise ValueError(f"MotionOptions.{name} must be in (0, 1], got {v!r}")
         if not (isinstance(self.start_s, (int, float)) and 0 <= self.start_s < 10):
             raise ValueError(f"MotionOptions.start_s must be in [0, 10) s, got {self.start_s!r}")
+        for name in ("clock_offset_std_s", "clock_jitter_std_s"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 0.05:
+                raise ValueError(f"MotionOptions.{name} must be in [0, 0.05] s, got {v!r}")
         if self.gt_sampling not in GT_SAMPLINGS:
             raise ValueError(f"unknown MotionOptions.gt_sampling {self.gt_sampling!r}; valid: {list(GT_SAMPLINGS)}")
 
@@ -75,6 +87,8 @@ class RobotMotion:
     """The robot at each camera frame (n frames, rows in frame order). Angles rad, lengths m.
 
     t_s : (n,) frame times (mid-exposure) on the robot clock
+    t_camera_s : (n,) the frames' timestamps (camera clock mapped to the robot clock: t_s + clock error);
+        the ground truth is sampled at these, and the frame sets are delivered with them
     q_true, q_reported, qdot_reported, q_command : (n, 7) true / reported / commanded joints at t_s
     ball_true_world_m : (n, 3) where the ball really is (FK of q_true), world
     ball_velocity_world_mps : (n, 3) its velocity, world
@@ -86,6 +100,7 @@ class RobotMotion:
     """
 
     t_s: np.ndarray
+    t_camera_s: np.ndarray
     q_true: np.ndarray
     q_reported: np.ndarray
     qdot_reported: np.ndarray
@@ -168,15 +183,20 @@ def simulate_motion(kin, n_frames: int, rate_hz: float, *, seed: int, options: M
         raise ValueError(f"rate_hz must be a frame rate in [1, 10000] Hz, got {rate_hz!r}")
     if not isinstance(options, MotionOptions):
         raise ValueError(f"options must be MotionOptions, got {type(options).__name__}")
-    traj_seq, robot_seq = np.random.SeedSequence([int(seed), 1]).spawn(2)
+    traj_seq, robot_seq, clock_seq = np.random.SeedSequence([int(seed), 1]).spawn(3)
     t_frames = options.start_s + np.arange(int(n_frames)) / float(rate_hz)
+    clock_rng = np.random.default_rng(clock_seq)
+    offset_s = float(clock_rng.normal(0.0, options.clock_offset_std_s)) if options.clock_offset_std_s > 0 else 0.0
+    jitter_s = clock_rng.normal(0.0, options.clock_jitter_std_s, int(n_frames)) if options.clock_jitter_std_s > 0 else 0.0
+    jitter_s = np.clip(jitter_s, -0.25 / rate_hz, 0.25 / rate_hz)  # timestamps stay increasing at any frame rate
+    t_camera = t_frames + offset_s + jitter_s
     duration = t_frames[-1] - options.start_s + 0.01
     t_cmd, q_cmd, qd_cmd, info = _chain_trajectory(kin, duration, options, np.random.default_rng(traj_seq))
     robot_seed = int(robot_seq.generate_state(1)[0])
     sim = SimulatedWam(kin, sim_options if sim_options is not None else SimWamOptions(), seed=robot_seed, q0=q_cmd[0])
     true0, rep0 = sim.true_state(), sim.read_state()
     sim.command_trajectory(t_cmd + options.start_s, q_cmd, qd_cmd)
-    s = sim.advance_to(t_frames[-1] + 3 * sim.dt_s)
+    s = sim.advance_to(max(t_frames[-1], t_camera[-1]) + 3 * sim.dt_s)
     t = np.concatenate([[true0.t_s], s.t_s])
     q_true = np.vstack([true0.q[None], s.q_true])
     q_rep = np.vstack([rep0.q[None], s.q])
@@ -185,15 +205,18 @@ def simulate_motion(kin, n_frames: int, rate_hz: float, *, seed: int, options: M
     # the true arm between ticks: linear in q (2 ms ticks); the reported one as the options say
     qt = _interp_rows(t_frames, t, q_true)
     sample = _interp_rows if options.gt_sampling == "interpolate" else _hold_rows
-    qr, qdr = sample(t_frames, t, q_rep), sample(t_frames, t, qd_rep)
+    qr, qdr = sample(t_camera, t, q_rep), sample(t_camera, t, qd_rep)  # matched by the camera's timestamps
     h = 0.5 * sim.dt_s
     p_plus = kin.positions(_interp_rows(t_frames + h, t, q_true), check_limits=False)
     p_minus = kin.positions(_interp_rows(t_frames - h, t, q_true), check_limits=False)
     ball_true = kin.positions(qt, check_limits=False)
     gt_world = kin.positions(qr, check_limits=False)
     err_mm = np.linalg.norm(gt_world - ball_true, axis=1) * 1e3
+    shift_mm = np.linalg.norm(gt_world - kin.positions(sample(t_frames, t, q_rep), check_limits=False), axis=1) * 1e3
     info.update({
         "trajectory_seed": int(traj_seq.generate_state(1)[0]),
+        "clock": {"offset_ms": round(offset_s * 1e3, 4), "jitter_std_ms": round(float(np.std(t_camera - t_frames - offset_s)) * 1e3, 4),
+                  "gt_shift_mm": {"median": round(float(np.median(shift_mm)), 4), "max": round(float(shift_mm.max()), 4)}},
         "robot_seed": robot_seed,
         "gt_vs_true_mm": {"median": float(np.median(err_mm)), "p99": float(np.percentile(err_mm, 99)),
                           "max": float(err_mm.max())},
@@ -201,7 +224,7 @@ def simulate_motion(kin, n_frames: int, rate_hz: float, *, seed: int, options: M
                            "max": float(np.max(np.linalg.norm(p_plus - p_minus, axis=1) / (2 * h)))},
     })
     return RobotMotion(
-        t_s=t_frames, q_true=qt, q_reported=qr, qdot_reported=qdr, q_command=_interp_rows(t_frames, t, q_ref),
+        t_s=t_frames, t_camera_s=t_camera, q_true=qt, q_reported=qr, qdot_reported=qdr, q_command=_interp_rows(t_frames, t, q_ref),
         ball_true_world_m=ball_true, ball_velocity_world_mps=(p_plus - p_minus) / (2 * h),
         links_world_m=kin.link_points(qt, check_limits=False), gt_world_m=gt_world,
         T_base_to_world=np.array(kin.T_base_to_world), bias_rad=np.array(sim.bias_rad), info=info,

@@ -103,11 +103,13 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
         notes.append(f"the log was not finished cleanly ({rec.text if rec is not None else 'no summary'}); "
                      "re-evaluating the frames recovered, the last recovered frame set dropped")
     n = config.n_frames
-    how, runners = {}, {}
+    how, runners, spare = {}, {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         model = _model_from_log(reader, Path(tmp)) if any(k != "rtblob" for k in wanted) and src == "images" else None
         if src == "images":
             runners = build_trackers(config.with_(trackers=tuple(wanted)), rig, model, session.get("rtblob_calibration"))
+            if config.warmup_frames > 0:  # the next segment's trackers, warmed up while the current ones record
+                spare = build_trackers(config.with_(trackers=tuple(wanted)), rig, model, session.get("rtblob_calibration"))
             how = {k: "re-run on the logged images" for k in wanted}
         else:
             for k in wanted:
@@ -116,8 +118,8 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
                     how[k] = "estimator re-run on the logged detections"
                 else:
                     how[k] = "logged observations scored as recorded (no estimator to re-run without images)"
-        records = _stream(reader, config, session, src, runners, names, n, progress)
-    for r in runners.values():
+        records = _stream(reader, config, session, src, {"current": runners, "spare": spare}, names, n, progress)
+    for r in [*runners.values(), *spare.values()]:
         if hasattr(r, "close"):
             r.close()
     gt_world, gt_present = records.pop("_gt")
@@ -130,8 +132,15 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
     return Reevaluation(rows, figures, {k: errors[k] for k in wanted}, live_rows, src, how, config, notes)
 
 
-def _stream(reader, config, session, src, runners, names, n, progress) -> dict:
-    """Read the log frame set by frame set; returns {tracker: TrackRecord, "_gt": (gt_world, present)}."""
+def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
+    """Read the log frame set by frame set; returns {tracker: TrackRecord, "_gt": (gt_world, present)}.
+
+    sets : {"current": {kind: runner}, "spare": {kind: tracker} or {}}: with images, the spare trackers are
+    reset at the start of each segment's warm-up (``harness.accuracy.frames.warmup_range``), run on the
+    warm-up frames with their outputs dropped, and take over at the segment's start, as live."""
+    from harness.accuracy.frames import warmup_range
+
+    runners = sets["current"]
     from tqdm import tqdm
 
     k_per = session.get("candidates_per_camera", {})
@@ -141,6 +150,7 @@ def _stream(reader, config, session, src, runners, names, n, progress) -> dict:
     topics.append("/camera/*/image" if src == "images" else "/camera/*/detections")
     starts = {a for a, _ in config.segments()}
     seg_of = np.searchsorted(sorted(starts), np.arange(n), side="right")
+    warm_of = {k: (a, k == w[0]) for a in starts for w in [warmup_range(config, a)] for k in w}  # frame -> (segment, first?)
     cam_index = {c: i for i, c in enumerate(names)}
     det_cams = {c + DETECTION_SUFFIX[k]: (k, cam_index[c]) for k in runners if k in DETECTION_SUFFIX for c in names}
     state = {"k": None, "images": {}, "dets": {}, "obs": {}, "gt": None, "segment": None, "last_image_frame": -1}
@@ -156,13 +166,24 @@ def _stream(reader, config, session, src, runners, names, n, progress) -> dict:
         logged = state["obs"]
         t_cam = next(iter(logged.values())).t_s if logged else float(state["gt_t"] or 0.0)
         if seg_of[k] != state["segment"]:
+            first = state["segment"] is None
             state["segment"] = seg_of[k]
-            for r in runners.values():
-                if hasattr(r, "reset"):
-                    r.reset(clear_stats=True)
+            if sets["spare"] and not first and k in starts:  # the warmed-up trackers take over
+                sets["current"], sets["spare"] = sets["spare"], sets["current"]
+            else:
+                for r in sets["current"].values():
+                    if hasattr(r, "reset"):
+                        r.reset(clear_stats=True)
+        runners = sets["current"]
         if src == "images" and state["images"]:
             state["last_image_frame"] = k
             fs = FrameSet(t_cam, tuple(state["images"].get(c) for c in names), k)
+            if sets["spare"] and k in warm_of:  # warm-up of the next segment's trackers: outputs dropped
+                if warm_of[k][1]:
+                    for r in sets["spare"].values():
+                        r.reset(clear_stats=True)
+                for tr in sets["spare"].values():
+                    tr.process(fs)
             for kind, tr in runners.items():
                 records[kind].put(k, tr.process(fs))
         elif src == "detections":

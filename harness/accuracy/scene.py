@@ -12,10 +12,13 @@ builds frame ``k``'s :class:`harness.render.Scene` from the robot's TRUE link po
   the right hand moving smoothly (a sum of seeded sinusoids) over the table's corner next to the
   robot, holding a white ball (``harness.render.scenes.person``, the same build every frame);
 * distractors from :data:`DISTRACTORS` (white and orange cups and boxes, a near-orange juggling ball)
-  on the table's robot half and on the floor around the robot, placed by the seed.
+  on the table's robot half and on the floor around the robot, placed by the seed;
+* distractors that come and go (:mod:`harness.accuracy.distractors`): now and then the person holds or
+  tosses a second, orange ball instead of the white one, and stray orange balls roll across the floor.
 
-:data:`SCENES` names the presets of ``rt2 accuracy --scene``: ``default`` (white shirt, a white cup and
-box, an orange cup), ``harsh`` (orange shirt and every distractor) and ``clean`` (the arm and the ball only).
+:data:`SCENES` names the presets of ``rt2 accuracy --scene``: ``default`` (a lab session: white shirt, a
+white cup and box, the orange ball episodes and rolling balls), ``harsh`` (orange shirt, every static
+distractor, and the episodes) and ``clean`` (the arm and the ball only).
 
 Everything is a function of (seed, frame time), so any worker can build any frame.
 """
@@ -28,7 +31,8 @@ import numpy as np
 
 from harness import lab
 from harness.render.scene import Ball, Box, Capsule, Exposure, Scene, Sphere, colour_rgb
-from harness.render.scenes import person
+from harness.render.scenes import ball_in_hand, person
+from harness.accuracy.distractors import DistractorSchedule
 
 __all__ = ["DISTRACTORS", "SCENES", "SHIRTS", "SceneOptions", "SessionScene"]
 
@@ -53,6 +57,11 @@ class SceneOptions:
     shirt : a shirt colour name, or None to draw it from :data:`SHIRTS` with the seed
     held_ball : colour of the ball in the person's hand ("white", "orange") or None for an empty hand
     distractors : names from :data:`DISTRACTORS`, each placed by the seed
+    orange_ball_gap_s : mean time between the person's orange-ball episodes, seconds (None: never;
+        needs ``person``); orange_ball_hold_s : (min, max) length of an episode; p_toss : share of the
+        episodes in which the ball is tossed up and caught
+    rolling_ball_gap_s : mean time between stray orange balls rolling across the floor (None: never);
+        rolling_speed_mps : (min, max) their initial speed
     exposure_s, gain, light_level : the cameras' exposure (constant over the session)
     """
 
@@ -60,6 +69,11 @@ class SceneOptions:
     shirt: str | None = "white"
     held_ball: str | None = "white"
     distractors: tuple = ("white_cup", "white_box")
+    orange_ball_gap_s: float | None = 12.0
+    orange_ball_hold_s: tuple = (1.5, 4.0)
+    p_toss: float = 0.3
+    rolling_ball_gap_s: float | None = 25.0
+    rolling_speed_mps: tuple = (0.3, 1.2)
     exposure_s: float = 0.002
     gain: float = 1.0
     light_level: float = 1.0
@@ -73,6 +87,17 @@ class SceneOptions:
             raise ValueError(f"unknown SceneOptions.distractors {bad}; valid: {sorted(DISTRACTORS)}")
         if self.shirt is not None:
             colour_rgb(self.shirt, "SceneOptions.shirt")
+        for name in ("orange_ball_gap_s", "rolling_ball_gap_s"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.5 <= v <= 1e6):
+                raise ValueError(f"SceneOptions.{name} must be a mean gap in [0.5, 1e6] s or None, got {v!r}")
+        for name, lo, hi in (("orange_ball_hold_s", 0.1, 60.0), ("rolling_speed_mps", 0.0, 10.0)):
+            v = tuple(getattr(self, name))
+            if len(v) != 2 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v) or not lo <= v[0] <= v[1] <= hi:
+                raise ValueError(f"SceneOptions.{name} must be (min, max) with {lo:g} <= min <= max <= {hi:g}, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, v)
+        if isinstance(self.p_toss, bool) or not isinstance(self.p_toss, (int, float)) or not 0 <= self.p_toss <= 1:
+            raise ValueError(f"SceneOptions.p_toss must be a probability in [0, 1], got {self.p_toss!r}")
         Exposure(self.exposure_s, self.gain, self.light_level)  # validates
 
 
@@ -80,7 +105,7 @@ class SceneOptions:
 SCENES = {
     "default": SceneOptions(),
     "harsh": SceneOptions(shirt="orange", distractors=tuple(DISTRACTORS)),
-    "clean": SceneOptions(person=False, held_ball=None, distractors=()),
+    "clean": SceneOptions(person=False, held_ball=None, distractors=(), orange_ball_gap_s=None, rolling_ball_gap_s=None),
 }
 
 
@@ -116,6 +141,7 @@ class SessionScene:
         self.person_seed = int(rng.integers(2**31))
         self.distractors = tuple(self._distractor(rng, name) for name in options.distractors)
         self.exposure = Exposure(options.exposure_s, options.gain, options.light_level)
+        self.events = DistractorSchedule(options, np.random.SeedSequence([int(seed), 6]))
 
     @staticmethod
     def _distractor(rng, name: str):
@@ -169,7 +195,11 @@ class SessionScene:
                                hand_target=self.hand_target_m(t_s), skin=self.skin, shirt=self.shirt)
             caps += c
             spheres += s
-            if self.options.held_ball is not None:
-                spheres.append(Sphere(tip + [0.0, 0.0, 0.01], 0.02, self.options.held_ball, 0.35))
+            orange = self.events.held_ball(t_s, ball_in_hand(c, tip, grip="fist"))
+            if orange is not None:  # an orange-ball episode: it replaces the white ball in the hand
+                balls.append(orange)
+            elif self.options.held_ball is not None:
+                spheres.append(Sphere(ball_in_hand(c, tip), 0.02, self.options.held_ball, 0.35))
+        balls += self.events.rolling_balls(t_s)
         return Scene(balls=tuple(balls), capsules=tuple(caps), spheres=tuple(spheres), boxes=tuple(boxes),
                      exposure=self.exposure, frame_index=int(frame_index))

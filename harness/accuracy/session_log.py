@@ -3,8 +3,11 @@
 What is written, and why (docs/accuracy.md has the full list):
 
 * metadata ``session``: ``kind = "accuracy"``, the seed, the whole :class:`AccuracyConfig`, the camera
-  names, the candidates per camera of each rt2 tracker, the nominal mount, RTBlob's template radii and
-  the fault plan; attachments ``rig.yaml`` and ``model.npz`` (the segmentation weights used);
+  names, the candidates per camera of each rt2 tracker, the nominal mount, RTBlob's template radii,
+  the fault plan, the calibration error (:mod:`harness.accuracy.rig_error`) and the clock error;
+  attachments ``rig.yaml`` (the rig the TRACKERS used: the estimated calibration; what re-evaluation
+  uses), ``rig_true.yaml`` (simulation truth: the rig the images were rendered with; only when the two
+  differ) and ``model.npz`` (the segmentation weights used);
 * per frame set ``k`` at its true capture time ``t_k``, sequence ``k``:
   the delivered images (every ``log_images``-th frame set; a camera that delivered no frame has none),
   the rt2 trackers' detections (every candidate the estimator saw: rt2 under the camera's name,
@@ -30,7 +33,7 @@ from harness.logs import SessionLogWriter
 from robot_models import LINK_CHAIN
 from tracker import DetectorOptions
 
-__all__ = ["AccuracyLogWriter", "ARM_FRAMES", "candidates_per_camera", "session_metadata"]
+__all__ = ["AccuracyLogWriter", "ARM_FRAMES", "RIG_ATTACHMENTS", "candidates_per_camera", "session_metadata"]
 
 #: frames of the arm written to /tf each frame set (children of ``world``)
 ARM_FRAMES = LINK_CHAIN + ("ball_mount",)
@@ -41,8 +44,16 @@ def candidates_per_camera(kind: str) -> int:
     return DetectorOptions(method=DETECTOR_METHOD[kind]).k
 
 
-def session_metadata(config, rig, motion, rtblob_calibration=None) -> dict:
-    """The ``session`` metadata record of an accuracy log."""
+#: what each rig attachment is (also written into the metadata, so a reader of the log knows)
+RIG_ATTACHMENTS = {
+    "rig.yaml": "the rig the trackers used (estimated calibration, with the simulated calibration error)",
+    "rig_true.yaml": "simulation truth: the rig the images were rendered with (not available on a real system)",
+}
+
+
+def session_metadata(config, rig, motion, rtblob_calibration=None, calibration_error=None) -> dict:
+    """The ``session`` metadata record of an accuracy log (``rig``: the trackers' rig)."""
+    cal = calibration_error or {"enabled": False}
     return {
         "kind": "accuracy",
         "seed": int(config.seed),
@@ -56,20 +67,24 @@ def session_metadata(config, rig, motion, rtblob_calibration=None) -> dict:
         "fault_plan": fault_plan_of(config, len(rig)).to_dict(),
         "motion": {k: v for k, v in motion.info.items()},
         "bias_deg": np.round(np.rad2deg(motion.bias_rad), 6).tolist(),
+        "calibration_error": cal,
+        "rig_attachments": {k: v for k, v in RIG_ATTACHMENTS.items() if k == "rig.yaml" or cal.get("enabled")},
     }
 
 
 class AccuracyLogWriter:
     """Writes one accuracy session (see the module docstring). Use as a context manager.
 
-    path : the .mcap file; kin : robot_models.WamKinematics (arm frames for /tf)
+    path : the .mcap file; rig : the rig the trackers used (``rig.yaml``); true_rig : the rig the images
+    were rendered with (``rig_true.yaml``, when calibration_error is enabled); calibration_error : its info;
+    kin : robot_models.WamKinematics (arm frames for /tf)
     log_images : "all", "none" or N; image_format : "png" (default: lossless, re-evaluation from images
     is exact), "jpeg" or "raw"; flush_period_s : a crash loses at most about this much (docs/logging.md)
     """
 
-    def __init__(self, path, config, rig, motion, kin, *, rtblob_calibration=None, log_images=50,
-                 image_format: str = "png", overwrite: bool = False, flush_period_s: float = 1.0):
-        meta = session_metadata(config, rig, motion, rtblob_calibration)
+    def __init__(self, path, config, rig, motion, kin, *, true_rig=None, calibration_error=None, rtblob_calibration=None,
+                 log_images=50, image_format: str = "png", overwrite: bool = False, flush_period_s: float = 1.0):
+        meta = session_metadata(config, rig, motion, rtblob_calibration, calibration_error)
         self.writer = SessionLogWriter(path, metadata=meta, log_images=log_images, image_format=image_format,
                                        overwrite=overwrite, flush_period_s=flush_period_s)
         self.path = Path(path)
@@ -77,6 +92,12 @@ class AccuracyLogWriter:
         self.motion = motion
         w = self.writer
         w.attach_rig(rig)
+        if "rig_true.yaml" in meta["rig_attachments"]:
+            if true_rig is None:
+                raise ValueError("calibration_error is enabled: the true rig (true_rig=) must be logged too")
+            import yaml
+
+            w.attach("rig_true.yaml", yaml.safe_dump(true_rig.to_dict(), sort_keys=False).encode(), "application/yaml")
         if any(k in DETECTION_SUFFIX for k in config.trackers):
             w.attach("model.npz", config.model_path().read_bytes(), "application/x-npz")
         w.write_scene_static(0.0, rig)

@@ -30,11 +30,14 @@ def detections_camera(kind: str, camera: str) -> str:
 
 
 def rtblob_options(calibration: dict | None) -> RTBlobOptions:
-    """RTBlobOptions from a calibration ``{"template_radius_px": [...], "reference_rgb": [...]}`` (None: defaults)."""
+    """RTBlobOptions from a calibration ``{"template_radius_px": [...], "reference_rgb": [...], "colour_space",
+    "colour_sigma", "min_score"}`` (None: defaults; the last three are absent from logs written before the
+    colour tuning and then keep RTBlobOptions' defaults)."""
     if calibration is None:
         return RTBlobOptions()
+    extra = {k: calibration[k] for k in ("colour_space", "colour_sigma", "min_score") if k in calibration}
     return RTBlobOptions(template_radius_px=tuple(calibration["template_radius_px"]),
-                         reference_rgb=tuple(calibration["reference_rgb"]))
+                         reference_rgb=tuple(calibration["reference_rgb"]), **extra)
 
 
 def build_trackers(config, rig, model=None, rtblob_calibration: dict | None = None) -> dict:

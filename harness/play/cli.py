@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 
 from harness.play.experiment import DEFAULT_PROMP, PlayConfig, run_configuration, summarise
-from harness.play.profiles import PROFILES, load_profiles, profile_for
+from harness.play.profiles import PROFILE_SETS, PROFILES, load_profiles, profile_for
 
 MODES = ("play", "compare", "profile")
 FILTER_NAMES = ("raw", "ransac_kalman")
@@ -38,10 +38,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--source", default="synthetic", choices=("synthetic", "vision"),
                         help="observations: synthetic (noise + outliers of the tracker's profile, fast) or vision "
                              "(rendered cameras + the real tracker)")
+    parser.add_argument("--scene", default="default",
+                        help="vision source: what else the cameras see, a preset of harness.play.scene.SCENES: default "
+                             "(a person, white clutter), second_ball (the person holds an orange ball), harsh (orange "
+                             "clutter), clean (the arm and the ball)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (results do not depend on it)")
     parser.add_argument("--rate-hz", type=float, default=None, help="tracker frame rate (default: rt2 180, rtblob 60)")
     parser.add_argument("--latency-ms", type=float, default=None, help="tracker latency (default 10 ms)")
-    parser.add_argument("--profile-json", type=Path, default=None, help="synthetic profiles from this JSON (rt2 play profile --json)")
+    parser.add_argument("--profiles", default="vision", choices=sorted(PROFILE_SETS),
+                        help="synthetic source's error model: vision (measured from the vision source, default) or "
+                             "paper (the paper's real-robot RTBlob outliers); see harness/play/profiles.py")
+    parser.add_argument("--profile-json", type=Path, default=None, help="synthetic profiles from this JSON (rt2 play profile --json), "
+                        "on top of --profiles")
     parser.add_argument("--promp", type=Path, default=DEFAULT_PROMP, help=f"hitting ProMP (default {DEFAULT_PROMP})")
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     parser.add_argument("--out", type=Path, default=Path("out/play"), help="figure and session logs (default out/play)")
@@ -68,6 +76,10 @@ def _check(args) -> None:
     for f in ([args.filter] if args.mode == "play" else args.filters):
         if f not in FILTER_NAMES:
             raise ValueError(f"unknown filter {f!r}; valid: {list(FILTER_NAMES)}")
+    from harness.play.scene import SCENES
+
+    if args.scene not in SCENES:
+        raise ValueError(f"unknown --scene {args.scene!r}; valid: {sorted(SCENES)}")
     if args.log_images and args.source != "vision":
         raise ValueError("--log-images needs --source vision (the synthetic source makes no images)")
 
@@ -77,7 +89,7 @@ def _configs(args, profiles) -> list[PlayConfig]:
     out = []
     for tracker, filt in pairs:
         prof = profile_for(tracker, profiles).with_timing(args.rate_hz, None if args.latency_ms is None else args.latency_ms / 1e3)
-        out.append(PlayConfig(tracker, filt, args.source, prof, str(args.promp), record=not args.no_log,
+        out.append(PlayConfig(tracker, filt, args.source, prof, str(args.promp), scene=args.scene, record=not args.no_log,
                               record_images_every=args.log_images))
     return out
 
@@ -88,7 +100,8 @@ def _open_log(args, config: PlayConfig):
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"play_{config.tracker}_{config.filter}_{config.source}_s{args.seed}.mcap"
     meta = {"kind": "play", "seed": args.seed, "ball_slot_s": 10.0,
-            "config": {"tracker": config.tracker, "filter": config.filter, "source": config.source,
+            "config": {"tracker": config.tracker, "filter": config.filter, "source": config.source, "scene": config.scene,
+                       "profiles": args.profiles,
                        "balls": args.balls, "profile": config.resolved_profile().__dict__, "promp": config.promp_path}}
     log = SessionLogWriter(path, metadata=meta, log_images="all" if args.log_images else "none", overwrite=True)
     return log, path
@@ -96,7 +109,8 @@ def _open_log(args, config: PlayConfig):
 
 def run(args) -> int:
     _check(args)
-    profiles = load_profiles(args.profile_json) if args.profile_json else dict(PROFILES)
+    base = PROFILE_SETS[args.profiles]
+    profiles = load_profiles(args.profile_json, base) if args.profile_json else dict(base)
     if args.mode == "profile":
         from harness.play.measure import run_profile
 
@@ -119,6 +133,7 @@ def run(args) -> int:
             results = run_configuration(config, balls=args.balls, seed=args.seed, workers=args.workers,
                                         progress=not args.quiet, on_ball=on_ball)
             row = summarise(config, results, args.seed)
+            row["profiles" if config.source == "synthetic" else "scene"] = args.profiles if config.source == "synthetic" else args.scene
             if log is not None:
                 log.write_figures("summary", row)
         finally:
@@ -148,7 +163,8 @@ def _title(args) -> str:
 
 
 def _print(rows, args) -> None:
-    print(f"rt2 play {args.mode}  source {args.source}  balls {args.balls}  seed {args.seed}")
+    what = f"profiles {args.profiles}" if args.source == "synthetic" else f"scene {args.scene}"
+    print(f"rt2 play {args.mode}  source {args.source} ({what})  balls {args.balls}  seed {args.seed}")
     print(f"{'tracker':<10} {'filter':<14} {'Hz':>5} {'success':>9} {'rate':>6} {'95% CI (Wilson)':>17}  outcomes")
     for r in rows:
         outcomes = ", ".join(f"{k} {v}" for k, v in sorted(r["outcomes"].items(), key=lambda kv: -kv[1]))

@@ -36,6 +36,7 @@ class PlayConfig:
     profile: TrackerProfile | None = None
     promp_path: str = str(DEFAULT_PROMP)
     rig: str = "lab4_vga"
+    scene: str = "default"  #: vision source: a preset of harness.play.scene.SCENES
     record: bool = False
     record_images_every: int = 0
     policy: dict = field(default_factory=dict)
@@ -81,7 +82,14 @@ def _build(config: PlayConfig):
     promp = ProMP.load(config.promp_path, robot_id=str(kin.model.name), joint_names=kin.joint_names)
     rig = resolve_rig(config.rig)
     profile = config.resolved_profile()
-    kwargs = {"kinematics": kin} if config.source == "vision" else {}
+    if config.source == "vision":
+        from harness.play.scene import SCENES
+
+        if config.scene not in SCENES:
+            raise ValueError(f"unknown play scene {config.scene!r}; valid: {sorted(SCENES)}")
+        kwargs = {"kinematics": kin, "scene_options": SCENES[config.scene]}
+    else:
+        kwargs = {}
     source = make_source(config.source, rig, profile, **kwargs)
     session = PlaySession(kin, promp, source, lambda: make_filter(config.filter), profile,
                           policy_options=HittingOptions(**config.policy))

@@ -7,7 +7,9 @@ where at least two cameras see the whole ball (``harness.lab.coverage``):
 * ``p_miss``: share without a position; ``p_outlier``: share with an error > ``outlier_m`` (10 cm, the
   paper's bound for RT2) but < 1 m; ``p_wild``: share with an error >= 1 m;
 * ``noise_std_m``: the per-axis RMS error of the other observations (robust: 1.4826 x the median
-  absolute error per axis).
+  absolute error per axis);
+* ``outlier_offset_m``: the 10th and 90th percentile of the outliers' errors (only with >= 5 outliers;
+  else the profile keeps its default).
 
 ``--json PATH`` writes ``{tracker: {noise_std_m, p_miss, p_outlier, p_wild}}``, which
 ``rt2 play --profile-json PATH`` reads back as the synthetic source's profiles.
@@ -64,7 +66,9 @@ def measure_profile(samples, rig) -> dict:
     d = np.linalg.norm(E, axis=1)
     good = E[d <= OUTLIER_M]
     std = float(np.mean(1.4826 * np.median(np.abs(good), axis=0))) if len(good) else float("nan")
-    return {"frames_seen": n, "noise_std_m": std, "p_miss": miss / max(n, 1),
+    outl = d[(d > OUTLIER_M) & (d < WILD_M)]
+    extra = {"outlier_offset_m": [float(np.percentile(outl, 10)), float(np.percentile(outl, 90))]} if len(outl) >= 5 else {}
+    return {"frames_seen": n, "noise_std_m": std, "p_miss": miss / max(n, 1), **extra,
             "p_outlier": float(np.sum((d > OUTLIER_M) & (d < WILD_M))) / max(n, 1),
             "p_wild": float(np.sum(d >= WILD_M)) / max(n, 1),
             "error_median_mm": float(1e3 * np.median(d)) if len(d) else float("nan"),
@@ -76,7 +80,7 @@ def run_profile(args, profiles) -> int:
 
     out = {}
     for tracker in args.trackers:
-        config = PlayConfig(tracker, "raw", "vision", profiles[tracker], str(args.promp))
+        config = PlayConfig(tracker, "raw", "vision", profiles[tracker], str(args.promp), scene=args.scene)
         experiment._WORKER.clear()
         experiment._WORKER.update(experiment._build(config))
         rec = RecordingSource(experiment._WORKER["session"].source)
@@ -85,10 +89,12 @@ def run_profile(args, profiles) -> int:
         out[tracker] = measure_profile(rec.samples, rec.rig)
         experiment._WORKER.clear()
     print(f"rt2 play profile: vision source, {args.balls} balls per tracker, seed {args.seed}")
-    print(f"{'tracker':<10} {'frames':>7} {'noise mm':>9} {'p_miss':>8} {'p_outlier':>10} {'p_wild':>8} {'err med mm':>11} {'p99 mm':>8}")
+    print(f"{'tracker':<10} {'frames':>7} {'noise mm':>9} {'p_miss':>8} {'p_outlier':>10} {'p_wild':>8} {'err med mm':>11} "
+          f"{'p99 mm':>8}  outlier offset (p10-p90)")
     for k, r in out.items():
+        off = "{:.2f}-{:.2f} m".format(*r["outlier_offset_m"]) if "outlier_offset_m" in r else "-"
         print(f"{k:<10} {r['frames_seen']:>7} {1e3 * r['noise_std_m']:>9.2f} {r['p_miss']:>8.4f} {r['p_outlier']:>10.4f} "
-              f"{r['p_wild']:>8.4f} {r['error_median_mm']:>11.2f} {r['error_p99_mm']:>8.1f}")
+              f"{r['p_wild']:>8.4f} {r['error_median_mm']:>11.2f} {r['error_p99_mm']:>8.1f}  {off}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         fields = {f.name for f in dataclasses.fields(profiles[args.trackers[0]])}

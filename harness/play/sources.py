@@ -8,7 +8,8 @@ latency (the session delivers it to the filter at ``t_s + latency_s``):
   :class:`~harness.play.profiles.TrackerProfile`, only where the rig's cameras see the ball;
 * :class:`VisionSource` -- the real thing: renders the rig's cameras (``harness.render``; scene of
   ``harness.play.scene``: the ball, the WAM and its racket, a person, distractors) and runs
-  ``tracker.Tracker`` of the chosen kind on the images (RTBlob calibrated first, :func:`calibrate_rtblob`).
+  ``tracker.Tracker`` of the chosen kind on the images (RTBlob set up first as its user would:
+  ``harness.play.rtblob_setup.calibrate_rtblob``).
 
 ``SOURCES`` maps the ``--source`` names to the classes; unknown names raise and list the valid ones.
 """
@@ -90,6 +91,8 @@ class VisionSource:
         self._scene_cls = PlayScene
         self.scene_options = scene_options or PlaySceneOptions()
         if tracker is None:
+            from harness.play.rtblob_setup import calibrate_rtblob
+
             kw = {"rtblob_options": calibrate_rtblob(rig, self.renderer, kinematics, self.scene_options)} \
                 if profile.tracker == "rtblob" else {}
             tracker = make_tracker(profile.tracker, rig, **kw)
@@ -110,41 +113,6 @@ class VisionSource:
         self.last_images = images
         obs = self.tracker.process(FrameSet(float(t_s), tuple(images), int(frame_index)))
         return dataclasses.replace(obs, latency_s=self.profile.latency_s)
-
-
-#: where the calibration ball is placed for RTBlob's colour and disk radius: the hitting region
-CALIBRATION_BOX_M = ((-1.4, -0.2, 0.95), (-1.1, 0.2, 1.3))
-
-
-def calibrate_rtblob(rig, renderer, kinematics, scene_options, *, n_frames: int = 4):
-    """RTBlobOptions set up as its user would (as the accuracy experiment does, harness/accuracy/calibration.py):
-    the disk radius per camera is the apparent radius of a 40 mm ball at the centre of the hitting region,
-    the reference colour the median RGB of the ball's central pixels (inside 0.3 of its apparent diameter)
-    in a few rendered frames of a still ball in that region, robot at rest, person and clutter present."""
-    from harness.accuracy.calibration import rtblob_template_radii
-    from harness.play.scene import PlayScene
-    from tracker import RTBlobOptions
-
-    box = np.asarray(CALIBRATION_BOX_M, float)
-    rng = np.random.default_rng(12345)
-    pixels = []
-    for k in range(n_frames):
-        scene = PlayScene(kinematics, scene_options, seed=1000 + k).scene_at(
-            k, 0.0, kinematics.q_home, rng.uniform(box[0], box[1]), np.zeros(3))
-        images, truths = renderer.render_labelled(scene)
-        for image, truth in zip(images, truths):
-            t = truth[0]
-            if not (np.isfinite(t.center_px).all() and t.visibility >= 0.9):
-                continue
-            (u, v), r = t.center_px, 0.3 * t.diameter_px
-            yy, xx = np.mgrid[0:image.shape[0], 0:image.shape[1]]
-            inside = (xx - u) ** 2 + (yy - v) ** 2 <= r * r
-            pixels.append(image[inside])
-    px = np.concatenate(pixels) if pixels else np.zeros((0, 3))
-    if len(px) < 10:
-        raise ValueError(f"RTBlob calibration found only {len(px)} ball pixels in {n_frames} frames")
-    return RTBlobOptions(template_radius_px=tuple(rtblob_template_radii(rig, box)),
-                         reference_rgb=tuple(float(c) for c in np.median(px, axis=0)))
 
 
 #: ``--source`` name -> class

@@ -25,7 +25,7 @@ from harness import lab
 from harness.render.renderer import RenderOptions
 from harness.render.scene import Ball, Box, Capsule, Disk, Exposure, Scene, Sphere
 
-__all__ = ["SceneOptions", "person", "random_scene", "robot_arm"]
+__all__ = ["SceneOptions", "ball_in_hand", "person", "random_scene", "robot_arm"]
 
 _SKINS = ("skin_light", "skin_medium", "skin_tan", "skin_dark")
 _SHIRTS = ("shirt_blue", "shirt_red", "shirt_black", "shirt_green", "white", "orange", "yellow")
@@ -135,6 +135,26 @@ def person(rng: np.random.Generator, feet_xy, *, hand_target=None, skin=None, sh
         if side == -1:
             tip = hand_tip
     return caps, sph, tip
+
+
+def ball_in_hand(capsules, tip, *, ball_radius_m: float = 0.02, grip: str = "fingertips") -> np.ndarray:
+    """(3,) centre of a ball held in a :func:`person`'s hand.
+
+    capsules : the person's capsules; tip : (3,) the hand tip :func:`person` returned (the hand is the
+    capsule ending there, wrist -> tip). ``grip="fingertips"``: just beyond the tip along the hand,
+    touching the hand's cap and slightly up, so the ceiling cameras see nearly all of it;
+    ``grip="fist"``: half inside the hand's cap, as a ball closed in the fingers (about half of it
+    visible from above).
+    """
+    tip = np.asarray(tip, float)
+    hand = next((c for c in capsules if np.array_equal(c.p1_m, tip)), None)
+    if hand is None:
+        raise ValueError("ball_in_hand: no capsule of the person ends at the given hand tip")
+    if grip not in ("fingertips", "fist"):
+        raise ValueError(f"unknown grip {grip!r}; valid: ['fingertips', 'fist']")
+    axis = _unit(hand.p1_m - hand.p0_m)
+    reach = hand.radius_m + (0.4 if grip == "fingertips" else -0.5) * ball_radius_m
+    return tip + axis * reach + [0.0, 0.0, 0.5 * ball_radius_m]
 
 
 def robot_arm(rng: np.random.Generator, *, racket: bool = True):
