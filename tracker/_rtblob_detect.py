@@ -10,12 +10,15 @@ formulas (docs/rtblob.md):
     (3) p* = argmax_p S(p);  "not seen" if S(p*) < min_score   one pixel per camera
 
 ``c`` is RGB / 255 (``rgb``) or ``(r, g, b) / (r + g + b)`` (``chromaticity``). In ``rgb`` the
-Gaussian of (1) factorises over channels, so it is three 256-entry look-up tables and two products.
+Gaussian of (1) factorises over channels, so it is three 256-entry look-up tables and two products;
+``chromaticity`` does not factorise (the division couples the channels) and runs as one compiled
+pass over the pixels (:func:`_chromaticity_likelihood`, tested equal to :func:`likelihood_reference`).
 """
 
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 import scipy.fft
 
@@ -52,6 +55,31 @@ def _chromaticity(c: np.ndarray) -> np.ndarray:
         out = c / s
     out[np.broadcast_to(s == 0, out.shape)] = 1.0 / 3.0  # black: no chroma, call it grey
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _chromaticity_likelihood(image, ref, inv_two_sigma2, out):
+    """Eq. (1) in chromaticity, one pass: image (H, W, 3) uint8, ref (3,) chromaticity, out (H, W) float32.
+
+    Same arithmetic as :func:`likelihood_reference` (float64 per pixel; black pixels are grey).
+    """
+    H, W = out.shape
+    third = 1.0 / 3.0
+    for y in range(H):
+        for x in range(W):
+            r = float(image[y, x, 0])
+            g = float(image[y, x, 1])
+            b = float(image[y, x, 2])
+            s = r + g + b
+            if s > 0.0:
+                dr = r / s - ref[0]
+                dg = g / s - ref[1]
+                db = b / s - ref[2]
+            else:
+                dr = third - ref[0]
+                dg = third - ref[1]
+                db = third - ref[2]
+            out[y, x] = np.exp(-(dr * dr + dg * dg + db * db) * inv_two_sigma2)
 
 
 def image_problem(image, image_size: tuple[int, int], name: str = "image"):
@@ -120,6 +148,8 @@ class RTBlobDetector:
         # Eq. (1) factorised over channels: exp(-sum_k d_k^2 / 2s^2) = prod_k exp(-d_k^2 / 2s^2).
         lut = np.exp(-((levels - ref[None]) ** 2) / (2.0 * self.options.colour_sigma**2))
         self._lut = lut.astype(np.float32).reshape(1, 256, 3)
+        self._ref_chroma = _chromaticity(ref[None, None])[0, 0].astype(np.float64)
+        self._inv_two_sigma2 = 1.0 / (2.0 * self.options.colour_sigma**2)
 
     def _init_fft(self) -> None:
         W, H = self.image_size
@@ -187,7 +217,7 @@ class RTBlobDetector:
             np.multiply(t[:, :, 0], t[:, :, 1], out=out)
             out *= t[:, :, 2]
         else:
-            out[...] = likelihood_reference(image, self.options)
+            _chromaticity_likelihood(np.ascontiguousarray(image), self._ref_chroma, self._inv_two_sigma2, out)
 
     def _response(self, image: np.ndarray) -> np.ndarray:
         W, H = self.image_size
