@@ -77,8 +77,10 @@ def tracking_sequence(seed: int, n_frames: int, *, rate_hz: float = 200.0, works
     return np.arange(n_frames) * dt, scenes, X_true, flight
 
 
-#: RTBlob colour variants: the published-style RGB distance (default options), and the
-#: brightness-invariant chromaticity that finds the rendered ball at every exposure (docs/rtblob.md)
+#: RTBlob colour variants, uncalibrated (the speed is the point here: the work per frame does not
+#: depend on the colour settings): the published-style RGB distance (default options), and the
+#: brightness-invariant chromaticity (docs/rtblob.md). Neither is tuned to the rig's small, dark
+#: ball; the experiments calibrate RTBlob per rig first (harness/play/rtblob_setup.py).
 RTBLOB_VARIANTS = {"rgb": {}, "chromaticity": dict(colour_space="chromaticity", colour_sigma=0.08)}
 
 
