@@ -17,7 +17,7 @@ from harness.cli import COMMANDS, _build_parser
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "data" / "models" / "README.md"]
 # Usage lines with metavariables or alternatives are descriptions, not commands to run.
-PLACEHOLDER = re.compile(r"[|<>\[\]{}]|\.\.\.|…|\b(LOG|DIR|PATH|RIG|PLAY|M)\.|\b[A-Z]{2,}\b")
+PLACEHOLDER = re.compile(r"[|<>\[\]{}]|\.\.\.|…|\b[A-Z]{2,}\b|\bM\.npz")
 
 
 def _commands(text: str) -> list[str]:
