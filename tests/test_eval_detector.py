@@ -73,9 +73,13 @@ def test_evaluate_hand_made_model_on_synthetic_set(synthetic_ball_coco):
 
 
 # -- command line, JSON and determinism --------------------------------------------------------------
+def _model_and_data(synthetic_ball_coco, tmp_path):
+    """The hand-made model saved as a file, and a 30-image synthetic COCO set."""
+    return hand_made_model().save(tmp_path / "hand.npz"), str(synthetic_ball_coco(30, 1))
+
+
 def test_cli_json(synthetic_ball_coco, tmp_path, capsys):
-    model = hand_made_model().save(tmp_path / "hand.npz")
-    data = str(synthetic_ball_coco(30, 1))
+    model, data = _model_and_data(synthetic_ball_coco, tmp_path)
     out1, out2 = tmp_path / "a.json", tmp_path / "b.json"
     assert main(["eval", "detector", "--data", data, "--model", str(model), "--json", str(out1)]) == 0
     table = capsys.readouterr().out
@@ -88,8 +92,7 @@ def test_cli_json(synthetic_ball_coco, tmp_path, capsys):
 
 
 def test_cli_colour_selection_and_figure(synthetic_ball_coco, tmp_path, capsys):
-    model = hand_made_model().save(tmp_path / "hand.npz")
-    data = str(synthetic_ball_coco(30, 1))
+    model, data = _model_and_data(synthetic_ball_coco, tmp_path)
     out, fig = tmp_path / "w.json", tmp_path / "fig.png"
     assert main(["eval", "detector", "--data", data, "--model", str(model), "--figure", str(fig)]) == 0
     assert main(["eval", "detector", "--data", data, "--model", str(model), "--ball-colour", "white", "--json", str(out)]) == 0
@@ -115,3 +118,16 @@ def test_bad_inputs(tmp_path, capsys, synthetic_ball_coco):
     model = hand_made_model().save(tmp_path / "hand.npz")
     assert main(["eval", "detector", "--data", str(tmp_path / "nowhere"), "--model", str(model)]) == 2
     assert "nowhere" in capsys.readouterr().err
+
+
+def test_cli_thresholds_override_the_model(synthetic_ball_coco, tmp_path, capsys):
+    model, data = _model_and_data(synthetic_ball_coco, tmp_path)
+    base, strict = tmp_path / "base.json", tmp_path / "strict.json"
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--json", str(base)]) == 0
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--t-high", "0.999999", "--json", str(strict)]) == 0
+    assert "T_h=0.999999" in capsys.readouterr().out
+    b, s = json.loads(base.read_text()), json.loads(strict.read_text())
+    assert s[1]["recall"] < b[1]["recall"]  # a T_h no ball reaches loses balls
+    for args, message in ((["--t-high", "1.5"], "--t-high must be a probability in (0, 1), got 1.5"), (["--t-low", "0.99999999"], "need T_l < T_h")):
+        assert main(["eval", "detector", "--data", data, "--model", str(model), *args]) == 2
+        assert message in capsys.readouterr().err

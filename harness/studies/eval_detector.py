@@ -110,10 +110,11 @@ def truth_of(labelled) -> tuple[np.ndarray, np.ndarray]:
     return labelled.centers_px, np.minimum(labelled.boxes_xywh[:, 2], labelled.boxes_xywh[:, 3])
 
 
-def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, min_diameter_px: float = 6.0, progress=True):
+def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None, progress=True):
     """Run each method on every labelled image; returns a list of :class:`DetectorScores`.
 
     model : ``BallSegmentationModel``; labelled : list of ``harness.coco.LabelledImage``
+    t_high, t_low : Algorithm 1's thresholds as probabilities (None = the model's recommended ones)
     """
     from tqdm import tqdm
 
@@ -123,8 +124,8 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
     for m in methods:
         if m not in EVAL_METHODS:
             raise ValueError(f"unknown method {m!r}; valid: {EVAL_METHODS}")
-    paper = BallDetector(model, DetectorOptions(method="paper"))
-    ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates))
+    paper = BallDetector(model, DetectorOptions(method="paper", t_high=t_high, t_low=t_low))
+    ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low))
     found = {m: [] for m in methods}
     centers, diameters = [], []
     for li in tqdm(labelled, desc="eval detector", unit="img", disable=not progress, leave=False):
@@ -209,6 +210,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--min-diameter-px", type=float, default=6.0, help="recall is over balls at least this wide (default 6)")
     parser.add_argument("--ball-colour", choices=("any", "orange", "white"), default="any",
                         help="score only balls of this colour; detections on the others count as outliers (default: any)")
+    parser.add_argument("--t-high", type=float, default=None, help="Algorithm 1's T_h, a probability (default: the model's recommended one)")
+    parser.add_argument("--t-low", type=float, default=None, help="Algorithm 1's T_l, a probability (default: the model's recommended one)")
     parser.add_argument("--max-images", type=int, default=None, help="evaluate only the first N images")
     parser.add_argument("--figure", default=None, help="also draw the probability-image figure (image, B, detection) to this PNG")
 
@@ -225,9 +228,17 @@ def run(args) -> int:
     if not labelled:
         raise ValueError(f"--data {args.data}: no images")
     labelled = select_ball_colour(labelled, args.ball_colour, progress=True)
-    scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px)
+    for name in ("t_high", "t_low"):
+        v = getattr(args, name)
+        if v is not None and not 0.0 < v < 1.0:
+            raise ValueError(f"--{name.replace('_', '-')} must be a probability in (0, 1), got {v}")
+    t_high = model.t_high if args.t_high is None else args.t_high
+    t_low = model.t_low if args.t_low is None else args.t_low
+    if not t_low < t_high:
+        raise ValueError(f"need T_l < T_h, got T_l={t_low:g} and T_h={t_high:g} (--t-low/--t-high and the model's defaults combined)")
+    scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low)
     print(
-        f"model {args.model}: T_h={model.t_high:g}, T_l={model.t_low:g}; {len(labelled)} images; "
+        f"model {args.model}: T_h={t_high:g}, T_l={t_low:g}; {len(labelled)} images; "
         f"{args.ball_colour} balls >= {args.min_diameter_px:g} px"
     )
     print(format_table(scores))
