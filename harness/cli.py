@@ -26,6 +26,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("bench", "estimator"): ("harness.studies.bench_estimator", "run time of the robust estimator vs cameras (paper Table 2)"),
     ("train",): ("harness.train_detector", "train the 5x5 ball segmentation model from COCO box labels"),
     ("eval", "detector"): ("harness.studies.eval_detector", "ball detector recall, outlier rate and centre error on labelled images"),
+    ("eval", "framesets"): ("harness.studies.eval_framesets", "trackers on random rendered frame sets: 3D recall and wrong positions (what the cameras together make of detector outliers)"),
     ("eval", "filters"): ("harness.studies.eval_filters", "ball filters raw vs ransac_kalman: prediction error on real/simulated flights, clean and with outliers"),
     ("bench", "detector"): ("harness.studies.bench_detector", "ms per VGA frame of the ball detector, full frame and ROI, vs torch"),
     ("bench", "rtblob"): ("harness.studies.bench_rtblob", "ms per VGA frame of the RTBlob baseline (colour likelihood + disk FFT + max)"),

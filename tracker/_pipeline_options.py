@@ -45,6 +45,13 @@ class TrackerOptions:
     threads_for_roi : use the threads also when every camera searches a window (off: measured
         slower, the thread hand-off costs more than a 64x64 window, see docs/pipeline.md)
     eps_px : the estimator's consistency threshold, pixels (None = ``estimator_options.eps_px``)
+    max_size_ratio : the 3D size test (``rt2`` only; ``rt2-paper`` never applies it): a position whose
+        blobs are, by the median over its cameras, more than this many times as wide as a ball of
+        ``ball_radius_m`` would look at that depth is an orange object several cameras agree on, not
+        the ball; its candidates are dropped and the estimate is redone (at most twice). Blob width =
+        ``sqrt(4 area / pi)``; on true balls the ratio stays below 1 (pixels under ``T_l`` at the
+        edge are not counted). None = off
+    ball_radius_m : the ball's radius for the size test, metres (0.02 = a 40 mm ball)
     """
 
     roi: bool | None = None
@@ -53,6 +60,8 @@ class TrackerOptions:
     workers: int = 1
     threads_for_roi: bool = False
     eps_px: float | None = None
+    max_size_ratio: float | None = 1.2
+    ball_radius_m: float = 0.02
 
     def __post_init__(self):
         if self.roi is not None and not isinstance(self.roi, (bool, np.bool_)):
@@ -69,6 +78,12 @@ class TrackerOptions:
         e = self.eps_px
         if e is not None and (isinstance(e, bool) or not isinstance(e, (int, float, np.floating, np.integer)) or not (math.isfinite(e) and e > 0)):
             raise ValueError(f"TrackerOptions.eps_px must be a positive number of pixels or None, got {e!r}")
+        m = self.max_size_ratio
+        if m is not None and (isinstance(m, bool) or not isinstance(m, (int, float, np.floating, np.integer)) or not (math.isfinite(m) and m > 0)):
+            raise ValueError(f"TrackerOptions.max_size_ratio must be a positive number or None (off), got {m!r}")
+        r = self.ball_radius_m
+        if isinstance(r, bool) or not isinstance(r, (int, float, np.floating, np.integer)) or not (math.isfinite(r) and 0 < r < 1):
+            raise ValueError(f"TrackerOptions.ball_radius_m must be a radius in metres in (0, 1), got {r!r}")
 
 
 @dataclass
@@ -82,6 +97,7 @@ class TrackerStats:
     roi_misses : of those, windows without a ball candidate (incl. a prediction outside the image)
     full_frame_searches : camera images searched over the full frame (no prediction, or a retry)
     full_frame_retries : frame sets re-searched on full frames after the windows gave no OK estimate
+    size_rejections : positions rejected by the 3D size test (``TrackerOptions.max_size_ratio``)
     missing_frames : camera images that were None (no frame delivered)
     bad_frames : camera images of the wrong size, dtype or channels (skipped)
     non_monotonic : frame sets whose time did not increase (motion prediction reset)
@@ -95,6 +111,7 @@ class TrackerStats:
     roi_misses: int = 0
     full_frame_searches: int = 0
     full_frame_retries: int = 0
+    size_rejections: int = 0
     missing_frames: int = 0
     bad_frames: int = 0
     non_monotonic: int = 0
@@ -118,6 +135,8 @@ class PipelineInfo:
     used_roi : (n_cams,) bool, the camera's candidates come from the window search (not the full frame)
     retried : a full-frame retry happened
     estimate : the estimator's :class:`EstimateInfo` (rt2 kinds) or :class:`RTBlobInfo` (rtblob)
+    size_ratio : (rt2 kinds) median over the position's cameras of blob width / the width a ball would
+        have at that depth (NaN without a position; rtblob: NaN)
     """
 
     uv_candidates_px: np.ndarray
@@ -126,6 +145,7 @@ class PipelineInfo:
     used_roi: np.ndarray
     retried: bool
     estimate: object
+    size_ratio: float = math.nan
 
 
 def with_overrides(options, overrides: dict) -> TrackerOptions:

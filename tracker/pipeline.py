@@ -8,7 +8,9 @@ Kinds (``TRACKER_KINDS``):
 
 * ``rt2`` (ours): the segmentation detector with top-K candidates per camera (``method="ours"``),
   searched first in a window around the predicted ball pixel (ROI, ``tracker._pipeline_roi``),
-  then :class:`RobustTriangulator` ``method="ours"`` (Algorithm 2 extended).
+  then :class:`RobustTriangulator` ``method="ours"`` (Algorithm 2 extended), then the 3D size test
+  (``TrackerOptions.max_size_ratio``: a position whose blobs are too wide for a ball at its depth
+  is dropped and the estimate redone).
 * ``rt2-paper``: the paper's system: Algorithm 1 as published (argmax, one candidate) on the full
   frame, Algorithm 2 as published (``method="paper"``), no ROI.
 * ``rtblob``: the RTBlob baseline (:class:`RTBlobTracker`), with the same fault handling.
@@ -16,12 +18,14 @@ Kinds (``TRACKER_KINDS``):
 Per frame set (rt2 kinds): validate the frame set (``ValueError`` for a wrong type or camera count),
 flag cameras without a usable frame, predict the ball's pixels, one detector call per camera
 (optionally on a thread pool), the robust estimate, and, when a window search did not confirm the
-ball, a second full-frame search of the cameras that used a window. See docs/pipeline.md.
+ball, a second full-frame search of the cameras that used a window; then the size test (``rt2``).
+See docs/pipeline.md.
 """
 
 from __future__ import annotations
 
 import math
+import statistics
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
@@ -119,6 +123,10 @@ class Tracker:
                 f"({self._estimator.options.max_candidates_per_camera}); raise the latter or lower the former"
             )
         self._motion = MotionPredictor(rig, options.max_gap_s)
+        # the 3D size test: depth of X in camera i = (a, b, c) . X + t from depth_rows[i]; a ball there is ball_px_m[i] / depth px wide
+        self._max_size_ratio = options.max_size_ratio if kind == "rt2" else None
+        self._depth_rows = [(*map(float, c.R_world_to_cam[2]), float(c.t_world_to_cam_m[2])) for c in rig]
+        self._ball_px_m = [2.0 * options.ball_radius_m * 0.5 * float(c.K[0, 0] + c.K[1, 1]) for c in rig]
         n = self.n_cams
         self._uv = np.full((n, k, 2), np.nan)  # the estimator's input, reused every frame set
         self._scores = np.full((n, k), np.nan)
@@ -240,6 +248,8 @@ class Tracker:
                 used_roi[redo] = False
                 self._detect(redo, roi_px, used_roi)
                 X, info = self._estimator.estimate(self._uv)
+        reported = self._uv.copy()
+        X, info, size_ratio = self._size_test(X, info, notes)
         ok = info.status is Status.OK
         if ok:
             self._motion.update(t_s, X)  # only confirmed estimates feed the prediction
@@ -249,7 +259,7 @@ class Tracker:
         uv_px = np.full((n, 2), np.nan)
         sel = np.flatnonzero(cand >= 0)
         uv_px[sel] = self._uv[sel, cand[sel]]
-        pinfo = PipelineInfo(self._uv.copy(), self._scores.copy(), roi_px, used_roi, retried, info)
+        pinfo = PipelineInfo(reported, self._scores.copy(), roi_px, used_roi, retried, info, size_ratio)
         self._images = None  # do not keep the frames alive
         obs = BallObservation(
             t_s=t_s,
@@ -264,6 +274,31 @@ class Tracker:
             notes=tuple(notes),
         )
         return obs, pinfo
+
+    def _size_test(self, X, info, notes: list):
+        """The 3D size test (``TrackerOptions.max_size_ratio``): while the position's blobs are too wide
+        for a ball at its depth, drop its candidates and estimate again. Returns (X, info, ratio);
+        the ratio is measured whenever there is a position, applied only when the test is on."""
+        ratio = math.nan
+        while X is not None:
+            x, y, z = X.tolist()
+            cand = info.candidate_index.tolist()
+            ratios = []
+            for i, c in enumerate(cand):  # plain Python: a few cameras, ~10x cheaper than numpy calls here
+                if c >= 0:
+                    a, b, d, t = self._depth_rows[i]
+                    ratios.append(math.sqrt(4.0 / math.pi * float(self._dets[i].areas_px[c])) * (a * x + b * y + d * z + t) / self._ball_px_m[i])
+            ratio = statistics.median(ratios)
+            if self._max_size_ratio is None or not ratio > self._max_size_ratio:
+                break
+            self.stats.size_rejections += 1
+            cams = [i for i, c in enumerate(cand) if c >= 0]
+            names = ", ".join(self._names[i] for i in cams)
+            notes.append(f"rejected the position seen by {names}: its blobs are {ratio:.2f} times as wide as a ball at that depth (max_size_ratio {self._max_size_ratio:g}); estimated again without them")
+            self._uv[cams, [cand[i] for i in cams]] = np.nan
+            X, info = self._estimator.estimate(self._uv)
+            ratio = math.nan
+        return X, info, ratio
 
     def _detect(self, cams: list[int], roi_px: np.ndarray, use_window: np.ndarray) -> None:
         """One detector call per camera in ``cams``: in the window around ``roi_px[i]`` where
