@@ -93,7 +93,7 @@ def test_round_trip_every_message_type(tmp_path, ewand_rig):
         w.write_metadata("config", {"threshold_px": 2.5, "names": ["a", "b"], "nested": {"k": None}})
         w.write_scene_static(0.0, ewand_rig)
         assert w.write_image(0.25, "cam0", img, 7)
-        w.write_detections(0.25, "cam0", [[10.0, 20.0], [30.5, 40.25]], [0.9, 0.1], 7)
+        w.write_detections(0.25, "cam0", [[10.0, 20.0], [30.5, 40.25]], [0.9, 0.1], 7, areas_px=[52, 9])
         w.write_detections(0.25, "cam1", np.zeros((0, 2)), np.zeros(0), 7)
         w.write_observation(0.25, "rt2", obs_ok, 7)
         w.write_observation(0.5, "rt2", obs_none, 8)
@@ -112,7 +112,9 @@ def test_round_trip_every_message_type(tmp_path, ewand_rig):
         assert isinstance(det, Detections) and det.camera == "cam0" and det.frame_index == 7
         np.testing.assert_array_equal(det.uv_px, [[10.0, 20.0], [30.5, 40.25]])
         np.testing.assert_array_equal(det.scores, [0.9, 0.1])
+        np.testing.assert_array_equal(det.areas_px, [52.0, 9.0])
         assert by["/camera/cam1/detections"][0].data.uv_px.shape == (0, 2)
+        assert by["/camera/cam1/detections"][0].data.areas_px is None  # not given (RTBlob, logs before areas were logged)
         assert len(by["/camera/cam0/annotations"][0].data.circles) == 2
         obs = [m.data for m in by["/tracker/rt2/ball"]]
         _assert_obs_equal(obs[0], obs_ok)
@@ -275,8 +277,10 @@ def test_bad_messages_raise_clear_errors(tmp_path):
             w.write_ground_truth(0.0, [0, np.nan, 1], None, None)
         with pytest.raises(ValueError, match=r"q must be a finite array of shape \(7,\), got shape \(6,\)"):
             w.write_ground_truth(0.0, None, np.zeros(6), np.zeros(6))
-        with pytest.raises(ValueError, match=r"uv_px must be \(k, 2\) and scores \(k,\), got shapes \(2, 2\) and \(3,\)"):
+        with pytest.raises(ValueError, match=r"uv_px must be \(k, 2\) and scores and areas_px \(k,\), got shapes \(2, 2\), \(3,\) and None"):
             w.write_detections(0.0, "cam0", np.zeros((2, 2)), np.zeros(3))
+        with pytest.raises(ValueError, match=r"got shapes \(2, 2\), \(2,\) and \(3,\)"):
+            w.write_detections(0.0, "cam0", np.zeros((2, 2)), np.zeros(2), areas_px=np.zeros(3))
         with pytest.raises(ValueError, match="camera must be a non-empty name"):
             w.write_detections(0.0, "cam 0/x", np.zeros((0, 2)), np.zeros(0))
         with pytest.raises(ValueError, match="obs must be a tracker.BallObservation, got dict"):

@@ -290,6 +290,28 @@ def test_size_test_drops_the_wide_object_and_keeps_the_ball(rig, model):
     assert np.linalg.norm(o_off.position_m - X_big) < 0.01
 
 
+def test_logged_candidates_and_areas_reproduce_the_size_test(rig, model):
+    # What re-evaluation from a log's detections does (harness.accuracy.reevaluate): the estimator and
+    # the size test on the candidates and areas the live tracker reported give its position exactly.
+    from harness.accuracy.trackers import estimator_for, size_test_for
+
+    X_ball, X_big = X0_M, X0_M + np.array([0.3, -0.5, 0.2])
+    fs = _drawn_frameset(rig, rig.project(X_big)[:, None], 0.0, diameter_px=2.0 * _ball_px(rig, X_big))
+    images = [img.copy() for img in fs.images]
+    for img, uv, w in zip(images, rig.project(X_ball), _ball_px(rig, X_ball)):
+        draw_disk(img, uv, w, (245, 120, 20))
+    obs, info = Tracker(rig, model=model, roi=False).process_with_info(FrameSet(0.0, tuple(images)))
+    assert np.isfinite(info.areas_px[:, :2]).all() and np.isnan(info.areas_px[:, 2:]).all()
+    est, size_test = estimator_for("rt2", rig), size_test_for("rt2", rig)
+    uv = info.uv_candidates_px.copy()
+    X, ei = est.estimate(uv)
+    assert np.linalg.norm(X - X_big) < 0.01  # the estimator alone picks the wide object
+    X2, ei2, ratio, rejected = size_test.apply(est, uv, info.areas_px, X, ei)
+    assert rejected == 1 and ratio == info.size_ratio
+    np.testing.assert_array_equal(X2, obs.position_m)
+    assert size_test_for("rt2-paper", rig).max_ratio is None
+
+
 def test_size_test_keeps_fast_blurred_balls_with_the_trained_model(rig, renderer):
     # The shipped model on rendered balls flying at up to 8 m/s with a 3 ms shutter (the longest
     # smear of the data sets): the blob grows along the motion but stays under the threshold.

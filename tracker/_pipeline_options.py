@@ -137,6 +137,7 @@ class PipelineInfo:
     estimate : the estimator's :class:`EstimateInfo` (rt2 kinds) or :class:`RTBlobInfo` (rtblob)
     size_ratio : (rt2 kinds) median over the position's cameras of blob width / the width a ball would
         have at that depth (NaN without a position; rtblob: NaN)
+    areas_px : (n_cams, k) blob area of each candidate, pixels, NaN-padded (rtblob: None)
     """
 
     uv_candidates_px: np.ndarray
@@ -146,6 +147,7 @@ class PipelineInfo:
     retried: bool
     estimate: object
     size_ratio: float = math.nan
+    areas_px: np.ndarray | None = None
 
 
 def with_overrides(options, overrides: dict) -> TrackerOptions:

@@ -25,7 +25,6 @@ See docs/pipeline.md.
 from __future__ import annotations
 
 import math
-import statistics
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
@@ -46,6 +45,7 @@ from tracker._pipeline_options import (
     with_overrides,
 )
 from tracker._pipeline_roi import MotionPredictor
+from tracker._size_test import SizeTest
 from tracker._rtblob_detect import image_problem
 from tracker.detection import BallDetector, DetectorOptions
 from tracker.observation import BallObservation, FrameSet, Status
@@ -123,13 +123,11 @@ class Tracker:
                 f"({self._estimator.options.max_candidates_per_camera}); raise the latter or lower the former"
             )
         self._motion = MotionPredictor(rig, options.max_gap_s)
-        # the 3D size test: depth of X in camera i = (a, b, c) . X + t from depth_rows[i]; a ball there is ball_px_m[i] / depth px wide
-        self._max_size_ratio = options.max_size_ratio if kind == "rt2" else None
-        self._depth_rows = [(*map(float, c.R_world_to_cam[2]), float(c.t_world_to_cam_m[2])) for c in rig]
-        self._ball_px_m = [2.0 * options.ball_radius_m * 0.5 * float(c.K[0, 0] + c.K[1, 1]) for c in rig]
+        self._size = SizeTest(rig, options.max_size_ratio if kind == "rt2" else None, options.ball_radius_m)
         n = self.n_cams
         self._uv = np.full((n, k, 2), np.nan)  # the estimator's input, reused every frame set
         self._scores = np.full((n, k), np.nan)
+        self._areas = np.full((n, k), np.nan)  # blob areas, px (the size test's input)
         self._dets = [None] * n
         if options.workers > 1:
             self._pool = ThreadPoolExecutor(options.workers - 1, thread_name_prefix="rt2-detect")
@@ -229,6 +227,7 @@ class Tracker:
             self.stats.predictions += 1
         self._uv.fill(np.nan)
         self._scores.fill(np.nan)
+        self._areas.fill(np.nan)
         used_roi = np.isfinite(roi_px[:, 0])
         used_roi[[i for i in range(n) if i not in usable]] = False
         self._detect(usable, roi_px, used_roi)  # Algorithm 1 per camera (paper Sec. 2.1)
@@ -245,11 +244,13 @@ class Tracker:
                 notes.append(f"window search gave {info.status.value}; full frame searched in {', '.join(self._names[i] for i in redo)}")
                 self._uv[redo] = np.nan
                 self._scores[redo] = np.nan
+                self._areas[redo] = np.nan
                 used_roi[redo] = False
                 self._detect(redo, roi_px, used_roi)
                 X, info = self._estimator.estimate(self._uv)
         reported = self._uv.copy()
-        X, info, size_ratio = self._size_test(X, info, notes)
+        X, info, size_ratio, rejections = self._size.apply(self._estimator, self._uv, self._areas, X, info, notes)  # the 3D size test
+        self.stats.size_rejections += rejections
         ok = info.status is Status.OK
         if ok:
             self._motion.update(t_s, X)  # only confirmed estimates feed the prediction
@@ -259,7 +260,7 @@ class Tracker:
         uv_px = np.full((n, 2), np.nan)
         sel = np.flatnonzero(cand >= 0)
         uv_px[sel] = self._uv[sel, cand[sel]]
-        pinfo = PipelineInfo(reported, self._scores.copy(), roi_px, used_roi, retried, info, size_ratio)
+        pinfo = PipelineInfo(reported, self._scores.copy(), roi_px, used_roi, retried, info, size_ratio, self._areas.copy())
         self._images = None  # do not keep the frames alive
         obs = BallObservation(
             t_s=t_s,
@@ -274,31 +275,6 @@ class Tracker:
             notes=tuple(notes),
         )
         return obs, pinfo
-
-    def _size_test(self, X, info, notes: list):
-        """The 3D size test (``TrackerOptions.max_size_ratio``): while the position's blobs are too wide
-        for a ball at its depth, drop its candidates and estimate again. Returns (X, info, ratio);
-        the ratio is measured whenever there is a position, applied only when the test is on."""
-        ratio = math.nan
-        while X is not None:
-            x, y, z = X.tolist()
-            cand = info.candidate_index.tolist()
-            ratios = []
-            for i, c in enumerate(cand):  # plain Python: a few cameras, ~10x cheaper than numpy calls here
-                if c >= 0:
-                    a, b, d, t = self._depth_rows[i]
-                    ratios.append(math.sqrt(4.0 / math.pi * float(self._dets[i].areas_px[c])) * (a * x + b * y + d * z + t) / self._ball_px_m[i])
-            ratio = statistics.median(ratios)
-            if self._max_size_ratio is None or not ratio > self._max_size_ratio:
-                break
-            self.stats.size_rejections += 1
-            cams = [i for i, c in enumerate(cand) if c >= 0]
-            names = ", ".join(self._names[i] for i in cams)
-            notes.append(f"rejected the position seen by {names}: its blobs are {ratio:.2f} times as wide as a ball at that depth (max_size_ratio {self._max_size_ratio:g}); estimated again without them")
-            self._uv[cams, [cand[i] for i in cams]] = np.nan
-            X, info = self._estimator.estimate(self._uv)
-            ratio = math.nan
-        return X, info, ratio
 
     def _detect(self, cams: list[int], roi_px: np.ndarray, use_window: np.ndarray) -> None:
         """One detector call per camera in ``cams``: in the window around ``roi_px[i]`` where
@@ -322,6 +298,7 @@ class Tracker:
                 self._uv[i, :m] = d.uv_px
                 self._uv[i, :m] += boxes[i, :2]  # sub-image -> image pixels
                 self._scores[i, :m] = d.scores
+                self._areas[i, :m] = d.areas_px
             if use_window[i]:
                 st.roi_searches += 1
                 st.roi_misses += m == 0

@@ -43,7 +43,8 @@ class FrameResult:
     t_camera_s : the timestamp the frame set was delivered with (the camera clock: t_s plus the
         clock error, and changed by a timestamp fault)
     observations : {tracker: tracker.BallObservation}
-    candidates : {rt2 kind: (uv (n_cams, k, 2) distorted px, scores (n_cams, k))}, the estimator's input
+    candidates : {rt2 kind: (uv (n_cams, k, 2) distorted px, scores (n_cams, k), blob areas (n_cams, k) px)},
+        the estimator's input
     images : the delivered images (None entries = no frame) when the frame is logged, else None
     faults : the injected fault kinds that hit this frame
     """
@@ -111,7 +112,7 @@ class FrameProducer:
         for kind, tracker in self.trackers.items():
             obs[kind], info = tracker.process_with_info(fs)
             if kind != "rtblob":
-                cand[kind] = (info.uv_candidates_px, info.scores)
+                cand[kind] = (info.uv_candidates_px, info.scores, info.areas_px)
         keep = keep_images and self.log_every > 0 and k % self.log_every == 0
         return FrameResult(k, t_s, t_cam, obs, cand, images if keep else None, self.plan.faults_at(k))
 

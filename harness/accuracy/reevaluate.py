@@ -9,8 +9,9 @@ Two sources (``source="auto"`` picks the first that applies):
   images are lossless, so with the same settings the observations and hence the figures are the
   live run's, bit for bit (JPEG logs re-run on the compressed images and differ a little).
 * ``detections``: the robust estimator of each rt2 tracker re-run on the logged candidates (every
-  candidate the live estimator saw). RTBlob has no estimator to re-run: its logged observations are
-  scored as recorded.
+  candidate the live estimator saw), then rt2's 3D size test on their logged blob areas (logs written
+  before the areas were logged: the size test is left out, and a note says so). RTBlob has no
+  estimator to re-run: its logged observations are scored as recorded.
 
 Ground truth is the logged ``/ground_truth/ball`` (FK of the reported joints); registration and scoring
 are :func:`harness.accuracy.evaluate.evaluate`, as live. The log is streamed in log-time order, one
@@ -29,7 +30,7 @@ import numpy as np
 
 from harness.accuracy.config import AccuracyConfig
 from harness.accuracy.evaluate import TrackRecord, evaluate
-from harness.accuracy.trackers import DETECTION_SUFFIX, build_trackers, estimator_for
+from harness.accuracy.trackers import DETECTION_SUFFIX, build_trackers, estimator_for, size_test_for
 from tracker import FrameSet, Status
 from tracker.detection import BallSegmentationModel
 
@@ -114,11 +115,13 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
         else:
             for k in wanted:
                 if k in DETECTION_SUFFIX:
-                    runners[k] = estimator_for(k, rig, config.eps_px)
-                    how[k] = "estimator re-run on the logged detections"
+                    runners[k] = (estimator_for(k, rig, config.eps_px), size_test_for(k, rig))
+                    how[k] = "estimator and size test re-run on the logged detections"
                 else:
                     how[k] = "logged observations scored as recorded (no estimator to re-run without images)"
         records = _stream(reader, config, session, src, {"current": runners, "spare": spare}, names, n, progress)
+        if records.pop("_no_areas", False):
+            notes.append("the log has no blob areas (written before they were logged): rt2's 3D size test was not re-run")
     for r in [*runners.values(), *spare.values()]:
         if hasattr(r, "close"):
             r.close()
@@ -187,11 +190,21 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
             for kind, tr in runners.items():
                 records[kind].put(k, tr.process(fs))
         elif src == "detections":
-            for kind, est in runners.items():
+            for kind, (est, size_test) in runners.items():
                 uv = np.full((len(names), k_per.get(kind, 1), 2), np.nan)
-                for i, cand in state["dets"].get(kind, {}).items():
+                areas = np.full(uv.shape[:2], np.nan)
+                have_areas = True
+                for i, (cand, area) in state["dets"].get(kind, {}).items():
                     uv[i, : len(cand)] = cand
+                    if area is None:
+                        have_areas = False
+                    else:
+                        areas[i, : len(area)] = area
                 X, info = est.estimate(uv)
+                if X is not None and have_areas:
+                    X, info, _, _ = size_test.apply(est, uv, areas, X, info)
+                elif not have_areas and size_test.max_ratio is not None:
+                    records["_no_areas"] = True
                 r = records[kind]
                 if X is not None:
                     r.position_m[k] = X
@@ -217,7 +230,7 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
             cam = topic.split("/")[2]
             if cam in det_cams:
                 kind, i = det_cams[cam]
-                state["dets"].setdefault(kind, {})[i] = m.data.uv_px
+                state["dets"].setdefault(kind, {})[i] = (m.data.uv_px, m.data.areas_px)
     flush()
     bar.close()
     if not reader.finished_cleanly:  # the last frame set of each lane may be cut in the middle

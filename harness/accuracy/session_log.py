@@ -117,10 +117,10 @@ class AccuracyLogWriter:
             for cam, img in zip(self.names, fr.images):
                 if img is not None:  # no frame delivered: nothing to log
                     w.write_image(t, cam, img, k)
-        for kind, (uv, scores) in fr.candidates.items():
+        for kind, (uv, scores, areas) in fr.candidates.items():
             for i, cam in enumerate(self.names):
                 have = np.isfinite(uv[i, :, 0])
-                w.write_detections(t, detections_camera(kind, cam), uv[i][have], scores[i][have], k)
+                w.write_detections(t, detections_camera(kind, cam), uv[i][have], scores[i][have], k, areas_px=areas[i][have])
         for kind, obs in fr.observations.items():
             w.write_observation(t, kind, obs, k)
         w.write_ground_truth(t, m.gt_world_m[k], m.q_reported[k], m.qdot_reported[k], m.q_command[k], k)

@@ -6,16 +6,18 @@
   reference_rgb=...)`` from :func:`harness.accuracy.calibration.calibrate_rtblob` (``rtblob_setup=
   "calibrated"``, the default) or ``RTBlobOptions()`` (``"default"``).
 
-Re-evaluation from logged detections re-runs only the estimator: :func:`estimator_for` builds the same
-``RobustTriangulator`` the rt2 trackers use.
+Re-evaluation from logged detections re-runs only the estimator and the 3D size test:
+:func:`estimator_for` builds the same ``RobustTriangulator`` the rt2 trackers use, :func:`size_test_for`
+the same :class:`tracker._size_test.SizeTest`.
 """
 
 from __future__ import annotations
 
-from tracker import RobustOptions, RobustTriangulator, RTBlobOptions, make_tracker
+from tracker import RobustOptions, RobustTriangulator, RTBlobOptions, TrackerOptions, make_tracker
+from tracker._size_test import SizeTest
 from tracker.pipeline import load_model
 
-__all__ = ["DETECTION_SUFFIX", "DETECTOR_METHOD", "ESTIMATOR_METHOD", "build_trackers", "detections_camera", "estimator_for", "rtblob_options"]
+__all__ = ["DETECTION_SUFFIX", "DETECTOR_METHOD", "ESTIMATOR_METHOD", "build_trackers", "detections_camera", "estimator_for", "rtblob_options", "size_test_for"]
 
 #: detector and estimator method of each rt2 kind (as tracker.pipeline uses them)
 DETECTOR_METHOD = {"rt2": "ours", "rt2-paper": "paper"}
@@ -63,3 +65,11 @@ def estimator_for(kind: str, rig, eps_px=None) -> RobustTriangulator:
         raise ValueError(f"tracker {kind!r} has no robust estimator to re-run; valid: {sorted(ESTIMATOR_METHOD)}")
     options = RobustOptions() if eps_px is None else RobustOptions(eps_px=float(eps_px))
     return RobustTriangulator(rig, options, method=ESTIMATOR_METHOD[kind])
+
+
+def size_test_for(kind: str, rig) -> SizeTest:
+    """The 3D size test tracker ``kind`` applies (the Tracker defaults: on for "rt2", measuring only for "rt2-paper")."""
+    if kind not in ESTIMATOR_METHOD:
+        raise ValueError(f"tracker {kind!r} has no size test; valid: {sorted(ESTIMATOR_METHOD)}")
+    opt = TrackerOptions()
+    return SizeTest(rig, opt.max_size_ratio if kind == "rt2" else None, opt.ball_radius_m)

@@ -58,6 +58,7 @@ class Detections:
     """Ball candidates of one camera image.
 
     uv_px : (k, 2) distorted pixel centres; scores : (k,) detector scores (higher = more ball-like)
+    areas_px : (k,) blob areas, pixels (the 3D size test's input), or None (not logged: RTBlob, older logs)
     """
 
     t_s: float
@@ -65,6 +66,7 @@ class Detections:
     uv_px: np.ndarray
     scores: np.ndarray
     frame_index: int = 0
+    areas_px: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -94,7 +96,7 @@ _JSON_SCHEMAS = {
         "title": "rt2.Detections", "description": "Ball candidates of one camera image (distorted pixels).",
         "type": "object",
         "properties": {"t_s": {"type": "number"}, "camera": {"type": "string"}, "frame_index": {"type": "integer"},
-                       "uv_px": {"type": "array", "items": _VEC}, "scores": _VEC},
+                       "uv_px": {"type": "array", "items": _VEC}, "scores": _VEC, "areas_px": _VEC},
         "required": ["t_s", "camera", "frame_index", "uv_px", "scores"],
     },
     "rt2.BallObservation": {
@@ -233,15 +235,18 @@ def decode_image(msg) -> np.ndarray:
 
 
 # -- rt2 JSON types ---------------------------------------------------------------------------------
-def encode_detections(t_s: float, camera: str, uv_px: np.ndarray, scores: np.ndarray, frame_index: int) -> bytes:
-    return encode_json({"t_s": t_s, "camera": camera, "frame_index": frame_index,
-                        "uv_px": _nan_to_none(uv_px), "scores": _nan_to_none(scores)})
+def encode_detections(t_s: float, camera: str, uv_px: np.ndarray, scores: np.ndarray, frame_index: int, areas_px=None) -> bytes:
+    doc = {"t_s": t_s, "camera": camera, "frame_index": frame_index, "uv_px": _nan_to_none(uv_px), "scores": _nan_to_none(scores)}
+    if areas_px is not None:
+        doc["areas_px"] = _nan_to_none(areas_px)
+    return encode_json(doc)
 
 
 def decode_detections(doc: dict) -> Detections:
     uv = _none_to_nan(doc["uv_px"]).reshape(-1, 2)
+    areas = doc.get("areas_px")
     return Detections(t_s=doc["t_s"], camera=doc["camera"], uv_px=uv, scores=_none_to_nan(doc["scores"]),
-                      frame_index=doc.get("frame_index", 0))
+                      frame_index=doc.get("frame_index", 0), areas_px=None if areas is None else _none_to_nan(areas))
 
 
 def encode_observation(obs: BallObservation) -> bytes:

@@ -192,21 +192,23 @@ class SessionLogWriter:
         self._put(topics.image_topic(camera), codecs.IMAGE_FORMATS[self.image_format], log_ns, data, frame_index, lane="image")
         return True
 
-    def write_detections(self, t_s: float, camera: str, uv_px, scores, frame_index: int = 0) -> None:
-        """uv_px : (k, 2) distorted pixels of the candidates; scores : (k,) their detector scores."""
+    def write_detections(self, t_s: float, camera: str, uv_px, scores, frame_index: int = 0, areas_px=None) -> None:
+        """uv_px : (k, 2) distorted pixels of the candidates; scores : (k,) their detector scores;
+        areas_px : (k,) their blob areas in pixels (optional; re-evaluation needs them for the 3D size test)."""
         log_ns, frame_index = self._time(t_s), self._index(frame_index)
         topics.check_name(camera, "camera")
         try:
             uv, sc = np.asarray(uv_px, float), np.asarray(scores, float)
+            ar = None if areas_px is None else np.asarray(areas_px, float)
         except (TypeError, ValueError):
-            raise LogError(f"detections of camera {camera!r}: uv_px and scores must be numeric arrays") from None
+            raise LogError(f"detections of camera {camera!r}: uv_px, scores and areas_px must be numeric arrays") from None
         if uv.size == 0:
             uv = uv.reshape(0, 2)
-        if uv.ndim != 2 or uv.shape[1] != 2 or sc.shape != (len(uv),):
-            raise LogError(f"detections of camera {camera!r}: uv_px must be (k, 2) and scores (k,), "
-                           f"got shapes {uv.shape} and {sc.shape}")
+        if uv.ndim != 2 or uv.shape[1] != 2 or sc.shape != (len(uv),) or (ar is not None and ar.shape != (len(uv),)):
+            raise LogError(f"detections of camera {camera!r}: uv_px must be (k, 2) and scores and areas_px (k,), "
+                           f"got shapes {uv.shape}, {sc.shape} and {None if ar is None else ar.shape}")
         self._put(topics.detections_topic(camera), "rt2.Detections", log_ns,
-                  codecs.encode_detections(float(t_s), camera, uv, sc, frame_index), frame_index)
+                  codecs.encode_detections(float(t_s), camera, uv, sc, frame_index, ar), frame_index)
         if self.options.annotate_detections:
             msg = ImageAnnotations()
             ts = codecs.timestamp(log_ns)

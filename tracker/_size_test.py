@@ -1,0 +1,71 @@
+"""The 3D size test of the ``rt2`` pipeline: is what the cameras agree on as wide as a ball at that depth?
+
+A position fixes each inlier camera's depth ``z``, so a ball there is ``2 r f / z`` pixels wide
+(``r`` the ball's radius, ``f`` the camera's mean focal length). The blob a candidate came from is
+``sqrt(4 area / pi)`` wide. When the median over the inliers of blob width / ball width exceeds
+``max_ratio``, the cameras agree on an orange object too big to be the ball: its candidates are
+dropped and the estimate is redone, until a position passes or none is left (docs/pipeline.md, step 8).
+
+Kept apart from :mod:`tracker.pipeline` so that re-evaluation from logged detections
+(``harness.accuracy.reevaluate``) applies exactly the same test.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+
+import numpy as np
+
+__all__ = ["SizeTest"]
+
+
+class SizeTest:
+    """The size test for one rig.
+
+    rig : :class:`~tracker.rig.Rig`; max_ratio : the threshold (None: measure, never reject);
+    ball_radius_m : the ball's radius, metres
+    """
+
+    def __init__(self, rig, max_ratio: float | None, ball_radius_m: float = 0.02):
+        self.max_ratio = max_ratio
+        self.names = rig.names
+        self._depth_rows = [(*map(float, c.R_world_to_cam[2]), float(c.t_world_to_cam_m[2])) for c in rig]
+        self._ball_px_m = [2.0 * ball_radius_m * 0.5 * float(c.K[0, 0] + c.K[1, 1]) for c in rig]
+
+    def ratio(self, X, candidate_index, areas_px) -> float:
+        """Median over the cameras with ``candidate_index >= 0`` of blob width / ball width at ``X``.
+
+        X : (3,) position; candidate_index : (n_cams,) int; areas_px : (n_cams, k) blob areas, pixels
+        """
+        x, y, z = (float(v) for v in X)
+        ratios = []
+        for i, c in enumerate(candidate_index.tolist()):  # plain Python: a few cameras, ~10x cheaper than numpy calls
+            if c >= 0:
+                a, b, d, t = self._depth_rows[i]
+                ratios.append(math.sqrt(4.0 / math.pi * float(areas_px[i, c])) * (a * x + b * y + d * z + t) / self._ball_px_m[i])
+        return statistics.median(ratios)
+
+    def apply(self, estimator, uv, areas_px, X, info, notes: list | None = None):
+        """Test the estimate ``(X, info)`` of ``estimator`` on candidates ``uv``; while it fails, set the
+        used candidates of ``uv`` (modified in place) to NaN and estimate again.
+
+        Returns ``(X, info, ratio, rejections)``: the final estimate, its ratio (NaN without a position)
+        and how many positions were rejected; each rejection appends a note to ``notes``.
+        """
+        ratio, rejections = math.nan, 0
+        while X is not None:
+            ratio = self.ratio(X, info.candidate_index, areas_px)
+            if self.max_ratio is None or not ratio > self.max_ratio:
+                break
+            rejections += 1
+            cams = np.flatnonzero(info.candidate_index >= 0)
+            if notes is not None:
+                notes.append(
+                    f"rejected the position seen by {', '.join(self.names[i] for i in cams)}: its blobs are {ratio:.2f} times as wide "
+                    f"as a ball at that depth (max_size_ratio {self.max_ratio:g}); estimated again without them"
+                )
+            uv[cams, info.candidate_index[cams]] = np.nan
+            X, info = estimator.estimate(uv)
+            ratio = math.nan
+        return X, info, ratio, rejections
