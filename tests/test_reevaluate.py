@@ -38,6 +38,24 @@ def test_same_settings_reproduce_the_live_figures_exactly(accuracy_session, sour
         assert "as recorded" in r.how["rtblob"] and "detections" in r.how["rt2"]
 
 
+def test_detections_carry_blob_areas_and_old_logs_without_them_skip_the_size_test(accuracy_session, monkeypatch):
+    import dataclasses
+
+    from harness.logs import codecs
+
+    result, out = accuracy_session
+    with SessionLogReader(out / "session.mcap") as log:
+        det = next(m.data for m in log.messages(["/camera/cam0/detections"]) if len(m.data.uv_px))
+    assert det.areas_px is not None and det.areas_px.shape == (len(det.uv_px),) and (det.areas_px > 0).all()
+    assert not any("blob areas" in n for n in _reeval(out / "session.mcap", source="detections", trackers=["rt2"]).notes)
+    # a log written before the areas were logged: decoded without them
+    decode = codecs.decode_detections
+    monkeypatch.setattr(codecs, "decode_detections", lambda doc: dataclasses.replace(decode(doc), areas_px=None))
+    r = _reeval(out / "session.mcap", source="detections", trackers=["rt2"])
+    assert any("no blob areas" in n and "size test was not re-run" in n for n in r.notes)
+    assert r.identical  # nothing was rejected live, so the figures still agree
+
+
 def test_auto_picks_images_when_every_frame_was_logged(accuracy_session):
     _, out = accuracy_session
     assert _reeval(out / "session.mcap", trackers=["rt2-paper"]).source == "images"
