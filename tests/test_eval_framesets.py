@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from harness.studies.eval_framesets import TRACKERS, FramesetScores, evaluate, format_table, score_frameset
+from harness.studies.eval_framesets import TRACKERS, FramesetScores, cameras_with_ball, evaluate, format_table, score_frameset, trackable_views
 
 
 def test_score_frameset_rules():
@@ -32,6 +32,29 @@ def test_score_frameset_rules():
     assert "t " in format_table([s])
 
 
+def test_balls_outside_the_workspace_are_not_trackable():
+    lo, hi = np.array([-1.0, -1.0, 0.6]), np.array([1.0, 1.0, 2.0])
+    balls = [[0.0, 0.0, 1.0], [0.5, 0.2, 0.02], [1.05, 0.0, 1.0]]  # flying; on the floor; just outside
+    np.testing.assert_array_equal(trackable_views(balls, [3, 4, 2], lo, hi), [3, 0, 0])
+    assert trackable_views(np.zeros((0, 3)), [], lo, hi).shape == (0,)
+    s = FramesetScores("t")
+    score_frameset(s, [[0.5, 0.2, 0.02]], trackable_views([[0.5, 0.2, 0.02]], [4], lo, hi), [0.5, 0.2, 0.03], False, tol_m=0.04)
+    assert (s.trackable, s.found, s.wrong, s.positions) == (0, 0, 0, 1)  # a position on it is not wrong
+
+
+def test_cameras_with_ball_counts_candidates_within_a_diameter():
+    from harness.render.truth import BallTruth
+
+    def truth(c, visible=True):
+        return BallTruth(np.array(c, float), 8.0, 1.0 if visible else 0.2, np.zeros(4))
+
+    uv = np.full((3, 2, 2), np.nan)
+    uv[0, 1] = [107.0, 100.0]  # 7 px off: within the 8 px diameter
+    uv[1, 0] = [100.0, 109.0]  # 9 px off: not
+    uv[2, 0] = [50.0, 50.0]  # on the ball, but the ball is hidden there
+    assert cameras_with_ball(uv, [truth([100, 100]), truth([100, 100]), truth([50, 50], visible=False)]) == 1
+
+
 @pytest.fixture(scope="module")
 def small_run():
     from harness.rigs import resolve_rig
@@ -45,6 +68,7 @@ def test_short_run_is_seeded_and_scores_every_tracker(small_run):
     assert [s.tracker for s in scores] == list(TRACKERS)
     for s in scores:
         assert s.framesets == 12 and 0 < s.trackable <= 12 and s.found <= s.trackable and s.positions >= s.found
+        assert 0 <= s.missed_detector <= s.trackable - s.found
     # the same seed gives the same figures
     again = evaluate(rig, 12, 2, trackers=("rt2",), progress=False)
     assert again[0].as_json() == scores[0].as_json()

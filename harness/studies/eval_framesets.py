@@ -9,7 +9,9 @@ and scores its 3D answer against the scene.
 
 Truth: the scene's balls of ``--ball-colour`` (the model's target; a detection on the other colour
 is a wrong answer). A ball is *seen* by a camera when the renderer labels it there (visibility
->= 0.5, the data set's rule).
+>= 0.5, the data set's rule). A ball outside the rig's workspace (grown by the estimator's
+``workspace_margin_m``; a second ball lying on the floor or a far table corner) is never trackable
+-- the estimator rejects points there by design -- but a position on it is not wrong either.
 
 * ``trackable`` = frame sets whose ball is seen by >= 2 cameras (``trackable_3`` : >= 3, enough for
   ``Status.OK``); ``recall`` = of the trackable ones, those with a position within ``--tol-m`` of the
@@ -21,7 +23,9 @@ is a wrong answer). A ball is *seen* by a camera when the renderer labels it the
 * ``max_right_size_ratio``: the largest ``PipelineInfo.size_ratio`` of a position within ``--tol-m``
   (for ``rt2-no-size``: how close true balls come to the 3D size test's ``max_size_ratio``, 1.2;
   for ``rt2`` it cannot exceed 1.2);
-  ``size_rejections``: positions the size test rejected.
+  ``size_rejections``: positions the size test rejected;
+* ``missed_detector``: trackable frame sets without a right position where at most one camera had the
+  ball among its candidates (within a ball diameter): the detector's miss, not the estimator's.
 
 Trackers: ``rt2`` (ours, with the 3D size test at ``--max-size-ratio``), ``rt2-no-size`` (ours without it:
 ``max_size_ratio=None``) and ``rt2-paper`` (Algorithms 1 and 2 as published).
@@ -35,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["TRACKERS", "FramesetScores", "add_arguments", "evaluate", "format_table", "run", "score_frameset"]
+__all__ = ["TRACKERS", "FramesetScores", "add_arguments", "evaluate", "format_table", "run", "cameras_with_ball", "score_frameset", "trackable_views"]
 
 #: name -> (Tracker kind, Tracker option overrides)
 TRACKERS = {
@@ -61,6 +65,7 @@ class FramesetScores:
     wrong: int = 0
     wrong_ok: int = 0
     size_rejections: int = 0
+    missed_detector: int = 0
     max_right_size_ratio: float = float("nan")
     errors_cm: list = None
 
@@ -126,6 +131,24 @@ def score_frameset(scores: FramesetScores, balls_m, n_seen, position_m, ok: bool
         scores.wrong_ok += ok
 
 
+def cameras_with_ball(uv_candidates_px, truths) -> int:
+    """Cameras among whose candidates ``(n_cams, k, 2)`` one lies within a ball diameter of the ball's
+    centre there (``truths``: that ball's :class:`~harness.render.truth.BallTruth` per camera, visible ones only)."""
+    n = 0
+    for uv, t in zip(uv_candidates_px, truths):
+        if t.visible:
+            d = np.linalg.norm(uv - np.asarray(t.center_px), axis=1)
+            n += bool(np.nanmin(d, initial=np.inf) <= t.diameter_px)
+    return n
+
+
+def trackable_views(balls_m, n_seen, lo, hi) -> np.ndarray:
+    """(g,) cameras that see each ball, 0 for a ball outside the box ``[lo, hi]`` (the grown workspace)."""
+    balls_m = np.asarray(balls_m, float).reshape(-1, 3)
+    inside = ((balls_m >= lo) & (balls_m <= hi)).all(axis=1)
+    return np.asarray(n_seen, int).reshape(-1) * inside
+
+
 def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colour: str = "orange", tol_m: float = 0.04, model=None, max_size_ratio: float = 1.2, progress=True):
     """Render ``frames`` random frame sets of ``rig`` and score each tracker; list of :class:`FramesetScores`.
 
@@ -136,7 +159,7 @@ def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colo
     from harness.render import Renderer
     from harness.render.scene import colour_rgb
     from harness.render.scenes import random_scene
-    from tracker import FrameSet
+    from tracker import FrameSet, RobustOptions
     from tracker.pipeline import Tracker, load_model
 
     for name in trackers:
@@ -147,6 +170,7 @@ def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colo
     if rig.workspace_m is None:
         raise ValueError("the rig has no workspace_m: random frame sets need the box where balls fly")
     target = colour_rgb(ball_colour, "ball_colour")
+    lo, hi = rig.workspace_m + np.array([[-1.0], [1.0]]) * RobustOptions().workspace_margin_m
     model = load_model(model)
     renderer = Renderer(rig, seed=seed)
     overrides = {name: dict(kw) for name, (_, kw) in TRACKERS.items()}
@@ -158,11 +182,16 @@ def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colo
         images, truths = renderer.render_labelled(scene)
         ours = [b for b, ball in enumerate(scene.balls) if np.allclose(ball.colour, target)]
         balls_m = np.array([scene.balls[b].position_m for b in ours]).reshape(-1, 3)
-        n_seen = np.array([sum(bool(t[b].visible) for t in truths) for b in ours], int)
+        n_seen = trackable_views(balls_m, [sum(bool(t[b].visible) for t in truths) for b in ours], lo, hi)
         for name, tr in runs.items():
             tr.reset()
             obs, info = tr.process_with_info(FrameSet(float(f), images))
-            score_frameset(scores[name], balls_m, n_seen, obs.position_m, obs.status.value == "ok", tol_m=tol_m, size_ratio=info.size_ratio)
+            sc = scores[name]
+            found = sc.found
+            score_frameset(sc, balls_m, n_seen, obs.position_m, obs.status.value == "ok", tol_m=tol_m, size_ratio=info.size_ratio)
+            if (n_seen >= 2).any() and sc.found == found:  # a trackable frame set missed: did the detector give the ball to >= 2 cameras?
+                hits = [cameras_with_ball(info.uv_candidates_px, [t[b] for t in truths]) for b, n in zip(ours, n_seen) if n >= 2]
+                sc.missed_detector += max(hits) <= 1
     for name, tr in runs.items():
         scores[name].size_rejections = tr.stats.size_rejections
         tr.close()
@@ -170,12 +199,13 @@ def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colo
 
 
 def format_table(scores) -> str:
-    head = f"{'tracker':<12} {'recall':>8} {'recall OK':>10} {'wrong':>8} {'wrong OK':>9} {'median cm':>10} {'positions':>10} {'OK':>5} {'trackable':>10} {'size rej.':>10} {'max ratio':>10}"
+    head = f"{'tracker':<12} {'recall':>8} {'recall OK':>10} {'wrong':>8} {'wrong OK':>9} {'median cm':>10} {'positions':>10} {'OK':>5} {'trackable':>10} {'size rej.':>10} {'max ratio':>10} {'missed: det.':>13}"
     lines = [head, "-" * len(head)]
     for s in scores:
+        missed = f"{s.missed_detector}/{s.trackable - s.found}"
         lines.append(
             f"{s.tracker:<12} {100 * s.recall:7.2f}% {100 * s.recall_ok:9.2f}% {100 * s.wrong_rate:7.2f}% {100 * s.wrong_ok_rate:8.2f}% "
-            f"{s.median_error_cm:10.3f} {s.positions:10d} {s.ok_positions:5d} {s.trackable:10d} {s.size_rejections:10d} {s.max_right_size_ratio:10.2f}"
+            f"{s.median_error_cm:10.3f} {s.positions:10d} {s.ok_positions:5d} {s.trackable:10d} {s.size_rejections:10d} {s.max_right_size_ratio:10.2f} {missed:>13}"
         )
     return "\n".join(lines)
 
