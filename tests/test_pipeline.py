@@ -290,6 +290,28 @@ def test_size_test_drops_the_wide_object_and_keeps_the_ball(rig, model):
     assert np.linalg.norm(o_off.position_m - X_big) < 0.01
 
 
+def test_size_rejection_in_the_windows_falls_back_to_the_full_frame(rig, model):
+    # The tracker follows the ball; at frame 3 the ball jumps away and a wide orange disk sits exactly
+    # where it was predicted, in every camera's window. The windows agree on the disk (status OK),
+    # the size test rejects it, and the full-frame fallback finds the ball.
+    trk = Tracker(rig, model=model)
+    X = X0_M + V_MPS * DT_S * np.arange(4)[:, None]
+    for f in range(3):
+        assert trk.process(_drawn_frameset(rig, rig.project(X[f])[:, None], f * DT_S, f, diameter_px=_ball_px(rig, X[f]))).status is Status.OK
+    X_jump = X[3] + np.array([0.0, -0.5, 0.15])
+    fs = _drawn_frameset(rig, rig.project(X[3])[:, None], 3 * DT_S, 3, diameter_px=2.0 * _ball_px(rig, X[3]))
+    images = [img.copy() for img in fs.images]
+    for img, uv, w in zip(images, rig.project(X_jump), _ball_px(rig, X_jump)):
+        draw_disk(img, uv, w, (245, 120, 20))
+    o, info = trk.process_with_info(FrameSet(3 * DT_S, tuple(images), 3))
+    assert info.retried and trk.stats.full_frame_retries == 1
+    assert o.status is Status.OK and np.linalg.norm(o.position_m - X_jump) < 0.01
+    assert "times as wide as a ball" in o.notes[0] and "full frame searched in cam0, cam1, cam2, cam3" in o.notes[1]
+    # the full frames hold the disk again: it is rejected a second time before the ball is taken
+    assert trk.stats.size_rejections == 2 and len(o.notes) == 3 and "times as wide as a ball" in o.notes[2]
+    assert np.isfinite(info.uv_candidates_px[:, :2, 0]).all()  # the disk and the ball stay reported
+
+
 def test_logged_candidates_and_areas_reproduce_the_size_test(rig, model):
     # What re-evaluation from a log's detections does (harness.accuracy.reevaluate): the estimator and
     # the size test on the candidates and areas the live tracker reported give its position exactly.

@@ -48,7 +48,8 @@ class TrackerOptions:
     max_size_ratio : the 3D size test (``rt2`` only; ``rt2-paper`` never applies it): a position whose
         blobs are, by the median over its cameras, more than this many times as wide as a ball of
         ``ball_radius_m`` would look at that depth is an orange object several cameras agree on, not
-        the ball; its candidates are dropped and the estimate is redone (at most twice). Blob width =
+        the ball; its candidates are dropped and the estimate is redone (until one passes or none is
+        left; windows then fall back to the full frame, like any unconfirmed estimate). Blob width =
         ``sqrt(4 area / pi)``; on true balls the ratio stays below 1 (pixels under ``T_l`` at the
         edge are not counted). None = off
     ball_radius_m : the ball's radius for the size test, metres (0.02 = a 40 mm ball)

@@ -231,12 +231,13 @@ class Tracker:
         used_roi = np.isfinite(roi_px[:, 0])
         used_roi[[i for i in range(n) if i not in usable]] = False
         self._detect(usable, roi_px, used_roi)  # Algorithm 1 per camera (paper Sec. 2.1)
-        X, info = self._estimator.estimate(self._uv)  # Algorithm 2 (paper Sec. 2.2; "ours" extends it)
+        X, info, size_ratio = self._estimate(notes)  # Algorithm 2 (paper Sec. 2.2; "ours" extends it), then the 3D size test
         retried = False
         if self.options.retry_full_frame and info.status is not Status.OK and used_roi.any():
-            # The full-frame fallback, only when the windows did not confirm the ball. Every camera
-            # that searched a window is redone: with two agreeing cameras, those two may be the ones
-            # whose windows hold the wrong object (any two rays nearly meet).
+            # The full-frame fallback, only when the windows did not confirm the ball (also when the
+            # size test rejected what they held). Every camera that searched a window is redone: with
+            # two agreeing cameras, those two may be the ones whose windows hold the wrong object (any
+            # two rays nearly meet).
             redo = [i for i in usable if used_roi[i]]
             if redo:
                 retried = True
@@ -247,10 +248,7 @@ class Tracker:
                 self._areas[redo] = np.nan
                 used_roi[redo] = False
                 self._detect(redo, roi_px, used_roi)
-                X, info = self._estimator.estimate(self._uv)
-        reported = self._uv.copy()
-        X, info, size_ratio, rejections = self._size.apply(self._estimator, self._uv, self._areas, X, info, notes)  # the 3D size test
-        self.stats.size_rejections += rejections
+                X, info, size_ratio = self._estimate(notes)
         ok = info.status is Status.OK
         if ok:
             self._motion.update(t_s, X)  # only confirmed estimates feed the prediction
@@ -260,7 +258,7 @@ class Tracker:
         uv_px = np.full((n, 2), np.nan)
         sel = np.flatnonzero(cand >= 0)
         uv_px[sel] = self._uv[sel, cand[sel]]
-        pinfo = PipelineInfo(reported, self._scores.copy(), roi_px, used_roi, retried, info, size_ratio, self._areas.copy())
+        pinfo = PipelineInfo(self._uv.copy(), self._scores.copy(), roi_px, used_roi, retried, info, size_ratio, self._areas.copy())
         self._images = None  # do not keep the frames alive
         obs = BallObservation(
             t_s=t_s,
@@ -275,6 +273,16 @@ class Tracker:
             notes=tuple(notes),
         )
         return obs, pinfo
+
+    def _estimate(self, notes: list):
+        """The robust estimate of the current candidates, then the 3D size test on a working copy (the
+        candidates it drops stay in ``self._uv``, which PipelineInfo reports). Returns (X, info, ratio)."""
+        X, info = self._estimator.estimate(self._uv)
+        if X is None:
+            return X, info, math.nan
+        X, info, ratio, rejections = self._size.apply(self._estimator, self._uv.copy(), self._areas, X, info, notes)
+        self.stats.size_rejections += rejections
+        return X, info, ratio
 
     def _detect(self, cams: list[int], roi_px: np.ndarray, use_window: np.ndarray) -> None:
         """One detector call per camera in ``cams``: in the window around ``roi_px[i]`` where
