@@ -32,6 +32,19 @@ def test_study_rows_and_same_seed_same_figures(real_data):
     assert all(r["outliers_rejected"] in (None, 1.0) for r in rk)
 
 
+def test_real_flights_default_to_the_ones_the_ball_parameters_were_not_fitted_on(real_data):
+    from harness.studies.eval_filters import real_flights
+    from harness.studies.fit_flight import load_flights, split_flights
+
+    held, every = real_flights(), real_flights(which="all")
+    assert len(every) == 88 and len(held) == 29  # data/ball_params.yaml: fit on 59, 29 held out
+    fit, held_split = split_flights(load_flights(), 0)
+    fitted = {f"{f.set_name}/{f.traj}" for f in fit}
+    assert {f.name for f in held} == {f"{f.set_name}/{f.traj}" for f in held_split} and not fitted & {f.name for f in held}
+    with pytest.raises(ValueError, match="real flights must be one of"):
+        real_flights(which="some")
+
+
 def test_cli_writes_json_and_rejects_bad_arguments(tmp_path, capsys):
     out = tmp_path / "rows.json"
     assert main(["eval", "filters", "--no-real", "--sim", "2", "--seed", "1", "--json", str(out)]) == 0
@@ -46,7 +59,7 @@ def test_cli_writes_json_and_rejects_bad_arguments(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_full_study_goals(real_data):
-    """The figures of docs/filters.md: all 88 real flights and 100 simulated serves, 5 % outliers."""
+    """The figures of the README: the 29 held-out real flights and 100 simulated serves, 5 % outliers."""
     rows = run_study(0, 0.05, n_sim=100, progress=False)
     get = {(r["source"], r["filter"], r["outlier_rate"], r["metric"]): r for r in rows}
     for src in ("real", "sim"):

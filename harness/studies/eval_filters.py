@@ -2,8 +2,10 @@
 
 Flights (docs/filters.md, sec. 5):
 
-* ``real`` -- the 88 MPI-IS launcher flights (``../shared/data/real/mpi_launcher_trajectories``,
-  BSD-3-Clause), ~180 Hz, in their own frame (table top z = 0.744 m from ``rt2 sim fit-flight``,
+* ``real`` -- the MPI-IS launcher flights (``../shared/data/real/mpi_launcher_trajectories``,
+  BSD-3-Clause): by default (``--real-flights held-out``) the 29 of 88 that the shipped ball
+  parameters were not fitted on (``rt2 sim fit-flight``'s split, seed from ``data/ball_params.yaml``),
+  with ``--real-flights all`` every one; ~180 Hz, in their own frame (table top z = 0.744 m from ``rt2 sim fit-flight``,
   generous table extent, flight along +x); hitting plane ``x = --real-plane-x`` (2.4 m: before the
   bounce for the spin sets, after it for the others). Truth = the recorded samples.
 * ``sim`` -- ``--sim N`` seeded launcher serves (``harness.launcher``) in the lab frame, flown by
@@ -41,7 +43,7 @@ from policies.ball_model import DEFAULT_PARAMS_PATH, BallParams, TableGeometry, 
 from policies.filters import FILTERS, make_filter
 from tracker.observation import BallObservation, Status
 
-__all__ = ["Flight", "evaluate_flight", "inject_outliers", "real_flights", "run_study", "sim_flights", "time_filters"]
+__all__ = ["REAL_FLIGHT_SETS", "Flight", "evaluate_flight", "inject_outliers", "real_flights", "run_study", "sim_flights", "time_filters"]
 
 N_OBSERVED = 20
 HORIZONS_MS = (100, 200, 300)
@@ -72,15 +74,34 @@ class Flight:
     noise_m: float
 
 
-def real_flights(folder: Path | None = None, plane_x_m: float = 2.4) -> list[Flight]:
-    """The launcher flights; the table height of their frame is the fit's (``data/ball_params.yaml``)."""
-    from harness.studies.fit_flight import DEFAULT_DATA, data_table, load_flights
+#: which real flights ``rt2 eval filters`` uses (``--real-flights``)
+REAL_FLIGHT_SETS = ("held-out", "all")
 
+
+def real_flights(folder: Path | None = None, plane_x_m: float = 2.4, which: str = "held-out") -> list[Flight]:
+    """The launcher flights; the table height of their frame is the fit's (``data/ball_params.yaml``).
+
+    which : "held-out" = the flights the shipped ball parameters were not fitted on (the split of
+        ``rt2 sim fit-flight`` with the seed ``data/ball_params.yaml`` records, 29 of 88), "all" = every flight
+    """
+    from harness.studies.fit_flight import DEFAULT_DATA, data_table, load_flights, split_flights
+
+    if which not in REAL_FLIGHT_SETS:
+        raise ValueError(f"real flights must be one of {list(REAL_FLIGHT_SETS)}, got {which!r}")
     doc = yaml.safe_load(DEFAULT_PARAMS_PATH.read_text())
-    z = float(doc.get("fit", {}).get("data_frame_table_surface_z_m", 0.744))
+    fit = doc.get("fit", {})
+    z = float(fit.get("data_frame_table_surface_z_m", 0.744))
     table = data_table(z)
-    return [Flight("real", f"{f.set_name}/{f.traj}", f.t_s, f.X, f.X, table, plane_x_m, REAL_NOISE_M)
-            for f in load_flights(folder or DEFAULT_DATA)]
+    flights = load_flights(folder or DEFAULT_DATA)
+    if which == "held-out":
+        if "seed" not in fit or "n_held_out_flights" not in fit:
+            raise ValueError(f"{DEFAULT_PARAMS_PATH}: no fit.seed / fit.n_held_out_flights recorded, so which flights the ball "
+                             "parameters were fitted on is unknown; use --real-flights all")
+        _, flights = split_flights(flights, int(fit["seed"]))
+        if len(flights) != int(fit["n_held_out_flights"]):
+            raise ValueError(f"{DEFAULT_PARAMS_PATH}: fit.n_held_out_flights is {fit['n_held_out_flights']} but the split with "
+                             f"fit.seed {fit['seed']} holds out {len(flights)}; use --real-flights all")
+    return [Flight("real", f"{f.set_name}/{f.traj}", f.t_s, f.X, f.X, table, plane_x_m, REAL_NOISE_M) for f in flights]
 
 
 def sim_flights(n: int, seed: int, params: BallParams | None = None, plane_x_m: float = -1.3) -> list[Flight]:
@@ -192,12 +213,15 @@ def summarise(results: list[dict], **keys) -> list[dict]:
 
 
 def run_study(seed: int, outlier_rate: float, *, n_sim: int = 0, real: bool = True, filters=tuple(FILTERS),
-              max_flights: int | None = None, progress: bool = True) -> list[dict]:
-    """Rows of {source, filter, outlier_rate, metric, n, failed, median_cm, p90_cm, ...}."""
+              max_flights: int | None = None, real_flights_set: str = "held-out", progress: bool = True) -> list[dict]:
+    """Rows of {source, filter, outlier_rate, metric, n, failed, median_cm, p90_cm, ...}.
+
+    real_flights_set : "held-out" (the real flights the ball parameters were not fitted on) or "all"
+    """
     params = BallParams.load()
     groups = []
     if real:
-        groups.append(real_flights())
+        groups.append(real_flights(which=real_flights_set))
     if n_sim:
         groups.append(sim_flights(n_sim, seed, params))
     rows = []
@@ -269,6 +293,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="probability that an observation is an outlier")
     parser.add_argument("--sim", type=int, default=0, metavar="N", help="also N simulated launcher serves (lab frame)")
     parser.add_argument("--no-real", action="store_true", help="skip the real launcher flights")
+    parser.add_argument("--real-flights", choices=REAL_FLIGHT_SETS, default="held-out",
+                        help="held-out: the 29 real flights the ball parameters were not fitted on (default); all: all 88")
     parser.add_argument("--filters", nargs="+", default=list(FILTERS), help=f"filters to evaluate, of {list(FILTERS)}")
     parser.add_argument("--max-flights", type=int, help="at most this many flights per source (fast runs)")
     parser.add_argument("--json", type=Path, help="write the rows as a JSON list of objects")
@@ -285,7 +311,7 @@ def run(args: argparse.Namespace) -> int:
     if args.max_flights is not None and args.max_flights < 1:
         raise ValueError(f"--max-flights must be >= 1, got {args.max_flights}")
     rows = run_study(args.seed, args.outlier_rate, n_sim=args.sim, real=not args.no_real, filters=tuple(args.filters),
-                     max_flights=args.max_flights)
+                     max_flights=args.max_flights, real_flights_set=args.real_flights)
     print(f"ball filters: prediction from the first {N_OBSERVED} observations (+h, cross@20) and from all until "
           f"{LEAD_MS} ms before the hitting-plane crossing; seed {args.seed}")
     print(format_table(rows))
