@@ -367,7 +367,7 @@ def test_same_seed_same_result_different_seed_still_valid(flights):
 def real_flights(real_data):
     from harness.studies.eval_filters import real_flights as load
 
-    return load(real_data / "mpi_launcher_trajectories")
+    return load(real_data / "mpi_launcher_trajectories", which="all")
 
 
 def _real_errors(flights, name, rate, seed=0):
