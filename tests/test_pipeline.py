@@ -103,6 +103,15 @@ def _drawn_frameset(rig, points_px, t_s, index=0, seed=0, diameter_px=10.0):
     return FrameSet(t_s, tuple(images), index)
 
 
+def _wide_object_and_ball(rig, X_big, X_ball, t_s=0.0, index=0):
+    """A frame set with an orange disk twice as wide as a ball at ``X_big`` and a ball-sized one at ``X_ball``."""
+    fs = _drawn_frameset(rig, rig.project(X_big)[:, None], t_s, index, diameter_px=2.0 * _ball_px(rig, X_big))
+    images = [img.copy() for img in fs.images]
+    for img, uv, w in zip(images, rig.project(X_ball), _ball_px(rig, X_ball)):
+        draw_disk(img, uv, w, (245, 120, 20))
+    return FrameSet(t_s, tuple(images), index)
+
+
 # -- smoke ------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("kind", TRACKER_KINDS)
 def test_smoke_each_kind_finds_the_ball(kind, rig, model, flight):
@@ -276,17 +285,13 @@ def test_size_test_rejects_an_orange_object_too_wide_for_a_ball(rig, model):
 def test_size_test_drops_the_wide_object_and_keeps_the_ball(rig, model):
     # All cameras see the ball and, 0.6 m away, an orange disk twice as wide as a ball there.
     X_ball, X_big = X0_M, X0_M + np.array([0.3, -0.5, 0.2])
-    pts = np.stack([rig.project(X_big), rig.project(X_ball)], axis=1)  # (4, 2, 2)
-    fs = _drawn_frameset(rig, pts[:, :1], 0.0, diameter_px=2.0 * _ball_px(rig, X_big))
-    images = [img.copy() for img in fs.images]
-    for img, uv, w in zip(images, pts[:, 1], _ball_px(rig, X_ball)):
-        draw_disk(img, uv, w, (245, 120, 20))  # and the ball, at its size
+    fs = _wide_object_and_ball(rig, X_big, X_ball)
     trk = Tracker(rig, model=model, roi=False)
-    o, info = trk.process_with_info(FrameSet(0.0, tuple(images)))
+    o, info = trk.process_with_info(fs)
     assert o.status is Status.OK and o.support == 4 and np.linalg.norm(o.position_m - X_ball) < 0.01
     assert info.size_ratio < 1.2 and trk.stats.size_rejections == 1 and "1.99 times as wide" in o.notes[0]
     # the wide object is the estimator's first choice: without the test it is reported
-    o_off = Tracker(rig, model=model, roi=False, max_size_ratio=None).process(FrameSet(0.0, tuple(images)))
+    o_off = Tracker(rig, model=model, roi=False, max_size_ratio=None).process(fs)
     assert np.linalg.norm(o_off.position_m - X_big) < 0.01
 
 
@@ -299,11 +304,7 @@ def test_size_rejection_in_the_windows_falls_back_to_the_full_frame(rig, model):
     for f in range(3):
         assert trk.process(_drawn_frameset(rig, rig.project(X[f])[:, None], f * DT_S, f, diameter_px=_ball_px(rig, X[f]))).status is Status.OK
     X_jump = X[3] + np.array([0.0, -0.5, 0.15])
-    fs = _drawn_frameset(rig, rig.project(X[3])[:, None], 3 * DT_S, 3, diameter_px=2.0 * _ball_px(rig, X[3]))
-    images = [img.copy() for img in fs.images]
-    for img, uv, w in zip(images, rig.project(X_jump), _ball_px(rig, X_jump)):
-        draw_disk(img, uv, w, (245, 120, 20))
-    o, info = trk.process_with_info(FrameSet(3 * DT_S, tuple(images), 3))
+    o, info = trk.process_with_info(_wide_object_and_ball(rig, X[3], X_jump, 3 * DT_S, 3))
     assert info.retried and trk.stats.full_frame_retries == 1
     assert o.status is Status.OK and np.linalg.norm(o.position_m - X_jump) < 0.01
     assert "times as wide as a ball" in o.notes[0] and "full frame searched in cam0, cam1, cam2, cam3" in o.notes[1]
@@ -318,11 +319,7 @@ def test_logged_candidates_and_areas_reproduce_the_size_test(rig, model):
     from harness.accuracy.trackers import estimator_for, size_test_for
 
     X_ball, X_big = X0_M, X0_M + np.array([0.3, -0.5, 0.2])
-    fs = _drawn_frameset(rig, rig.project(X_big)[:, None], 0.0, diameter_px=2.0 * _ball_px(rig, X_big))
-    images = [img.copy() for img in fs.images]
-    for img, uv, w in zip(images, rig.project(X_ball), _ball_px(rig, X_ball)):
-        draw_disk(img, uv, w, (245, 120, 20))
-    obs, info = Tracker(rig, model=model, roi=False).process_with_info(FrameSet(0.0, tuple(images)))
+    obs, info = Tracker(rig, model=model, roi=False).process_with_info(_wide_object_and_ball(rig, X_big, X_ball))
     assert np.isfinite(info.areas_px[:, :2]).all() and np.isnan(info.areas_px[:, 2:]).all()
     est, size_test = estimator_for("rt2", rig), size_test_for("rt2", rig)
     uv = info.uv_candidates_px.copy()

@@ -47,8 +47,9 @@ class SizeTest:
         return statistics.median(ratios)
 
     def apply(self, estimator, uv, areas_px, X, info, notes: list | None = None):
-        """Test the estimate ``(X, info)`` of ``estimator`` on candidates ``uv``; while it fails, set the
-        used candidates of ``uv`` (modified in place) to NaN and estimate again.
+        """Test the estimate ``(X, info)`` of ``estimator`` on candidates ``uv``; while it fails, drop the
+        used candidates (from a copy made at the first rejection: ``uv`` itself is never changed) and
+        estimate again.
 
         Returns ``(X, info, ratio, rejections)``: the final estimate, its ratio (NaN without a position)
         and how many positions were rejected; each rejection appends a note to ``notes``.
@@ -58,6 +59,8 @@ class SizeTest:
             ratio = self.ratio(X, info.candidate_index, areas_px)
             if self.max_ratio is None or not ratio > self.max_ratio:
                 break
+            if rejections == 0:
+                uv = uv.copy()  # the common case (nothing rejected) allocates nothing
             rejections += 1
             cams = np.flatnonzero(info.candidate_index >= 0)
             if notes is not None:

@@ -275,12 +275,10 @@ class Tracker:
         return obs, pinfo
 
     def _estimate(self, notes: list):
-        """The robust estimate of the current candidates, then the 3D size test on a working copy (the
-        candidates it drops stay in ``self._uv``, which PipelineInfo reports). Returns (X, info, ratio)."""
+        """The robust estimate of the current candidates, then the 3D size test (the candidates it drops
+        stay in ``self._uv``, which PipelineInfo reports). Returns (X, info, ratio)."""
         X, info = self._estimator.estimate(self._uv)
-        if X is None:
-            return X, info, math.nan
-        X, info, ratio, rejections = self._size.apply(self._estimator, self._uv.copy(), self._areas, X, info, notes)
+        X, info, ratio, rejections = self._size.apply(self._estimator, self._uv, self._areas, X, info, notes)
         self.stats.size_rejections += rejections
         return X, info, ratio
 

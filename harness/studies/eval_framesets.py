@@ -159,7 +159,7 @@ def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colo
     from harness.render import Renderer
     from harness.render.scene import colour_rgb
     from harness.render.scenes import random_scene
-    from tracker import FrameSet, RobustOptions
+    from tracker import FrameSet, RobustOptions, Status
     from tracker.pipeline import Tracker, load_model
 
     for name in trackers:
@@ -188,7 +188,7 @@ def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colo
             obs, info = tr.process_with_info(FrameSet(float(f), images))
             sc = scores[name]
             found = sc.found
-            score_frameset(sc, balls_m, n_seen, obs.position_m, obs.status.value == "ok", tol_m=tol_m, size_ratio=info.size_ratio)
+            score_frameset(sc, balls_m, n_seen, obs.position_m, obs.status is Status.OK, tol_m=tol_m, size_ratio=info.size_ratio)
             if (n_seen >= 2).any() and sc.found == found:  # a trackable frame set missed: did the detector give the ball to >= 2 cameras?
                 hits = [cameras_with_ball(info.uv_candidates_px, [t[b] for t in truths]) for b, n in zip(ours, n_seen) if n >= 2]
                 sc.missed_detector += max(hits) <= 1
