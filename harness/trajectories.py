@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from harness.robot.wam import JointTrajectory
+from robot_models.robot_interface import JointTrajectory
 from robot_models.ik import IkOptions, solve_ik
 
 __all__ = ["BALL_BOX_WORLD_M", "TRAJECTORY_METHODS", "TrajectoryOptions", "random_via_trajectory"]

@@ -40,6 +40,7 @@ from policies._hitting_return import solve_return
 from policies._hitting_select import Candidate, score_candidates
 from policies.ball_model import BallParams, TableGeometry
 from policies.teacher import racket_kinematics
+from robot_models.robot_interface import WamInterface
 
 __all__ = ["HitPlan", "HittingOptions", "HittingPolicy", "PolicyStatus", "PolicyStep"]
 
@@ -169,12 +170,13 @@ class HittingPolicy:
         return self.plan is not None and self._t_now >= self.plan.t_start_s
 
     # ---------------------------------------------------------------- one control step
-    def step(self, t_now_s: float, predict, wam) -> PolicyStep:
+    def step(self, t_now_s: float, predict, wam: WamInterface) -> PolicyStep:
         """Advance the policy to ``t_now_s`` (session clock).
 
         predict : callable t_query (M,) -> prediction (t_s, position_m (M, 3), velocity_mps (M, 3),
             covariance_m2 (M, 3, 3)) or None -- e.g. a ball filter's ``predict``
-        wam : a WAM interface (``read_state()``, ``command_trajectory(t_s, q, qdot)``)
+        wam : :class:`robot_models.robot_interface.WamInterface` (``read_state()``, ``command_trajectory(t_s, q, qdot)``),
+            in process or over the robot link
         """
         t = float(t_now_s)
         self._t_now = t
@@ -201,7 +203,7 @@ class HittingPolicy:
         self.status, self.reason = PolicyStatus.PLANNED, ""
         return PolicyStep(t, self.status, new)
 
-    def _plan(self, t, predict, wam):
+    def _plan(self, t, predict, wam: WamInterface):
         o, plan = self.options, self.plan
         t_earliest = t + o.min_lead_s
         started = plan is not None and t_earliest >= plan.t_start_s
@@ -235,7 +237,7 @@ class HittingPolicy:
                 reasons.append(str(exc))
         return None, "no feasible movement: " + "; ".join(dict.fromkeys(reasons))
 
-    def _build(self, t, c, x_ball, v_ball, started, wam) -> HitPlan:
+    def _build(self, t, c, x_ball, v_ball, started, wam: WamInterface) -> HitPlan:
         o, plan = self.options, self.plan
         ret = solve_return(x_ball, v_ball, np.zeros(3), o.target_xy_m, self.params, self.table,
                            restitution=o.racket_restitution, friction=o.racket_friction,

@@ -68,7 +68,7 @@ class _FakeWam:
         self.commands = []
 
     def read_state(self):
-        from harness.robot import JointState
+        from robot_models.robot_interface import JointState
 
         return JointState(0.0, self.q.copy(), np.zeros(7))
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from harness.robot import JointState, SimulatedWam, SimWamOptions, WamInterface
+from harness.robot import SimulatedWam, SimWamOptions
 from harness.robot._tracking import track_numba, track_numpy
 from robot_models import WamKinematics, load_robot_config
+from robot_models.robot_interface import JointState, WamInterface
 
 EXACT = dict(zero_offset_std_deg=0.0, encoder_noise_std_rad=0.0, encoder_counts_per_rev=10**9)
 

@@ -1,10 +1,10 @@
-"""The robot side of the harness: the WAM interface, its simulated implementation, and robot CLI commands.
+"""The robot side of the harness: the simulated WAM, the robot link (``harness.robot.link``) and robot CLI commands.
 
-See harness/robot/wam.py for the interface contract and docs/robot.md for the simulator's error model.
+The interface contract (``WamInterface``, ``JointState``, ``JointTrajectory``, ``check_joint_trajectory``)
+lives in robot_models/robot_interface.py, where policies can see it; docs/robot.md describes the
+simulator's error model and docs/robot_link.md the network protocol.
 """
 
 from harness.robot.sim_wam import SimSamples, SimulatedWam, SimWamOptions
-from harness.robot.wam import JointSamples, JointState, JointTrajectory, WamInterface, check_joint_trajectory
 
-__all__ = ["JointSamples", "JointState", "JointTrajectory", "SimSamples", "SimWamOptions", "SimulatedWam",
-           "WamInterface", "check_joint_trajectory"]
+__all__ = ["SimSamples", "SimWamOptions", "SimulatedWam"]

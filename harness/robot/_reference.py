@@ -1,6 +1,6 @@
 """The joint reference a robot follows: a piecewise function of time built from commanded trajectories.
 
-A new trajectory replaces the reference from ``max(t_s[0], now)`` on (contract in harness/robot/wam.py);
+A new trajectory replaces the reference from ``max(t_s[0], now)`` on (contract in robot_models/robot_interface.py);
 each piece is a cubic Hermite spline through the commanded ``(t_s, q, qdot)`` (or a not-a-knot cubic
 spline through ``(t_s, q)`` when no velocities are given) and holds its last point after its end.
 """

@@ -1,4 +1,4 @@
-"""A simulated WAM behind :class:`harness.robot.WamInterface`: tracking, limits, encoders and zero offsets.
+"""A simulated WAM behind :class:`robot_models.robot_interface.WamInterface`: tracking, limits, encoders and zero offsets.
 
 Error model (defaults in :class:`SimWamOptions`, the ``simulator`` section of ``data/robot/wam.yaml``
 and docs/robot.md):
@@ -26,7 +26,7 @@ from scipy.signal import lfilter
 
 from harness.robot._reference import PiecewiseReference
 from harness.robot._tracking import TRACKERS
-from harness.robot.wam import JointSamples, JointState, check_joint_trajectory
+from robot_models.robot_interface import JointSamples, JointState, check_joint_trajectory
 
 __all__ = ["SimSamples", "SimWamOptions", "SimulatedWam"]
 
@@ -105,7 +105,7 @@ class SimSamples(JointSamples):
 
 
 class SimulatedWam:
-    """Simulated WAM (see module docstring). Satisfies :class:`harness.robot.WamInterface`.
+    """Simulated WAM (see module docstring). Satisfies :class:`robot_models.robot_interface.WamInterface`.
 
     kinematics : :class:`robot_models.WamKinematics` (limits, home posture)
     q0 : (7,) rad true start posture (default ``kinematics.q_home``), at rest
@@ -163,7 +163,7 @@ class SimulatedWam:
         return JointState(self.t_s, self._q.copy(), self._qd.copy())
 
     def command_trajectory(self, t_s, q, qdot=None) -> None:
-        """Replace the reference from ``max(t_s[0], now)`` on (contract: harness/robot/wam.py)."""
+        """Replace the reference from ``max(t_s[0], now)`` on (contract: robot_models/robot_interface.py)."""
         t, Q, Qd = check_joint_trajectory(self.kinematics, t_s, q, qdot, now_s=self.t_s)
         self._reference.replace_from(t, Q, Qd, self.t_s)
 

@@ -1,7 +1,9 @@
-"""The WAM interface that tracker-driven experiments talk to, and the joint-trajectory types it uses.
+"""The WAM interface that policies and experiments talk to, and the joint-trajectory types it uses.
 
-Contract of :class:`WamInterface` (implemented by :class:`harness.robot.SimulatedWam`; a real robot
-backend implements the same four members):
+It lives in ``robot_models`` (which imports nothing else of rt2) so that ``policies`` can type its robot
+argument. Contract of :class:`WamInterface` (implemented in process by :class:`harness.robot.SimulatedWam`
+and over the network by :class:`harness.robot.link.WamClient`, docs/robot_link.md; a real robot
+backend implements the same members):
 
 * **Units and frames.** Joint angles rad, velocities rad/s, times s. Joint order is the URDF's
   ``joint_1 .. joint_7``. Cartesian quantities are not part of this interface; compute them with
