@@ -36,7 +36,7 @@ import numpy as np
 
 from tracker import BallDetector, BallSegmentationModel, DetectorOptions
 from tracker.detection.blobs import find_blobs
-from tracker.detection.model import INPUT_TRANSFORMS, logit, transform_lut
+from tracker.detection.model import BALL_COLOURS, INPUT_TRANSFORMS, logit, transform_lut
 
 __all__ = [
     "BALL_COLOURS",
@@ -55,7 +55,6 @@ __all__ = [
 #: candidate thresholds searched on the validation split: T_h every 0.25 in logit from 0.5 to 0.999
 T_HIGH_GRID = tuple(float(round(1.0 / (1.0 + math.exp(-x)), 6)) for x in np.arange(0.0, 7.01, 0.25))
 T_LOW_GRID = (0.02, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5)
-BALL_COLOURS = ("any", "orange", "white")
 COLOUR_SATURATION_CUT = 0.4
 
 
@@ -269,6 +268,7 @@ def _to_model(w, b, norm, opts: TrainOptions, t_high=0.5, t_low=0.2, area_range_
         t_low=t_low,
         area_range_px=area_range_px,
         description=description,
+        ball_colour=opts.ball_colour,
     )
 
 

@@ -3,7 +3,7 @@
 Run ``python -m robot_models._urdf_gen`` to rewrite the committed URDF; a test checks that the
 committed file equals what this module writes, and that its kinematics equal an independent DH chain.
 
-Numbers (GitHub issue 5, section 1; Barrett WAM user manual, standard DH, metres and radians)::
+Numbers (Barrett WAM user manual, standard DH, metres and radians)::
 
     joint   a        alpha    d      limits (rad)
     1       0       -pi/2     0      -2.6 .. 2.6

@@ -215,3 +215,22 @@ def test_bad_window():
     image = np.zeros((20, 30, 3), np.uint8)
     with pytest.raises(ValueError, match="window must satisfy"):
         hand_made_model().logits(image, (0, 0, 31, 10))
+
+
+def test_ball_colour_roundtrip_and_older_files(tmp_path):
+    import dataclasses
+
+    model = dataclasses.replace(_random_model(np.random.default_rng(6), "RGB", "log"), ball_colour="orange")
+    assert BallSegmentationModel.load(model.save(tmp_path / "m.npz")).ball_colour == "orange"
+    # a file written before the field existed: its colour is unknown ("any")
+    older = _write_fields(tmp_path / "old.npz", **_fields(model))
+    assert BallSegmentationModel.load(older).ball_colour == "any"
+    bad = _write_fields(tmp_path / "bad.npz", **_fields(model), ball_colour="green")
+    with pytest.raises(ValueError, match=r"bad\.npz.*ball_colour must be one of .*'green'"):
+        BallSegmentationModel.load(bad)
+
+
+def test_shipped_model_is_for_orange_balls():
+    from tests.conftest import DATA
+
+    assert BallSegmentationModel.load(DATA / "models" / "ball_seg_default.npz").ball_colour == "orange"

@@ -105,6 +105,23 @@ def test_cli_colour_selection_and_figure(synthetic_ball_coco, tmp_path, capsys):
     assert cv2.imread(str(fig)).shape[1] == 2 * 3 * 160  # image | probability | detection, scaled 2x
 
 
+def test_cli_scores_the_models_own_colour_by_default(synthetic_ball_coco, tmp_path, capsys):
+    import dataclasses
+
+    from tracker import BallSegmentationModel
+
+    model, data = _model_and_data(synthetic_ball_coco, tmp_path)
+    white = dataclasses.replace(BallSegmentationModel.load(model), ball_colour="white").save(tmp_path / "white.npz")
+    default, explicit = tmp_path / "d.json", tmp_path / "e.json"
+    assert main(["eval", "detector", "--data", data, "--model", str(white), "--json", str(default)]) == 0
+    out = capsys.readouterr().out
+    assert "white balls" in out and "the model's own colour" in out
+    assert main(["eval", "detector", "--data", data, "--model", str(white), "--ball-colour", "white", "--json", str(explicit)]) == 0
+    assert default.read_text() == explicit.read_text()
+    # a model whose colour is not recorded scores every ball, as before
+    assert BallSegmentationModel.load(model).ball_colour == "any"
+
+
 # -- bad input ---------------------------------------------------------------------------------------
 def test_bad_inputs(tmp_path, capsys, synthetic_ball_coco):
     with pytest.raises(ValueError, match="one entry per image"):

@@ -91,7 +91,7 @@ def format_report(figures: dict, rows: list, *, header: str = "") -> str:
     for kind, m in figures["modes"].items():
         vals = " ".join("       -" if v is None else f"{100 * v:7.2f}%" for v in m.values())
         lines.append(f"  {kind:10} {vals}")
-    lines.append("\ngoals (issue 5):")
+    lines.append("\ngoals (tracker accuracy):")
     lines.append(format_goals(check_goals(rows)))
     faults = figures.get("faults", {})
     if faults.get("injected"):

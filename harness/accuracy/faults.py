@@ -1,6 +1,6 @@
 """Injected camera faults (``rt2 accuracy --inject-faults``): what a real acquisition does now and then.
 
-Issue 5 section 6. A :class:`FaultPlan` is a pure function of the frame count and the rig, placed at fixed shares of the
+A :class:`FaultPlan` is a pure function of the frame count and the rig, placed at fixed shares of the
 run; a faulted frame never registers the robot (:func:`harness.accuracy.evaluate.evaluate`), and the
 statistics of each fault are over the scored frames it hits:
 

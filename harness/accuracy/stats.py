@@ -86,7 +86,7 @@ def format_table(rows: list[dict]) -> str:
 
 
 def check_goals(rows: list[dict]) -> list[tuple[str, bool | None, str]]:
-    """(goal, met or None when not measurable, what was measured) per goal of issue 5."""
+    """(goal, met or None when not measurable, what was measured) per accuracy goal (docs/accuracy.md)."""
     by = {r["tracker"]: r for r in rows}
     goals = []
     rt2 = by.get("rt2")

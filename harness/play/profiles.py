@@ -3,8 +3,7 @@
 
 Timing (both sources): a tracker of rate f captures frame sets at t_k = phase + k / f (phase drawn per
 ball); the observation of frame set k reaches the filter at t_k + latency. Defaults: RT2 ~180 Hz
-(the MPI-IS tracker's rate, /work/shared/data/real/mpi_launcher_trajectories, median dt 5.6 ms;
-the issue: "RT2 at ~180 Hz"), RTBlob a third of that (the paper, sec. 4.2: RT2's frame rate "is about
+(the MPI-IS tracker's rate, /work/shared/data/real/mpi_launcher_trajectories, median dt 5.6 ms), RTBlob a third of that (the paper, sec. 4.2: RT2's frame rate "is about
 3 times as high as that of the RTBlob implementation"). The paper gives no latency; both use 10 ms by
 default (so the comparison isolates rate and errors), configurable with ``--latency-ms``.
 
@@ -42,6 +41,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from tracker.files import MAX_CONFIG_BYTES, read_text_capped
 
 __all__ = ["PAPER_PROFILES", "PROFILES", "PROFILE_SETS", "TrackerProfile", "load_profiles", "profile_for"]
 
@@ -124,9 +125,11 @@ def load_profiles(path, base: dict | None = None) -> dict:
     ValueError naming the file."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_text_capped(path, MAX_CONFIG_BYTES, "profiles file"))
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON: {exc}") from exc
+        raise ValueError(f"{path}: not valid JSON: {exc}") from None
+    except RecursionError:
+        raise ValueError(f"{path}: JSON nested too deeply") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected an object {{tracker: {{field: value}}}}, got {type(data).__name__}")
     base = PROFILES if base is None else base

@@ -17,7 +17,7 @@ each rt2 kind for every ``--workers`` value (with more than one worker also ``rt
 ``threads_for_roi``: windows on the threads too). ``framesets_per_s`` = frame sets / wall time of the
 passes (back to back, one frame set after the other); ``p50_ms`` / ``p99_ms`` = percentiles of the
 per-frame-set latency. ``ok_fraction`` and ``median_error_m`` (against the rendered truth) check that
-the timed tracker actually tracks the ball. Goals (issue 5): >= 250 frame sets/s and p99 <= 5 ms on
+the timed tracker actually tracks the ball. Goals: >= 250 frame sets/s and p99 <= 5 ms on
 full frames, >= 1000 frame sets/s with ROI.
 """
 

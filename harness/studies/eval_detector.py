@@ -208,8 +208,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--json", default=None, help="also write the figures as JSON to this path")
     parser.add_argument("--max-candidates", type=int, default=4, help="K of the top-K detector (default 4)")
     parser.add_argument("--min-diameter-px", type=float, default=6.0, help="recall is over balls at least this wide (default 6)")
-    parser.add_argument("--ball-colour", choices=("any", "orange", "white"), default="any",
-                        help="score only balls of this colour; detections on the others count as outliers (default: any)")
+    parser.add_argument("--ball-colour", choices=("model", "any", "orange", "white"), default="model",
+                        help="score only balls of this colour; detections on the others count as outliers "
+                             "(default: the colour the model was trained for; 'any' scores every ball)")
     parser.add_argument("--t-high", type=float, default=None, help="Algorithm 1's T_h, a probability (default: the model's recommended one)")
     parser.add_argument("--t-low", type=float, default=None, help="Algorithm 1's T_l, a probability (default: the model's recommended one)")
     parser.add_argument("--max-images", type=int, default=None, help="evaluate only the first N images")
@@ -227,7 +228,8 @@ def run(args) -> int:
         labelled = labelled[: args.max_images]
     if not labelled:
         raise ValueError(f"--data {args.data}: no images")
-    labelled = select_ball_colour(labelled, args.ball_colour, progress=True)
+    colour = model.ball_colour if args.ball_colour == "model" else args.ball_colour
+    labelled = select_ball_colour(labelled, colour, progress=True)
     for name in ("t_high", "t_low"):
         v = getattr(args, name)
         if v is not None and not 0.0 < v < 1.0:
@@ -239,7 +241,8 @@ def run(args) -> int:
     scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low)
     print(
         f"model {args.model}: T_h={t_high:g}, T_l={t_low:g}; {len(labelled)} images; "
-        f"{args.ball_colour} balls >= {args.min_diameter_px:g} px"
+        f"{colour} balls >= {args.min_diameter_px:g} px"
+        + (f" (the model's own colour; --ball-colour any scores every ball)" if args.ball_colour == "model" and colour != "any" else "")
     )
     print(format_table(scores))
     goals = f"goals: recall >= {100 * GOALS['recall']:.0f}%, outliers <= {100 * GOALS['outlier_rate']:.0f}%, median error <= {GOALS['median_center_error_px']} px"

@@ -10,7 +10,11 @@ rate among OK answers alone; plus the floor P(fewer than 2 inliers).
 
 Seeds: the trials of a cell are split into fixed chunks of ``CHUNK`` trials, each with its own
 ``np.random.SeedSequence(seed, spawn_key=(c, p_o in basis points, chunk))``, so results depend
-on ``--seed`` only, not on ``--workers`` or on which other cells run.
+on ``--seed`` only, not on ``--workers``, on ``--ray`` or on which other cells run. The chunks run on
+:mod:`harness.executor` (this process, local worker processes, or Ray).
+
+Stopped early (SIGINT, SIGTERM, a lost worker): the rows are computed from the chunks that finished,
+printed and written with ``"partial": true`` and the actual ``trials`` per cell; exit code 128 + signal.
 """
 
 from __future__ import annotations
@@ -18,13 +22,12 @@ from __future__ import annotations
 import json
 import math
 import sys
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from harness.executor import Executor, SweepOptions, SweepStopped, add_sweep_arguments, options_from_args
 from harness.studies.paper_tables import GROSS_ERROR_M, PAPER_TABLE1, failure_floor
 
 __all__ = ["add_arguments", "check_goals", "format_table", "run", "run_table1"]
@@ -57,8 +60,8 @@ def _chunk(c: int, p: float, n: int, seed: int, chunk: int, eps_px: float) -> di
     return out
 
 
-def _chunk_args(args):
-    return args, _chunk(*args)
+def _chunk_task(task: tuple) -> dict:
+    return _chunk(*task)
 
 
 def _tasks(cameras, rates, trials: int, seed: int, eps_px: float) -> list[tuple]:
@@ -75,16 +78,20 @@ def _nan_to_none(x: float):
 
 
 def run_table1(cameras=CAMERAS, rates=OUTLIER_RATES, *, trials: int = 10_000, seed: int = 0, workers: int = 1,
-               eps_px: float | None = None, progress: bool = True) -> list[dict]:  # fmt: skip
-    """Run the study; returns one row per (cell, method) with the JSON keys of ``--json``."""
+               eps_px: float | None = None, progress: bool = True, sweep: SweepOptions | None = None,
+               stopped: list | None = None) -> list[dict]:  # fmt: skip
+    """Run the study; returns one row per (cell, method) with the JSON keys of ``--json``.
+
+    sweep : where the chunks run (default: ``workers`` local processes); stopped : if a list is given, a
+    sweep stopped early (:class:`harness.executor.SweepStopped`) is appended to it and the rows of the
+    chunks that finished are returned, each with ``"partial": True`` (else the stop propagates)."""
     from tracker import RobustOptions
     from tracker.robust import STATUS_BY_CODE
     from tracker.observation import Status
 
     if trials < 1:
         raise ValueError(f"--trials must be >= 1, got {trials}")
-    if workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {workers}")
+    sweep = sweep if sweep is not None else SweepOptions(workers=workers)
     for c in cameras:
         if c < 2:
             raise ValueError(f"--cameras: every count must be >= 2, got {c}")
@@ -97,23 +104,27 @@ def run_table1(cameras=CAMERAS, rates=OUTLIER_RATES, *, trials: int = 10_000, se
     tasks = _tasks(cameras, rates, trials, seed, eps_px)
     results = {}
     bar = tqdm(total=len(tasks), desc="sim table1", unit="chunk", file=sys.stderr, disable=not progress)
-    if workers == 1:
-        for t in tasks:
-            results[t] = _chunk(*t)
-            bar.update()
-    else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-            for t, r in pool.map(_chunk_args, tasks):
-                results[t] = r
+    try:
+        with Executor(sweep) as ex:
+            for i, r in ex.map(_chunk_task, tasks):
+                results[tasks[i]] = r
                 bar.update()
-    bar.close()
+    except SweepStopped as stop:
+        if stopped is None:
+            raise
+        stopped.append(stop)
+    finally:
+        bar.close()
+    partial = len(results) < len(tasks)
 
     low_code = STATUS_BY_CODE.index(Status.LOW_SUPPORT)
     ok_code = STATUS_BY_CODE.index(Status.OK)
     rows = []
     for c in cameras:
         for p in rates:
-            keys = [t for t in tasks if t[0] == c and t[1] == p]  # chunk order
+            keys = [t for t in tasks if t[0] == c and t[1] == p and t in results]  # chunk order
+            if not keys:  # stopped before any chunk of this cell finished
+                continue
             for method in METHODS:
                 err = np.concatenate([results[k][method][0] for k in keys])
                 code = np.concatenate([results[k][method][1] for k in keys])
@@ -130,6 +141,7 @@ def run_table1(cameras=CAMERAS, rates=OUTLIER_RATES, *, trials: int = 10_000, se
                     "gross_error_rate_ok": float((ok & (code == ok_code) & (np.nan_to_num(err) > GROSS_ERROR_M)).sum() / len(err)),
                     "low_support_rate": float((code == low_code).mean()),
                     "trials": int(len(err)),
+                    **({"partial": True} if partial else {}),
                 })  # fmt: skip
     return rows
 
@@ -166,7 +178,7 @@ def format_table(rows: list[dict]) -> str:
 
 
 def check_goals(rows: list[dict]) -> list[tuple[str, bool, str]]:
-    """The issue's goals for ``ours``: (goal, met, cells that miss it)."""
+    """The goals for ``ours`` (docs/estimator.md): (goal, met, cells that miss it)."""
     ours = [r for r in rows if r["method"] == "ours"]
 
     def cells(bad):
@@ -198,27 +210,31 @@ def format_goals(goals) -> str:
 def add_arguments(parser) -> None:
     parser.add_argument("--trials", type=int, default=10_000, help="trials per cell (default 10000)")
     parser.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     parser.add_argument("--cameras", type=int, nargs="+", default=list(CAMERAS), help="camera counts (default 4 8 15 30)")
     parser.add_argument("--outlier-rates", type=float, nargs="+", default=[100 * p for p in OUTLIER_RATES],
                         metavar="PERCENT", help="outlier probabilities in percent (default 1 5 10 25 50)")  # fmt: skip
     parser.add_argument("--eps-px", type=float, default=None, help="consistency threshold, pixels (default RobustOptions.eps_px)")
     parser.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the rows as JSON")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_sweep_arguments(parser)
 
 
 def run(args) -> int:
     rates = [p / 100 for p in args.outlier_rates]
-    rows = run_table1(args.cameras, rates, trials=args.trials, seed=args.seed, workers=args.workers,
-                      eps_px=args.eps_px, progress=not args.no_progress)  # fmt: skip
+    stopped: list = []
+    rows = run_table1(args.cameras, rates, trials=args.trials, seed=args.seed, eps_px=args.eps_px,
+                      progress=not args.no_progress, sweep=options_from_args(args), stopped=stopped)  # fmt: skip
     print(f"Table 1 (paper Sec. 3.1): {args.trials} trials per cell, seed {args.seed}, 1.3 px noise, "
           f"rigs data/rigs/sim_c*.yaml; E = mean error, gross = share of trials with a position > 5 cm off, "
           f"F = share without a position; 'Alg.2' is our run of the paper's algorithm, 'paper' its published numbers.\n")  # fmt: skip
-    print(format_table(rows))
-    print()
-    print(format_goals(check_goals(rows)))
+    if stopped:
+        print(f"PARTIAL ({stopped[0]}): each cell holds only the trials that finished, see the 'trials' column of --json\n")
+    if rows:
+        print(format_table(rows))
+        print()
+        print(format_goals(check_goals(rows)))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(rows, indent=1) + "\n")
-        print(f"\nwrote {args.json}")
-    return 0
+        print(f"\nwrote {args.json}" + (" (partial)" if stopped else ""))
+    return stopped[0].exit_code if stopped else 0

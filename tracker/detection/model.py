@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from tracker._checks import describe
+from tracker.files import load_npz_checked
 
 __all__ = ["BallSegmentationModel", "INPUT_TRANSFORMS", "KERNEL_SIZE", "MODEL_FORMAT", "MODEL_VERSION", "check_image", "logit", "sigmoid", "transform_lut"]
 
@@ -40,6 +41,8 @@ MODEL_VERSION = 1
 COLOUR_ORDERS = ("RGB", "BGR")
 #: per-channel input transforms T(p) of uint8 pixel values p (see the module docstring)
 INPUT_TRANSFORMS = ("linear", "log")
+#: colours of table-tennis balls a model may be trained for ("any": both, or not recorded)
+BALL_COLOURS = ("any", "orange", "white")
 _HALF = KERNEL_SIZE // 2
 _BORDER = cv2.BORDER_REFLECT_101
 
@@ -91,6 +94,8 @@ class BallSegmentationModel:
         chosen on the training run's validation split
     area_range_px : (2,) recommended accepted blob area [min, max], pixels (from the training labels)
     description : provenance (training command, data)
+    ball_colour : the balls the model was trained to find: "orange", "white" or "any" (unknown, or
+        both); evaluations score balls of this colour by default
     """
 
     kernel: np.ndarray
@@ -104,6 +109,7 @@ class BallSegmentationModel:
     t_low: float = 0.25
     area_range_px: np.ndarray = field(default_factory=lambda: np.array([3.0, 3000.0]))
     description: str = ""
+    ball_colour: str = "any"
     # Derived at construction: the kernel for T(uint8 RGB channels) with the scaling folded in.
     _kernels_rgb: tuple = field(init=False, repr=False, compare=False)
     _bias_eff: float = field(init=False, repr=False, compare=False)
@@ -114,17 +120,20 @@ class BallSegmentationModel:
         kernel = np.asarray(self.kernel)
         if kernel.shape != (KERNEL_SIZE, KERNEL_SIZE, 3):
             raise ValueError(f"{where}: kernel must have shape (5, 5, 3), got shape {kernel.shape}")
-        if not np.issubdtype(kernel.dtype, np.number):
-            raise ValueError(f"{where}: kernel must be numeric, got dtype {kernel.dtype}")
+        if kernel.dtype.kind not in "biuf":
+            raise ValueError(f"{where}: kernel must be real numbers, got dtype {kernel.dtype}")
         kernel = kernel.astype(np.float32)
-        scale = np.asarray(self.input_scale, dtype=np.float64).reshape(-1)
-        offset = np.asarray(self.input_offset, dtype=np.float64).reshape(-1)
+        scale, offset = (_real_vector(v, name, where) for v, name in ((self.input_scale, "input_scale"),
+                                                                       (self.input_offset, "input_offset")))
         for name, arr in (("input_scale", scale), ("input_offset", offset)):
             if arr.shape != (3,):
                 raise ValueError(f"{where}: {name} must have 3 values (one per channel), got shape {arr.shape}")
         for name, arr in (("kernel", kernel), ("input_scale", scale), ("input_offset", offset)):
             if not np.isfinite(arr).all():
                 raise ValueError(f"{where}: {name} must be finite")
+        if (scale == 0).any():
+            raise ValueError(f"{where}: input_scale must be non-zero for every channel (a zero scale ignores "
+                             f"that colour), got {scale.tolist()}")
         if self.colour_order not in COLOUR_ORDERS:
             raise ValueError(f"{where}: colour_order must be one of {COLOUR_ORDERS}, got {self.colour_order!r}")
         bias = float(self.bias)
@@ -133,6 +142,8 @@ class BallSegmentationModel:
         t_high, t_low = float(self.t_high), float(self.t_low)
         if not (0.0 < t_low < t_high < 1.0):
             raise ValueError(f"{where}: thresholds must satisfy 0 < t_low < t_high < 1, got t_low={t_low}, t_high={t_high}")
+        if self.ball_colour not in BALL_COLOURS:
+            raise ValueError(f"{where}: ball_colour must be one of {BALL_COLOURS}, got {self.ball_colour!r}")
         if self.input_transform not in INPUT_TRANSFORMS:
             raise ValueError(f"{where}: input_transform must be one of {INPUT_TRANSFORMS}, got {self.input_transform!r}")
         log_offset = float(self.log_offset_dn)
@@ -243,6 +254,7 @@ class BallSegmentationModel:
             t_low=np.array(self.t_low),
             area_range_px=self.area_range_px,
             description=np.array(self.description),
+            ball_colour=np.array(self.ball_colour),
         )
         return path
 
@@ -253,11 +265,7 @@ class BallSegmentationModel:
         src = str(path)
         if not path.is_file():
             raise FileNotFoundError(f"model file {src!r} does not exist")
-        try:
-            with np.load(path, allow_pickle=False) as npz:
-                data = {k: npz[k] for k in npz.files}
-        except Exception as exc:  # zipfile.BadZipFile, OSError, ValueError (pickled arrays), EOFError
-            raise ValueError(f"{src}: not a readable .npz model file ({type(exc).__name__}: {exc})") from None
+        data = load_npz_checked(path, "model file")
         fmt = _scalar(data, "format", str, src)
         if fmt != MODEL_FORMAT:
             raise ValueError(f"{src}: field 'format' must be {MODEL_FORMAT!r}, got {fmt!r}")
@@ -280,17 +288,26 @@ class BallSegmentationModel:
                 t_low=_scalar(data, "t_low", float, src),
                 area_range_px=_field(data, "area_range_px", src),
                 description=_scalar(data, "description", str, src) if "description" in data else "",
+                # optional: files written before the field existed say nothing of their balls' colour
+                ball_colour=_scalar(data, "ball_colour", str, src) if "ball_colour" in data else "any",
             )
         except ValueError as exc:
             raise ValueError(f"{src}: {exc}") from None
+
+
+def _real_vector(value, name: str, where: str) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"{where}: {name} must be real numbers, got {describe(value)}")
+    return arr.astype(np.float64).reshape(-1)
 
 
 def _field(data: dict, key: str, src: str) -> np.ndarray:
     if key not in data:
         raise ValueError(f"{src}: missing field {key!r} (fields present: {sorted(data)})")
     arr = data[key]
-    if not (np.issubdtype(arr.dtype, np.number) or arr.dtype.kind == "U"):
-        raise ValueError(f"{src}: field {key!r} has unsupported dtype {arr.dtype}")
+    if arr.dtype.kind not in "biufU":
+        raise ValueError(f"{src}: field {key!r} has unsupported dtype {arr.dtype} (real numbers or text expected)")
     return arr
 
 
