@@ -34,6 +34,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from tracker.files import MAX_DATA_BYTES, read_text_capped, short
+
 __all__ = ["ANNOTATIONS_FILE", "BALL_CATEGORY", "LabelledImage", "read_coco", "write_coco"]
 
 ANNOTATIONS_FILE = "annotations.json"
@@ -111,10 +113,7 @@ def read_coco(path) -> list[LabelledImage]:
     path = Path(path)
     json_path = path / ANNOTATIONS_FILE if path.is_dir() else path
     src = str(json_path)
-    try:
-        text = json_path.read_text()
-    except OSError as exc:
-        raise ValueError(f"cannot read COCO file {src!r}: {exc.strerror}") from None
+    text = read_text_capped(json_path, MAX_DATA_BYTES, "COCO file")
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -146,8 +145,8 @@ def read_coco(path) -> list[LabelledImage]:
             if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
                 raise ValueError(f"{where}: field {name!r} must be a positive integer, got {v!r}")
         if not isinstance(im["file_name"], str) or not im["file_name"]:
-            raise ValueError(f"{where}: field 'file_name' must be a non-empty string, got {im['file_name']!r}")
-        file = root / im["file_name"]
+            raise ValueError(f"{where}: field 'file_name' must be a non-empty string, got {short(im['file_name'])}")
+        file = _inside(root, im["file_name"], where)
         if not file.is_file():
             raise ValueError(f"{where}: field 'file_name' names {im['file_name']!r}, which does not exist (looked for {str(file)!r})")
         images[im["id"]] = (file, w, h, [], [])
@@ -213,6 +212,15 @@ def _ball_category_ids(categories: list, src: str) -> set:
     return ids
 
 
+def _inside(root: Path, file_name: str, where: str) -> Path:
+    """``root / file_name``, refusing a name that leaves the data folder (absolute, ``..``, a drive)."""
+    rel = Path(file_name)
+    if rel.is_absolute() or rel.drive or ".." in rel.parts or "\\" in file_name:
+        raise ValueError(f"{where}: field 'file_name' {short(file_name)} must be a path inside the data folder "
+                         f"{str(root)!r} (relative, without '..')")
+    return root / rel
+
+
 def _numbers(value, n: int, field: str, where: str) -> list[float]:
     ok = isinstance(value, (list, tuple)) and len(value) == n
     ok = ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
@@ -262,7 +270,11 @@ def write_coco(
     img_rows, ann_rows = [], []
     for i, im in enumerate(images):
         path = im.path if im.path.is_absolute() else root / im.path
-        row = {"id": i + 1, "file_name": Path(os.path.relpath(path, root)).as_posix(), "width": im.width, "height": im.height}
+        rel = Path(os.path.relpath(path, root))
+        if ".." in rel.parts:
+            raise ValueError(f"write_coco: image {str(im.path)!r} lies outside the output folder {str(root)!r}; "
+                             "a data set's images live in its folder")
+        row = {"id": i + 1, "file_name": rel.as_posix(), "width": im.width, "height": im.height}
         if image_extra is not None:
             row.update(_extra_fields(image_extra[i], ("id", "file_name", "width", "height"), f"image_extra[{i}]"))
         img_rows.append(row)

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import json
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from policies._promp_basis import RBFBasis
+from tracker.files import load_npz_checked
 
 __all__ = ["FORMAT", "VERSION", "load", "save"]
 
@@ -63,11 +63,7 @@ def load(cls, path, *, robot_id=None, joint_names=None, n_dims=None):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such ProMP file")
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            data = {k: npz[k] for k in npz.files}
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
-        raise ValueError(f"{path}: not a ProMP .npz file ({exc})") from exc
+    data = load_npz_checked(path, "ProMP file")
     missing = [k for k in _FIELDS if k not in data]
     if missing:
         raise ValueError(f"{path}: not a ProMP file, missing field(s) {missing}")

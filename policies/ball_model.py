@@ -33,6 +33,7 @@ import numpy as np
 import yaml
 
 from policies import _ball_integrate as _bi
+from tracker.files import load_yaml_checked
 
 __all__ = [
     "BallParams",
@@ -137,10 +138,7 @@ class BallParams:
         path = Path(path) if path is not None else DEFAULT_PARAMS_PATH
         if not path.is_file():
             raise FileNotFoundError(f"ball parameter file not found: {path}")
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise ValueError(f"{path}: not valid YAML ({exc})") from exc
+        doc = load_yaml_checked(path, "ball parameter file")
         if not isinstance(doc, dict) or not isinstance(doc.get("ball_params"), dict):
             raise ValueError(f"{path}: expected a top-level mapping 'ball_params:', got {type(doc).__name__}")
         values = doc["ball_params"]

@@ -8,15 +8,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from tracker.files import short
+
 __all__ = ["check_array", "check_finite", "check_rotation", "describe"]
 
 
 def describe(value) -> str:
-    """Short description of ``value`` for error messages: shape and dtype, or repr."""
-    if isinstance(value, np.ndarray):
-        return f"array of shape {value.shape} and dtype {value.dtype}"
-    text = repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
+    """Short description of ``value`` for error messages: shape and dtype, or a repr shortened while
+    it is built (never the whole text of a huge value)."""
+    return short(value, 80)
 
 
 def check_array(value, name: str, shape: tuple, *, dtype=float, where: str = "") -> np.ndarray:

@@ -28,6 +28,7 @@ import yaml
 
 from tracker._checks import check_array, describe
 from tracker.camera import DISTORTION_MODELS, Camera
+from tracker.files import MAX_CONFIG_BYTES, NoAliasSafeLoader, load_yaml_checked, parse_yaml_checked, read_text_capped
 
 __all__ = ["Rig"]
 
@@ -196,12 +197,7 @@ class Rig:
     def load(cls, path) -> "Rig":
         """Read a rig written by :meth:`save` (or by hand in that format)."""
         path = Path(path)
-        try:
-            data = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise ValueError(f"cannot read rig file {str(path)!r}: {exc.strerror}") from None
-        except yaml.YAMLError as exc:
-            raise ValueError(f"{path}: not valid YAML: {exc}") from None
+        data = load_yaml_checked(path, "rig file", max_bytes=MAX_CONFIG_BYTES)
         return cls.from_dict(data, source=str(path))
 
     # -- OpenCV FileStorage import --------------------------------------------------------------
@@ -263,8 +259,8 @@ def _camera(cd: dict, where: str, dist) -> Camera:
         raise ValueError(f"{where}: {exc}") from None
 
 
-class _OpenCVLoader(yaml.SafeLoader):
-    """SafeLoader that understands OpenCV's ``!!opencv-matrix`` tag."""
+class _OpenCVLoader(NoAliasSafeLoader):
+    """Alias-refusing SafeLoader that understands OpenCV's ``!!opencv-matrix`` tag."""
 
 
 _OpenCVLoader.add_constructor(
@@ -273,20 +269,14 @@ _OpenCVLoader.add_constructor(
 
 
 def _read_opencv_yaml(path: Path) -> dict:
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ValueError(f"cannot read calibration file {str(path)!r}: {exc.strerror}") from None
+    text = read_text_capped(path, MAX_CONFIG_BYTES, "calibration file")
     # OpenCV writes "%YAML:1.0", which is not a valid YAML directive; drop it.
     lines = text.splitlines()
     if lines and lines[0].startswith("%YAML"):
         lines = lines[1:]
         if lines and lines[0].strip() == "---":
             lines = lines[1:]
-    try:
-        data = yaml.load("\n".join(lines), Loader=_OpenCVLoader)  # noqa: S506 (SafeLoader subclass)
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not a valid OpenCV YAML file: {exc}") from None
+    data = parse_yaml_checked("\n".join(lines), f"{path} (OpenCV calibration)", _OpenCVLoader)
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a mapping at the top level, got {describe(data)}")
     return data
@@ -295,7 +285,8 @@ def _read_opencv_yaml(path: Path) -> dict:
 def _opencv_matrix(node, field: str, where: str, shape) -> np.ndarray:
     if not isinstance(node, dict) or not {"rows", "cols", "data"} <= set(node):
         raise ValueError(f"{where}: field {field!r} must be a matrix with rows, cols and data, got {describe(node)}")
-    rows, cols, data = node["rows"], node["cols"], node["data"]
+    rows, cols = (_dimension(node[k], k, field, where) for k in ("rows", "cols"))
+    data = node["data"]
     try:
         arr = np.asarray(data, dtype=float)
     except (TypeError, ValueError):
@@ -306,3 +297,10 @@ def _opencv_matrix(node, field: str, where: str, shape) -> np.ndarray:
     if shape is not None and arr.shape != shape:
         raise ValueError(f"{where}: field {field!r} must be {shape[0]}x{shape[1]}, got {rows}x{cols}")
     return arr
+
+
+def _dimension(value, key: str, field: str, where: str) -> int:
+    """``rows`` / ``cols`` of an OpenCV matrix: a positive int (OpenCV writes ints; ``3.0`` is refused too)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{where}: field {field!r}: {key} must be a positive integer, got {describe(value)}")
+    return value
