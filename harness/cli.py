@@ -39,6 +39,13 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("sim", "fit-flight"): ("harness.studies.fit_flight", "fit the ball flight/bounce model to 88 real launcher flights; held-out prediction error"),
     ("learn", "promp"): ("harness.studies.learn_promp", "learn the WAM hitting ProMP from the scripted teacher (MAP vs ML, held-out fit)"),
     ("play",): ("harness.play.cli", "playing sessions: served balls, tracker, filter, ProMP hitting policy, simulated WAM; success rates (`rt2 play compare`)"),
+    ("track",): ("harness.live.cli_track", "the tracker as a real-time service: cameras -> tracker -> tennicam-compatible ZeroMQ stream, live view, session log"),
+    ("bench", "live"): ("harness.live.bench_live", "end-to-end latency (frame arrival -> message at a subscriber in another process) and sustained rate of rt2 track"),
+    ("calib", "intrinsics"): ("harness.calib.cli_intrinsics", "one camera's K and distortion from ChArUco images or a video (per-view errors, coverage, std devs)"),
+    ("calib", "wand"): ("harness.calib.cli_wand", "all cameras' poses by bundle adjustment of a wand (known ball spacings) or a ball moved through the volume"),
+    ("calib", "board"): ("harness.calib.cli_board", "all cameras' poses by bundle adjustment of a ChArUco board seen by several cameras at once"),
+    ("calib", "robot"): ("harness.calib.cli_robot", "robot base to world transform from a session log (ball on the end effector, joint states)"),
+    ("robot", "serve"): ("harness.robot.cli_serve", "serve the simulated WAM in real time behind the robot link (ZeroMQ; docs/robot_link.md)"),
 }
 
 GROUP_HELP = {
@@ -47,6 +54,8 @@ GROUP_HELP = {
     "eval": "evaluate a component on held-out data",
     "log": "inspect session logs",
     "learn": "learn movement primitives from demonstrations",
+    "calib": "calibrate cameras (intrinsics, extrinsics) and the robot's base into the camera frame",
+    "robot": "the WAM over the network: the robot link (docs/robot_link.md)",
 }
 
 

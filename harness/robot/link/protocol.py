@@ -1,0 +1,172 @@
+"""The robot link's wire protocol: message schema, encoding (msgpack) and validation (docs/robot_link.md).
+
+Two ZeroMQ sockets on the robot side (the *bridge*):
+
+* ``ROUTER`` at the command address (``tcp://HOST:PORT``): the harness sends requests from a ``DEALER``
+  and gets one reply per request: ``hello``, ``trajectory``, ``hold``, ``heartbeat``, ``clock``;
+* ``PUB`` at the state address (told in the ``hello`` reply): ``state`` at the robot's rate and ``event``.
+
+Every message is one msgpack map with ``v`` (protocol version, :data:`VERSION`) and ``type``. Robot
+times are integer nanoseconds ``t_ns`` on the robot's own clock (0 at the bridge's session start);
+joint vectors are lists of 7 floats (rad, rad/s, N m) in the URDF order ``joint_1 .. joint_7``.
+:func:`decode` checks a frame against :data:`SCHEMA` and raises :class:`ProtocolError` quoting what
+was received; nothing malformed gets further on either side.
+"""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+
+__all__ = ["MAX_MESSAGE_BYTES", "MAX_TRAJECTORY_SAMPLES", "MODES", "ProtocolError", "SCHEMA", "VERSION", "decode",
+           "encode"]
+
+VERSION = 1
+MAX_MESSAGE_BYTES = 4 << 20  #: larger frames are rejected before unpacking
+MAX_TRAJECTORY_SAMPLES = 20000  #: 40 s at 500 Hz
+MODES = ("idle", "track", "hold", "watchdog")  #: what the robot is doing, in every ``state``
+EVENTS = ("watchdog_hold", "rejected", "started", "stopping")
+
+_VEC = "vec"  # list of n_joints finite floats
+_VEC_OR_NIL = "vec|nil"
+_MAT = "mat"  # list of N lists of n_joints finite floats
+_MAT_OR_NIL = "mat|nil"
+_INT = "int"
+_INTS = "ints"  # list of N ints
+_STR = "str"
+_FLOAT = "float"
+_FLOAT_OR_NIL = "float|nil"
+_INT_OR_NIL = "int|nil"
+_DICT_OR_NIL = "dict|nil"
+_STRS = "strs"
+
+#: type -> {field: kind}; every field is required (nil where allowed), unknown fields are rejected
+SCHEMA: dict[str, dict[str, str]] = {
+    # requests, harness -> robot (DEALER -> ROUTER); ``id`` is echoed in the reply
+    "hello": {"id": _INT, "client": _STR},
+    "trajectory": {"id": _INT, "t_ns": _INTS, "q": _MAT, "qdot": _MAT_OR_NIL},
+    "hold": {"id": _INT},
+    "heartbeat": {"id": _INT},
+    "clock": {"id": _INT, "t0_ns": _INT},
+    # replies, robot -> harness
+    "welcome": {"id": _INT, "robot": _STR, "bridge_id": _STR, "joint_names": _STRS, "control_rate_hz": _FLOAT,
+                "q_min": _VEC, "q_max": _VEC, "qdot_max": _VEC, "state_endpoint": _STR, "watchdog_s": _FLOAT,
+                "t_ns": _INT},
+    "ok": {"id": _INT, "t_ns": _INT},
+    "error": {"id": _INT_OR_NIL, "reason": _STR},
+    "clock_reply": {"id": _INT, "t0_ns": _INT, "t1_ns": _INT, "t2_ns": _INT},
+    # stream, robot -> harness (PUB -> SUB)
+    "state": {"seq": _INT, "t_ns": _INT, "q": _VEC, "qdot": _VEC, "effort": _VEC_OR_NIL, "mode": _STR,
+              "cmd_id": _INT, "sim": _DICT_OR_NIL},
+    "event": {"t_ns": _INT, "event": _STR, "reason": _STR},
+}
+
+N_JOINTS = 7
+
+
+class ProtocolError(ValueError):
+    """A frame that is not a valid robot-link message; the text says which field and what was received."""
+
+
+def encode(msg_type: str, **fields) -> bytes:
+    """One message as bytes, checked against :data:`SCHEMA` (a sender never emits what a receiver would reject)."""
+    msg = {"v": VERSION, "type": msg_type, **fields}
+    _check(msg)
+    return msgpack.packb(msg, use_bin_type=True)
+
+
+def decode(frame: bytes, expect: tuple[str, ...] | None = None) -> dict:
+    """Unpack and validate one frame; ``expect``: the message types allowed here. Raises ProtocolError."""
+    if not isinstance(frame, (bytes, bytearray, memoryview)):
+        raise ProtocolError(f"a message must be bytes, got {type(frame).__name__}")
+    if len(frame) > MAX_MESSAGE_BYTES:
+        raise ProtocolError(f"message of {len(frame)} bytes exceeds the limit of {MAX_MESSAGE_BYTES}")
+    try:
+        msg = msgpack.unpackb(frame, raw=False, strict_map_key=True, max_array_len=MAX_TRAJECTORY_SAMPLES + 16)
+    except Exception as exc:  # msgpack raises several types (ExtraData, FormatError, ValueError, ...)
+        raise ProtocolError(f"not a msgpack message ({type(exc).__name__}: {str(exc)[:80]})") from None
+    _check(msg)
+    if expect is not None and msg["type"] not in expect:
+        raise ProtocolError(f"message type {msg['type']!r} not expected here; expected one of {list(expect)}")
+    return msg
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _check(msg) -> None:
+    if not isinstance(msg, dict):
+        raise ProtocolError(f"a message must be a map, got {type(msg).__name__}")
+    if msg.get("v") != VERSION:
+        raise ProtocolError(f"protocol version {_short(msg.get('v'))} not supported; this side speaks v={VERSION}")
+    kind = msg.get("type")
+    if kind not in SCHEMA:
+        raise ProtocolError(f"unknown message type {_short(kind)}; valid: {sorted(SCHEMA)}")
+    spec = SCHEMA[kind]
+    extra = sorted(set(msg) - set(spec) - {"v", "type"})
+    if extra:
+        raise ProtocolError(f"{kind}: unknown field(s) {extra}")
+    for name, field_kind in spec.items():
+        if name not in msg:
+            raise ProtocolError(f"{kind}: missing field {name!r}")
+        _check_field(kind, name, field_kind, msg[name])
+    if kind == "trajectory":
+        n = len(msg["t_ns"])
+        if n < 2 or n > MAX_TRAJECTORY_SAMPLES:
+            raise ProtocolError(f"trajectory: t_ns must hold 2..{MAX_TRAJECTORY_SAMPLES} samples, got {n}")
+        for name in ("q", "qdot"):
+            if msg[name] is not None and len(msg[name]) != n:
+                raise ProtocolError(f"trajectory: {name} has {len(msg[name])} rows, t_ns has {n}")
+    if kind == "state" and msg["mode"] not in MODES:
+        raise ProtocolError(f"state: mode {_short(msg['mode'])} is not one of {list(MODES)}")
+    if kind == "event" and msg["event"] not in EVENTS:
+        raise ProtocolError(f"event: {_short(msg['event'])} is not one of {list(EVENTS)}")
+
+
+def _is_int(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool) and -(1 << 63) <= x < (1 << 63)
+
+
+def _finite(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _check_vec(kind, name, value, where="") -> None:
+    if not isinstance(value, (list, tuple)) or len(value) != N_JOINTS or not all(_finite(x) for x in value):
+        raise ProtocolError(f"{kind}: {name}{where} must be {N_JOINTS} finite numbers, got {_short(value)}")
+
+
+def _check_field(kind: str, name: str, field_kind: str, value) -> None:
+    if value is None and field_kind.endswith("|nil"):
+        return
+    base = field_kind.split("|")[0]
+    if base == _INT:
+        if not _is_int(value):
+            raise ProtocolError(f"{kind}: {name} must be a 64-bit integer, got {_short(value)}")
+    elif base == _FLOAT:
+        if not _finite(value):
+            raise ProtocolError(f"{kind}: {name} must be a finite number, got {_short(value)}")
+    elif base == _STR:
+        if not isinstance(value, str) or len(value) > 1000:
+            raise ProtocolError(f"{kind}: {name} must be a string (<= 1000 characters), got {_short(value)}")
+    elif base == _STRS:
+        if not isinstance(value, (list, tuple)) or not all(isinstance(s, str) for s in value):
+            raise ProtocolError(f"{kind}: {name} must be a list of strings, got {_short(value)}")
+    elif base == "dict":
+        if not isinstance(value, dict):
+            raise ProtocolError(f"{kind}: {name} must be a map or nil, got {_short(value)}")
+    elif base == _INTS:
+        if not isinstance(value, (list, tuple)) or not all(_is_int(x) for x in value):
+            raise ProtocolError(f"{kind}: {name} must be a list of integers, got {_short(value)}")
+    elif base == _VEC:
+        _check_vec(kind, name, value)
+    elif base == _MAT:
+        if not isinstance(value, (list, tuple)):
+            raise ProtocolError(f"{kind}: {name} must be a list of joint vectors, got {_short(value)}")
+        for i, row in enumerate(value):
+            _check_vec(kind, name, row, f"[{i}]")
+    else:  # pragma: no cover - SCHEMA and this function are written together
+        raise AssertionError(field_kind)
