@@ -121,17 +121,30 @@ def test_damage_in_an_unfinished_log_is_skipped_by_the_scan(finished_log, tmp_pa
             finished_log, [c for c in chunks if c is not victim])
 
 
-def test_unreadable_record_header_stops_the_scan_with_a_message(finished_log, tmp_path):
+def test_unreadable_record_header_is_skipped_to_the_next_intact_chunk(finished_log, tmp_path):
     chunks = build_index(finished_log).chunks
     victim = chunks[3]
     data = bytearray(finished_log.read_bytes()[: chunks[-1].offset + chunks[-1].length])
     data[victim.offset] = 0x7F  # not an MCAP opcode
     (tmp_path / "h.mcap").write_bytes(bytes(data))
+    with pytest.warns(RuntimeWarning, match=f"damaged record at offset {victim.offset} skipped \\(opcode 0x7f\\): "
+                                            f"\\d+ bytes skipped up to the next intact chunk at offset {chunks[4].offset}"):
+        r = SessionLogReader(tmp_path / "h.mcap")
+    with r:
+        assert r.recovery.recovered_chunks == len(chunks) - 1
+        assert len(list(r.messages())) == len(_chunk_messages(finished_log, chunks[:3] + chunks[4:]))
+
+
+def test_unreadable_record_header_without_an_intact_chunk_after_it_stops_the_scan(finished_log, tmp_path):
+    chunks = build_index(finished_log).chunks
+    victim = chunks[-1]
+    data = bytearray(finished_log.read_bytes()[: victim.offset + victim.length])
+    data[victim.offset] = 0x7F
+    (tmp_path / "h.mcap").write_bytes(bytes(data))
     with pytest.warns(RuntimeWarning, match=f"unreadable record at offset {victim.offset}"):
         r = SessionLogReader(tmp_path / "h.mcap")
     with r:
-        assert r.recovery.recovered_chunks == 3
-        assert len(list(r.messages())) == len(_chunk_messages(finished_log, chunks[:3]))
+        assert r.recovery.recovered_chunks == len(chunks) - 1
 
 
 # -- crash loss is bounded by the flush period -------------------------------------------------------
@@ -157,6 +170,87 @@ def test_killed_writer_loses_at_most_the_flush_period(tmp_path):
             assert last_written_s - ts[-1] <= 1.0 + 1e-6, topic  # at most one flush period lost
             assert len(ts) == round(ts[-1] * 100) + 1  # and nothing before it
         assert r.summary().session["kind"] == "crash"
+
+
+def test_idle_writer_hands_every_message_older_than_the_flush_period_to_the_os(tmp_path):
+    """Messages written, then silence: the timer thread, not a next message, flushes them. The
+    child prints the monotonic time at which it handed each message over (the clock is system-wide);
+    after a SIGKILL every message handed over more than 1 s before the kill is in the recovered log."""
+    path = tmp_path / "idle.mcap"
+    script = textwrap.dedent(f"""
+        import sys, time
+        import numpy as np
+        from harness.logs import SessionLogWriter
+        w = SessionLogWriter({str(path)!r}, metadata={{"kind": "crash"}}, image_format="png", flush_period_s=1.0)
+        img = np.zeros((24, 32, 3), np.uint8)
+        for k in range(40):  # 2 s of slow writing; log time advances only 4 ms: only wall time can flush
+            w.write_ground_truth(k * 1e-4, [0.0, 0.0, float(k)], None, None, frame_index=k)
+            w.write_image(k * 1e-4, "cam0", img, k)
+            print(k, time.monotonic(), flush=True)
+            time.sleep(0.05)
+        print("idle", time.monotonic(), flush=True)
+        time.sleep(60)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    handed = {}
+    try:
+        for line in proc.stdout:
+            word, t = line.split()
+            if word == "idle":
+                break
+            handed[int(word)] = float(t)
+        time.sleep(1.6)
+        killed_at = time.monotonic()
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert len(handed) == 40
+    with SessionLogReader(path) as r:
+        assert not r.finished_cleanly
+        for topic in ("/ground_truth/ball", "/camera/cam0/image"):
+            got = {m.sequence for m in r.messages(topic, decode=False)}
+            due = {k for k, t in handed.items() if killed_at - t > 1.0}
+            assert due == set(range(40)) and due <= got, topic
+
+
+def test_flush_timer_is_stopped_by_close_and_does_not_keep_a_writer_alive(tmp_path):
+    import gc
+    import threading
+    import weakref
+
+    before = {t for t in threading.enumerate() if t.name == "rt2-log-flush"}
+    w = SessionLogWriter(tmp_path / "a.mcap", metadata={"kind": "t"}, flush_period_s=0.05)
+    w.write_ground_truth(0.0, [0, 0, 1], None, None)
+    (timer,) = {t for t in threading.enumerate() if t.name == "rt2-log-flush"} - before
+    time.sleep(0.2)
+    assert SessionLogReader(tmp_path / "a.mcap").recovery.recovered_messages == 1  # flushed while idle
+    w.close()
+    assert not timer.is_alive()
+    w2 = SessionLogWriter(tmp_path / "b.mcap", metadata={"kind": "t"}, flush_period_s=0.05)
+    ref = weakref.ref(w2._mcap)
+    (timer2,) = {t for t in threading.enumerate() if t.name == "rt2-log-flush"} - before
+    del w2
+    gc.collect()
+    assert ref() is None
+    timer2.join(1.0)
+    assert not timer2.is_alive()
+
+
+def test_flush_timer_is_thread_safe_with_a_busy_writer(tmp_path):
+    """Many small messages while the timer flushes every few ms: the file reads back whole and in order."""
+    path = tmp_path / "busy.mcap"
+    with SessionLogWriter(path, metadata={"kind": "t"}, flush_period_s=0.004, image_format="png") as w:
+        img = np.zeros((8, 8, 3), np.uint8)
+        for k in range(3000):
+            w.write_ground_truth(k * 1e-6, [0.0, 0.0, float(k)], None, None, frame_index=k)
+            if k % 10 == 0:
+                w.write_image(k * 1e-6, "cam0", img, k)
+    with SessionLogReader(path) as r:
+        assert r.finished_cleanly and r.verify() == []
+        seqs = [m.sequence for m in r.messages("/ground_truth/ball", decode=False)]
+        assert seqs == list(range(3000))
+        assert r.summary().n_chunks > 2
 
 
 def test_wall_clock_flush_hands_old_chunks_to_the_os(tmp_path):

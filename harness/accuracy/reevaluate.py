@@ -102,7 +102,8 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
     if not reader.finished_cleanly:
         rec = reader.recovery
         notes.append(f"the log was not finished cleanly ({rec.text if rec is not None else 'no summary'}); "
-                     "re-evaluating the frames recovered, the last recovered frame set dropped")
+                     + ("every frame set is in it" if reader.data_complete else
+                        "re-evaluating the frames recovered, the last recovered frame set dropped"))
     n = config.n_frames
     how, runners, spare = {}, {}, {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -233,7 +234,7 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
                 state["dets"].setdefault(kind, {})[i] = (m.data.uv_px, m.data.areas_px)
     flush()
     bar.close()
-    if not reader.finished_cleanly:  # the last frame set of each lane may be cut in the middle
+    if not reader.data_complete:  # the last frame set of each lane may be cut in the middle
         last = [int(np.flatnonzero(gt_present)[-1])] if gt_present.any() else []
         if src == "images" and state["last_image_frame"] >= 0:
             last.append(state["last_image_frame"])

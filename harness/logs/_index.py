@@ -6,16 +6,23 @@ writer, a cut copy) is scanned record by record from the start, one record in me
 every complete chunk whose CRC matches is kept, a chunk that fails is skipped with a message
 naming its offset, and the scan stops at the first record that is cut off or unreadable, saying
 how many bytes (and, where the cut chunk's header survived, how many seconds) were lost.
+
+Every length read from the file is bounded before it is used: a record's length by the file size
+(and, for an indexed chunk, by the index), a chunk's uncompressed size by :data:`MAX_CHUNK_BYTES`,
+and decompression stops at the declared size. A damaged header therefore makes its chunk
+unreadable (skipped, named by offset), never an ``OverflowError`` or a huge allocation.
 """
 
 from __future__ import annotations
 
 import io
+import os
 import struct
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import lz4.frame
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
@@ -27,11 +34,14 @@ from mcap.stream_reader import breakup_chunk
 from harness.logs._mcap_writer import MCAP_MAGIC
 from harness.logs.topics import LogError
 
-__all__ = ["ChunkInfo", "FileIndex", "RecoveryReport", "build_index", "scan", "load_chunk", "DECODE_ERRORS"]
+__all__ = ["ChunkInfo", "FileIndex", "RecoveryReport", "build_index", "scan", "load_chunk", "chunk_records",
+           "DECODE_ERRORS", "MAX_CHUNK_BYTES"]
 
 #: what a damaged chunk can raise while being decompressed or parsed
 DECODE_ERRORS = (McapError, ValueError, RuntimeError, struct.error, EOFError, UnicodeDecodeError, KeyError, MemoryError,
-                 zstandard.ZstdError)  # lz4 raises RuntimeError
+                 OverflowError, zstandard.ZstdError)  # lz4 raises RuntimeError
+#: largest uncompressed chunk we read (ours are 1 MiB state / 8 MiB image chunks plus one message)
+MAX_CHUNK_BYTES = 1 << 30
 _KNOWN = {int(o) for o in Opcode}
 _FOOTER_LEN = 1 + 8 + 8 + 8 + 4
 
@@ -94,13 +104,71 @@ class FileIndex:
     problems: list = field(default_factory=list)
 
 
-def load_chunk(f, info: ChunkInfo) -> list:
-    """Records of one chunk (CRC-checked), or the lone Message at ``info.offset``."""
-    f.seek(info.offset)
+def _decompress(chunk: Chunk) -> bytes:
+    """The uncompressed records of ``chunk``, never more than it declares (nor :data:`MAX_CHUNK_BYTES`)."""
+    want = chunk.uncompressed_size
+    if want > MAX_CHUNK_BYTES:
+        raise McapError(f"the chunk declares {want} uncompressed bytes, more than the {MAX_CHUNK_BYTES} we read "
+                        "(a damaged header)")
+    comp = chunk.compression
+    if comp == "":
+        raw = chunk.data
+    elif comp == "zstd":
+        parts, n = [], 0
+        with zstandard.ZstdDecompressor().stream_reader(chunk.data) as reader:
+            while n <= want:
+                part = reader.read(min(want + 1 - n, 1 << 20))
+                if not part:
+                    break
+                parts.append(part)
+                n += len(part)
+        raw = b"".join(parts)
+    elif comp == "lz4":
+        raw = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=want + 1)
+    else:
+        raise McapError(f"unknown chunk compression {comp[:20]!r}")
+    if len(raw) != want:
+        raise McapError(f"the chunk holds {len(raw) if len(raw) <= want else 'more than ' + str(want)} uncompressed "
+                        f"bytes but declares {want}")
+    if chunk.uncompressed_crc and zlib.crc32(raw) != chunk.uncompressed_crc:
+        raise McapError(f"CRC mismatch: the chunk's records have CRC {zlib.crc32(raw):#010x}, "
+                        f"its header says {chunk.uncompressed_crc:#010x}")
+    return raw
+
+
+def chunk_records(chunk: Chunk) -> list:
+    """The records of ``chunk`` (bounded decompression, CRC-checked)."""
+    raw = _decompress(chunk)
+    return breakup_chunk(Chunk(compression="", data=raw, message_start_time=chunk.message_start_time,
+                               message_end_time=chunk.message_end_time, uncompressed_crc=0,
+                               uncompressed_size=len(raw)))
+
+
+def _record_length(f, offset: int, size: int, expected: int | None = None) -> tuple[int, int]:
+    """(opcode, length) of the record at ``offset``, the length bounded by the file (and the index)."""
+    f.seek(offset)
     head = f.read(9)
     if len(head) < 9:
-        raise EOFError(f"record header at offset {info.offset} is cut off")
+        raise EOFError(f"record header at offset {offset} is cut off")
     op, length = struct.unpack("<BQ", head)
+    if offset + 9 + length > size:
+        raise McapError(f"the record at offset {offset} declares {length} bytes, past the end of the "
+                        f"{size}-byte file (a damaged header)")
+    if expected is not None and 9 + length != expected:
+        raise McapError(f"the record at offset {offset} declares {9 + length} bytes, the index {expected} "
+                        "(a damaged header)")
+    return op, length
+
+
+def load_chunk(f, info: ChunkInfo, size: int | None = None, *, check_length: bool = True) -> list:
+    """Records of one chunk (CRC-checked), or the lone Message at ``info.offset``.
+
+    size : the file's size in bytes (default: found with ``os.fstat``); bounds every length read
+    check_length : the record's length must be ``info.length`` (as indexed)
+    """
+    if size is None:
+        size = os.fstat(f.fileno()).st_size
+    op, length = _record_length(f, info.offset, size, info.length if check_length else None)
     body = f.read(length)
     if len(body) < length:
         raise EOFError(f"record at offset {info.offset} is cut off")
@@ -109,7 +177,7 @@ def load_chunk(f, info: ChunkInfo) -> list:
         return [Message.read(stream, length)]
     if op != Opcode.CHUNK:
         raise McapError(f"expected a chunk at offset {info.offset}, found opcode {op:#04x}")
-    return breakup_chunk(Chunk.read(stream), validate_crc=True)
+    return chunk_records(Chunk.read(stream))
 
 
 def build_index(path) -> FileIndex:
@@ -176,6 +244,45 @@ def _from_summary(f, path: Path, size: int) -> FileIndex:
     return idx
 
 
+def _plausible_chunk_header(h: bytes, offset: int, size: int) -> bool:
+    """Do the first bytes ``h`` at ``offset`` read as a Chunk record header whose lengths all agree?"""
+    if len(h) < 53 or h[0] != Opcode.CHUNK:
+        return False
+    length = struct.unpack_from("<Q", h, 1)[0]
+    t0, t1, usize, _, clen = struct.unpack_from("<QQQII", h, 9)
+    if offset + 9 + length > size or t1 < t0 or usize > MAX_CHUNK_BYTES or clen not in (0, 3, 4):
+        return False
+    if h[41:41 + clen] not in (b"", b"lz4", b"zstd"):
+        return False
+    data_len = struct.unpack_from("<Q", h, 41 + clen)[0]
+    return 8 + 8 + 8 + 4 + 4 + clen + 8 + data_len == length
+
+
+def _next_chunk(f, start: int, size: int) -> int | None:
+    """Offset of the first chunk record after ``start`` that is whole and intact (CRC), or None.
+
+    Used to resynchronise after a damaged record header; a candidate must have a consistent header
+    and pass the CRC of its records, so a false match is practically impossible.
+    """
+    block = 1 << 20
+    pos = start
+    while pos < size:
+        f.seek(pos)
+        buf = f.read(block + 64)
+        i = buf.find(b"\x06")
+        while 0 <= i < block:
+            cand = pos + i
+            if _plausible_chunk_header(buf[i:i + 64], cand, size):
+                try:
+                    load_chunk(f, ChunkInfo(cand, 0, 0, 0, "?"), size, check_length=False)
+                    return cand
+                except DECODE_ERRORS:
+                    pass
+            i = buf.find(b"\x06", i + 1)
+        pos += block
+    return None
+
+
 def scan(f, path: Path, size: int, reason: str) -> FileIndex:
     """Read every record from the start; keep what is complete and intact (see the module doc)."""
     idx = FileIndex(path=Path(path), size_bytes=size, finished=False)
@@ -196,12 +303,22 @@ def scan(f, path: Path, size: int, reason: str) -> FileIndex:
             break
         op, length = struct.unpack("<BQ", head)
         end = pos + 9 + length
+        if op not in _KNOWN or end > size:
+            nxt = _next_chunk(f, pos + 1, size)
+            if nxt is not None:  # damage, not a cut: carry on at the next intact chunk
+                why = f"opcode {op:#04x}" if op not in _KNOWN else f"its length {length} runs past the end of the file"
+                skipped.append((pos, f"unreadable record header ({why})"))
+                idx.problems.append(f"damaged record at offset {pos} skipped ({why}): {nxt - pos} bytes skipped "
+                                    f"up to the next intact chunk at offset {nxt}")
+                pos = nxt
+                continue
         if op not in _KNOWN:
             idx.problems.append(f"unreadable record at offset {pos} (opcode {op:#04x}); the rest of the file "
                                 f"({size - pos} bytes) cannot be read")
             break
         if end > size:
             if op == Opcode.CHUNK and size - pos >= 9 + 16:
+                f.seek(pos + 9)
                 t0, t1 = struct.unpack("<QQ", f.read(16))
                 if t1 >= t0:
                     lost_time = (t1 - t0) * 1e-9
@@ -227,7 +344,7 @@ def scan(f, path: Path, size: int, reason: str) -> FileIndex:
                 note_message(m.channel_id, m.log_time)
             elif op == Opcode.CHUNK:
                 chunk = Chunk.read(stream)
-                records = breakup_chunk(chunk, validate_crc=True)
+                records = chunk_records(chunk)
                 ids = set()
                 for r in records:
                     if isinstance(r, Message):

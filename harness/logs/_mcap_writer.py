@@ -12,14 +12,20 @@ offsets, footer) laid out as ``mcap.writer.Writer.finish`` does, so any MCAP rea
 Crash safety: schemas, channels, metadata and attachments go straight to the data section (never
 inside a chunk), so every complete chunk on disk is decodable even without the summary. A lane's
 chunk is closed and handed to the operating system when it exceeds its size, or when its oldest
-message is ``flush_period_s`` old in log time or in wall-clock time, whichever comes first; a
-killed process therefore loses at most about ``flush_period_s`` of messages.
+message is ``flush_period_s`` old in log time or in wall-clock time, whichever comes first. The
+log-time rule and the size rule are checked on every message; the wall-clock rule also by a timer
+thread (``flush_timer=True``) that wakes every ``flush_period_s / 4`` and closes chunks whose
+oldest message is ``3/4 flush_period_s`` old, so a message handed over is on its way to the disk
+within ``flush_period_s`` even when no other message follows: a killed process loses at most the
+messages of the last ``flush_period_s`` of wall-clock time. All methods are thread-safe (one lock).
 """
 
 from __future__ import annotations
 
 import struct
+import threading
 import time
+import weakref
 import zlib
 from dataclasses import dataclass
 from typing import BinaryIO
@@ -104,12 +110,18 @@ class LaneWriter:
     stream : a binary stream opened for writing (it is flushed, never closed, by this class)
     lanes : lane name -> :class:`LaneSpec`
     flush_period_s : close a lane's chunk once its oldest message is this old (log or wall time)
+    flush_timer : also check the wall-clock age on a timer thread (stopped by :meth:`finish` /
+        :meth:`stop_timer`); an error the timer meets writing is raised by the next call
     """
 
     def __init__(self, stream: BinaryIO, lanes: dict[str, LaneSpec], *, flush_period_s: float = 1.0,
-                 profile: str = "", library: str = "rt2"):
+                 profile: str = "", library: str = "rt2", flush_timer: bool = False):
         if not lanes:
             raise ValueError("LaneWriter needs at least one lane")
+        self._lock = threading.RLock()
+        self._timer_error: BaseException | None = None
+        self._stop = threading.Event()
+        self._timer: threading.Thread | None = None
         self._stream = stream
         self._lanes = {name: _Lane(spec) for name, spec in lanes.items()}
         self._flush_ns = int(round(flush_period_s * 1e9))
@@ -129,6 +141,36 @@ class LaneWriter:
         self._write(MCAP_MAGIC)
         self._write_record(Header(profile=profile, library=library))
         self._stream.flush()
+        if flush_timer:
+            self._timer = threading.Thread(target=_timer_loop, args=(weakref.ref(self), self._stop, self._flush_s / 4),
+                                           name="rt2-log-flush", daemon=True)
+            self._timer.start()
+
+    # -- the timer ------------------------------------------------------------------------------
+    def flush_old(self) -> None:
+        """Close every lane chunk whose oldest message is 3/4 of ``flush_period_s`` old in wall time
+        (what the timer calls every ``flush_period_s / 4``)."""
+        with self._lock:
+            if self._finished:
+                return
+            wall = time.monotonic()
+            closed = False
+            for ln in self._lanes.values():
+                if ln.n_messages and wall - ln.opened_wall_s >= 0.75 * self._flush_s:
+                    self._close_chunk(ln)
+                    closed = True
+            if closed:
+                self._stream.flush()
+
+    def stop_timer(self) -> None:
+        """Stop the flush timer (if any) and wait for it; safe to call more than once."""
+        self._stop.set()
+        if self._timer is not None and self._timer is not threading.current_thread():
+            self._timer.join()
+
+    def _check_timer(self) -> None:
+        if self._timer_error is not None:
+            raise OSError(f"the log's flush timer failed: {self._timer_error}") from self._timer_error
 
     # -- low level ------------------------------------------------------------------------------
     def _write(self, data: bytes) -> None:
@@ -149,41 +191,54 @@ class LaneWriter:
 
     # -- definitions (data section, outside chunks) ----------------------------------------------
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
-        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
-        self._schemas[schema.id] = schema
-        self._stats.schema_count += 1
-        self._write_record(schema)
-        return schema.id
+        with self._lock:
+            self._check_timer()
+            schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
+            self._schemas[schema.id] = schema
+            self._stats.schema_count += 1
+            self._write_record(schema)
+            return schema.id
 
     def register_channel(self, topic: str, message_encoding: str, schema_id: int, metadata: dict | None = None) -> int:
-        channel = Channel(id=len(self._channels) + 1, topic=topic, message_encoding=message_encoding,
-                          schema_id=schema_id, metadata=dict(metadata or {}))
-        self._channels[channel.id] = channel
-        self._stats.channel_count += 1
-        self._stats.channel_message_counts[channel.id] = 0
-        self._write_record(channel)
-        return channel.id
+        with self._lock:
+            self._check_timer()
+            channel = Channel(id=len(self._channels) + 1, topic=topic, message_encoding=message_encoding,
+                              schema_id=schema_id, metadata=dict(metadata or {}))
+            self._channels[channel.id] = channel
+            self._stats.channel_count += 1
+            self._stats.channel_message_counts[channel.id] = 0
+            self._write_record(channel)
+            return channel.id
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
-        start = self._pos
-        self._write_record(Metadata(name=name, metadata=data))
-        self._metadata_indexes.append(MetadataIndex(offset=start, length=self._pos - start, name=name))
-        self._stats.metadata_count += 1
-        self._stream.flush()
+        with self._lock:
+            self._check_timer()
+            start = self._pos
+            self._write_record(Metadata(name=name, metadata=data))
+            self._metadata_indexes.append(MetadataIndex(offset=start, length=self._pos - start, name=name))
+            self._stats.metadata_count += 1
+            self._stream.flush()
 
     def add_attachment(self, name: str, media_type: str, data: bytes, log_time_ns: int, create_time_ns: int = 0) -> None:
-        start = self._pos
-        self._write_record(Attachment(create_time=create_time_ns, log_time=log_time_ns, name=name,
-                                      media_type=media_type, data=data))
-        self._attachment_indexes.append(AttachmentIndex(
-            offset=start, length=self._pos - start, log_time=log_time_ns, create_time=create_time_ns,
-            data_size=len(data), name=name, media_type=media_type))
-        self._stats.attachment_count += 1
-        self._stream.flush()
+        with self._lock:
+            self._check_timer()
+            start = self._pos
+            self._write_record(Attachment(create_time=create_time_ns, log_time=log_time_ns, name=name,
+                                          media_type=media_type, data=data))
+            self._attachment_indexes.append(AttachmentIndex(
+                offset=start, length=self._pos - start, log_time=log_time_ns, create_time=create_time_ns,
+                data_size=len(data), name=name, media_type=media_type))
+            self._stats.attachment_count += 1
+            self._stream.flush()
 
     # -- messages -------------------------------------------------------------------------------
     def add_message(self, lane: str, channel_id: int, log_time_ns: int, data: bytes, sequence: int = 0) -> None:
         """Append a message to ``lane``'s open chunk (closing chunks that are full or old)."""
+        with self._lock:
+            self._check_timer()
+            self._add_message(lane, channel_id, log_time_ns, data, sequence)
+
+    def _add_message(self, lane: str, channel_id: int, log_time_ns: int, data: bytes, sequence: int) -> None:
         st = self._stats
         if st.message_count == 0:
             st.message_start_time = st.message_end_time = log_time_ns
@@ -198,10 +253,14 @@ class LaneWriter:
         if ln.records.count > ln.spec.chunk_size_bytes:
             self._close_chunk(ln)
             self._stream.flush()
-        self.flush_due(log_time_ns)
+        self._flush_due(log_time_ns)
 
     def flush_due(self, now_log_ns: int) -> None:
         """Close every lane chunk whose oldest message is ``flush_period_s`` old (log or wall time)."""
+        with self._lock:
+            self._flush_due(now_log_ns)
+
+    def _flush_due(self, now_log_ns: int) -> None:
         wall = time.monotonic()
         closed = False
         for ln in self._lanes.values():
@@ -213,9 +272,11 @@ class LaneWriter:
 
     def flush(self) -> None:
         """Close every open chunk and hand all bytes to the operating system."""
-        for ln in self._lanes.values():
-            self._close_chunk(ln)
-        self._stream.flush()
+        with self._lock:
+            self._check_timer()
+            for ln in self._lanes.values():
+                self._close_chunk(ln)
+            self._stream.flush()
 
     def _close_chunk(self, ln: _Lane) -> None:
         if ln.n_messages == 0:
@@ -250,7 +311,12 @@ class LaneWriter:
 
     # -- summary --------------------------------------------------------------------------------
     def finish(self) -> None:
-        """Close all chunks, write the summary section and footer (see the MCAP spec)."""
+        """Close all chunks, write the summary section and footer (see the MCAP spec); stops the timer."""
+        self.stop_timer()
+        with self._lock:
+            self._finish()
+
+    def _finish(self) -> None:
         if self._finished:
             return
         for ln in self._lanes.values():
@@ -286,3 +352,18 @@ class LaneWriter:
         self._write(MCAP_MAGIC)
         self._stream.flush()
         self._finished = True
+
+
+def _timer_loop(ref, stop: threading.Event, period_s: float) -> None:
+    """Body of the flush timer: holds the writer only weakly, so an abandoned writer is not kept alive."""
+    while not stop.wait(period_s):
+        writer = ref()
+        if writer is None:
+            return
+        try:
+            writer.flush_old()
+        except BaseException as exc:  # raised again by the writer's next call, in the caller's thread
+            writer._timer_error = exc
+            return
+        finally:
+            del writer

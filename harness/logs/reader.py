@@ -124,6 +124,11 @@ class SessionLogReader:
         return self._index.finished
 
     @property
+    def data_complete(self) -> bool:
+        """True when no message can be missing: finished cleanly, or only the summary was lost."""
+        return self._index.finished or (self._index.recovery is not None and self._index.recovery.data_complete)
+
+    @property
     def recovery(self) -> RecoveryReport | None:
         return self._index.recovery
 
@@ -144,6 +149,9 @@ class SessionLogReader:
             offset, length, _, size = self._index.attachments[name]
         except KeyError:
             raise LogError(f"{self.path}: no attachment {name!r}; this log has {sorted(self._index.attachments)}") from None
+        if not 9 <= length <= self._index.size_bytes - offset:
+            raise LogError(f"{self.path}: attachment {name!r} at offset {offset} is damaged (its length {length} "
+                           f"does not fit the {self._index.size_bytes}-byte file)")
         self._file.seek(offset + 9)
         body = self._file.read(length - 9)
         stored = struct.unpack("<I", body[-4:])[0] if len(body) >= 4 else None
@@ -194,13 +202,38 @@ class SessionLogReader:
             recovery=idx.recovery, problems=tuple(self.problems))
 
     def verify(self) -> list[str]:
-        """Read every record and check every chunk's CRC; return the problems found (empty = intact)."""
+        """Read every record and check every chunk's CRC; return the problems found (empty = intact).
+
+        A finished file is checked chunk by chunk from its index (so one damaged chunk does not hide
+        the others) and then scanned record by record; an unfinished one is scanned.
+        """
+        size = self._index.size_bytes
+        problems = []
         with open(self.path, "rb") as f:
-            idx = scan(f, self.path, self._index.size_bytes, "verify")
+            if self._index.finished:
+                for info in self._index.chunks:
+                    try:
+                        load_chunk(f, info, size)
+                    except DECODE_ERRORS as exc:
+                        problems.append(f"damaged chunk at offset {info.offset} skipped ({type(exc).__name__}: {exc})")
+                for name in self._index.attachments:
+                    try:
+                        self.attachment(name)
+                    except LogError as exc:
+                        problems.append(str(exc).removeprefix(f"{self.path}: "))
+            idx = scan(f, self.path, size, "verify")
         rec = idx.recovery
-        cut = not rec.data_complete and rec.lost_bytes and not self._index.finished
-        return idx.problems + ([f"the data section is cut off: {rec.lost_bytes} bytes after offset {rec.good_bytes} "
-                                "are not readable"] if cut else [])
+        problems += [p for p in idx.problems if p not in problems]
+        if not rec.data_complete and rec.lost_bytes and not (self._index.finished and rec.good_bytes >= self._data_end()):
+            problems.append(f"the data section is cut off or unreadable: {rec.lost_bytes} bytes after offset "
+                            f"{rec.good_bytes} cannot be read record by record")
+        return problems
+
+    def _data_end(self) -> int:
+        """Where the data section of a finished file ends (its summary starts)."""
+        with open(self.path, "rb") as f:
+            f.seek(self._index.size_bytes - 8 - 29 + 9)
+            return struct.unpack("<Q", f.read(8))[0]
 
     # -- messages -------------------------------------------------------------------------------
     def _select(self, topics) -> set:
@@ -250,7 +283,7 @@ class SessionLogReader:
 
     def _push_chunk(self, heap, info, order, wanted, lo, hi) -> None:
         try:
-            records = load_chunk(self._file, info)
+            records = load_chunk(self._file, info, self._index.size_bytes)
         except DECODE_ERRORS as exc:
             text = f"damaged chunk at offset {info.offset} skipped ({type(exc).__name__}: {exc})"
             if text not in self.problems:

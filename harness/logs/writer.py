@@ -91,7 +91,9 @@ class SessionLogWriter:
     log_images : ``"all"``, ``"none"`` or N (keep frames whose ``frame_index % N == 0``)
     image_format : ``"jpeg"`` (default: the only one fast enough for 4 VGA cameras at 200 Hz),
         ``"png"`` (lossless, slow) or ``"raw"`` (lossless, lz4 chunks, large files)
-    flush_period_s : a crash loses at most about this much (log and wall-clock time)
+    flush_period_s : a crash loses at most this much wall-clock time of messages (a timer thread
+        hands open chunks to the operating system even when no new message arrives; it is stopped by
+        :meth:`close`), and at most about this much log time
     """
 
     def __init__(self, path, *, metadata: dict, log_images="all", image_format: str = "jpeg",
@@ -119,7 +121,8 @@ class SessionLogWriter:
         image_comp = o.raw_image_compression if image_format == "raw" else ""
         self._mcap = LaneWriter(self._file, {"state": LaneSpec("zstd", o.state_chunk_bytes),
                                              "image": LaneSpec(image_comp, o.image_chunk_bytes)},
-                                flush_period_s=float(flush_period_s), profile="", library="rt2.harness.logs")
+                                flush_period_s=float(flush_period_s), profile="", library="rt2.harness.logs",
+                                flush_timer=True)
         self._channels: dict[str, tuple[int, str]] = {}
         self._schemas: dict[str, int] = {}
         self.counts: dict[str, int] = {}
@@ -326,11 +329,13 @@ class SessionLogWriter:
         if self._closed:
             return
         end = {"finished_utc": utc_now(), "error": error, "message_counts": dict(self.counts), **(extra or {})}
-        self.write_metadata("session_end", end)
-        self._closed = True
         try:
+            self.write_metadata("session_end", end)
+            self._closed = True
             self._mcap.finish()
-        finally:
+        finally:  # even when the disk is full: no timer left running, no file left open
+            self._closed = True
+            self._mcap.stop_timer()
             self._file.close()
 
     @property
