@@ -1,0 +1,169 @@
+"""``sim``: the simulated lab seen as live cameras.
+
+The renderer (:mod:`harness.render`, docs/renderer.md) draws frame set k of the scene at
+``t = k / rate_hz`` (``scene_provider(t) -> Scene``); a background thread renders up to
+``render_ahead`` frame sets ahead of the clock and the :class:`~._feed.PacedFeed` emits them at the
+rate with host stamps. The device stamp is the scene time ``k / rate_hz`` (a camera clock starting at
+0, as if the cameras were hardware-triggered from one clock); all cameras share frame id k.
+
+Honest about speed: one process renders ~470 busy VGA images/s and ~3400/s with one flying ball
+(docs/renderer.md), so four VGA cameras of launcher flights at 200 Hz (800 images/s) fit in one
+core, a busy ``scene_provider`` may not. The clock is fixed (frame set k is due at ``t0 + k /
+rate_hz``): a frame set rendered after its due time is emitted at once and counted in ``late``;
+when the renderer finds its next frame set already due it skips ahead to the next one not yet due
+(counted in ``skipped``; the frame ids jump, as with a camera that loses frames), so host and device
+stamps stay consistent and the run stays real time. ``prerender_s`` renders a clip up front and
+loops it instead (memory: 0.92 MB per VGA image). The renderer shares the GIL with the tracker
+when both run in one process.
+
+The default scene is seeded launcher ball flights (:class:`LauncherFlights`); any callable
+``t_s -> Scene`` may replace it (e.g. the ball on the WAM's end effector driven by live joint states).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from harness.live.sources._feed import FeedItem, PacedFeed
+from harness.render import Ball, Exposure, Renderer, RenderOptions, Scene
+
+__all__ = ["LauncherFlights", "SimOptions", "open_sim"]
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    """Options of the ``sim`` source.
+
+    rate_hz : frame sets per second (scene time step ``1 / rate_hz``)
+    seed : fixes the default scene (launcher flights) and the sensor noise: same seed, same images
+    render_ahead : frame sets rendered ahead of the clock by the background thread
+    prerender_s : None = render while running; else render this many seconds up front and loop them
+    duration_s : None = run until closed; else stop (sources ``exhausted``) after this much scene time
+    speed : 1.0 real time, None = as fast as rendering allows (for benchmarks and tests)
+    queue_len : frames buffered per camera before the oldest is dropped (counted)
+    exposure : the cameras' exposure (constant)
+    """
+
+    rate_hz: float = 200.0
+    seed: int = 0
+    render_ahead: int = 16
+    prerender_s: float | None = None
+    duration_s: float | None = None
+    speed: float | None = 1.0
+    queue_len: int = 8
+    exposure: Exposure = Exposure(exposure_s=0.002, gain=1.0, light_level=1.0)
+
+    def __post_init__(self):
+        if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError(f"SimOptions.rate_hz must be > 0, got {self.rate_hz!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ValueError(f"SimOptions.seed must be an integer >= 0, got {self.seed!r}")
+        for name in ("prerender_s", "duration_s"):
+            v = getattr(self, name)
+            if v is not None and not (np.isfinite(v) and v > 0):
+                raise ValueError(f"SimOptions.{name} must be None or > 0 seconds, got {v!r}")
+        if self.render_ahead < 1:
+            raise ValueError(f"SimOptions.render_ahead must be >= 1, got {self.render_ahead!r}")
+
+
+class LauncherFlights:
+    """Seeded launcher serves one after another: ``flights(t_s) -> Scene`` with the ball at ``t_s``.
+
+    Each serve (:class:`harness.launcher.BallLauncher`) flies until it reaches the floor or
+    ``max_flight_s``; then the lab is empty for ``gap_s`` before the next serve. ``n_serves`` serves
+    (~0.3 s each to draw) are drawn up front and repeat in a cycle, so nothing slow happens while
+    the clock runs; the scene at a time depends only on the seed.
+    """
+
+    def __init__(self, seed: int, *, n_serves: int = 8, gap_s: float = 0.3, max_flight_s: float = 1.5,
+                 exposure: Exposure = SimOptions.exposure):
+        from harness.launcher import BallLauncher  # heavy (scipy): only when the default scene is used
+        from harness.physics import BallWorld
+
+        self._launcher = BallLauncher(seed=seed)
+        self._world_cls = BallWorld
+        self.gap_s = float(gap_s)
+        self.max_flight_s = float(max_flight_s)
+        self.exposure = exposure
+        self._starts: list[float] = []  # scene time at which flight i starts
+        self._flights: list[tuple[np.ndarray, np.ndarray]] = []  # (times (K,), states (K, 9))
+        if int(n_serves) < 1:
+            raise ValueError(f"LauncherFlights.n_serves must be >= 1, got {n_serves!r}")
+        for _ in range(int(n_serves)):
+            self._extend()
+        self.cycle_s = self._starts[-1] + self._flights[-1][0][-1] + self.gap_s
+
+    def _extend(self) -> None:
+        serve = self._launcher.serve()
+        world = self._world_cls(self._launcher.params, self._launcher.world)
+        world.reset(serve.state)
+        times, states = world.run(self.max_flight_s)
+        start = self._starts[-1] + self._flights[-1][0][-1] + self.gap_s if self._flights else 0.0
+        self._starts.append(start)
+        self._flights.append((times, states))
+
+    def ball_state(self, t_s: float) -> np.ndarray | None:
+        """(9,) [p, v, w] of the ball at scene time ``t_s``, or None between flights."""
+        t_s = float(t_s) % self.cycle_s
+        i = int(np.searchsorted(self._starts, t_s, side="right")) - 1
+        times, states = self._flights[i]
+        local = t_s - self._starts[i]
+        if local > times[-1]:
+            return None
+        k = min(int(np.searchsorted(times, local, side="right")) - 1, len(times) - 2)
+        a = (local - times[k]) / (times[k + 1] - times[k])
+        return (1 - a) * states[k] + a * states[k + 1]
+
+    def __call__(self, t_s: float) -> Scene:
+        s = self.ball_state(t_s)
+        balls = () if s is None else (Ball(s[:3], velocity_mps=s[3:6], colour="orange"),)
+        return Scene(balls=balls, exposure=self.exposure)
+
+
+def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callable[[float], Scene] | None = None,
+             render_options: RenderOptions = RenderOptions()):
+    """One :class:`~._feed.FeedCamera` per rig camera, rendering ``scene_provider`` (default:
+    :class:`LauncherFlights` with ``options.seed``). Returns ``(sources, feed)``; ``feed.stats()``
+    counts late frame sets and drops."""
+    provider = scene_provider
+    if provider is None:
+        provider = LauncherFlights(options.seed, exposure=options.exposure)
+    if not callable(provider):
+        raise ValueError(f"scene_provider must be a callable t_s -> Scene, got {type(provider).__name__}")
+    renderer = Renderer(rig, render_options, seed=options.seed)  # ray-casts the static lab now (~1 s per VGA camera)
+    n = len(rig.cameras)
+    period = 1.0 / options.rate_hz
+    n_total = None if options.duration_s is None else int(round(options.duration_s * options.rate_hz))
+
+    def render(k: int) -> tuple:
+        scene = provider(k * period)
+        if not isinstance(scene, Scene):
+            raise ValueError(f"scene_provider({k * period:.4f}) returned {type(scene).__name__}, not a Scene")
+        return tuple(renderer.render(dataclasses.replace(scene, frame_index=k)))
+
+    clip = None
+    if options.prerender_s is not None:
+        clip = [render(k) for k in range(max(1, int(round(options.prerender_s * options.rate_hz))))]
+
+    def produce():
+        k = 0
+        while n_total is None or k < n_total:
+            now = feed.schedule_now()
+            if now is not None and clip is None and k * period < now:  # already due: skip to the next frame set
+                k_next = int(now / period) + 1
+                feed.skipped += k_next - k
+                k = k_next
+                if n_total is not None and k >= n_total:
+                    break
+            images = clip[k % len(clip)] if clip is not None else render(k)
+            t = k * period
+            yield FeedItem((k,) * n, t, (t,) * n, images)
+            k += 1
+
+    feed = PacedFeed("sim", range(n), rig.names, produce, speed=options.speed, queue_len=options.queue_len,
+                     prefetch=0 if clip is not None else options.render_ahead, late_tolerance_s=period, slide=False)
+    return feed.views(), feed
