@@ -2,7 +2,8 @@
 
 The log's ``session`` metadata says what kind of session it is; :data:`REEVALUATORS` maps the kind to
 the function that re-evaluates it (``accuracy``: :func:`harness.accuracy.reevaluate.reevaluate_accuracy`,
-printed by ``_accuracy``; ``play``: :func:`harness.play.reevaluate.run_reevaluate`). Unknown kinds raise
+printed by ``_accuracy``; ``play``: :func:`harness.play.reevaluate.run_reevaluate`; ``track`` (``rt2 track``
+logs): :func:`harness.live.reevaluate_live.run_reevaluate`). Unknown kinds raise
 and list the known ones.
 
     rt2 reevaluate out/accuracy/session.mcap                       # every tracker, same settings
@@ -93,5 +94,11 @@ def _play(reader, args) -> int:
     return run_reevaluate(reader, args)
 
 
+def _track(reader, args) -> int:
+    from harness.live.reevaluate_live import run_reevaluate
+
+    return run_reevaluate(reader, args)
+
+
 #: session kind -> the function that re-evaluates and prints it
-REEVALUATORS = {"accuracy": _accuracy, "play": _play}
+REEVALUATORS = {"accuracy": _accuracy, "play": _play, "track": _track}

@@ -1,0 +1,194 @@
+"""The tracking service: assembled frame sets in, one observation per frame set out on every stream.
+
+    service = TrackingService(rig, Tracker(rig, "rt2"), publisher=Publisher(...), log=LiveLog(...))
+    summary = service.run(framesets, stop=threading.Event(), duration_s=5.0)
+
+``framesets`` is any iterable of :class:`~harness.live.frames.AssembledFrameSet` (a list, a
+generator reading a session log) or an assembler with ``get(timeout_s)`` (``None`` on a timeout);
+the loop never depends on where the frame sets come from. Per frame set: the tracker
+(``Tracker.process_with_info``), the tennicam and rt2 messages (:mod:`harness.live.publish`), the
+session log (:mod:`harness.live.session_log`, on its own thread), the live view (throttled), the
+figures (:mod:`harness.live.stats`) and, every ``status_period_s``, a status line.
+
+Nothing here restarts a camera or a socket: a camera without frames shows up as ``None`` images
+with the assembler's note, the tracker goes on with the others, and the figures report it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from harness.live.frames import AssembledFrameSet
+from harness.live.publish import rich_message, tennicam_message
+from harness.live.stats import LiveStats
+
+__all__ = ["ServiceOptions", "TrackingService"]
+
+
+@dataclass(frozen=True)
+class ServiceOptions:
+    """status_period_s : seconds between status lines (0 = none); get_timeout_s : how long one
+    ``get`` of an assembler waits before the loop checks for a stop or the end of the run"""
+
+    status_period_s: float = 1.0
+    get_timeout_s: float = 0.1
+
+    def __post_init__(self):
+        if not (isinstance(self.status_period_s, (int, float)) and 0 <= self.status_period_s < math.inf):
+            raise ValueError(f"status_period_s must be >= 0 seconds, got {self.status_period_s!r}")
+        if not (isinstance(self.get_timeout_s, (int, float)) and 0 < self.get_timeout_s <= 10):
+            raise ValueError(f"get_timeout_s must be in (0, 10] seconds, got {self.get_timeout_s!r}")
+
+
+def first_host_stamp(afs: AssembledFrameSet) -> float:
+    """The earliest host arrival stamp of the set's frames (``time.monotonic()`` s); the assembly time
+    when no frame arrived at all."""
+    t = np.asarray(afs.t_host_s, float)
+    ok = np.isfinite(t)
+    return float(t[ok].min()) if ok.any() else float(afs.t_assembled_s)
+
+
+class TrackingService:
+    """Run ``tracker`` on frame sets and publish, log, view and count each result.
+
+    rig : the tracker's rig (camera names, order); tracker : a :class:`tracker.Tracker`
+    publisher : :class:`~harness.live.publish.Publisher` or None; log : :class:`~harness.live.session_log.LiveLog`
+    or None; view : :class:`~harness.live.foxglove_view.LiveView` or None
+    status : callable taking one line of text (e.g. ``print``), or None
+    """
+
+    def __init__(self, rig, tracker, *, publisher=None, log=None, view=None, options: ServiceOptions | None = None,
+                 status=None):
+        self.rig, self.tracker = rig, tracker
+        self.publisher, self.log, self.view = publisher, log, view
+        self.options = ServiceOptions() if options is None else options
+        if not isinstance(self.options, ServiceOptions):
+            raise ValueError(f"options must be a ServiceOptions, got {type(self.options).__name__}")
+        self.status = status
+        self.stats = LiveStats(rig.names)
+        self.num = 0
+        self._names = rig.names
+
+    # -- one frame set --------------------------------------------------------------------------
+    def step(self, afs: AssembledFrameSet):
+        """Track, publish, log and count one frame set; returns its ``BallObservation``."""
+        if not isinstance(afs, AssembledFrameSet):
+            raise ValueError(f"the service takes AssembledFrameSet objects, got {type(afs).__name__}")
+        obs, info = self.tracker.process_with_info(afs.frameset)
+        num = self.num
+        self.num += 1
+        t_first = first_host_stamp(afs)
+        t_done = time.monotonic()
+        if self.publisher is not None:
+            rich = rich_message(num, afs, obs, t_first_host_s=t_first, t_publish_s=0.0, camera_names=self._names)
+            rich["t_publish_s"] = None  # stamped by the publisher just before its send
+            t_done = self.publisher.publish(
+                tennicam_message(num, _time_ns(afs.frameset.t_s), time.monotonic() - t_first, obs.position_m), rich)
+        latency = t_done - t_first
+        self.stats.add(afs, obs, latency, t_done)
+        if self.log is not None:
+            self.log.write(num, self.log.log_time(t_first), afs, obs, info)
+        if self.view is not None:
+            self.view.update(num, afs, obs, info)
+        return obs
+
+    # -- the loop -------------------------------------------------------------------------------
+    def _frames(self, source, stop: threading.Event, deadline: float):
+        if hasattr(source, "get") and callable(source.get):
+            while not stop.is_set() and time.monotonic() < deadline:
+                afs = source.get(self.options.get_timeout_s)
+                if afs is None:
+                    finished = getattr(source, "finished", None)
+                    if callable(finished) and finished():
+                        return
+                    yield None
+                else:
+                    yield afs
+            return
+        for afs in source:
+            if stop.is_set() or time.monotonic() >= deadline:
+                return
+            yield afs
+
+    def run(self, source, *, stop: threading.Event | None = None, duration_s: float | None = None) -> dict:
+        """Process frame sets until ``source`` ends, ``stop`` is set or ``duration_s`` has passed;
+        returns :meth:`summary`. The log is finished (closed with its footer) on the way out, whatever
+        ended the run."""
+        stop = stop if stop is not None else threading.Event()
+        if duration_s is not None and not (isinstance(duration_s, (int, float)) and duration_s > 0):
+            raise ValueError(f"duration_s must be a positive number of seconds, got {duration_s!r}")
+        deadline = math.inf if duration_s is None else time.monotonic() + float(duration_s)
+        period = self.options.status_period_s
+        next_status = time.monotonic() + period if period > 0 else math.inf
+        error = None
+        try:
+            for afs in self._frames(source, stop, deadline):
+                if afs is not None:
+                    self.step(afs)
+                if time.monotonic() >= next_status:
+                    next_status = time.monotonic() + period
+                    if self.status is not None:
+                        self.status(self.stats.status_line())
+        except BaseException as exc:
+            error = f"{type(exc).__name__}: {exc}"
+            raise
+        finally:
+            self.finish(error=error, source=source)
+        return self.summary()
+
+    def summary(self) -> dict:
+        s = self.stats.summary()
+        s["tracker"] = self.tracker.kind
+        s["cameras"] = list(self._names)
+        if self.publisher is not None:
+            s["published"] = dict(self.publisher.sent)
+            s["publish_failed"] = dict(self.publisher.failed)
+            s["addresses"] = dict(self.publisher.addresses)
+        if self.log is not None:
+            s["log"] = {"path": str(self.log.path), "dropped": self.log.dropped}
+        if self._assembly is not None:
+            s["assembly"] = self._assembly
+        return s
+
+    _assembly = None
+    _finished = False
+
+    def finish(self, *, error: str | None = None, source=None) -> None:
+        """Record the assembler's figures (if it has ``stats()``) and close the log with the summary."""
+        if self._finished:
+            return
+        self._finished = True
+        if source is not None and hasattr(source, "stats") and callable(source.stats):
+            try:
+                self._assembly = _json_safe(source.stats())
+            except Exception as exc:  # figures only: never lose the log over them
+                self._assembly = {"error": f"{type(exc).__name__}: {exc}"}
+        if self.log is not None:
+            self.log.close(figures=_json_safe(self.summary()), error=error)
+
+
+def _time_ns(t_s: float) -> int:
+    """The tennicam ``time``: the frame set's capture time (host CLOCK_MONOTONIC seconds) in ns."""
+    return int(round(float(t_s) * 1e9)) if math.isfinite(t_s) else 0
+
+
+def _json_safe(value):
+    """Replace NaN/inf by None and numpy scalars by Python ones (the log's figures are strict JSON)."""
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return _json_safe(dataclasses.asdict(value))
+    return value

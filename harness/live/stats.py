@@ -1,0 +1,110 @@
+"""Running figures of the tracking service: rate, latency percentiles, per-camera missing frames.
+
+Latency of a frame set = from the first host arrival stamp of its frames (``time.monotonic()``)
+to the moment its messages were handed to the sockets. Everything is kept in preallocated
+arrays (no growth per frame set beyond a fixed ring), so a long run's memory stays flat.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from collections import Counter
+
+import numpy as np
+
+__all__ = ["LiveStats"]
+
+_NUMBER = re.compile(r"(?<![A-Za-z_])[-+]?\d[\d.e+-]*")
+
+
+def _pct_ms(values: np.ndarray, q: float) -> float:
+    return float(np.percentile(values, q) * 1e3) if len(values) else math.nan
+
+
+class LiveStats:
+    """Figures of one service run.
+
+    camera_names : rig order; window : frame sets in the status line's rolling percentiles;
+    keep : latencies kept for the summary's percentiles (a ring of the last ``keep``)
+    """
+
+    def __init__(self, camera_names, *, window: int = 1000, keep: int = 1 << 20):
+        self.names = list(camera_names)
+        self.n = 0
+        self.t_start = time.monotonic()
+        self.t_first: float | None = None
+        self.t_last: float | None = None
+        self._lat = np.zeros(keep)
+        self._proc = np.zeros(keep)
+        self.window = int(window)
+        self.missing = np.zeros(len(self.names), np.int64)  # frame sets without this camera's frame
+        self.status = Counter()
+        self.with_position = 0
+        self.notes = Counter()  # assembly and tracker notes, numbers replaced by '#' (bounded key count)
+        self.max_latency_s = 0.0
+        self.last_frame_id: int | None = None
+        self.frame_id_gaps = 0  # frame ids skipped between consecutive frame sets (lost before rt2)
+        self._mark = (self.t_start, 0)
+        self.first_missing_after: dict[str, int] = {}
+
+    def add(self, afs, obs, latency_s: float, t_done_s: float) -> None:
+        """One frame set: its assembled set, observation, host-stamp-to-publication latency (s)."""
+        i = self.n % len(self._lat)
+        self._lat[i] = latency_s
+        self._proc[i] = obs.latency_s
+        self.n += 1
+        self.max_latency_s = max(self.max_latency_s, latency_s)
+        if self.t_first is None:
+            self.t_first = t_done_s
+        self.t_last = t_done_s
+        for c, img in enumerate(afs.frameset.images):
+            if img is None:
+                self.missing[c] += 1
+        self.status[str(obs.status)] += 1
+        self.with_position += obs.position_m is not None
+        for note in (*afs.notes, *obs.notes):
+            key = _NUMBER.sub("#", str(note))[:120]  # one key per kind of note, whatever its numbers
+            if key in self.notes or len(self.notes) < 200:
+                self.notes[key] += 1
+        fid = int(afs.frame_id)
+        if self.last_frame_id is not None and fid > self.last_frame_id + 1:
+            self.frame_id_gaps += fid - self.last_frame_id - 1
+        self.last_frame_id = fid
+
+    def latencies_s(self) -> np.ndarray:
+        return self._lat[: min(self.n, len(self._lat))]
+
+    def status_line(self) -> str:
+        """One line: rate since the last call, latency p50/p99 over the last ``window`` frame sets,
+        frame sets without each camera's frame so far."""
+        now = time.monotonic()
+        t0, n0 = self._mark
+        rate = (self.n - n0) / max(now - t0, 1e-9)
+        self._mark = (now, self.n)
+        k = min(self.n, self.window, len(self._lat))
+        idx = (np.arange(self.n - k, self.n) % len(self._lat)) if k else np.zeros(0, int)
+        lat = self._lat[idx]
+        miss = " ".join(f"{n}:{m}" for n, m in zip(self.names, self.missing.tolist()))
+        ok = self.status.get("ok", 0)
+        return (f"{self.n} frame sets, {rate:6.1f}/s, latency p50 {_pct_ms(lat, 50):5.2f} ms p99 {_pct_ms(lat, 99):5.2f} ms, "
+                f"ok {100.0 * ok / max(self.n, 1):5.1f} %, missing frames {miss}")
+
+    def summary(self) -> dict:
+        """The end-of-run figures (``--json``): counts, rates, latency percentiles in ms."""
+        lat = self.latencies_s()
+        span = (self.t_last - self.t_first) if self.n > 1 else 0.0
+        return {
+            "frame_sets": self.n,
+            "duration_s": time.monotonic() - self.t_start,
+            "rate_hz": (self.n - 1) / span if span > 0 else math.nan,
+            "latency_ms": {"p50": _pct_ms(lat, 50), "p99": _pct_ms(lat, 99), "max": self.max_latency_s * 1e3,
+                           "what": "first frame's host arrival stamp to the messages handed to the sockets"},
+            "tracker_ms": {"p50": _pct_ms(self._proc[: len(lat)], 50), "p99": _pct_ms(self._proc[: len(lat)], 99)},
+            "status": dict(self.status),
+            "with_position": self.with_position,
+            "missing_frames": dict(zip(self.names, self.missing.tolist())),
+            "frame_id_gaps": self.frame_id_gaps,
+            "notes": dict(self.notes.most_common(20)),
+        }
