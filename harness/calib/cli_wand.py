@@ -1,0 +1,200 @@
+"""``rt2 calib wand``: every camera's pose from a wand waved through the volume (bundle adjustment).
+
+Input: a folder of per-camera 2D detection CSVs (``timestamp;u1;v1;u2;v2;...``, the ewand layout,
+one file per camera in the order of ``--intrinsics``) or an rt2 session log (``.mcap``) whose
+``/camera/<name>/detections`` hold the wand's balls (labelled here by their order along the wand).
+Writes the rig YAML (camera 0 = world, or the frame of ``--world-points``), a JSON report and the
+optional exports (OpenCV FileStorage, aniposelib calibration.toml).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from harness.calib.compare import compare_rigs, wand_lengths
+from harness.calib.exports import add_export_arguments, write_exports
+from harness.calib.inputs import load_intrinsics, read_detection_csvs
+from tracker import Camera, Rig
+from tracker.calibration.extrinsics import WandOptions, apply_world, calibrate_wand, order_wand_points, triangulate_views
+
+__all__ = ["add_arguments", "parse_wand", "read_world_points", "run", "wand_uv_from_log"]
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--recording", required=True, help="folder of per-camera detection CSVs, or a session log (.mcap) with detections")
+    parser.add_argument("--intrinsics", required=True, nargs="+", help="rt2 rig files and/or OpenCV FileStorage files, in camera order")
+    parser.add_argument("--wand", default=None, help="spacings between consecutive balls, metres, e.g. 0.13,0.26")
+    parser.add_argument("--out", required=True, help="rig file to write")
+    parser.add_argument("--world-points", default=None,
+                        help="YAML list of {world_m: [x, y, z], pixels: {camera: [u, v], ...}}: >= 3 points (e.g. table corners) fixing the world frame")
+    parser.add_argument("--reference", default=None, nargs="+",
+                        help="a reference calibration to compare with (rt2 rig file or OpenCV files, camera order as --intrinsics): relative rotations, baselines, wand lengths")
+    parser.add_argument("--holdout-every", type=int, default=5, help="hold out every n-th frame set for the wand-length check (default 5)")
+    parser.add_argument("--every", type=int, default=1, help="use every n-th frame set (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of OpenCV's RANSAC (same seed, same result)")
+    add_export_arguments(parser)
+
+
+def parse_wand(text: str) -> np.ndarray:
+    """'0.13,0.26' -> ball offsets along the wand [0, 0.13, 0.39] (metres)."""
+    try:
+        gaps = np.array([float(x) for x in str(text).split(",") if x.strip()])
+    except ValueError:
+        raise ValueError(f"--wand must be comma-separated spacings in metres (e.g. 0.13,0.26), got {text!r}") from None
+    if len(gaps) < 1 or not np.isfinite(gaps).all() or (gaps <= 0).any() or (gaps > 5).any():
+        raise ValueError(f"--wand spacings must be positive lengths in metres (<= 5), got {text!r}")
+    return np.concatenate([[0.0], np.cumsum(gaps)])
+
+
+def wand_uv_from_log(path, names, offsets) -> np.ndarray:
+    """(n_cams, F, M, 2) wand balls from a session log's detections (frames where a camera saw exactly M candidates)."""
+    from harness.logs.reader import SessionLogReader
+    from harness.logs.topics import detections_topic
+
+    per = {n: {} for n in names}
+    with SessionLogReader(path) as log:
+        topics = [detections_topic(n) for n in names]
+        missing = [n for n, t in zip(names, topics) if t not in log.topics]
+        if missing:
+            raise ValueError(f"{path}: no detections of cameras {missing} (topics {[detections_topic(n) for n in missing]})")
+        for msg in log.messages(topics):
+            det = msg.data
+            per[det.camera][int(det.frame_index)] = order_wand_points(det.uv_px, offsets)
+    frames = sorted(set().union(*[set(v) for v in per.values()]))
+    uv = np.full((len(names), len(frames), len(offsets), 2), np.nan)
+    for c, n in enumerate(names):
+        for f, fi in enumerate(frames):
+            if fi in per[n]:
+                uv[c, f] = per[n][fi]
+    return uv
+
+
+def read_world_points(path, names):
+    """World points with their clicked pixels -> (X_world (P, 3), uv (n_cams, P, 2) NaN where not clicked)."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ValueError(f"cannot read {str(path)!r}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(data, list) or len(data) < 3:
+        raise ValueError(f"{path}: expected a list of >= 3 points {{world_m: [x, y, z], pixels: {{camera: [u, v]}}}}")
+    X = np.full((len(data), 3), np.nan)
+    uv = np.full((len(names), len(data), 2), np.nan)
+    for k, item in enumerate(data):
+        if not isinstance(item, dict) or "world_m" not in item or not isinstance(item.get("pixels"), dict):
+            raise ValueError(f"{path}: point {k} needs world_m and pixels")
+        X[k] = np.asarray(item["world_m"], float)
+        for cam, px in item["pixels"].items():
+            if cam not in names:
+                raise ValueError(f"{path}: point {k} names camera {cam!r}; cameras: {names}")
+            uv[names.index(cam), k] = np.asarray(px, float)
+    return X, uv
+
+
+def _recording(path, cams, offsets):
+    src = Path(path)
+    names = [c.name for c in cams]
+    if src.is_dir():
+        files = sorted(src.glob("*.csv"))
+        if len(files) != len(cams):
+            raise ValueError(f"{src}: {len(files)} CSV files for {len(cams)} cameras {names}; need one per camera, sorted like --intrinsics")
+        _, uv = read_detection_csvs(files)
+        if uv.shape[2] != len(offsets):
+            raise ValueError(f"{src}: the CSVs hold {uv.shape[2]} balls per row but --wand describes {len(offsets)}")
+        return uv
+    if src.suffix == ".mcap" and src.is_file():
+        return wand_uv_from_log(src, names, offsets)
+    raise ValueError(f"--recording {str(src)!r}: expected a folder of detection CSVs or an .mcap session log")
+
+
+def run(args) -> int:
+    if args.wand is None:
+        raise ValueError("--wand SPACINGS is required (the single-ball mode is not available: it has no scale)")
+    offsets = parse_wand(args.wand)
+    cams = load_intrinsics(args.intrinsics)
+    names = [c.name for c in cams]
+    if len(set(names)) != len(names):
+        raise ValueError(f"camera names repeat in --intrinsics: {names}")
+    if args.every < 1:
+        raise ValueError(f"--every must be >= 1, got {args.every}")
+    ref = Rig(load_intrinsics(args.reference)) if args.reference else None
+    uv = _recording(args.recording, cams, offsets)[:, :: args.every]
+    cv2.setRNGSeed(int(args.seed))
+    res = calibrate_wand(cams, uv, offsets, WandOptions(holdout_every=args.holdout_every))
+    R, t = res.R, res.t
+    world = None
+    if args.world_points:
+        Xw, uvw = read_world_points(args.world_points, names)
+        Xc = triangulate_views(cams, R, t, uvw)
+        if np.isnan(Xc).any():
+            bad = [k for k in range(len(Xw)) if np.isnan(Xc[k]).any()]
+            raise ValueError(f"{args.world_points}: points {bad} are clicked in fewer than two cameras")
+        R, t, resid = apply_world(R, t, Xc, Xw)
+        world = {"points": len(Xw), "fit_residual_mm": (resid * 1000).round(2).tolist()}
+    rig = Rig([Camera(name=c.name, K=c.K, distortion=c.distortion, R_world_to_cam=R[i], t_world_to_cam_m=t[i],
+                      image_size=c.image_size) for i, c in enumerate(cams)],
+              description=f"wand calibration from {args.recording} ({len(res.fit_frames)} frame sets)")
+    report = wand_report(res, offsets, rig, world)
+    if ref is not None:
+        report["reference"] = compare_rigs(rig, ref)
+        report["reference"]["holdout_wand"] = wand_lengths(ref, uv[:, res.holdout_frames], offsets)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rig.save(out)
+    rep = out.with_suffix(".report.json")
+    rep.write_text(json.dumps(report, indent=1))
+    written = write_exports(rig, args, error=float(np.mean([v["rms_px"] for v in res.reproj_px.values()])))
+    print(format_report(report))
+    print(f"wrote {out}, {rep}" + "".join(f", {p}" for p in written))
+    return 0
+
+
+def wand_report(res, offsets, rig, world) -> dict:
+    L = res.lengths_m
+    rows = {}
+    known = np.diff(offsets)
+    for k in range(L.shape[1]):
+        rows[f"ball{k + 1}-ball{k + 2}"] = _length_stats(L[:, k], known[k])
+    rows[f"ball1-ball{len(offsets)}"] = _length_stats(res.total_m, offsets[-1] - offsets[0])
+    return {"cameras": rig.names, "fit_frames": int(len(res.fit_frames)), "holdout_frames": int(len(res.holdout_frames)),
+            "reprojection_px": res.reproj_px, "holdout_wand_mm": rows, "pair_support": {f"{i}-{j}": v for (i, j), v in res.pair_support.items()},
+            "world": world or "camera 0", "bundle": {"cost_initial": res.bundle.cost_initial, "cost_final": res.bundle.cost_final, "nfev": res.bundle.nfev}}
+
+
+def _length_stats(values_m, known_m) -> dict:
+    v = values_m[np.isfinite(values_m)] * 1000
+    if not len(v):
+        return {"known": known_m * 1000, "n": 0}
+    e = v - known_m * 1000
+    q25, q75 = np.percentile(v, [25, 75])
+    return {"known": round(known_m * 1000, 3), "n": int(len(v)), "median": float(np.median(v)), "iqr": float(q75 - q25),
+            "error_mean": float(e.mean()), "error_std": float(e.std()), "error_abs_median": float(np.median(np.abs(e)))}
+
+
+def format_report(rep: dict) -> str:
+    lines = [f"{len(rep['cameras'])} cameras, {rep['fit_frames']} frame sets fitted, {rep['holdout_frames']} held out; world: "
+             + (rep["world"] if isinstance(rep["world"], str) else f"{rep['world']['points']} points, residual {rep['world']['fit_residual_mm']} mm")]
+    lines.append("reprojection error per camera (fitted frames; held-out median):")
+    for n, r in rep["reprojection_px"].items():
+        lines.append(f"  {n:>12s}: rms {r['rms_px']:.2f} px, median {r['median_px']:.2f} px, {r['observations']} obs, "
+                     f"{r['outliers']} outliers; held-out median {r['holdout_median_px']:.2f} px")
+    lines.append("wand lengths on held-out frame sets (mm): " + _lengths_line(rep["holdout_wand_mm"]))
+    ref = rep.get("reference")
+    if ref:
+        lines.append("against the reference rig: " + ", ".join(
+            f"{p}: rot {d['rotation_deg']:.3f} deg, baseline {d['baseline_m'] * 1000:.1f} vs {d['baseline_ref_m'] * 1000:.1f} mm"
+            for p, d in ref["pairs"].items()))
+        lines.append("  reference rig's wand lengths on the same frames (mm): " + _lengths_line(ref["holdout_wand"]))
+    return "\n".join(lines)
+
+
+def _lengths_line(rows: dict) -> str:
+    return "; ".join(f"{k} known {v['known']:.1f}: median {v.get('median', float('nan')):.2f}, IQR {v.get('iqr', float('nan')):.2f}, "
+                     f"error {v.get('error_mean', float('nan')):+.2f} +- {v.get('error_std', float('nan')):.2f} (n {v['n']})" for k, v in rows.items())
