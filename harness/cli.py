@@ -46,6 +46,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("calib", "board"): ("harness.calib.cli_board", "all cameras' poses by bundle adjustment of a ChArUco board seen by several cameras at once"),
     ("calib", "robot"): ("harness.calib.cli_robot", "robot base to world transform from a session log (ball on the end effector, joint states)"),
     ("robot", "serve"): ("harness.robot.cli_serve", "serve the simulated WAM in real time behind the robot link (ZeroMQ; docs/robot_link.md)"),
+    ("robot", "check"): ("harness.robot.cli_check", "measure a robot link: state rate, gaps, delivery delay, clock offset, round trips, command to motion"),
 }
 
 GROUP_HELP = {
@@ -94,6 +95,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except (ValueError, FileNotFoundError, PermissionError, IsADirectoryError) as exc:
         print(f"rt2 {cmd}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a full disk, a file-size limit, an I/O error while writing: one line, not a traceback
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(f"rt2 {cmd}: error: {exc.strerror or exc}{where}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"rt2 {cmd}: interrupted", file=sys.stderr)

@@ -245,3 +245,24 @@ def test_client_drops_malformed_states(caplog):
     finally:
         fake.stop.set()
         fake.join(5)
+
+
+# -- rt2 robot check --------------------------------------------------------------------------------
+def test_robot_check_measures_the_link(bridge, tmp_path):
+    from harness.cli import main
+    from harness.robot.cli_check import check_link
+
+    r = check_link(bridge.address, duration_s=1.0, move_rad=0.05)
+    assert r["control_rate_hz"] == 500.0 and r["states_lost"] == 0 and r["dropped_malformed"] == 0
+    assert r["state_rate_hz"] == pytest.approx(500.0, rel=0.01) and r["stamp_interval_ms"]["max"] == 2.0
+    assert r["clock"]["uncertainty_ms"] < 1.0 and r["delivery_ms"]["p50"] < 20
+    m = r["move"]
+    assert 0 <= m["motion_onset_after_start_ms"] <= 30 and m["amplitude_rad"] == pytest.approx(0.05)
+    assert main(["robot", "check", "--robot", "tcp://127.0.0.1:1", "--duration", "0.5"]) == 2  # nobody there
+
+
+def test_robot_check_cli_bad_input(capsys):
+    from harness.cli import main
+
+    assert main(["robot", "check", "--move", "--move-rad", "2"]) == 2
+    assert "--move-rad must be in (0, 0.2]" in capsys.readouterr().err

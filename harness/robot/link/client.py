@@ -101,6 +101,7 @@ class WamClient:
         self._buffer: deque = deque(maxlen=int(buffer_s * self.control_rate_hz))
         self._latest: dict | None = None
         self._truth: deque = deque(maxlen=self._buffer.maxlen)  # (t_ns, q_true) of a simulated robot
+        self._arrivals: deque = deque(maxlen=self._buffer.maxlen)  # (seq, t_ns, arrival on the harness clock ns)
         self._last_state_mono = time.monotonic()
         self._cursor_s = -np.inf
         self._thread = threading.Thread(target=self._listen, name=f"robot-link {address}",
@@ -182,6 +183,7 @@ class WamClient:
             hb.close(linger=0)
 
     def _receive(self, frame: bytes) -> None:
+        rx_ns = time.monotonic_ns()
         try:
             msg = protocol.decode(frame, expect=("state", "event"))
         except ProtocolError as exc:
@@ -201,6 +203,7 @@ class WamClient:
             self._latest = msg
             self._last_state_mono = time.monotonic()
             self._buffer.append(msg)
+            self._arrivals.append((msg["seq"], msg["t_ns"], rx_ns))
             if msg["sim"] is not None and "q_true" in msg["sim"]:
                 self._truth.append((msg["t_ns"], msg["sim"]["q_true"]))
             self._lock.notify_all()
@@ -233,6 +236,13 @@ class WamClient:
         if not out:
             return np.zeros(0), np.zeros((0, self.n_joints))
         return np.array([t for t, _ in out], dtype=np.float64) * 1e-9, np.array([q for _, q in out], dtype=float)
+
+    def take_arrivals(self) -> np.ndarray:
+        """(n, 3) int64 of the states received since the last call: seq, robot stamp t_ns, arrival (harness clock) ns."""
+        with self._lock:
+            out = list(self._arrivals)
+            self._arrivals.clear()
+        return np.array(out, dtype=np.int64).reshape(-1, 3)
 
     def read_state(self) -> JointState:
         """The latest reported state (robot clock)."""
