@@ -15,7 +15,7 @@ import numpy as np
 from harness.calib.exports import add_export_arguments, write_exports
 from harness.calib.inputs import iter_frames, load_board
 from tracker import Camera, Rig
-from tracker.calibration.board import detect_charuco, make_detector
+from tracker.calibration.board import CharucoCorners, detect_charuco, make_detector
 from tracker.calibration.intrinsics import IntrinsicsOptions, calibrate_intrinsics
 
 __all__ = ["add_arguments", "detect_views", "intrinsics_camera", "run"]
@@ -31,15 +31,16 @@ def add_arguments(parser) -> None:
     parser.add_argument("--every", type=int, default=1, help="use every n-th frame (default 1)")
     parser.add_argument("--max-frames", type=int, default=None, help="use at most this many frames")
     parser.add_argument("--mirror", choices=["auto", "no", "yes"], default="auto",
-                        help="the images are mirrored left-right (some webcams): 'auto' tries both on the first frames")
+                        help="the board appears mirrored (seen from behind): detect in the flipped image; 'auto' tries both")
     add_export_arguments(parser)
 
 
 def detect_views(source, spec, *, every=1, max_frames=None, mirror="auto"):
     """ChArUco corners per frame of ``source``; returns (views, image_size (w, h), mirrored, frame names).
 
-    A mirrored video (the board found only in the left-right flipped image) is calibrated flipped,
-    i.e. as the physical camera sees; ``mirrored`` says so.
+    A board seen from behind (printed on a transparent sheet, or shown mirrored) is found only in the
+    left-right flipped image; its corners are detected there and mapped back to the real image
+    (``mirrored`` says so), which keeps every corner at its physical place on the board.
     """
     det = make_detector(spec)
     views, names, size = [], [], None
@@ -58,7 +59,10 @@ def detect_views(source, spec, *, every=1, max_frames=None, mirror="auto"):
     if size is None:
         raise ValueError(f"{source}: no frames")
     mirrored = max(scores, key=lambda f: (scores[f], not f))
-    return [v[mirrored] for v in views], size, bool(mirrored), names
+    out = [v[mirrored] for v in views]
+    if mirrored:  # corners found in the flipped image, put back where they are in the real image
+        out = [CharucoCorners(v.ids, np.column_stack([size[0] - 1 - v.uv[:, 0], v.uv[:, 1]]), v.n_markers) for v in out]
+    return out, size, bool(mirrored), names
 
 
 def intrinsics_camera(name: str, result) -> Camera:
@@ -74,7 +78,7 @@ def run(args) -> int:
     res = calibrate_intrinsics(views, spec, size, opts, camera=name)
     cam = intrinsics_camera(name, res)
     rig = Rig([cam], description=f"intrinsics of {name} from {args.images} ({int(res.kept.sum())} ChArUco views"
-                                  f"{', mirrored left-right' if mirrored else ''})")
+                                  f"{', board seen mirrored' if mirrored else ''})")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     rig.save(out)
@@ -99,7 +103,7 @@ def format_intrinsics(name, res, n_views: int, mirrored: bool = False) -> str:
     K = res.K
     lines = [
         f"camera {name}: {int(res.kept.sum())} of {n_views} views used, RMS reprojection error {res.rms_px:.3f} px"
-        + (" (images mirrored left-right: calibrated flipped)" if mirrored else ""),
+        + (" (board seen mirrored: detected in the flipped image)" if mirrored else ""),
         f"  fx {K[0, 0]:.2f} +- {s['fx']:.2f}  fy {K[1, 1]:.2f} +- {s['fy']:.2f}  cx {K[0, 2]:.2f} +- {s['cx']:.2f}  cy {K[1, 2]:.2f} +- {s['cy']:.2f} px",
         "  distortion (" + res.model + ") " + ", ".join(f"{n} {v:+.4f} +- {s[n]:.4f}" for n, v in zip(list(s)[4:], res.distortion)),
     ]
