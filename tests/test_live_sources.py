@@ -180,3 +180,94 @@ def test_missing_driver_names_the_extra(monkeypatch):
     with pytest.raises(SourceUnavailable, match=r"pip install 'rt2\[cameras\]'") as info:
         require_driver("pypylon.pylon", "pylon")
     assert isinstance(info.value, ValueError) and "pypylon" in str(info.value)
+
+
+# -- video -----------------------------------------------------------------------------------------
+def _frames(rig, n):
+    """Smooth frames (lossy codecs keep them close): a colour gradient and a block that moves by 8 px a frame."""
+    w, h = rig.cameras[0].image_size
+    yy, xx = np.mgrid[0:h, 0:w]
+    base = np.stack([200 * xx / w, 200 * yy / h, np.full((h, w), 60.0)], axis=-1).astype(np.uint8)
+    out = []
+    for k in range(n):
+        row = []
+        for j in range(len(rig.cameras)):
+            img = base.copy()
+            x0 = (8 * k + 16 * j) % (w - 16)
+            img[20:40, x0:x0 + 16] = (250, 40, 10)  # orange-red block: a BGR mix-up shows as blue
+            row.append(img)
+        out.append(row)
+    return out
+
+
+def test_video_image_folders_with_timestamps(rig, tmp_path):
+    frames = _frames(rig, 6)
+    for j, name in enumerate(rig.names):
+        (tmp_path / name).mkdir()
+        for k in range(6):
+            cv2.imwrite(str(tmp_path / name / f"img{k:03d}.png"), cv2.cvtColor(frames[k][j], cv2.COLOR_RGB2BGR))
+    rows = "\n".join(f"{100 + k},{5.0 + 0.01 * k:.3f}" for k in range(6))
+    (tmp_path / "cam0.csv").write_text("frame_id,t_s\n" + rows + "\n")
+    (tmp_path / "cam1" / "timestamps.csv").write_text("frame_id,t_s\n" + rows + "\n")
+    sets, st = _collect(open_sources(["video", str(tmp_path)], rig, speed=None), 10, 100.0, max_wait_s=1.0)
+    assert [s.frame_id for s in sets] == [100 + k for k in range(6)] and st.complete == 6
+    assert np.allclose(sets[2].t_device_s, 5.02)
+    for s, fr in zip(sets, frames):
+        assert all(np.array_equal(a, b) for a, b in zip(s.frameset.images, fr))
+
+
+@pytest.mark.parametrize("suffix, fourcc", [(".avi", "MJPG"), (".mp4", "mp4v")])
+def test_video_files(rig, tmp_path, suffix, fourcc):
+    frames = _frames(rig, 8)
+    w, h = rig.cameras[0].image_size
+    for j, name in enumerate(rig.names):
+        out = cv2.VideoWriter(str(tmp_path / f"{name}{suffix}"), cv2.VideoWriter_fourcc(*fourcc), 30.0, (w, h))
+        assert out.isOpened()
+        for k in range(8):
+            out.write(cv2.cvtColor(frames[k][j], cv2.COLOR_RGB2BGR))
+        out.release()
+    sets, st = _collect(open_sources(["video", str(tmp_path)], rig, rate_hz=100.0), 10, 100.0)
+    assert [s.frame_id for s in sets] == list(range(8)) and st.complete == 8
+    assert np.isnan(sets[0].t_device_s).all()  # no timestamps file: no device stamps
+    t = np.array([s.t_host_s[0] for s in sets])
+    assert 0.05 < t[-1] - t[0] < 0.2  # played at rate_hz: 7 intervals of 10 ms
+    for s, fr in zip(sets, frames):  # lossy codecs: close, and not another frame
+        err = [np.abs(a.astype(int) - b).mean() for a, b in zip(s.frameset.images, fr)]
+        other = np.abs(s.frameset.images[0].astype(int) - frames[(s.frame_id + 3) % 8][0]).mean()
+        assert max(err) < 0.5 * other
+
+
+def test_video_errors(rig, tmp_path):
+    with pytest.raises(FileNotFoundError, match="no folder"):
+        open_sources(["video", str(tmp_path / "none")], rig)
+    (tmp_path / "cam0").mkdir()
+    with pytest.raises(ValueError, match="for rig camera cam1"):
+        open_sources(["video", str(tmp_path)], rig)
+    (tmp_path / "cam1").mkdir()
+    (tmp_path / "cam1.csv").write_text("frame,time\n0,0.0\n")
+    with pytest.raises(ValueError, match=r"cam1.csv: the first row must be the header 'frame_id,t_s'"):
+        open_sources(["video", str(tmp_path)], rig)
+
+
+# -- opencv ----------------------------------------------------------------------------------------
+def test_opencv_device_that_does_not_open_is_named(rig):
+    with pytest.raises(SourceUnavailable, match="opencv camera 63 .rig camera cam0. does not open"):
+        open_sources(["opencv", "63,62"], rig)
+
+
+def test_opencv_reads_through_videocapture(rig, tmp_path):
+    frames = _frames(rig, 5)
+    w, h = rig.cameras[0].image_size
+    paths = []
+    for j, name in enumerate(rig.names):
+        paths.append(str(tmp_path / f"{name}.avi"))
+        out = cv2.VideoWriter(paths[-1], cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (w, h))
+        for k in range(5):
+            out.write(cv2.cvtColor(frames[k][j], cv2.COLOR_RGB2BGR))
+        out.release()
+    sources = open_sources(["opencv", ",".join(paths)], rig)
+    sets, st = _collect(sources, 10, 30.0, match="time", max_wait_s=0.5)
+    assert sum(st.frames) == 10 and all(st.ended)
+    img = next(s.frameset.images[0] for s in sets if s.frameset.images[0] is not None)
+    assert np.abs(img.astype(int) - frames[0][0]).mean() < 5  # RGB, not BGR
+    assert np.abs(img[..., ::-1].astype(int) - frames[0][0]).mean() > 20

@@ -10,7 +10,7 @@ order; :class:`harness.live.assembly.FrameSetAssembler` groups their frames into
 | ``video DIR`` | per-camera video files or image folders with timestamps (:mod:`.video`) |
 | ``opencv 0,1,2,3`` | USB / V4L2 cameras (or files, stream URLs) through cv2.VideoCapture (:mod:`.opencv`) |
 | ``pylon [SERIALS]`` | Basler cameras through pypylon, extra ``rt2[cameras]`` (:mod:`.pylon`) |
-| ``genicam [PRODUCER.cti [SERIALS]]`` | GenICam / GenTL cameras through harvesters, extra ``rt2[cameras]`` (:mod:`.genicam`) |
+| ``genicam [X.cti [SERIALS]]`` | GenICam / GenTL cameras through harvesters, extra ``rt2[cameras]`` (:mod:`.genicam`) |
 
 Every source stamps ``t_host_s = time.monotonic()`` at arrival and ``t_device_s`` where the camera
 gives one. docs/live.md, section "Camera sources".
