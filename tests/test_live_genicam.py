@@ -4,6 +4,7 @@ package (three simulated 400x400 devices: red, green, blue test images)."""
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -39,12 +40,17 @@ def test_reference_producer_frames_assembled_by_time(producer, rig3):
     sources = open_sources(["genicam", producer], rig3, rate_hz=20.0)
     assert [s.serial for s in sources] == sorted(s.serial for s in sources)
     with FrameSetAssembler(sources, AssemblyOptions(rate_hz=20.0, match="time", max_wait_s=0.2, output_len=32)) as asm:
-        sets = [asm.get(5.0) for _ in range(4)]
+        sets, full = [], []
+        deadline = time.monotonic() + 10.0
+        while len(full) < 3 and time.monotonic() < deadline:  # the devices start one after the other
+            s = asm.get(1.0)
+            if s is not None:
+                sets.append(s)
+                if all(img is not None for img in s.frameset.images):
+                    full.append(s)
         st = asm.stats()
-    assert all(s is not None for s in sets)
-    assert sum(st.frames) >= 12 and st.errors == (None, None, None)
-    full = [s for s in sets if all(img is not None for img in s.frameset.images)]
-    assert full, f"no complete frame set in {st}"
+    assert len(full) == 3, f"complete frame sets: {len(full)} of {len(sets)}; {st}"
+    assert st.errors == (None, None, None)
     for img in full[0].frameset.images:
         assert img.shape == (400, 400, 3) and img.dtype == np.uint8 and img.any()
     assert np.isnan(full[0].t_device_s).all()  # this producer gives no timestamps: host stamps carry
