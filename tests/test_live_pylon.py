@@ -46,6 +46,7 @@ def test_emulated_cameras_to_a_3d_position(emulated):
     assert all(s is not None for s in sets)
     assert [s.frame_id for s in sets] == list(range(sets[0].frame_id, sets[0].frame_id + 6))  # one trigger, one id
     assert st.complete == st.framesets and st.late == (0, 0, 0, 0)
+    assert all(s["grab_errors"] == 0 for s in st.sources)
     # emulated cameras report device time 0: no device stamps, the host stamps carry the time
     assert all(np.isnan(s.t_device_s).all() and np.isfinite(s.t_host_s).all() for s in sets)
     assert st.clock_offsets == (None, None, None, None)

@@ -82,6 +82,7 @@ def test_sim_frames_ids_stamps_and_same_seed_same_images(rig):
         sets, st = _collect(sources, 20, 100.0, max_wait_s=1.0)  # as fast as possible: wait for every frame
         assert [s.frame_id for s in sets] == list(range(10)) and st.complete == 10 and st.late == (0, 0), st
         assert np.allclose(sets[4].t_device_s, 0.04)
+        assert st.sources[0].emitted == 10 and st.sources[1] == st.sources[0]  # the shared feed's counters
         assert sets[0].frameset.images[0].shape == (60, 80, 3) and sets[0].frameset.images[0].dtype == np.uint8
         runs.append(sets)
     for a, b in zip(*runs):

@@ -105,6 +105,9 @@ class AssemblyStats:
     missing : sets emitted without this camera's frame
     ended : the source is exhausted or failed; errors : the failure message, or None
     clock_offsets : :class:`~harness.live.sources.clock.ClockOffset` per camera, None without device stamps
+    sources : per camera, the source's own counters (its ``stats()`` where it has one, else None): sim,
+        replay and video report their shared feed's :class:`~harness.live.sources._feed.FeedStats`
+        (late and skipped frame sets: the renderer could not keep up), pylon its grab errors
     """
 
     framesets: int
@@ -119,6 +122,7 @@ class AssemblyStats:
     ended: tuple
     errors: tuple
     clock_offsets: tuple
+    sources: tuple = ()
 
 
 @dataclass
@@ -381,11 +385,24 @@ class FrameSetAssembler:
             return tuple(c.estimate() if has else None for c, has in zip(self._clocks, self._has_device))
 
     def stats(self) -> AssemblyStats:
+        own = tuple(_source_stats(s) for s in self.sources)
         with self._cond:
             return AssemblyStats(
                 framesets=self._framesets, complete=self._complete, incomplete=self._framesets - self._complete,
                 delivered=self._delivered, dropped_framesets=self._dropped_sets, frames=tuple(self._frames),
                 late=tuple(self._late), dropped=tuple(self._dropped), missing=tuple(self._missing),
                 ended=tuple(self._ended), errors=tuple(self._errors),
-                clock_offsets=tuple(c.estimate() if has else None for c, has in zip(self._clocks, self._has_device)))
+                clock_offsets=tuple(c.estimate() if has else None for c, has in zip(self._clocks, self._has_device)),
+                sources=own)
+
+
+def _source_stats(source):
+    """A source's own counters, or None (sources need not have any)."""
+    stats = getattr(source, "stats", None)
+    if not callable(stats):
+        return None
+    try:
+        return stats()
+    except Exception as exc:  # noqa: BLE001 - counters must never break the caller
+        return {"error": f"{type(exc).__name__}: {exc}"}
 

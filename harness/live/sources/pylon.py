@@ -139,6 +139,10 @@ class PylonCamera:
     def exhausted(self) -> bool:
         return False  # a camera never runs out; it fails (SourceError) or stops delivering
 
+    def stats(self) -> dict:
+        """grab_errors : grabs the camera reported failed; trigger_misses : software triggers it was not ready for."""
+        return {"grab_errors": self.grab_errors, "trigger_misses": self.group.trigger_misses[self.camera]}
+
     def close(self) -> None:
         if not self._closed:
             self._closed = True
