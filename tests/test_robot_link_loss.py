@@ -59,3 +59,40 @@ def test_kill_bridge_then_restart_new_segment(tmp_path):
         assert (gap > 0).all() and np.median(gap) == pytest.approx(0.002, abs=2e-4)
         assert (gap > 0.05).sum() == 1 and t[states_0] > end0["end_s"] - 0.3
         assert log.metadata("session_end")["error"] is None
+
+
+def test_rt2_robot_record_across_a_bridge_restart(tmp_path):
+    """`rt2 robot record --reconnect` as its own process: bridge killed, restarted, recording goes on."""
+    import signal
+    import subprocess
+    import sys
+
+    from tests.robot_link_util import ROOT
+
+    path = tmp_path / "rec.mcap"
+    first = BridgeProcess()
+    second = None
+    cmd_ep, state_ep = first.ready["command"], first.ready["state"]
+    rec = subprocess.Popen([sys.executable, "-m", "harness.cli", "robot", "record", "--robot", cmd_ep, "--log", str(path),
+                            "--reconnect", "30"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert rec.stdout.readline().startswith(f"recording {cmd_ep}")
+        time.sleep(0.5)
+        first.kill()
+        assert "no joint state" in rec.stdout.readline()
+        second = BridgeProcess(bind=cmd_ep, state_bind=state_ep)
+        assert "reconnected" in rec.stdout.readline()
+        time.sleep(0.5)
+        rec.send_signal(signal.SIGTERM)
+        out, _ = rec.communicate(timeout=20)
+        assert rec.returncode == 0 and "in 2 segment(s)" in out
+    finally:
+        rec.kill()
+        first.stop()
+        if second is not None:
+            second.stop()
+    with SessionLogReader(path) as log:
+        assert log.finished_cleanly
+        assert log.metadata("link_segment_0")["bridge_id"] != log.metadata("link_segment_1")["bridge_id"]
+        n = sum(log.metadata(f"link_segment_{i}_end")["states"] for i in (0, 1))
+        assert n == len(list(log.messages(["/robot/joint_states"]))) and n > 400

@@ -33,6 +33,7 @@ from robot_models.robot_interface import check_joint_trajectory
 __all__ = ["BridgeOptions", "SimBridge"]
 
 log = logging.getLogger("rt2.robot.link.bridge")
+_MAX_REQUESTS_PER_TICK = 64
 
 
 @dataclass(frozen=True)
@@ -120,7 +121,9 @@ class SimBridge:
                 self._run_ticks()
                 wait_ms = ((self._ticks + 1) * self.dt_ns - self.robot_ns()) / 1e6
                 if poller.poll(timeout=max(0, int(wait_ms))):
-                    while self._router.poll(0):
+                    for _ in range(_MAX_REQUESTS_PER_TICK):  # a flood of requests never starves the control ticks
+                        if not self._router.poll(0):
+                            break
                         self._handle(self._router.recv_multipart())
                 self._watchdog()
         finally:
