@@ -48,9 +48,12 @@ def _collect(sources, n, rate_hz, **opts):
     (["opencv", "0,1,2,3"], SourceSpec("opencv", None, (0, 1, 2, 3))),
     (["opencv", "/dev/video0,rtsp://10.0.0.2/s"], SourceSpec("opencv", None, ("/dev/video0", "rtsp://10.0.0.2/s"))),
     (["pylon"], SourceSpec("pylon")),
-    (["pylon", "2301,2302"], SourceSpec("pylon", None, (2301, 2302))),
+    (["pylon", "02301,2302"], SourceSpec("pylon", None, ("02301", "2302"))),  # serials stay text
     (["genicam"], SourceSpec("genicam")),
     (["genicam", "p.cti", "a,b"], SourceSpec("genicam", "p.cti", ("a", "b"))),
+    (["genicam", "a", "b"], SourceSpec("genicam", None, ("a", "b"))),
+    (["opencv", "0", "1"], SourceSpec("opencv", None, (0, 1))),
+    (["pylon", "40012", "40013,40014"], SourceSpec("pylon", None, ("40012", "40013", "40014"))),
 ])
 def test_parse_source_spec(tokens, spec):
     assert parse_source_spec(tokens) == spec
@@ -58,7 +61,8 @@ def test_parse_source_spec(tokens, spec):
 
 @pytest.mark.parametrize("tokens, match", [
     ([], "empty"), (["webcam"], "unknown camera source 'webcam'"), (["replay"], "replay LOG"),
-    (["sim", "x"], "'sim x'"), (["opencv", "0,,1"], "comma-separated"), (["pylon", "a", "b"], "pylon"),
+    (["sim", "x"], "'sim x'"), (["opencv", "0,,1"], "comma-separated"), (["opencv"], "opencv IDS"),
+    (["video", "a", "b"], "'video a b'"),
 ])
 def test_parse_source_spec_bad(tokens, match):
     with pytest.raises(ValueError, match=match):

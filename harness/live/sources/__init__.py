@@ -10,7 +10,7 @@ order; :class:`harness.live.assembly.FrameSetAssembler` groups their frames into
 | ``video DIR`` | per-camera video files or image folders with timestamps (:mod:`.video`) |
 | ``opencv 0,1,2,3`` | USB / V4L2 cameras (or files, stream URLs) through cv2.VideoCapture (:mod:`.opencv`) |
 | ``pylon [SERIALS]`` | Basler cameras through pypylon, extra ``rt2[cameras]`` (:mod:`.pylon`) |
-| ``genicam [X.cti [SERIALS]]`` | GenICam / GenTL cameras through harvesters, extra ``rt2[cameras]`` (:mod:`.genicam`) |
+| ``genicam [X.cti] [SERIALS]`` | GenICam / GenTL cameras through harvesters, extra ``rt2[cameras]`` (:mod:`.genicam`) |
 
 Every source stamps ``t_host_s = time.monotonic()`` at arrival and ``t_device_s`` where the camera
 gives one. docs/live.md, section "Camera sources".
@@ -28,7 +28,7 @@ __all__ = ["KINDS", "SourceSpec", "SourceUnavailable", "open_sources", "parse_so
 
 KINDS = ("sim", "replay", "video", "opencv", "pylon", "genicam")
 _USAGE = ("sim | replay LOG.mcap | video DIR | opencv IDS (e.g. 0,1,2,3) | pylon [SERIALS] | "
-          "genicam [PRODUCER.cti [SERIALS]]")
+          "genicam [PRODUCER.cti] [SERIALS]")
 CAMERAS_EXTRA = "pip install 'rt2[cameras]'"
 
 
@@ -61,17 +61,20 @@ class SourceSpec:
         return " ".join(parts)
 
 
-def _device_list(text: str) -> tuple:
+def _device_list(text: str, *, indices: bool = False) -> tuple:
+    """Comma-separated ids; ``indices``: digits become device indices (opencv), else serials stay text."""
     items = [t.strip() for t in text.split(",")]
     if not text.strip() or any(not t for t in items):
         raise ValueError(f"camera list must be comma-separated ids, got {text!r}")
-    return tuple(int(t) if t.isdigit() else t for t in items)
+    return tuple(int(t) if indices and t.isdigit() else t for t in items)
 
 
 def parse_source_spec(tokens) -> SourceSpec:
     """``["sim"]``, ``["replay", "LOG.mcap"]``, ``["video", "DIR"]``, ``["opencv", "0,1,2,3"]``,
     ``["pylon"]``, ``["pylon", "SER0,SER1,..."]``, ``["genicam"]``, ``["genicam", "X.cti", "SER0,..."]``
-    (or the same as one string) -> :class:`SourceSpec`. Bad specs raise ValueError quoting them."""
+    (or the same as one string) -> :class:`SourceSpec`. Device lists may also be separate tokens
+    (``["opencv", "0", "1"]``); a genicam producer is recognised by its ``.cti`` suffix. Bad specs
+    raise ValueError quoting them."""
     if isinstance(tokens, SourceSpec):
         return tokens
     parts = tokens.split() if isinstance(tokens, str) else [str(t) for t in tokens]
@@ -90,16 +93,14 @@ def parse_source_spec(tokens) -> SourceSpec:
             raise bad
         return SourceSpec(kind, args[0])
     if kind == "opencv":
-        if len(args) != 1:
+        if not args:
             raise bad
-        return SourceSpec(kind, None, _device_list(args[0]))
+        return SourceSpec(kind, None, _device_list(",".join(args), indices=True))
     if kind == "pylon":
-        if len(args) > 1:
-            raise bad
-        return SourceSpec(kind, None, _device_list(args[0]) if args else ())
-    if len(args) > 2:  # genicam
-        raise bad
-    return SourceSpec(kind, args[0] if args else None, _device_list(args[1]) if len(args) == 2 else ())
+        return SourceSpec(kind, None, _device_list(",".join(args)) if args else ())
+    cti = args[0] if args and args[0].lower().endswith(".cti") else None  # genicam
+    rest = args[1:] if cti else args
+    return SourceSpec(kind, cti, _device_list(",".join(rest)) if rest else ())
 
 
 def open_sources(spec, rig, *, rate_hz: float = 200.0, seed: int = 0, speed: float | None = 1.0,
