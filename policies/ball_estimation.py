@@ -25,7 +25,8 @@ from scipy.optimize import least_squares
 
 from policies.ball_model import BallParams, TableGeometry, _check_states, _check_times, simulate
 
-__all__ = ["BallEKF", "BallEstimate", "EKFOptions", "EstimatorOptions", "fit_initial_state", "fit_initial_state_mixture"]
+__all__ = ["BallEKF", "BallEstimate", "EKFOptions", "EstimatorOptions", "fit_initial_state", "fit_initial_state_mixture",
+           "spin_prior_from_spins"]
 
 # Forward-difference steps for the state Jacobians: position (m), velocity (m/s), spin (rad/s).
 _FD_STEP = np.array([1e-6] * 3 + [1e-6] * 3 + [1e-4] * 3)
@@ -39,6 +40,10 @@ class EstimatorOptions:
         numbers (x, y, z) when the noise differs per axis (e.g. timestamp jitter along the flight)
     estimate_spin : False fits position and velocity only, spin fixed at the prior mean
     spin_prior_mean_rad_s, spin_prior_std_rad_s : Gaussian prior on the spin (world frame)
+    spin_prior_cov_rad2_s2 : None, or a full (3, 3) prior covariance (tuple of 3 rows, rad^2/s^2,
+        symmetric positive definite) used instead of ``spin_prior_std_rad_s``: the spin prior of a
+        launcher learned from fitted flights (:func:`spin_prior_from_spins`), tight across the flight
+        and loose along it, where the flight does not observe the spin
     robust_scale : soft-L1 scale in units of ``position_noise_m``; None for plain least squares
     dt_s : integrator step; max_nfev : iteration budget of the solver
     """
@@ -47,6 +52,7 @@ class EstimatorOptions:
     estimate_spin: bool = True
     spin_prior_mean_rad_s: tuple = (0.0, 0.0, 0.0)
     spin_prior_std_rad_s: float = 30.0
+    spin_prior_cov_rad2_s2: tuple | None = None
     robust_scale: float | None = 3.0
     dt_s: float = 2e-3
     max_nfev: int = 60
@@ -62,6 +68,27 @@ class EstimatorOptions:
             raise ValueError(f"spin_prior_mean_rad_s must have 3 values, got {self.spin_prior_mean_rad_s!r}")
         if self.robust_scale is not None and not self.robust_scale > 0:
             raise ValueError(f"robust_scale must be > 0 or None, got {self.robust_scale!r}")
+        if self.spin_prior_cov_rad2_s2 is not None:
+            check_spin_cov(self.spin_prior_cov_rad2_s2, "spin_prior_cov_rad2_s2")
+
+    def spin_prior_cov(self) -> np.ndarray:
+        """(3, 3) prior covariance of the spin, rad^2/s^2."""
+        if self.spin_prior_cov_rad2_s2 is not None:
+            return np.asarray(self.spin_prior_cov_rad2_s2, float)
+        return np.eye(3) * self.spin_prior_std_rad_s**2
+
+
+def check_spin_cov(cov, name: str) -> np.ndarray:
+    """A (3, 3) symmetric positive definite covariance, or ValueError quoting what was received."""
+    try:
+        C = np.asarray(cov, float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a (3, 3) numeric matrix, got {cov!r:.120}") from exc
+    if C.shape != (3, 3) or not np.isfinite(C).all() or not np.allclose(C, C.T, rtol=1e-9, atol=1e-9):
+        raise ValueError(f"{name} must be a finite symmetric (3, 3) matrix, got {cov!r:.120}")
+    if np.linalg.eigvalsh(C).min() <= 0:
+        raise ValueError(f"{name} must be positive definite, got eigenvalues {np.linalg.eigvalsh(C).round(6).tolist()}")
+    return C
 
 
 @dataclass(frozen=True)
@@ -153,6 +180,8 @@ def fit_initial_state(t_s, X_world, params: BallParams | None = None, table: Tab
     table = table or TableGeometry()
     sigma = np.broadcast_to(np.asarray(options.position_noise_m, float), (3,))
     w0 = np.asarray(options.spin_prior_mean_rad_s, float)
+    # eq. (7): prior residual W (w - w0) with W^T W = Sigma_w^-1 (W = L^-1, Sigma_w = L L^T)
+    W = np.linalg.inv(np.linalg.cholesky(options.spin_prior_cov()))
     n_free = 9 if options.estimate_spin else 6
 
     def full(x):
@@ -162,7 +191,7 @@ def fit_initial_state(t_s, X_world, params: BallParams | None = None, table: Tab
         out, _ = simulate(full(x), t, params, table, t0_s=t[0], dt_s=options.dt_s)
         r = ((out[:, 0:3] - X) / sigma).ravel()
         if n_free == 9:  # eq. (7): spin prior
-            r = np.concatenate([r, (x[6:9] - w0) / options.spin_prior_std_rad_s])
+            r = np.concatenate([r, W @ (x[6:9] - w0)])
         return r
 
     def jacobian(x):
@@ -171,7 +200,7 @@ def fit_initial_state(t_s, X_world, params: BallParams | None = None, table: Tab
         out, _ = simulate(batch, t, params, table, t0_s=t[0], dt_s=options.dt_s)
         J = ((out[1:, :, 0:3] - out[0, :, 0:3]) / (sigma * _FD_STEP[:n_free, None, None])).reshape(n_free, -1).T
         if n_free == 9:
-            J = np.vstack([J, np.hstack([np.zeros((3, 6)), np.eye(3) / options.spin_prior_std_rad_s])])
+            J = np.vstack([J, np.hstack([np.zeros((3, 6)), W])])
         return J
 
     x0 = _polynomial_guess(t, X)
@@ -182,6 +211,7 @@ def fit_initial_state(t_s, X_world, params: BallParams | None = None, table: Tab
                         x_scale="jac", max_nfev=options.max_nfev, method="trf")
     J = res.jac
     cov_free = np.linalg.pinv(J.T @ J)  # Laplace approximation, unit-variance residuals
+    sign, logdet_h = np.linalg.slogdet(J.T @ J)
     cov0 = np.zeros((9, 9))
     cov0[:n_free, :n_free] = cov_free
     state0 = full(res.x)
@@ -191,7 +221,8 @@ def fit_initial_state(t_s, X_world, params: BallParams | None = None, table: Tab
     out, _ = simulate(state0, t, params, table, t0_s=t[0], dt_s=options.dt_s)
     resid = out[:, 0:3] - X
     info = {"residuals_m": resid, "rms_m": float(np.sqrt(np.mean(resid**2))), "state_t0": state0,
-            "nfev": int(res.nfev), "success": bool(res.success), "cost": float(res.cost)}
+            "nfev": int(res.nfev), "success": bool(res.success), "cost": float(res.cost),
+            "logdet_hessian": float(logdet_h) if sign > 0 else float("inf")}
     return estimate, info
 
 
@@ -200,28 +231,58 @@ def fit_initial_state_mixture(t_s, X_world, spin_priors, params: BallParams | No
                               options: EstimatorOptions = EstimatorOptions()) -> tuple[BallEstimate, dict]:
     """MAP estimate under a Gaussian-mixture spin prior (docs/ball_physics.md, eq. 8).
 
-    spin_priors : sequence of ``(weight, mean (3,) rad/s, std rad/s)`` components, e.g. the spins
-    a launcher produces, learned from fitted flights. Each component is fitted with
-    :func:`fit_initial_state`; the one with the largest posterior (smallest robust cost minus
-    log weight plus the log-normaliser of its prior) is returned, ``info["component"]`` its index.
+    spin_priors : sequence of ``(weight, mean (3,) rad/s, std)`` components, ``std`` a number (rad/s,
+    isotropic) or a (3, 3) covariance (rad^2/s^2), e.g. the spins a launcher produces, learned from
+    fitted flights (:func:`spin_prior_from_spins`). Each component is fitted with
+    :func:`fit_initial_state`; the one with the largest Laplace evidence is returned (eq. 8: smallest
+    ``cost + log det(H)/2 + log det(Sigma_k)/2 - log weight``, H the Gauss-Newton Hessian at the
+    component's optimum), ``info["component"]`` its index and ``info["scores"]`` every component's score.
     """
     comps = list(spin_priors)
     if not comps:
         raise ValueError("spin_priors must hold at least one (weight, mean, std) component, got none")
-    best = None
+    best, scores = None, []
     for k, comp in enumerate(comps):
         try:
-            weight, mean, std = float(comp[0]), tuple(float(m) for m in comp[1]), float(comp[2])
+            weight, mean = float(comp[0]), tuple(float(m) for m in comp[1])
+            spread = np.asarray(comp[2], float)
         except (TypeError, ValueError, IndexError) as exc:
-            raise ValueError(f"spin_priors[{k}] must be (weight, (3,) mean, std), got {comp!r}") from exc
-        if not (weight > 0 and std > 0 and len(mean) == 3):
-            raise ValueError(f"spin_priors[{k}] needs weight > 0, a (3,) mean and std > 0, got {comp!r}")
-        opts = dataclasses.replace(options, spin_prior_mean_rad_s=mean, spin_prior_std_rad_s=std, estimate_spin=True)
+            raise ValueError(f"spin_priors[{k}] must be (weight, (3,) mean, std or (3, 3) cov), got {comp!r}") from exc
+        if spread.ndim == 0:
+            if not spread > 0:
+                raise ValueError(f"spin_priors[{k}] needs std > 0, got {comp!r}")
+            cov = np.eye(3) * float(spread) ** 2
+        else:
+            cov = check_spin_cov(spread, f"spin_priors[{k}] covariance")
+        if not (weight > 0 and len(mean) == 3):
+            raise ValueError(f"spin_priors[{k}] needs weight > 0 and a (3,) mean, got {comp!r}")
+        opts = dataclasses.replace(options, spin_prior_mean_rad_s=mean, estimate_spin=True,
+                                   spin_prior_cov_rad2_s2=tuple(map(tuple, cov)))
         est, info = fit_initial_state(t_s, X_world, params, table, opts)
-        score = info["cost"] - np.log(weight) + 3.0 * np.log(std)
+        score = info["cost"] + 0.5 * info["logdet_hessian"] + 0.5 * np.linalg.slogdet(cov)[1] - np.log(weight)
+        scores.append(float(score))
         if best is None or score < best[0]:
             best = (score, est, dict(info, component=k))
-    return best[1], best[2]
+    return best[1], dict(best[2], scores=scores)
+
+
+def spin_prior_from_spins(spins_rad_s, *, min_std_rad_s: float = 3.0, inflation: float = 1.0
+                          ) -> tuple[tuple, tuple]:
+    """Gaussian spin prior ``(mean (3,), covariance (3, 3) as tuples)`` from fitted spins (n, 3), rad/s.
+
+    The sample mean and ``inflation`` x the sample covariance plus ``min_std_rad_s**2`` on the
+    diagonal (so that a handful of flights, or one, gives a proper prior). What the estimator knows
+    of a launcher setting: the spins fitted to its earlier flights (``rt2 sim fit-flight``).
+    """
+    S = np.asarray(spins_rad_s, float)
+    if S.ndim != 2 or S.shape[1] != 3 or S.shape[0] < 1 or not np.isfinite(S).all():
+        raise ValueError(f"spins_rad_s must be a finite (n >= 1, 3) array, got shape {S.shape}")
+    if not (min_std_rad_s > 0 and inflation >= 0):
+        raise ValueError(f"need min_std_rad_s > 0 and inflation >= 0, got {min_std_rad_s!r}, {inflation!r}")
+    mean = S.mean(axis=0)
+    cov = np.cov(S.T, bias=True) if S.shape[0] > 1 else np.zeros((3, 3))
+    cov = inflation * cov + np.eye(3) * min_std_rad_s**2
+    return tuple(mean.tolist()), tuple(map(tuple, cov.tolist()))
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,14 @@ Per flight, filter and condition (clean, or each observation replaced with proba
 * ``cross@-300ms``: from every observation until 300 ms before the true crossing (the time a
   robot needs to move), the same crossing.
 
+With ``--spin-prior launcher`` each real flight's filters get the spin prior of its launcher setting
+(wheel speeds and angles), learned from the flights the ball parameters were fitted on only: the
+spins that fit each of those whole flights (shipped parameters), per setting their mean and
+covariance plus (5 rad/s)^2 on the diagonal (``rt2 sim fit-flight``'s ``full-launcher`` estimator,
+docs/ball_physics.md sec. 5); ``raw`` uses it as its initial fit's spin prior, ``ransac_kalman`` as the
+prior of its unexplained acceleration. The simulated serves draw their spin at random (no launcher
+setting to learn from): they keep the default, no spin prior.
+
 Errors are Euclidean, cm (crossing: position in the plane; time error in ms). A filter with no
 prediction (or no predicted crossing) counts as ``failed``. ``outliers_rejected`` / ``clean_rejected``:
 fractions of the injected outliers / of the genuine observations that the filter did not accept, over
@@ -72,22 +80,46 @@ class Flight:
     table: TableGeometry
     plane_x_m: float
     noise_m: float
+    spin_prior: tuple | None = None  #: (mean (3,), cov (3, 3)) rad/s of the flight's launcher setting, or None
+
+
+#: ``--spin-prior`` choices
+SPIN_PRIORS = ("none", "launcher")
+#: diagonal floor (rad/s) of the launcher-setting spin prior (``rt2 sim fit-flight``'s leave-one-out choice)
+LAUNCHER_PRIOR_MIN_STD_RAD_S = 5.0
 
 
 #: which real flights ``rt2 eval filters`` uses (``--real-flights``)
 REAL_FLIGHT_SETS = ("held-out", "all")
 
 
-def real_flights(folder: Path | None = None, plane_x_m: float = 2.4, which: str = "held-out") -> list[Flight]:
+def real_flights(folder: Path | None = None, plane_x_m: float = 2.4, which: str = "held-out",
+                 spin_prior: str = "none") -> list[Flight]:
     """The launcher flights; the table height of their frame is the fit's (``data/ball_params.yaml``).
 
     which : "held-out" = the flights the shipped ball parameters were not fitted on (the split of
         ``rt2 sim fit-flight`` with the seed ``data/ball_params.yaml`` records, 29 of 88), "all" = every flight
+    spin_prior : "none", or "launcher" = each flight carries the spin prior of its launcher setting
+        learned from the fit flights (with ``which="held-out"`` only: "all" leaves no flights to learn from)
     """
-    from harness.studies.fit_flight import DEFAULT_DATA, data_table, load_flights, split_flights
+    from harness.studies.fit_flight import (
+        DEFAULT_DATA,
+        data_table,
+        launcher_spin_priors,
+        launcher_setting,
+        load_flights,
+        split_flights,
+        whole_flight_spin,
+    )
+    from policies.ball_estimation import EstimatorOptions
 
     if which not in REAL_FLIGHT_SETS:
         raise ValueError(f"real flights must be one of {list(REAL_FLIGHT_SETS)}, got {which!r}")
+    if spin_prior not in SPIN_PRIORS:
+        raise ValueError(f"spin prior must be one of {list(SPIN_PRIORS)}, got {spin_prior!r}")
+    if spin_prior == "launcher" and which != "held-out":
+        raise ValueError("--spin-prior launcher needs --real-flights held-out: the prior is learned from the "
+                         "other (fit) flights")
     doc = yaml.safe_load(DEFAULT_PARAMS_PATH.read_text())
     fit = doc.get("fit", {})
     z = float(fit.get("data_frame_table_surface_z_m", 0.744))
@@ -97,11 +129,17 @@ def real_flights(folder: Path | None = None, plane_x_m: float = 2.4, which: str 
         if "seed" not in fit or "n_held_out_flights" not in fit:
             raise ValueError(f"{DEFAULT_PARAMS_PATH}: no fit.seed / fit.n_held_out_flights recorded, so which flights the ball "
                              "parameters were fitted on is unknown; use --real-flights all")
-        _, flights = split_flights(flights, int(fit["seed"]))
+        fit_set, flights = split_flights(flights, int(fit["seed"]))
         if len(flights) != int(fit["n_held_out_flights"]):
             raise ValueError(f"{DEFAULT_PARAMS_PATH}: fit.n_held_out_flights is {fit['n_held_out_flights']} but the split with "
                              f"fit.seed {fit['seed']} holds out {len(flights)}; use --real-flights all")
-    return [Flight("real", f"{f.set_name}/{f.traj}", f.t_s, f.X, f.X, table, plane_x_m, REAL_NOISE_M) for f in flights]
+    priors = {}
+    if spin_prior == "launcher":
+        params = BallParams.load()
+        spins = np.array([whole_flight_spin(f, params, table, EstimatorOptions()) for f in fit_set])
+        priors = launcher_spin_priors(fit_set, spins, LAUNCHER_PRIOR_MIN_STD_RAD_S)
+    return [Flight("real", f"{f.set_name}/{f.traj}", f.t_s, f.X, f.X, table, plane_x_m, REAL_NOISE_M,
+                   priors.get(launcher_setting(f))) for f in flights]
 
 
 def sim_flights(n: int, seed: int, params: BallParams | None = None, plane_x_m: float = -1.3) -> list[Flight]:
@@ -213,15 +251,17 @@ def summarise(results: list[dict], **keys) -> list[dict]:
 
 
 def run_study(seed: int, outlier_rate: float, *, n_sim: int = 0, real: bool = True, filters=tuple(FILTERS),
-              max_flights: int | None = None, real_flights_set: str = "held-out", progress: bool = True) -> list[dict]:
+              max_flights: int | None = None, real_flights_set: str = "held-out", spin_prior: str = "none",
+              progress: bool = True) -> list[dict]:
     """Rows of {source, filter, outlier_rate, metric, n, failed, median_cm, p90_cm, ...}.
 
     real_flights_set : "held-out" (the real flights the ball parameters were not fitted on) or "all"
+    spin_prior : "none" or "launcher" (real flights: the spin prior of their launcher setting)
     """
     params = BallParams.load()
     groups = []
     if real:
-        groups.append(real_flights(which=real_flights_set))
+        groups.append(real_flights(which=real_flights_set, spin_prior=spin_prior))
     if n_sim:
         groups.append(sim_flights(n_sim, seed, params))
     rows = []
@@ -232,10 +272,13 @@ def run_study(seed: int, outlier_rate: float, *, n_sim: int = 0, real: bool = Tr
         flights = flights[:max_flights]
         for rate in rates:
             for name in filters:
-                opts = {"seed": seed} if name == "ransac_kalman" else None
+                opts = {"seed": seed} if name == "ransac_kalman" else {}
                 filt = make_filter(name, params=params, table=flights[0].table, options=opts)
                 results = []
                 for i, f in enumerate(flights):
+                    if f.spin_prior is not None:  # this flight's launcher setting: a filter with its spin prior
+                        filt = make_filter(name, params=params, table=f.table, options=dict(
+                            opts, spin_prior_mean_rad_s=f.spin_prior[0], spin_prior_cov_rad2_s2=f.spin_prior[1]))
                     Z, mask = inject_outliers(f.X_obs, rate, np.random.default_rng([seed, i, int(rate * 1e6)]))
                     results.append(evaluate_flight(f, filt, Z, mask))
                     bar.update()
@@ -295,6 +338,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-real", action="store_true", help="skip the real launcher flights")
     parser.add_argument("--real-flights", choices=REAL_FLIGHT_SETS, default="held-out",
                         help="held-out: the 29 real flights the ball parameters were not fitted on (default); all: all 88")
+    parser.add_argument("--spin-prior", choices=SPIN_PRIORS, default="none",
+                        help="launcher: give each held-out real flight's filters the spin prior of its launcher "
+                             "setting, learned from the fit flights (default none)")
     parser.add_argument("--filters", nargs="+", default=list(FILTERS), help=f"filters to evaluate, of {list(FILTERS)}")
     parser.add_argument("--max-flights", type=int, help="at most this many flights per source (fast runs)")
     parser.add_argument("--json", type=Path, help="write the rows as a JSON list of objects")
@@ -310,10 +356,13 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"unknown filter(s) {bad}; valid: {list(FILTERS)}")
     if args.max_flights is not None and args.max_flights < 1:
         raise ValueError(f"--max-flights must be >= 1, got {args.max_flights}")
+    if args.spin_prior == "launcher" and args.no_real:
+        raise ValueError("--spin-prior launcher applies to the real flights; it cannot go with --no-real")
     rows = run_study(args.seed, args.outlier_rate, n_sim=args.sim, real=not args.no_real, filters=tuple(args.filters),
-                     max_flights=args.max_flights, real_flights_set=args.real_flights)
+                     max_flights=args.max_flights, real_flights_set=args.real_flights, spin_prior=args.spin_prior)
     print(f"ball filters: prediction from the first {N_OBSERVED} observations (+h, cross@20) and from all until "
-          f"{LEAD_MS} ms before the hitting-plane crossing; seed {args.seed}")
+          f"{LEAD_MS} ms before the hitting-plane crossing; seed {args.seed}; spin prior of the real flights: "
+          f"{args.spin_prior}")
     print(format_table(rows))
     flight = sim_flights(1, args.seed)[0] if args.no_real else real_flights()[0]
     times = time_filters(flight, tuple(args.filters))

@@ -32,6 +32,7 @@ __all__ = [
     "Measurement",
     "check_measurement",
     "check_query_times",
+    "check_spin_prior",
     "measurement_noise",
 ]
 
@@ -227,3 +228,18 @@ def check_query_times(t_query_s, t_state_s: float) -> np.ndarray:
     if t[0] < t_state_s - 1e-9:
         raise ValueError(f"t_query_s must start at or after the state time {t_state_s!r}; got {t[0]!r}")
     return t
+
+
+def check_spin_prior(mean_rad_s, cov_rad2_s2, owner: str) -> None:
+    """A filter's spin prior option: mean (3,) finite rad/s; covariance None or (3, 3) symmetric positive
+    definite rad^2/s^2. ValueError naming ``owner`` and quoting the value otherwise."""
+    from policies.ball_estimation import check_spin_cov
+
+    try:
+        m = np.asarray(mean_rad_s, float)
+    except (TypeError, ValueError):
+        m = None
+    if m is None or m.shape != (3,) or not np.isfinite(m).all():
+        raise ValueError(f"{owner}.spin_prior_mean_rad_s must be 3 finite numbers, got {mean_rad_s!r}")
+    if cov_rad2_s2 is not None:
+        check_spin_cov(cov_rad2_s2, f"{owner}.spin_prior_cov_rad2_s2")

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from policies.ball_model import BallParams, TableGeometry
+from policies.ball_model import BallParams, TableGeometry, acceleration
 from policies.filters import _ballistic
 from policies.filters._base import (
     BallTrajectoryPrediction,
@@ -34,6 +34,7 @@ from policies.filters._base import (
     Measurement,
     check_measurement,
     check_query_times,
+    check_spin_prior,
 )
 from policies.filters._ransac import ransac_quadratic
 from tracker.observation import BallObservation
@@ -65,6 +66,11 @@ class RansacKalmanOptions:
     bounce_velocity_std_frac, bounce_velocity_floor_mps : velocity std added at a bounce, per axis,
         ``frac |v'| + floor``
     max_step_s : longest propagation step
+    spin_prior_mean_rad_s, spin_prior_cov_rad2_s2 : optional spin prior (world frame, rad/s and (3, 3)
+        rad^2/s^2; e.g. a launcher's, docs/ball_physics.md sec. 5). The filter has no spin state: the
+        prior of its unexplained acceleration becomes the acceleration this spin causes at the initial
+        velocity (Magnus lift and spin drag, eq. 1) with the spin covariance mapped through it added.
+        Default: no spin (zero mean, no covariance): the acceleration prior is zero-mean.
     seed : seed of RANSAC's random triples; the generator restarts at every :meth:`reset`
     """
 
@@ -85,6 +91,8 @@ class RansacKalmanOptions:
     bounce_velocity_std_frac: float = 0.1
     bounce_velocity_floor_mps: float = 0.05
     max_step_s: float = 0.005
+    spin_prior_mean_rad_s: tuple = (0.0, 0.0, 0.0)
+    spin_prior_cov_rad2_s2: tuple | None = None
     seed: int = 0
 
     def __post_init__(self):
@@ -109,6 +117,7 @@ class RansacKalmanOptions:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"RansacKalmanOptions.{name} must be a finite number >= 0, got {v!r}")
+        check_spin_prior(self.spin_prior_mean_rad_s, self.spin_prior_cov_rad2_s2, "RansacKalmanOptions")
 
 
 class RansacKalmanFilter:
@@ -228,6 +237,21 @@ class RansacKalmanFilter:
         self._kf.x, self._kf.P = X[0], Ps[0]
         self._t = t_s
 
+    def _spin_acceleration_prior(self, v0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean (3,) and covariance (3, 3) of the acceleration the spin prior adds at velocity v0 (eq. 1)."""
+        o = self.options
+        w0 = np.asarray(o.spin_prior_mean_rad_s, float)
+        if o.spin_prior_cov_rad2_s2 is None and not w0.any():
+            return np.zeros(3), np.zeros((3, 3))
+        step = 1e-3  # rad/s, forward differences of the (smooth) lift and spin drag in the spin
+        states = np.tile(np.concatenate([np.zeros(3), v0, w0]), (5, 1))
+        states[0, 6:9] = 0.0
+        states[2:5, 6:9] += np.eye(3) * step
+        acc = acceleration(states, self.params)  # (5, 3): no spin, the prior mean, and 3 nudges
+        J = (acc[2:5] - acc[1]).T / step  # d acceleration / d spin, (3, 3)
+        cov_w = np.zeros((3, 3)) if o.spin_prior_cov_rad2_s2 is None else np.asarray(o.spin_prior_cov_rad2_s2, float)
+        return acc[1] - acc[0], J @ cov_w @ J.T
+
     def _initialise(self, counter: str) -> tuple[bool, bool]:
         """RANSAC on the buffered observations; on success (re)start the Kalman filter from the inliers.
 
@@ -244,13 +268,16 @@ class RansacKalmanFilter:
             self.counters["ransac_failed"] += 1
             return False, False
         inl = [m for m, keep in zip(ms, info["inliers"]) if keep]
-        # 2. prior at the first inlier: its position, the quadratic's velocity, no unexplained acceleration
+        # 2. prior at the first inlier: its position, the quadratic's velocity, the unexplained
+        # acceleration of the spin prior (zero without one)
         first = inl[0]
-        x0 = np.concatenate([first.z_m, track.velocity([first.t_s])[0], np.zeros(3)])
+        v0 = track.velocity([first.t_s])[0]
+        a0, cov_a = self._spin_acceleration_prior(v0)
+        x0 = np.concatenate([first.z_m, v0, a0])
         P0 = np.zeros((9, 9))
         P0[0:3, 0:3] = first.R_m2
         P0[3:6, 3:6] = np.eye(3) * o.init_velocity_std_mps**2
-        P0[6:9, 6:9] = np.eye(3) * o.accel_prior_std_mps2**2
+        P0[6:9, 6:9] = np.eye(3) * o.accel_prior_std_mps2**2 + cov_a
         kf = self._kf
         kf.x, kf.P = x0, P0
         self._t = first.t_s

@@ -32,6 +32,7 @@ from policies.filters._base import (
     Measurement,
     check_measurement,
     check_query_times,
+    check_spin_prior,
 )
 from tracker.observation import BallObservation
 
@@ -50,7 +51,10 @@ class RawOptions:
     position_noise_floor_m, default_position_noise_m : measurement std floor, and std without covariance
     accel_noise_mps2 : sqrt PSD of the white acceleration the model misses, m/s^2/sqrt(Hz)
     spin_noise_rad_s2 : sqrt PSD of the spin random walk, rad/s^2/sqrt(Hz)
-    spin_prior_std_rad_s : std of the zero-mean spin prior of the initial fit (eq. 7)
+    spin_prior_std_rad_s : std of the spin prior of the initial fit (eq. 7)
+    spin_prior_mean_rad_s, spin_prior_cov_rad2_s2 : mean (3,) of that prior (default 0), and optionally
+        its full (3, 3) covariance instead of ``spin_prior_std_rad_s`` -- a launcher's spin prior learned
+        from its fitted flights (``rt2 sim fit-flight``, docs/ball_physics.md sec. 5), world frame
     predict_accel_noise_mps2 : sqrt PSD of the white acceleration added to predicted covariances (the
         filter's own ``accel_noise_mps2`` over-covers long horizons; 0.2 gives ~90-95 % coverage of
         the 95 % ellipsoid at +100..300 ms on real and simulated flights, docs/filters.md)
@@ -63,6 +67,8 @@ class RawOptions:
     accel_noise_mps2: float = 0.5
     spin_noise_rad_s2: float = 20.0
     spin_prior_std_rad_s: float = 15.0
+    spin_prior_mean_rad_s: tuple = (0.0, 0.0, 0.0)
+    spin_prior_cov_rad2_s2: tuple | None = None
     predict_accel_noise_mps2: float = 0.2
     dt_s: float = 2e-3
 
@@ -79,6 +85,7 @@ class RawOptions:
                 raise ValueError(f"RawOptions.{name} must be a finite number >= 0, got {v!r}")
         if not (isinstance(self.dt_s, (int, float)) and 0 < self.dt_s <= 0.01):
             raise ValueError(f"RawOptions.dt_s must be in (0, 0.01] s, got {self.dt_s!r}")
+        check_spin_prior(self.spin_prior_mean_rad_s, self.spin_prior_cov_rad2_s2, "RawOptions")
 
 
 class RawFilter:
@@ -178,8 +185,10 @@ class RawFilter:
         ms = self._buffer
         R_mean = np.mean([m.R_m2 for m in ms], axis=0)
         sigma = tuple(float(s) for s in np.sqrt(np.diag(R_mean)))
+        o = self.options
         opts = EstimatorOptions(position_noise_m=sigma, robust_scale=None,  # plain least squares: no heuristics
-                                spin_prior_std_rad_s=self.options.spin_prior_std_rad_s, dt_s=self.options.dt_s)
+                                spin_prior_std_rad_s=o.spin_prior_std_rad_s, spin_prior_mean_rad_s=o.spin_prior_mean_rad_s,
+                                spin_prior_cov_rad2_s2=o.spin_prior_cov_rad2_s2, dt_s=o.dt_s)
         est, _ = fit_initial_state([m.t_s for m in ms], [m.z_m for m in ms], self.params, self.table, opts)
         self._x = est.state.copy()
         self._P = 0.5 * (est.covariance + est.covariance.T) + np.eye(9) * 1e-12
