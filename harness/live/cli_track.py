@@ -22,6 +22,7 @@ import math
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 
 __all__ = ["add_arguments", "run", "open_service"]
@@ -41,6 +42,9 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sim only: render S seconds of the scene up front and loop them, so rendering takes no CPU "
                              "while tracking (benchmarks; memory 3.7 MB per frame set of 4 VGA cameras)")
     parser.add_argument("--tracker", default="rt2", choices=_TRACKERS, help="tracker kind (default rt2)")
+    parser.add_argument("--queue-s", type=float, default=0.25, metavar="S",
+                        help="frames and frame sets buffered before anything is dropped, in seconds of the frame rate "
+                             "(default 0.25: a hiccup of the machine that long costs latency, not frame sets)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -104,11 +108,15 @@ def open_frames(args, rig):
         if not (math.isfinite(args.prerender) and 0 < args.prerender <= 10):
             raise ValueError(f"--prerender must be in (0, 10] seconds, got {args.prerender}")
         extra["prerender_s"] = float(args.prerender)
-    sources = open_sources(spec, rig, rate_hz=args.rate_hz, seed=args.seed, **extra)
+    queue_s = getattr(args, "queue_s", 0.25)
+    if not (math.isfinite(queue_s) and 0 < queue_s <= 10):
+        raise ValueError(f"--queue-s must be in (0, 10] seconds, got {queue_s}")
+    n_queue = max(8, math.ceil(queue_s * args.rate_hz))
+    sources = open_sources(spec, rig, rate_hz=args.rate_hz, seed=args.seed, queue_len=n_queue, **extra)
     try:
         if len(sources) != len(rig):
             raise ValueError(f"--source {' '.join(args.source)} gives {len(sources)} camera(s) but rig {args.rig!r} has {len(rig)}")
-        assembler = FrameSetAssembler(sources, AssemblyOptions(rate_hz=args.rate_hz))
+        assembler = FrameSetAssembler(sources, AssemblyOptions(rate_hz=args.rate_hz, queue_len=n_queue, output_len=n_queue))
     except BaseException:
         for s in sources:
             s.close()
@@ -116,9 +124,11 @@ def open_frames(args, rig):
     return assembler, " ".join(args.source)
 
 
-def open_service(args, *, status=print):
+def open_service(args, *, status=print, tracker_overrides: dict | None = None):
     """Everything ``rt2 track`` runs, opened in an order that leaves nothing behind on bad input:
-    checks, rig, tracker, cameras, sockets, live view, and the log last. Returns (service, assembler, closers)."""
+    checks, rig, tracker, sockets, live view, cameras, and the log last. Returns (service, assembler, closers).
+
+    tracker_overrides : options of the tracker (``roi=False`` for full-frame search, ...)"""
     from harness.live.publish import Publisher
     from harness.live.service import ServiceOptions, TrackingService
     from harness.rigs import resolve_rig
@@ -133,10 +143,8 @@ def open_service(args, *, status=print):
     rig = resolve_rig(args.rig)
     closers = []
     try:
-        tracker = Tracker(rig, args.tracker)
+        tracker = Tracker(rig, args.tracker, **(tracker_overrides or {}))
         closers.append(tracker.close)
-        assembler, described = open_frames(args, rig)
-        closers.append(assembler.close)
         publisher = None
         if tennicam_addr is not None or rich_addr is not None:
             publisher = Publisher(tennicam_addr, rich_addr)
@@ -147,6 +155,8 @@ def open_service(args, *, status=print):
 
             view = LiveView(rig, args.tracker, ViewOptions(host=args.foxglove_host, port=args.foxglove))
             closers.append(view.close)
+        assembler, described = open_frames(args, rig)
+        closers.append(assembler.close)
         log = None
         if args.log:
             from harness.live.session_log import LiveLog
@@ -155,8 +165,14 @@ def open_service(args, *, status=print):
                           image_format=args.log_image_format, overwrite=args.log_overwrite,
                           config={"rig": str(args.rig), "source": list(args.source), "rate_hz": args.rate_hz,
                                   "tracker": args.tracker, "publish": tennicam_addr, "publish_rt2": rich_addr})
-        service = TrackingService(rig, tracker, publisher=publisher, log=log, view=view,
-                                  options=ServiceOptions(status_period_s=args.status_period), status=status)
+        try:
+            service = TrackingService(rig, tracker, publisher=publisher, log=log, view=view,
+                                      options=ServiceOptions(status_period_s=args.status_period), status=status)
+        except BaseException:
+            if log is not None:  # nothing tracked yet: leave no half-written log behind
+                log.close(error="not started")
+                Path(args.log).unlink(missing_ok=True)
+            raise
     except BaseException:
         for close in reversed(closers):
             close()
@@ -191,7 +207,8 @@ def run(args) -> int:
     got = {}
 
     def on_signal(signum, frame):
-        got["signal"] = signal.Signals(signum).name
+        got.setdefault("signal", signal.Signals(signum).name)
+        got.setdefault("t_s", time.monotonic())
         stop.set()
 
     service, assembler, closers = open_service(args, status=lambda line: print(line, flush=True))
@@ -199,6 +216,8 @@ def run(args) -> int:
     try:
         assembler.start()
         summary = service.run(assembler, stop=stop, duration_s=args.duration)
+        if "t_s" in got:  # run() has finished the log on its way out
+            summary["stop_to_log_closed_s"] = time.monotonic() - got["t_s"]
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -207,7 +226,8 @@ def run(args) -> int:
             close()
     if "signal" in got:
         summary["stopped_by"] = got["signal"]
-        print(f"rt2 track: stopped by {got['signal']}", file=sys.stderr)
+        print(f"rt2 track: stopped by {got['signal']}" + (f"; log finished {summary['stop_to_log_closed_s']:.2f} s later"
+                                                        if args.log and "stop_to_log_closed_s" in summary else ""), file=sys.stderr)
     _print_summary(summary)
     if args.json:
         Path(args.json).write_text(json.dumps(_json_safe(summary), indent=1) + "\n")

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -34,16 +35,23 @@ __all__ = ["ServiceOptions", "TrackingService"]
 @dataclass(frozen=True)
 class ServiceOptions:
     """status_period_s : seconds between status lines (0 = none); get_timeout_s : how long one
-    ``get`` of an assembler waits before the loop checks for a stop or the end of the run"""
+    ``get`` of an assembler waits before the loop checks for a stop or the end of the run;
+    switch_interval_s : Python's thread switch interval while the service runs (``sys.setswitchinterval``;
+    None = leave it): the camera, assembly, log and view threads share one interpreter lock, and the
+    default 5 ms would let any of them hold a frame set back that long"""
 
     status_period_s: float = 1.0
     get_timeout_s: float = 0.1
+    switch_interval_s: float | None = 0.0005
 
     def __post_init__(self):
         if not (isinstance(self.status_period_s, (int, float)) and 0 <= self.status_period_s < math.inf):
             raise ValueError(f"status_period_s must be >= 0 seconds, got {self.status_period_s!r}")
         if not (isinstance(self.get_timeout_s, (int, float)) and 0 < self.get_timeout_s <= 10):
             raise ValueError(f"get_timeout_s must be in (0, 10] seconds, got {self.get_timeout_s!r}")
+        sw = self.switch_interval_s
+        if sw is not None and not (isinstance(sw, (int, float)) and 1e-6 <= sw <= 0.1):
+            raise ValueError(f"switch_interval_s must be in [1e-6, 0.1] seconds or None, got {sw!r}")
 
 
 def first_host_stamp(afs: AssembledFrameSet) -> float:
@@ -127,6 +135,9 @@ class TrackingService:
         period = self.options.status_period_s
         next_status = time.monotonic() + period if period > 0 else math.inf
         error = None
+        old_switch = sys.getswitchinterval()
+        if self.options.switch_interval_s is not None:
+            sys.setswitchinterval(self.options.switch_interval_s)
         try:
             for afs in self._frames(source, stop, deadline):
                 if afs is not None:
@@ -139,6 +150,7 @@ class TrackingService:
             error = f"{type(exc).__name__}: {exc}"
             raise
         finally:
+            sys.setswitchinterval(old_switch)
             self.finish(error=error, source=source)
         return self.summary()
 
@@ -184,6 +196,8 @@ def _json_safe(value):
         return {str(k): _json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [_json_safe(v) for v in value]
+    if isinstance(value, np.bool_):
+        return bool(value)
     if isinstance(value, (np.integer,)):
         return int(value)
     if isinstance(value, (float, np.floating)):
