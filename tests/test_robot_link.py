@@ -199,6 +199,7 @@ class FakeBridge(threading.Thread):
 
     def run(self):
         k, seq, t0 = WamKinematics.default(), 0, time.monotonic_ns()
+        first_heartbeat = None  # the client's SUB is connected by then: bad frames start 50 states later
         while not self.stop.is_set():
             while self.router.poll(0):
                 ident, frame = self.router.recv_multipart()
@@ -213,13 +214,15 @@ class FakeBridge(threading.Thread):
                 elif msg["type"] == "clock":
                     reply = protocol.encode("clock_reply", id=msg["id"], t0_ns=msg["t0_ns"], t1_ns=now, t2_ns=now)
                 else:
+                    if msg["type"] == "heartbeat" and first_heartbeat is None:
+                        first_heartbeat = seq
                     reply = protocol.encode("ok", id=msg["id"], t_ns=now)
                 self.router.send_multipart([ident, reply])
             seq += 1
             t_ns = seq * 2_000_000
             self.pub.send(protocol.encode("state", seq=seq, t_ns=t_ns, q=Q7, qdot=[0.0] * 7, effort=None,
                                           mode="idle", cmd_id=-1, sim=None))
-            if seq > 50 and self.bad_frames:
+            if first_heartbeat is not None and seq > first_heartbeat + 50 and self.bad_frames:
                 self.pub.send(self.bad_frames.pop(0))
             time.sleep(0.002)
         self.router.close(0)
@@ -230,8 +233,12 @@ def test_client_drops_malformed_states(caplog):
     bad = [msgpack.packb({"v": 1, "type": "state", "seq": 1, "t_ns": 10**12, "q": [float("nan")] * 7, "qdot": Q7,
                           "effort": None, "mode": "idle", "cmd_id": -1, "sim": None}),
            msgpack.packb({"v": 0, "type": "state"}), b"\xff\xfe",
-           protocol.encode("state", seq=1, t_ns=2_000_000, q=[3.0] * 7, qdot=Q7, effort=None, mode="idle",
-                           cmd_id=-1, sim=None)]  # valid, but older than what came before
+           protocol.encode("state", seq=1, t_ns=2_000_000, q=[0.0, 0.1, 0.0, 1.4, 0.0, 0.0, 0.0], qdot=Q7, effort=None, mode="idle",
+                           cmd_id=-1, sim=None),  # valid, but older than what came before
+           protocol.encode("state", seq=1, t_ns=10**13, q=[0.0, 0.1, 0.0, 9.0, 0.0, 0.0, 0.0], qdot=Q7, effort=None,
+                           mode="idle", cmd_id=-1, sim=None),  # joint_4 far beyond its limit
+           protocol.encode("state", seq=1, t_ns=10**13, q=Q7, qdot=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 500.0], effort=None,
+                           mode="idle", cmd_id=-1, sim=None)]
     fake = FakeBridge(bad)
     fake.start()
     try:
@@ -239,9 +246,10 @@ def test_client_drops_malformed_states(caplog):
             with WamClient(fake.address) as wam:
                 s = wam.advance_to(wam.t_s + 0.4)
                 assert np.isfinite(s.q).all() and np.allclose(s.q, Q7) and (np.diff(s.t_s) > 0).all()
-                assert wam.dropped == 4
+                assert wam.dropped == 6
         text = caplog.text
         assert "finite" in text and "version 0" in text and "not a msgpack" in text and "not after the previous" in text
+        assert "joint_4 = 9 rad is outside its limits" in text and "joint_7 = 500 rad/s exceeds" in text
     finally:
         fake.stop.set()
         fake.join(5)

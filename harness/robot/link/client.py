@@ -8,8 +8,9 @@ the client: every later call raises :class:`LinkLostError` naming the address an
 
 Commands are checked against the joint and velocity limits before they leave the harness
 (``check_joint_trajectory``); the robot checks them again and answers ``error`` with a reason, raised
-here as ``ValueError``. Malformed stream messages are dropped, logged and counted (``dropped``), never
-shown as a robot state.
+here as ``ValueError``. Malformed stream messages, states older than the latest, and states no robot
+can be in (angles beyond the joint limits by more than 0.1 rad, velocities beyond 3x the limits) are
+dropped, logged and counted (``dropped``), never shown as a robot state.
 """
 
 from __future__ import annotations
@@ -31,6 +32,12 @@ from robot_models.robot_interface import JointSamples, JointState, check_joint_t
 __all__ = ["LinkLostError", "WamClient"]
 
 log = logging.getLogger("rt2.robot.link.client")
+
+
+#: a reported angle may pass a joint limit by a zero offset and a hard stop's give, not by more
+STATE_MARGIN_RAD = 0.1
+#: a reported velocity may overshoot the velocity limit (noise, a stop), not by this factor
+STATE_QDOT_FACTOR = 3.0
 
 
 class LinkLostError(ConnectionError):
@@ -194,6 +201,11 @@ class WamClient:
             self.events.append(msg)
             log.info("robot event %s: %s", msg["event"], msg["reason"])
             return
+        bad = self._out_of_range(msg)
+        if bad:
+            self.dropped += 1
+            log.warning("dropped a state at robot time %d ns from %s: %s", msg["t_ns"], self.address, bad)
+            return
         with self._lock:
             if self._latest is not None and msg["t_ns"] <= self._latest["t_ns"]:
                 self.dropped += 1
@@ -207,6 +219,21 @@ class WamClient:
             if msg["sim"] is not None and "q_true" in msg["sim"]:
                 self._truth.append((msg["t_ns"], msg["sim"]["q_true"]))
             self._lock.notify_all()
+
+    def _out_of_range(self, msg: dict) -> str:
+        """Why a well-formed state cannot be a robot's (joints beyond the limits plus a margin), or ''."""
+        q, qd = np.asarray(msg["q"]), np.asarray(msg["qdot"])
+        k = self.kinematics
+        out = (q < k.q_min - STATE_MARGIN_RAD) | (q > k.q_max + STATE_MARGIN_RAD)
+        if out.any():
+            j = int(np.argmax(out))
+            return (f"q: {k.joint_names[j]} = {q[j]:.4g} rad is outside its limits [{k.q_min[j]:g}, {k.q_max[j]:g}] "
+                    f"by more than {STATE_MARGIN_RAD} rad")
+        fast = np.abs(qd) > STATE_QDOT_FACTOR * k.qdot_max
+        if fast.any():
+            j = int(np.argmax(fast))
+            return f"qdot: {k.joint_names[j]} = {qd[j]:.4g} rad/s exceeds {STATE_QDOT_FACTOR} x its limit {k.qdot_max[j]:g}"
+        return ""
 
     # -- WamInterface -----------------------------------------------------------------------------
     @property
