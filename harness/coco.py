@@ -34,6 +34,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from harness.outputs import atomic_write_text
 from tracker.files import MAX_DATA_BYTES, read_text_capped, short
 
 __all__ = ["ANNOTATIONS_FILE", "BALL_CATEGORY", "LabelledImage", "read_coco", "write_coco"]
@@ -314,7 +315,7 @@ def write_coco(
         text = json.dumps(doc, indent=1, allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"write_coco: a field is not JSON-serialisable or not finite: {exc}") from None
-    json_path.write_text(text + "\n")
+    atomic_write_text(json_path, text + "\n", "annotations")  # never a half-written annotations.json
     return json_path
 
 

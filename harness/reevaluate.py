@@ -14,8 +14,9 @@ and list the known ones.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
+
+from harness.outputs import atomic_write_json, check_output_file
 
 __all__ = ["REEVALUATORS", "add_arguments", "run"]
 
@@ -45,6 +46,8 @@ def run(args) -> int:
         raise FileNotFoundError(f"log {str(path)!r}: no such file")
     if args.eps_px is not None and not args.eps_px > 0:
         raise ValueError(f"--eps-px must be a positive number of pixels, got {args.eps_px}")
+    check_output_file(args.json, "--json")  # before the re-run, not after
+    check_output_file(args.plot, "--plot")
     with warnings.catch_warnings(record=True) as caught, SessionLogReader(path) as reader:
         warnings.simplefilter("always")
         try:
@@ -79,8 +82,7 @@ def _accuracy(reader, args) -> int:
 
             print(format_table(r.live_rows))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(r.rows, indent=1) + "\n")
+        atomic_write_json(args.json, r.rows, "--json")
         print(f"wrote {args.json}")
     if args.plot:
         plot_histogram(r.errors, [args.plot], title=f"re-evaluated: {reader.path.name}")

@@ -387,6 +387,10 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     train_set, val_set = split_groups(labelled, opts.val_fraction, rng)
     if not any(li.n_balls for li in train_set):
         raise ValueError(f"no ball boxes among the {len(train_set)} training images: nothing to learn")
+    if not any(li.n_balls for li in val_set):
+        raise ValueError(f"no ball boxes among the {len(val_set)} validation images (val_fraction {opts.val_fraction:g}, "
+                         f"seed {opts.seed}): the thresholds and the recall cannot be measured; label more images "
+                         "with balls, raise the validation fraction or change the seed")
     lut = transform_lut(opts.input_transform, opts.log_offset_dn).astype(np.float64)
 
     pos, neg = [], []
@@ -478,9 +482,12 @@ def run(args) -> int:
 
     from harness.coco import read_coco
 
+    from harness.outputs import atomic_path, check_output_file
+
     out = Path(args.out)
     if out.suffix != ".npz":
         raise ValueError(f"--out must end in .npz, got {args.out!r}")
+    check_output_file(out, "--out")  # before the training, not after
     labelled = [li for path in args.data for li in read_coco(path)]
     if args.max_images is not None:
         labelled = labelled[: args.max_images]
@@ -488,6 +495,7 @@ def run(args) -> int:
                         ball_colour=args.ball_colour, core_fraction=args.core_fraction)
     cmd = "rt2 " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else "rt2 train"
     model, info = train(labelled, opts, description=f"trained by `{cmd}`")
-    model.save(out)
+    with atomic_path(out, "--out") as tmp:  # never a half-written model
+        model.save(tmp)
     print(f"wrote {out}: T_h={model.t_high:g}, T_l={model.t_low:g} ({info['n_train']} train / {info['n_val']} val images)")
     return 0

@@ -231,3 +231,195 @@ def test_yaml_dump_of_our_rig_has_no_aliases(tmp_path):
     assert "*" not in (tmp_path / "r.yaml").read_text().replace("# ", "")
     assert Rig.load(tmp_path / "r.yaml").names == rig.names
     assert yaml.safe_load((tmp_path / "r.yaml").read_text())["format"] == "rt2.rig"
+
+
+# -- training data -----------------------------------------------------------------------------------
+def test_validation_split_without_balls_is_refused_before_training(tmp_path):
+    import cv2
+
+    from harness.coco import LabelledImage
+    from harness.train_detector import TrainOptions, split_groups, train
+
+    labelled = []
+    for i, has_ball in enumerate([True, True, False]):
+        path = tmp_path / f"f{i:06d}_cam0.png"
+        cv2.imwrite(str(path), np.zeros((48, 64, 3), np.uint8))
+        boxes = [[20.0, 20.0, 8.0, 8.0]] if has_ball else np.zeros((0, 4))
+        centers = [[23.5, 23.5]] if has_ball else np.zeros((0, 2))
+        labelled.append(LabelledImage(path, 64, 48, boxes, centers))
+    seed = next(s for s in range(50)
+                if not any(li.n_balls for li in split_groups(labelled, 0.3, np.random.default_rng(s))[1]))
+    with pytest.raises(ValueError, match=rf"no ball boxes among the 1 validation images \(val_fraction 0.3, seed {seed}\): "
+                                         "the thresholds and the recall cannot be measured"):
+        train(labelled, TrainOptions(epochs=1, seed=seed, val_fraction=0.3), progress=False)
+
+
+# -- output paths ------------------------------------------------------------------------------------
+def _no_work(monkeypatch):
+    """Make every command's real work fail loudly: an output error must come before it."""
+    import harness.accuracy.experiment as acc
+    import harness.reevaluate as ree
+    import harness.studies.eval_detector as evd
+    import harness.studies.sim_dataset as sds
+    import harness.studies.table1 as t1
+    import harness.train_detector as trd
+
+    def boom(*a, **k):
+        raise AssertionError("the work started before the outputs were checked")
+
+    monkeypatch.setattr(acc, "simulate_motion", boom)
+    monkeypatch.setattr(sds, "_generate_in", boom)
+    monkeypatch.setattr(t1, "run_table1", boom)
+    monkeypatch.setattr(trd, "train", boom)
+    monkeypatch.setattr(evd, "evaluate", boom)
+    monkeypatch.setitem(ree.REEVALUATORS, "accuracy", boom)
+
+
+def _commands(tmp_path, synthetic_ball_coco):
+    """Each command with an output, as a function of that output's path."""
+    from harness.logs import SessionLogWriter
+
+    log = tmp_path / "run.mcap"
+    if not log.exists():
+        with SessionLogWriter(log, metadata={"kind": "accuracy"}):
+            pass
+    data = str(synthetic_ball_coco(10, 0))
+    return {
+        "accuracy --out": lambda p: ["accuracy", "--frames", "20", "--no-log", "--out", p],
+        "accuracy --json": lambda p: ["accuracy", "--frames", "20", "--no-log", "--out", str(tmp_path / "acc"), "--json", p],
+        "sim dataset --out": lambda p: ["sim", "dataset", "--frames", "1", "--out", p],
+        "sim table1 --json": lambda p: ["sim", "table1", "--trials", "10", "--json", p],
+        "train --out": lambda p: ["train", "--data", data, "--epochs", "1", "--out", p + ".npz"],
+        "reevaluate --json": lambda p: ["reevaluate", str(log), "--json", p],
+        "reevaluate --plot": lambda p: ["reevaluate", str(log), "--plot", p + ".png"],
+        "eval detector --json": lambda p: ["eval", "detector", "--data", data, "--json", p],
+    }
+
+
+COMMANDS_WITH_OUTPUTS = ["accuracy --out", "accuracy --json", "sim dataset --out", "sim table1 --json", "train --out",
+                         "reevaluate --json", "reevaluate --plot", "eval detector --json"]
+
+
+def _one_line_exit_2(argv, capsys, *patterns):
+    """Exit 2 and one line on stderr besides progress bars (tqdm lines hold '%|')."""
+    assert rt2_main(argv) == 2
+    lines = [ln for ln in capsys.readouterr().err.replace("\r", "\n").splitlines() if ln.strip() and "%|" not in ln]
+    assert len(lines) == 1, lines
+    err = lines[0]
+    for p in patterns:
+        assert p in err, err
+    return err
+
+
+@pytest.mark.parametrize("command", COMMANDS_WITH_OUTPUTS)
+def test_output_under_an_existing_file_fails_before_the_work(command, tmp_path, capsys, monkeypatch, synthetic_ball_coco):
+    argv = _commands(tmp_path, synthetic_ball_coco)[command]
+    blocker = tmp_path / "a_file"
+    blocker.write_text("keep me")
+    _no_work(monkeypatch)
+    target = str(blocker) if command.endswith("--out") and command.split()[0] in ("accuracy", "sim") else str(blocker / "x")
+    _one_line_exit_2(argv(target), capsys, "a_file", "exists and is a")
+    assert blocker.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("command", COMMANDS_WITH_OUTPUTS)
+def test_output_in_a_place_nobody_may_write_fails_before_the_work(command, tmp_path, capsys, monkeypatch, synthetic_ball_coco):
+    """/sys refuses new files even to root (a folder's mode bits do not stop root; see docs/reliability.md)."""
+    if os.access("/sys", os.W_OK) and Path("/sys/rt2-probe").exists():
+        pytest.skip("/sys is writable here")
+    argv = _commands(tmp_path, synthetic_ball_coco)[command]
+    _no_work(monkeypatch)
+    _one_line_exit_2(argv("/sys/rt2-nowhere/out"), capsys, "cannot create folder '/sys/rt2-nowhere")
+
+
+@pytest.mark.parametrize("command", ["accuracy --out", "sim table1 --json", "train --out", "eval detector --json"])
+def test_full_disk_is_refused_before_the_work(command, tmp_path, capsys, monkeypatch, synthetic_ball_coco):
+    import harness.outputs as outputs
+
+    argv = _commands(tmp_path, synthetic_ball_coco)[command]
+    _no_work(monkeypatch)
+    real = os.statvfs
+
+    def full(path):
+        st = real(path)
+        return os.statvfs_result((st.f_bsize, st.f_frsize, st.f_blocks, 0, 0, st.f_files, st.f_ffree, st.f_favail,
+                                  st.f_flag, st.f_namemax))
+
+    monkeypatch.setattr(outputs.os, "statvfs", full)
+    _one_line_exit_2(argv(str(tmp_path / "o" / "out")), capsys, "no space left on the device holding")
+
+
+def _limited(argv, limit_bytes: int, cwd=ROOT):
+    """Run ``rt2 argv`` in a child whose files may not grow beyond ``limit_bytes`` (RLIMIT_FSIZE, SIGXFSZ
+    ignored: a write past it fails with EFBIG, as on a full disk)."""
+    import signal
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return subprocess.run([sys.executable, "-m", "harness.cli", *argv], cwd=cwd, preexec_fn=limit,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_disk_full_while_writing_the_json_is_one_line_and_leaves_nothing(tmp_path):
+    out = tmp_path / "t.json"
+    out_old = tmp_path / "old.json"
+    out_old.write_text("[]\n")
+    proc = _limited(["sim", "table1", "--trials", "10", "--cameras", "4", "--outlier-rates", "5", "--no-progress",
+                     "--json", str(out)], 400)
+    assert proc.returncode == 2, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last == (f"rt2 sim table1: error: --json {str(out)!r}: cannot write: file too large (a file-size limit "
+                    "of this process or the file system) (nothing written)")
+    assert "Traceback" not in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.json"]  # no out, no temporary file
+
+
+def test_atomic_write_keeps_the_old_file_when_the_new_one_cannot_be_written(tmp_path):
+    path = tmp_path / "rows.json"
+    path.write_text('["old"]\n')
+    script = ("import sys; from harness.outputs import atomic_write_json\n"
+              f"atomic_write_json({str(path)!r}, ['x' * 5000])\n")
+    import signal
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (1000, 1000))
+
+    proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, preexec_fn=limit, capture_output=True, text=True)
+    assert proc.returncode == 1 and "OutputError" in proc.stderr and "file too large" in proc.stderr
+    assert path.read_text() == '["old"]\n' and [p.name for p in tmp_path.iterdir()] == ["rows.json"]
+
+
+def test_disk_full_while_rendering_a_data_set_leaves_the_folder_as_it_was(tmp_path, capsys, monkeypatch):
+    """The data set is rendered into a staging folder; an image that cannot be written (here the
+    third) removes it, and --out keeps only what it held before."""
+    import cv2
+
+    import harness.studies.sim_dataset as sds
+
+    out = tmp_path / "ds"
+    out.mkdir()
+    (out / "mine.txt").write_text("keep")
+    calls = []
+    real = cv2.imwrite
+
+    def imwrite(path, img):
+        calls.append(path)
+        if len(calls) == 3:
+            Path(path).write_bytes(b"\x89PNG half")  # what a full disk leaves behind
+            return False
+        return real(path, img)
+
+    monkeypatch.setattr(sds.cv2, "imwrite", imwrite)
+    _one_line_exit_2(["sim", "dataset", "--frames", "1", "--out", str(out)], capsys,
+                     "could not write image 'f000000_cam2.png' of the data set (disk full or a file-size limit?)")
+    assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]
+
+
+def test_an_output_that_is_a_folder_is_refused(tmp_path, capsys, monkeypatch, synthetic_ball_coco):
+    _no_work(monkeypatch)
+    argv = _commands(tmp_path, synthetic_ball_coco)["sim table1 --json"]
+    (tmp_path / "d").mkdir()
+    _one_line_exit_2(argv(str(tmp_path / "d")), capsys, f"--json {str(tmp_path / 'd')!r} is a folder; give a file name")

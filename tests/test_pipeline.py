@@ -452,9 +452,25 @@ def test_bad_frameset_raises(rig, model, flight):
         trk.process(FrameSet(0.0, sets[0].images[:3]))
     with pytest.raises(ValueError, match="frameset.images .* got 'abc'"):
         trk.process(FrameSet(0.0, "abc"))
-    with pytest.raises(ValueError, match="frameset.t_s must be a finite number of seconds, got nan"):
-        trk.process(FrameSet(float("nan"), sets[0].images))
+    with pytest.raises(ValueError, match="frameset.t_s must be a number of seconds, got 'soon'"):
+        trk.process(FrameSet("soon", sets[0].images))
     assert trk.stats.frames == 0  # nothing counted for rejected input
+
+
+@pytest.mark.parametrize("kind", ["rt2", "rtblob"])
+def test_nan_timestamp_mid_run_is_a_note_not_an_exception(rig, model, flight, kind):
+    """The pipeline never raises mid-run (README): a broken clock gives a note and resets the prediction."""
+    sets, _ = flight
+    trk = make_tracker(kind, rig, model=model) if kind != "rtblob" else make_tracker(kind, rig)
+    for fs in sets[:3]:
+        trk.process(fs)
+    for bad in (float("nan"), float("inf")):
+        obs = trk.process(FrameSet(bad, sets[3].images))
+        assert np.isnan(obs.t_s) or np.isinf(obs.t_s)
+        assert any(f"timestamp is not finite (t_s={bad!r})" in n for n in obs.notes)
+    after = trk.process(sets[4])  # the next good frame set is tracked as usual, no non-monotonic note
+    assert after.t_s == sets[4].t_s and not any("timestamp" in n for n in after.notes)
+    assert trk.stats.non_monotonic == 2 and trk.stats.frames == 6
 
 
 def test_bad_construction_raises(rig, model):

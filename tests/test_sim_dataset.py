@@ -79,7 +79,7 @@ def test_bad_arguments(rig_file, dataset, tmp_path, capsys):
     assert main(["sim", "dataset", "--rig", "nope", "--frames", "1", "--out", str(tmp_path / "y")]) == 2
     assert "unknown rig 'nope'" in capsys.readouterr().err
     (tmp_path / "file").write_text("x")
-    with pytest.raises(ValueError, match="exists and is not a folder"):
+    with pytest.raises(ValueError, match="exists and is a file, not a folder"):
         generate(rig_file, 1, 1, tmp_path / "file")
 
 

@@ -101,7 +101,7 @@ class TrackerStats:
     size_rejections : positions rejected by the 3D size test (``TrackerOptions.max_size_ratio``)
     missing_frames : camera images that were None (no frame delivered)
     bad_frames : camera images of the wrong size, dtype or channels (skipped)
-    non_monotonic : frame sets whose time did not increase (motion prediction reset)
+    non_monotonic : frame sets whose time did not increase or was not finite (motion prediction reset)
     """
 
     frames: int = 0

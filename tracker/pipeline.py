@@ -164,8 +164,8 @@ class Tracker:
 
         frameset : :class:`FrameSet` with one (H, W, 3) uint8 RGB image (or None) per rig camera
         A camera without a usable frame (None, wrong size, dtype or channels) is left out and named in
-        ``notes``; a time that does not increase is flagged in ``notes`` and resets the motion
-        prediction. A frame set of the wrong type or camera count raises ``ValueError``.
+        ``notes``; a time that does not increase, or is NaN or infinite, is flagged in ``notes`` and
+        resets the motion prediction. A frame set of the wrong type or camera count raises ``ValueError``.
         """
         return self.process_with_info(frameset)[0]
 
@@ -175,12 +175,19 @@ class Tracker:
         t_s, images = self._check_frameset(frameset)
         notes: list[str] = []
         self.stats.frames += 1
-        if self._last_t_s is not None and not t_s > self._last_t_s:
+        if not math.isfinite(t_s):  # a broken clock mid-run: a note, never an exception
+            notes.append(f"timestamp is not finite (t_s={t_s!r}); motion prediction reset, full frames searched")
+            self.stats.non_monotonic += 1
+            if self._detector is not None:
+                self._motion.reset()
+            t_s = math.nan  # (inf too) never kept as the last time; the motion model ignores it
+        elif self._last_t_s is not None and not t_s > self._last_t_s:
             notes.append(f"non-monotonic timestamp: t_s={t_s!r} after {self._last_t_s!r}; motion prediction reset")
             self.stats.non_monotonic += 1
             if self._detector is not None:
                 self._motion.reset()
-        self._last_t_s = t_s
+        if math.isfinite(t_s):
+            self._last_t_s = t_s
         usable = self._usable_frames(images, notes)
         if self._rtblob is not None:
             return self._process_rtblob(frameset, usable, images, notes, t0)
@@ -193,8 +200,8 @@ class Tracker:
         if self._closed:
             raise ValueError("this Tracker was closed; build a new one")
         t = frameset.t_s
-        if isinstance(t, bool) or not isinstance(t, (int, float, np.floating, np.integer)) or not math.isfinite(t):
-            raise ValueError(f"frameset.t_s must be a finite number of seconds, got {describe(t)}")
+        if isinstance(t, bool) or not isinstance(t, (int, float, np.floating, np.integer)):
+            raise ValueError(f"frameset.t_s must be a number of seconds, got {describe(t)}")
         images = frameset.images
         if not isinstance(images, (tuple, list)) or len(images) != self.n_cams:
             got = f"{len(images)} images" if isinstance(images, (tuple, list)) else describe(images)
@@ -250,7 +257,7 @@ class Tracker:
                 self._detect(redo, roi_px, used_roi)
                 X, info, size_ratio = self._estimate(notes)
         ok = info.status is Status.OK
-        if ok:
+        if ok and math.isfinite(t_s):
             self._motion.update(t_s, X)  # only confirmed estimates feed the prediction
         self.stats.positions += X is not None
         self.stats.ok += ok
@@ -345,12 +352,14 @@ class Tracker:
 
     def _process_rtblob(self, frameset: FrameSet, usable: list[int], images, notes: list, t0: float):
         blanked = [i for i in range(self.n_cams) if images[i] is not None and i not in usable]
-        if blanked:  # RTBlob raises on a non-image; our contract is "skip the camera and say so"
+        t_s = float(frameset.t_s)
+        if blanked or not math.isfinite(t_s):  # RTBlob raises on a non-image or a NaN time; we note them
             imgs = list(images)
             for i in blanked:
                 imgs[i] = None
-            frameset = FrameSet(frameset.t_s, tuple(imgs), frameset.index)
+            frameset = FrameSet(t_s if math.isfinite(t_s) else 0.0, tuple(imgs), frameset.index)
         obs, info = self._rtblob.process_with_info(frameset)
+        obs = obs if math.isfinite(t_s) else replace(obs, t_s=t_s)
         ours = set(notes)
         drop = {f"camera {self._names[i]}: no frame" for i in blanked} | ours
         notes.extend(s for s in obs.notes if s not in drop)

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.outputs import atomic_path
+
 __all__ = ["COLOURS", "plot_histogram"]
 
 #: tracker -> line colour (RT2 red as in the paper) and style
@@ -58,7 +60,7 @@ def plot_histogram(errors_m: dict, paths, *, title: str = "") -> list[Path]:
     if title:
         fig.suptitle(title, fontsize=10)
     for p in paths:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(p, dpi=130, metadata={"CreationDate": None} if p.suffix == ".pdf" else None)
+        with atomic_path(p, "figure") as tmp:  # never a half-written figure
+            fig.savefig(tmp, dpi=130, metadata={"CreationDate": None} if p.suffix == ".pdf" else None)
     plt.close(fig)
     return paths

@@ -15,7 +15,6 @@ Timings are medians over ``--repeats`` rounds after a warm-up; each round calls 
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -136,6 +135,9 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from tracker import BallSegmentationModel
+    from harness.outputs import atomic_write_json, check_output_file
+
+    check_output_file(args.json, "--json")  # before the benchmark, not after
 
     if args.repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
@@ -152,5 +154,5 @@ def run(args) -> int:
         print(f"{mode}: torch / cv2 = {by[(mode, 'torch')] / by[(mode, 'cv2')]:.2f}x")
     print("goals: full frame <= 2 ms, ROI <= 0.2 ms (cv2 path)")
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
+        atomic_write_json(args.json, rows, "--json")
     return 0

@@ -11,7 +11,6 @@ the other per camera count, so the ratios compare like with like even on a loade
 from __future__ import annotations
 
 import gc
-import json
 import os
 import time
 from pathlib import Path
@@ -138,6 +137,9 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from harness.outputs import atomic_write_json, check_output_file
+
+    check_output_file(args.json, "--json")  # before the benchmark, not after
     for c in args.cameras:
         if c < 2:
             raise ValueError(f"--cameras: every count must be >= 2, got {c}")
@@ -147,7 +149,6 @@ def run(args) -> int:
           f"{os.cpu_count()} cores, load average {load}.\n")  # fmt: skip
     print(format_table(rows))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps([{k: r[k] for k in ("cameras", "method", "median_ms")} for r in rows], indent=1) + "\n")
+        atomic_write_json(args.json, [{k: r[k] for k in ("cameras", "method", "median_ms")} for r in rows], "--json")
         print(f"\nwrote {args.json}")
     return 0

@@ -167,6 +167,10 @@ def run(args) -> int:
     import cv2
     from tqdm import tqdm
 
+    from harness.outputs import atomic_write_text, check_output_file
+
+    if args.json != "-":
+        check_output_file(args.json, "--json")  # before the benchmark, not after
     from harness.logs.synthetic import make_session
 
     formats = [f.strip() for f in args.formats.split(",") if f.strip()]
@@ -219,5 +223,5 @@ def run(args) -> int:
         if args.json == "-":
             print(text)
         else:
-            Path(args.json).write_text(text + "\n")
+            atomic_write_text(args.json, text + "\n", "--json")
     return 0

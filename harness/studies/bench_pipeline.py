@@ -23,10 +23,8 @@ full frames, >= 1000 frame sets/s with ROI.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -183,7 +181,10 @@ def run(args) -> int:
     import cv2
     from tqdm import tqdm
 
+    from harness.outputs import atomic_write_json, check_output_file
     from harness.render import Renderer
+
+    check_output_file(args.json, "--json")  # before the benchmark, not after
     from harness.rigs import resolve_rig
     from tracker import FrameSet
     from tracker.pipeline import load_model
@@ -229,5 +230,5 @@ def run(args) -> int:
         goal = f">= {min_rate:.0f} sets/s" + ("" if max_p99 is None else f", p99 <= {max_p99:g} ms")
         print(f"goal rt2 {r['mode']} workers={r['workers']}: {goal}: {'met' if met else 'NOT met'}")
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
+        atomic_write_json(args.json, rows, "--json")
     return 0

@@ -12,9 +12,7 @@ same-process speed ratio. Goal: >= 200 VGA images/s on ``dataset`` scenes.
 from __future__ import annotations
 
 import gc
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -107,9 +105,12 @@ def format_table(rows: list[dict]) -> str:
 
 
 def run(args) -> int:
+    from harness.outputs import atomic_write_json, check_output_file
+
+    check_output_file(args.json, "--json")  # before the benchmark, not after
     rows = bench(args.rig, frames=args.frames, seed=args.seed)
     print(format_table(rows))
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
+        atomic_write_json(args.json, rows, "--json")
         print(f"wrote {args.json}")
     return 0

@@ -14,9 +14,7 @@ background (seeded). Run on a loaded machine the numbers are noisy: compare rati
 
 from __future__ import annotations
 
-import json
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -105,6 +103,9 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from harness.outputs import atomic_write_json, check_output_file
+
+    check_output_file(args.json, "--json")  # before the benchmark, not after
     if args.repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
     if min(args.radius_px) < 1:
@@ -120,5 +121,5 @@ def run(args) -> int:
     proc = rows[-1]["median_ms"]
     print(f"process: {1e3 / proc:.0f} frame sets per second (4 cameras, one thread)")
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
+        atomic_write_json(args.json, rows, "--json")
     return 0

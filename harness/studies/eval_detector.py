@@ -19,7 +19,6 @@ counts as an outlier (these are what the robust estimator has to reject).
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -195,10 +194,12 @@ def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80)) -
     if not rows:
         raise ValueError("no labelled ball of at least 8 px to draw")
     fig = cv2.resize(np.vstack(rows), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+    from harness.outputs import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), cv2.cvtColor(fig, cv2.COLOR_RGB2BGR)):
-        raise ValueError(f"cannot write the figure to {str(path)!r} (use .png)")
+    with atomic_path(path, "--figure") as tmp:  # never a half-written figure
+        if not cv2.imwrite(str(tmp), cv2.cvtColor(fig, cv2.COLOR_RGB2BGR)):
+            raise ValueError(f"cannot write the figure to {str(path)!r} (use .png; or the disk is full)")
     return path
 
 
@@ -222,6 +223,10 @@ def run(args) -> int:
     from harness.train_detector import select_ball_colour
     from tracker import BallSegmentationModel
 
+    from harness.outputs import atomic_write_json, check_output_file
+
+    check_output_file(args.json, "--json")  # before the evaluation, not after
+    check_output_file(args.figure, "--figure")
     model = BallSegmentationModel.load(args.model)
     labelled = [li for path in args.data for li in read_coco(path)]
     if args.max_images is not None:
@@ -248,7 +253,7 @@ def run(args) -> int:
     goals = f"goals: recall >= {100 * GOALS['recall']:.0f}%, outliers <= {100 * GOALS['outlier_rate']:.0f}%, median error <= {GOALS['median_center_error_px']} px"
     print(goals + " (topk's outlier rate counts every extra candidate; the robust estimator rejects them)")
     if args.json:
-        Path(args.json).write_text(json.dumps([s.as_json() for s in scores], indent=1) + "\n")
+        atomic_write_json(args.json, [s.as_json() for s in scores], "--json")
     if args.figure:
         print(f"wrote {probability_figure(model, labelled, args.figure)}")
     return 0

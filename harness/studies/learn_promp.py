@@ -52,6 +52,10 @@ def _check_args(args) -> None:
         raise ValueError(f"--pseudo-demos must be > 0, got {args.pseudo_demos}")
     if args.out.suffix != ".npz":
         raise ValueError(f"--out must end in .npz, got {args.out}")
+    if not args.no_save:
+        from harness.outputs import check_output_file
+
+        check_output_file(args.out, "--out")  # before the learning, not after (the save itself is atomic)
 
 
 def _fit_table(train, test, n_basis, prior, few, joint_names, robot_id):

@@ -12,7 +12,10 @@ for a seed whatever the number of workers.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -20,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from harness.coco import ANNOTATIONS_FILE, LabelledImage, write_coco
+from harness.outputs import OutputError, check_output_dir
 
 __all__ = ["add_arguments", "generate", "run"]
 
@@ -57,25 +61,43 @@ def generate(rig, frames: int, seed: int, out, *, workers: int = 1, overwrite: b
     _check(frames, seed, workers)
     rig_obj = resolve_rig(rig)
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {str(out)!r} exists and is not a folder")
     if (out / ANNOTATIONS_FILE).exists() and not overwrite:
         raise ValueError(f"--out {str(out)!r} already holds a data set ({ANNOTATIONS_FILE}); choose another folder or pass --overwrite")
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out, "--out")  # creatable, writable, not full: before rendering
+    # Render into a staging folder inside --out, moved into place only when the whole set is written:
+    # a failure (disk full, a worker's error) leaves --out as it was.
+    staging = Path(tempfile.mkdtemp(prefix=".rt2-dataset-", dir=out))
+    try:
+        json_path = _generate_in(rig, rig_obj, frames, seed, staging, workers, progress)
+        names = [p.name for p in staging.iterdir() if p.name != ANNOTATIONS_FILE]
+        for name in names:
+            os.replace(staging / name, out / name)
+        os.replace(json_path, out / ANNOTATIONS_FILE)
+    except OSError as exc:
+        raise OutputError(f"--out {str(out)!r}: cannot write the data set: {exc.strerror or exc} (nothing written)") from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return out / ANNOTATIONS_FILE
+
+
+def _generate_in(rig, rig_obj, frames: int, seed: int, out: Path, workers: int, progress: bool) -> Path:
+    """Render and label into ``out`` (the staging folder); returns the path of its annotations.json."""
     chunks = [list(range(s, min(s + _CHUNK, frames))) for s in range(0, frames, _CHUNK)]
     tasks = [(rig_obj.to_dict(), seed, str(out), c) for c in chunks]
     results = []
     bar = tqdm(total=frames, desc="rt2 sim dataset", unit="frame set", file=sys.stderr, disable=not progress)
-    if workers == 1:
-        for task in tasks:
-            results.append(_render_chunk(task))
-            bar.update(len(task[3]))
-    else:
-        with mp.get_context("spawn").Pool(min(workers, len(tasks))) as pool:
-            for res in pool.imap_unordered(_render_chunk, tasks):
-                results.append(res)
-                bar.update(len({key[0] for key, *_ in res}))
-    bar.close()
+    try:
+        if workers == 1:
+            for task in tasks:
+                results.append(_render_chunk(task))
+                bar.update(len(task[3]))
+        else:
+            with mp.get_context("spawn").Pool(min(workers, len(tasks))) as pool:
+                for res in pool.imap_unordered(_render_chunk, tasks):
+                    results.append(res)
+                    bar.update(len({key[0] for key, *_ in res}))
+    finally:  # the bar ends its line before any error message
+        bar.close()
     rows = sorted((r for chunk in results for r in chunk), key=lambda r: r[0])
     images = [im for _, im, _, _ in rows]
     extra = [ex for _, _, ex, _ in rows]
@@ -127,7 +149,7 @@ def _render_chunk(task):
         for i, (img, truth) in enumerate(zip(images, truths)):
             name = f"f{f:06d}_cam{i}.png"
             if not cv2.imwrite(str(Path(out) / name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):  # cv2 wants BGR
-                raise ValueError(f"could not write image {str(Path(out) / name)!r}")
+                raise ValueError(f"could not write image {name!r} of the data set (disk full or a file-size limit?)")
             boxes, centers, extras, hidden = [], [], [], []
             for b, (ball, t) in enumerate(zip(scene.balls, truth)):
                 if t.visible and t.box_xywh[2] > 0 and t.box_xywh[3] > 0:
