@@ -7,8 +7,8 @@
 
 from harness.robot.link.bridge_sim import BridgeOptions, SimBridge
 from harness.robot.link.client import LinkLostError, WamClient
-from harness.robot.link.clock import ArrivalClock, ClockEstimate, RoundTripClock
+from harness.robot.link.clock import ClockEstimate, RoundTripClock, pair_joint_states
 from harness.robot.link.protocol import VERSION, ProtocolError
 
-__all__ = ["ArrivalClock", "BridgeOptions", "ClockEstimate", "LinkLostError", "ProtocolError", "RoundTripClock",
-           "SimBridge", "VERSION", "WamClient"]
+__all__ = ["BridgeOptions", "ClockEstimate", "LinkLostError", "ProtocolError", "RoundTripClock", "SimBridge", "VERSION",
+           "WamClient", "pair_joint_states"]

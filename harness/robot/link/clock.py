@@ -1,4 +1,4 @@
-"""Clock offsets between the harness and a robot or a camera, estimated online with their uncertainty.
+"""The robot clock's offset from the harness clock, estimated online with its uncertainty, and pairing.
 
 The harness clock is ``time.monotonic_ns()`` (the clock of ``harness.live`` frame arrival stamps).
 
@@ -9,10 +9,9 @@ The harness clock is ``time.monotonic_ns()`` (the clock of ``harness.live`` fram
   the true offset lies within ``offset +- delay / 2``. The estimate keeps the last ``window`` samples,
   takes the ``best`` of them with the smallest delays (queueing only ever adds delay) and reports
   their median offset; the uncertainty is half the smallest delay plus the spread of those offsets.
-* **Camera** (:class:`ArrivalClock`): one-way. ``arrival - stamp = -offset + latency`` with latency >= 0,
-  so ``min(arrival - stamp)`` over a window bounds ``-offset`` from above; the estimate is that
-  minimum, and the uncertainty is the spread of the lowest few (the latency's floor is not observable
-  one way; docs/robot_link.md says so).
+* **Camera** clocks are estimated from frame stamps vs arrival by
+  :class:`harness.live.sources.clock.ClockOffsetEstimator` (one way: the offset plus the smallest
+  transfer latency, which host-side stamps cannot separate).
 
 Drift is not modelled: over a session of minutes two quartz clocks drift by well under 0.1 ms,
 and the window keeps the estimate current.
@@ -25,13 +24,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ArrivalClock", "ClockEstimate", "RoundTripClock", "pair_joint_states"]
+__all__ = ["ClockEstimate", "RoundTripClock", "pair_joint_states"]
 
 
 @dataclass(frozen=True)
 class ClockEstimate:
-    """offset_ns : other clock minus harness clock, ns; uncertainty_ns : bound on its error, ns;
-    n_samples : samples in the window; delay_ns : smallest round trip (robot) or 0 (camera)."""
+    """offset_ns : robot clock minus harness clock, ns; uncertainty_ns : bound on its error, ns;
+    n_samples : exchanges in the window; delay_ns : smallest round trip, ns."""
 
     offset_ns: float
     uncertainty_ns: float
@@ -39,7 +38,7 @@ class ClockEstimate:
     delay_ns: float
 
     def to_harness_ns(self, t_other_ns):
-        """Times on the other clock -> harness clock (scalar or array)."""
+        """Times on the robot clock (ns) -> harness clock (ns), scalar or array."""
         return np.asarray(t_other_ns, dtype=np.float64) - self.offset_ns
 
     def to_dict(self) -> dict:
@@ -79,25 +78,6 @@ class RoundTripClock:
         offset = float(np.median(keep[:, 1]))
         spread = float(np.max(np.abs(keep[:, 1] - offset)))
         return ClockEstimate(offset, float(keep[0, 0] / 2 + spread), len(s), float(keep[0, 0]))
-
-
-class ArrivalClock:
-    """One-way offset of a camera clock from frame stamps vs arrival (see the module docstring)."""
-
-    def __init__(self, window: int = 512, best: int = 8):
-        _check_window(window, best)
-        self.best = best
-        self._gaps: deque = deque(maxlen=window)
-
-    def add(self, t_stamp_ns: int, t_arrival_ns: int) -> None:
-        """One frame: its stamp on the camera clock and its arrival on the harness clock, ns."""
-        self._gaps.append(int(t_arrival_ns) - int(t_stamp_ns))
-
-    def estimate(self) -> ClockEstimate:
-        if not self._gaps:
-            raise ValueError("no frame yet: cannot estimate the camera clock offset")
-        g = np.sort(np.array(self._gaps, dtype=np.float64))[: self.best]
-        return ClockEstimate(-float(g[0]), float(g[-1] - g[0]), len(self._gaps), 0.0)
 
 
 def pair_joint_states(t_harness_s, t_robot_s, q, estimate: ClockEstimate) -> np.ndarray:
