@@ -45,6 +45,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("calib", "wand"): ("harness.calib.cli_wand", "all cameras' poses by bundle adjustment of a wand (known ball spacings) or a ball moved through the volume"),
     ("calib", "board"): ("harness.calib.cli_board", "all cameras' poses by bundle adjustment of a ChArUco board seen by several cameras at once"),
     ("calib", "check"): ("harness.calib.cli_check", "calibrate a rig from rendered ChArUco views and a waved wand, and compare with its true geometry"),
+    ("calib", "loop"): ("harness.calib.cli_loop", "the accuracy experiment with a self-made calibration vs the true rig (figures within 20 %)"),
     ("calib", "robot"): ("harness.calib.cli_robot", "robot base to world transform from a session log (ball on the end effector, joint states)"),
     ("robot", "serve"): ("harness.robot.cli_serve", "serve the simulated WAM in real time behind the robot link (ZeroMQ; docs/robot_link.md)"),
     ("robot", "check"): ("harness.robot.cli_check", "measure a robot link: state rate, gaps, delivery delay, clock offset, round trips, command to motion"),

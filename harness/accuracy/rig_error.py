@@ -56,6 +56,8 @@ class CalibrationErrorOptions:
         the per-camera errors before scaling
     target_reprojection_px : scale the drawn errors so the mean re-projection error is this (None: as drawn)
     n_points : workspace points on which the re-projection error is measured
+    rig_file : a calibrated rig (e.g. written by ``rt2 calib``) the trackers get instead of a drawn error;
+        its error is measured the same way (``rt2 calib loop``)
     """
 
     enabled: bool = True
@@ -67,6 +69,7 @@ class CalibrationErrorOptions:
     tangential: float = 0.0002
     target_reprojection_px: float | None = 1.3
     n_points: int = 600
+    rig_file: str | None = None
 
     def __post_init__(self):
         if not isinstance(self.enabled, bool):
@@ -80,6 +83,8 @@ class CalibrationErrorOptions:
             raise ValueError(f"CalibrationErrorOptions.target_reprojection_px must be in (0, 50] px or None, got {t!r}")
         if isinstance(self.n_points, bool) or not isinstance(self.n_points, int) or self.n_points < 20:
             raise ValueError(f"CalibrationErrorOptions.n_points must be an integer >= 20, got {self.n_points!r}")
+        if self.rig_file is not None and not (isinstance(self.rig_file, str) and self.rig_file.strip()):
+            raise ValueError(f"CalibrationErrorOptions.rig_file must be a rig file path or None, got {self.rig_file!r}")
 
     def sigmas(self) -> np.ndarray:
         """(13,) standard deviation of each unit draw (the order of :func:`perturb_rig`'s ``draws``)."""
@@ -206,6 +211,15 @@ def estimated_rig(rig: Rig, options: CalibrationErrorOptions = CalibrationErrorO
     if box is None or np.shape(box) != (2, 3):
         raise ValueError(f"the calibration error is measured in a workspace box: rig {rig.description!r} has none; pass workspace_m")
     draw_rng, point_rng = (np.random.default_rng(s) for s in np.random.SeedSequence([int(seed), CALIBRATION_STREAM]).spawn(2))
+    if options.rig_file is not None:  # a real calibration (rt2 calib): measure its error, draw nothing
+        from harness.rigs import resolve_rig
+
+        est = resolve_rig(options.rig_file)
+        if est.names != rig.names:
+            raise ValueError(f"rig_file {options.rig_file}: cameras {est.names} do not match the true rig's {rig.names}")
+        X, uv, seen = _workspace_points(rig, box, options.n_points, point_rng)
+        return est, {"enabled": True, "rig_file": options.rig_file, "workspace_m": np.asarray(box).tolist(),
+                     **calibration_residuals(rig, est, X, uv, seen)}
     unit = draw_rng.standard_normal((len(rig), _N_DRAWS)) * options.sigmas()
     X, uv, seen = _workspace_points(rig, box, options.n_points, point_rng)
     if len(X) < 20:

@@ -59,7 +59,7 @@ def wand_uv_from_log(path, names, offsets) -> np.ndarray:
     per = {n: {} for n in names}
     with SessionLogReader(path) as log:
         topics = [detections_topic(n) for n in names]
-        missing = [n for n, t in zip(names, topics) if t not in log.topics]
+        missing = [n for n, t in zip(names, topics) if t not in log.topics()]
         if missing:
             raise ValueError(f"{path}: no detections of cameras {missing} (topics {[detections_topic(n) for n in missing]})")
         for msg in log.messages(topics):
