@@ -9,7 +9,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -135,8 +134,10 @@ def events_line(events: dict) -> str:
 
 def run(args) -> int:
     from harness.accuracy.experiment import run_accuracy
+    from harness.outputs import atomic_write_json, check_output_file
 
     config = config_from_args(args)
+    check_output_file(args.json, "--json")  # before the run, not after
     res = run_accuracy(config, args.out, workers=args.workers, log=not args.no_log, log_images=args.log_images,
                        image_format=args.log_image_format)
     m = res.motion_info
@@ -153,7 +154,6 @@ def run(args) -> int:
         print("\nagainst the TRUE ball (simulation only; median / p99 / max, mm): " + "; ".join(
             f"{k[:-3]} {v['median']:.1f} / {v['p99']:.1f} / {v['max']:.1f}" for k, v in t.items() if v))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(res.rows, indent=1) + "\n")
+        atomic_write_json(args.json, res.rows, "--json")
     print("\nwrote: " + ", ".join(str(p) for p in res.paths.values()))
     return 0

@@ -13,7 +13,6 @@ rest (:mod:`.evaluate`); write the histogram (PNG, PDF), ``accuracy.json`` (the 
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -34,6 +33,7 @@ from harness.accuracy.rig_error import estimated_rig
 from harness.accuracy.session_log import AccuracyLogWriter
 from harness.accuracy.stats import check_goals
 from harness.logs import check_log_images
+from harness.outputs import atomic_write_json, check_output_dir
 from harness.rigs import resolve_rig
 from harness.robot import SimWamOptions
 from robot_models import WamKinematics, load_robot_config
@@ -96,8 +96,7 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     every = check_log_images(log_images) if log else 0
     _check_model(config)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_output_dir(out_dir, "--out")  # a file there, a folder that cannot be written, a full disk: now
     t0 = time.perf_counter()
     rig = resolve_rig(config.rig)  # the TRUE rig: the renderer draws with it
     box = rig.workspace_m if rig.workspace_m is not None else config.motion.box_world_m  # where the error is measured
@@ -232,13 +231,13 @@ def write_outputs(result: AccuracyResult, out: Path, *, stem: str = "accuracy") 
              f"{result.figures['n_scored']} scored\n{cfg.realism}")
     png, pdf = plot_histogram(result.errors, [out / f"{stem}_hist.png", out / f"{stem}_hist.pdf"], title=title)
     js = out / f"{stem}.json"
-    js.write_text(json.dumps(result.rows, indent=1) + "\n")
+    atomic_write_json(js, result.rows, "--out")
     summary = out / "summary.json"
     doc = {"config": cfg.to_dict(), "figures": result.figures, "goals": [list(g) for g in check_goals(result.rows)],
            "motion": result.motion_info, "calibration_error": result.calibration_error, "scene_events": result.scene_events,
            "rtblob_calibration": result.rtblob_calibration,
            "against_true_ball": result.truth,
            "tracker_stats": result.tracker_stats, "timing": result.timing}
-    summary.write_text(json.dumps(doc, indent=1, default=float) + "\n")
+    atomic_write_json(summary, doc, "--out", default=float)
     result.paths.update({"png": png, "pdf": pdf, "json": js, "summary": summary})
     return result.paths

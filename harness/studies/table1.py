@@ -19,7 +19,6 @@ printed and written with ``"partial": true`` and the actual ``trials`` per cell;
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from pathlib import Path
@@ -220,7 +219,10 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from harness.outputs import atomic_write_json, check_output_file
+
     rates = [p / 100 for p in args.outlier_rates]
+    check_output_file(args.json, "--json")  # before the trials, not after
     stopped: list = []
     rows = run_table1(args.cameras, rates, trials=args.trials, seed=args.seed, eps_px=args.eps_px,
                       progress=not args.no_progress, sweep=options_from_args(args), stopped=stopped)  # fmt: skip
@@ -234,7 +236,6 @@ def run(args) -> int:
         print()
         print(format_goals(check_goals(rows)))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+        atomic_write_json(args.json, rows, "--json")
         print(f"\nwrote {args.json}" + (" (partial)" if stopped else ""))
     return stopped[0].exit_code if stopped else 0
