@@ -170,6 +170,24 @@ def test_slow_consumer_drops_oldest_sets_and_counts_them():
     assert st.framesets == 50 and st.dropped_framesets == 46 and st.delivered == 4
 
 
+def test_lossless_assembly_makes_a_fast_recording_wait_for_a_slow_consumer():
+    start = _Start()
+    burst = [(0.0, k, None) for k in range(50)]  # a recording replayed as fast as possible
+    sources = [ScriptedCamera(0, burst, start), ScriptedCamera(1, burst[:20] + burst[21:], start)]
+    opts = AssemblyOptions(rate_hz=200.0, queue_len=2, output_len=2, lossless=True)
+    with FrameSetAssembler(sources, opts) as asm:
+        sets = []
+        while not asm.finished:
+            s = asm.get(0.5)
+            if s is not None:
+                sets.append(s)
+                time.sleep(0.005)  # a slow consumer
+        st = asm.stats()
+    assert [s.frame_id for s in sets] == list(range(50))
+    assert st.dropped == (0, 0) and st.dropped_framesets == 0 and st.missing == (0, 1)
+    assert "lost" in sets[20].notes[0]
+
+
 def test_per_camera_queue_drops_oldest_when_the_assembler_lags():
     # queue_len=1 and a camera bursting 20 frames at once: the assembler sees only the newest.
     start = _Start()
@@ -184,14 +202,14 @@ def test_per_camera_queue_drops_oldest_when_the_assembler_lags():
 
 
 def test_match_by_time_with_unrelated_frame_ids_and_device_stamps():
-    period = 0.02
+    period = 0.05  # half a period (25 ms) is well above thread-scheduling jitter on a loaded machine
     start = _Start()
     # Two free-running cameras: different frame counters, device clocks with different offsets;
     # camera 1 is triggered 3 ms after camera 0 (within half a period).
     cam0 = [(k * period, 1000 + k, 5.0 + k * period) for k in range(25)]
     cam1 = [(k * period + 0.003, k, 80.0 + k * period + 0.003) for k in range(25) if k != 12]
     sources = [ScriptedCamera(0, cam0, start), ScriptedCamera(1, cam1, start)]
-    opts = AssemblyOptions(rate_hz=1 / period, match="time", max_wait_s=0.05, stall_s=1.0)
+    opts = AssemblyOptions(rate_hz=1 / period, match="time", max_wait_s=0.1, stall_s=1.0)
     with FrameSetAssembler(sources, opts) as asm:
         sets = _drain(asm, 25)
         st = asm.stats()

@@ -83,7 +83,7 @@ def test_sim_frames_ids_stamps_and_same_seed_same_images(rig):
         sources = open_sources(["sim"], rig, rate_hz=100.0, seed=3, speed=None, scene_provider=_ball_scene,
                                duration_s=0.1)
         assert all(isinstance(s, FrameSource) for s in sources) and [s.camera for s in sources] == [0, 1]
-        sets, st = _collect(sources, 20, 100.0, max_wait_s=1.0)  # as fast as possible: wait for every frame
+        sets, st = _collect(sources, 20, 100.0, lossless=True)  # as fast as possible: wait for every frame
         assert [s.frame_id for s in sets] == list(range(10)) and st.complete == 10 and st.late == (0, 0), st
         assert np.allclose(sets[4].t_device_s, 0.04)
         assert st.sources[0].emitted == 10 and st.sources[1] == st.sources[0]  # the shared feed's counters
@@ -108,6 +108,31 @@ def test_sim_real_time_rate_and_host_stamps(rig):
     assert np.median(np.abs(lag)) < 0.005 and lag.min() > -0.002
     off = st.clock_offsets[0]
     assert off is not None and off.spread_s < 0.05
+
+
+def test_sim_prerendered_clip_loops(rig):
+    sources = open_sources(["sim"], rig, rate_hz=100.0, seed=1, speed=None, scene_provider=_ball_scene,
+                           prerender_s=0.05, duration_s=0.12)
+    sets, st = _collect(sources, 20, 100.0, lossless=True)
+    assert [s.frame_id for s in sets] == list(range(12)) and st.complete == 12
+    assert np.array_equal(sets[7].frameset.images[1], sets[2].frameset.images[1])  # 5 frame sets, looped
+    assert not np.array_equal(sets[3].frameset.images[1], sets[2].frameset.images[1])
+
+
+def test_close_stops_an_endless_sim_promptly(rig):
+    import threading
+
+    before = threading.active_count()
+    sources = open_sources(["sim"], rig, rate_hz=100.0, scene_provider=_ball_scene)
+    asm = FrameSetAssembler(sources, AssemblyOptions(rate_hz=100.0)).start()
+    assert asm.get(5.0) is not None
+    t0 = time.monotonic()
+    asm.close()
+    assert time.monotonic() - t0 < 2.0
+    deadline = time.monotonic() + 2.0
+    while threading.active_count() > before and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert threading.active_count() <= before  # reader, assembler, pacer and render threads all ended
 
 
 def test_sim_default_scene_is_seeded_launcher_flights():
@@ -151,7 +176,7 @@ def small_log(tmp_path_factory, rig):
 
 def test_replay_as_fast_as_possible_is_exact(rig, small_log):
     path, images = small_log
-    sets, st = _collect(open_sources(["replay", str(path)], rig, speed=None), 20, 50.0, max_wait_s=1.0)
+    sets, st = _collect(open_sources(["replay", str(path)], rig, speed=None), 20, 50.0, lossless=True)
     assert [s.frame_id for s in sets] == list(range(12))
     assert st.missing == (0, 1) and sets[7].frameset.images[1] is None
     for s, imgs in zip(sets, images):
@@ -214,7 +239,7 @@ def test_video_image_folders_with_timestamps(rig, tmp_path):
     rows = "\n".join(f"{100 + k},{5.0 + 0.01 * k:.3f}" for k in range(6))
     (tmp_path / "cam0.csv").write_text("frame_id,t_s\n" + rows + "\n")
     (tmp_path / "cam1" / "timestamps.csv").write_text("frame_id,t_s\n" + rows + "\n")
-    sets, st = _collect(open_sources(["video", str(tmp_path)], rig, speed=None), 10, 100.0, max_wait_s=1.0)
+    sets, st = _collect(open_sources(["video", str(tmp_path)], rig, speed=None), 10, 100.0, lossless=True)
     assert [s.frame_id for s in sets] == [100 + k for k in range(6)] and st.complete == 6
     assert np.allclose(sets[2].t_device_s, 5.02)
     for s, fr in zip(sets, frames):
@@ -271,8 +296,15 @@ def test_opencv_reads_through_videocapture(rig, tmp_path):
             out.write(cv2.cvtColor(frames[k][j], cv2.COLOR_RGB2BGR))
         out.release()
     sources = open_sources(["opencv", ",".join(paths)], rig)
-    sets, st = _collect(sources, 10, 30.0, match="time", max_wait_s=0.5)
-    assert sum(st.frames) == 10 and all(st.ended)
-    img = next(s.frameset.images[0] for s in sets if s.frameset.images[0] is not None)
-    assert np.abs(img.astype(int) - frames[0][0]).mean() < 5  # RGB, not BGR
-    assert np.abs(img[..., ::-1].astype(int) - frames[0][0]).mean() > 20
+    cam = sources[1]
+    cam.start()
+    got = []
+    while (f := cam.read(1.0)) is not None:
+        got.append(f)
+    assert cam.exhausted and [f.frame_id for f in got] == list(range(5)) and all(f.camera == 1 for f in got)
+    for f, fr in zip(got, frames):
+        assert np.abs(f.image.astype(int) - fr[1]).mean() < 5  # RGB, not BGR: the block is orange-red
+        assert np.abs(f.image[..., ::-1].astype(int) - fr[1]).mean() > 20
+    assert got[0].t_host_s <= got[-1].t_host_s
+    for s in sources:
+        s.close()

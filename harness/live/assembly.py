@@ -56,6 +56,11 @@ class AssemblyOptions:
     queue_len : frames buffered per camera; output_len : assembled sets waiting for ``get``
     read_timeout_s : how long a reader thread blocks in ``source.read`` before checking for close
     clock_window : frames per camera in the clock-offset window
+    lossless : False (live) = full queues drop their oldest; True (a recording replayed as fast as
+        possible) = full queues make the readers and the assembler wait instead, a camera that leads
+        the others is held back, and a set waits for every camera until it moves past it or ends (no
+        ``max_wait_s``, no stall): nothing is dropped, the consumer sets the pace. Never for live
+        cameras: a slow consumer would stall them.
     """
 
     rate_hz: float = 200.0
@@ -66,6 +71,7 @@ class AssemblyOptions:
     output_len: int = 4
     read_timeout_s: float = 0.05
     clock_window: int = 400
+    lossless: bool = False
 
     def __post_init__(self):
         if not (isinstance(self.rate_hz, (int, float)) and math.isfinite(self.rate_hz) and self.rate_hz > 0):
@@ -232,6 +238,8 @@ class FrameSetAssembler:
                     return
                 continue
             with self._cond:
+                while self.options.lossless and len(q) >= qlen and not self._stop.is_set():
+                    self._cond.wait(0.1)
                 if len(q) >= qlen:
                     q.popleft()
                     self._dropped[i] += 1
@@ -283,7 +291,7 @@ class FrameSetAssembler:
         """Why camera i will not fill set p (a note), or None while it still may."""
         time_mode = self.options.match == "time"
         half = 0.5 * self.options.period_s if time_mode else 0.0
-        if self._ended[i]:
+        if self._ended[i] and not self._inputs[i]:  # its last frames may still wait in its queue
             return f"failed: {self._errors[i]}" if self._errors[i] else "ended"
         if self._last_order[i] > p.order + half:
             return "frame lost (a later frame arrived)"
@@ -292,10 +300,10 @@ class FrameSetAssembler:
         base = self._last_order[i] if self._last_order[i] > -math.inf else self._first_order
         ahead = max(self._last_order) - base
         limit = self.options.stall_after_s * (1.0 if time_mode else self.options.rate_hz)
-        if ahead > limit:
+        if ahead > limit and not self.options.lossless:
             return (f"stalled (the others are {ahead * 1e3:.0f} ms ahead)" if time_mode
                     else f"stalled (the others are {ahead:.0f} frames ahead)")
-        if now - p.t_first_s > self.options.wait_s:
+        if now - p.t_first_s > self.options.wait_s and not self.options.lossless:
             return f"no frame in time (waited {self.options.wait_s * 1e3:.1f} ms)"
         return None
 
@@ -329,6 +337,8 @@ class FrameSetAssembler:
         for i, f in enumerate(p.frames):
             if f is None:
                 self._missing[i] += 1
+        while self.options.lossless and len(self._output) >= self.options.output_len and not self._stop.is_set():
+            self._cond.wait(0.1)  # releases the lock: get() can take a set
         if len(self._output) >= self.options.output_len:
             self._output.popleft()
             self._dropped_sets += 1
@@ -340,12 +350,18 @@ class FrameSetAssembler:
             return self.options.read_timeout_s
         return max(1e-4, self._pending[0].t_first_s + self.options.wait_s - now + 1e-4)
 
+    def _throttled(self, i: int) -> bool:
+        """Lossless only: hold back camera i's frames while it leads the others and enough sets wait
+        for them (a camera that is behind always delivers: it fills or moves past the waiting sets)."""
+        return (self.options.lossless and len(self._pending) >= 2 * self.options.queue_len
+                and self._last_order[i] >= max(self._last_order))
+
     def _assemble_loop(self) -> None:
         with self._cond:
             while not self._stop.is_set():
                 now = time.monotonic()
                 for i, q in enumerate(self._inputs):
-                    while q:
+                    while q and not self._throttled(i):
                         self._place(i, q.popleft(), now)
                 self._emit_ready(now)
                 self._cond.notify_all()
@@ -368,6 +384,7 @@ class FrameSetAssembler:
                     return None
                 self._cond.wait(left)
             self._delivered += 1
+            self._cond.notify_all()  # a lossless assembler may wait for room
             return self._output.popleft()
 
     def _finished_locked(self) -> bool:
