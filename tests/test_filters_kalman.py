@@ -15,11 +15,12 @@ PARAMS = BallParams.load()
 TABLE = TableGeometry()
 
 
-def coeffs(k_drag=PARAMS.k_drag, q_acc=1.0, q_jerk=1.0, max_step=0.005, frac=0.1, floor=0.05, a_var=1.0):
-    p, tb = PARAMS, TABLE
-    return np.array([p.gravity_mps2, k_drag, p.table_restitution, p.table_friction, p.inertia_factor,
-                     tb.surface_z_m + p.radius_m, tb.x_min_m, tb.x_max_m, tb.y_min_m, tb.y_max_m,
-                     q_acc, q_jerk, frac, floor, a_var, max_step], float)
+def coeffs(k_drag=PARAMS.k_drag, q_acc=1.0, q_jerk=1.0, max_step=0.005, frac=0.1, floor=0.05, a_var=1.0,
+           spin=(0.0, 0.0, 0.0)):
+    c = _ballistic.coefficients(PARAMS, TABLE, q_acc=q_acc, q_jerk=q_jerk, bounce_frac=frac, bounce_floor_mps=floor,
+                                accel_prior_var=a_var, max_step_s=max_step, spin_rad_s=spin)
+    c[1] = k_drag
+    return c
 
 
 def random_states(rng, n):
@@ -36,10 +37,11 @@ def random_states(rng, n):
 # --------------------------------------------------------------------------- transition kernel
 
 
-def test_numba_kernel_matches_numpy_reference():
+@pytest.mark.parametrize("spin", [(0.0, 0.0, 0.0), (8.0, -55.0, 5.0)])
+def test_numba_kernel_matches_numpy_reference(spin):
     rng = np.random.default_rng(0)
     x, P = random_states(rng, 12)
-    c = coeffs()
+    c = coeffs(spin=spin)
     t_query = np.array([0.0, 0.0031, 0.05, 0.05, 0.2, 0.45, 0.7])
     n_bounced = 0
     for i in range(len(x)):
@@ -89,6 +91,34 @@ def test_bounce_map_flips_vz_and_inflates_the_covariance():
     _ballistic._bounce_nb(xn, Pn, c)
     np.testing.assert_allclose(xn, xb, atol=1e-14)
     np.testing.assert_allclose(Pn, Pb, atol=1e-14)
+
+
+def test_bounce_with_a_spin_prior_is_the_ball_models_bounce():
+    """With the spin prior's mean, the mean velocity after the bounce is that of the ball model's
+    eqs. (4)-(6) (policies.ball_model.surface_contact) for a ball with that spin; the unexplained
+    acceleration's horizontal part becomes the spin's acceleration at the new velocity."""
+    from policies.ball_model import surface_contact
+
+    for spin in ((0.0, -60.0, 0.0), (0.0, 45.0, 3.0), (10.0, 5.0, -4.0)):
+        c = coeffs(spin=spin)
+        x = np.array([0.0, 0.0, 0.781, 5.0, 0.3, -3.0, 0.1, 0.2, -1.0])
+        xb, _ = _ballistic.bounce_np(x, np.eye(9) * 1e-4, c)
+        v_model, _ = surface_contact(x[3:6], np.array(spin), np.array([0.0, 0.0, 1.0]), PARAMS,
+                                     restitution=PARAMS.table_restitution, friction=PARAMS.table_friction)
+        np.testing.assert_allclose(xb[3:6], v_model, atol=1e-12)
+        a_new = _ballistic.spin_acceleration_np(xb[3:6], c)
+        np.testing.assert_allclose(xb[6:8], a_new[0:2], atol=1e-14)
+        assert xb[8] == pytest.approx(x[8] - _ballistic.spin_acceleration_np(x[3:6], c)[2] + a_new[2])
+        xn, Pn = x.copy(), np.eye(9) * 1e-4
+        _ballistic._bounce_nb(xn, Pn, c)
+        np.testing.assert_allclose(xn, xb, atol=1e-14)
+    # the spin's acceleration is eq. (1)'s spin terms: the model's acceleration with minus without the spin
+    from policies.ball_model import acceleration
+
+    v, w = np.array([5.0, 0.3, -3.0]), np.array([0.0, -60.0, 0.0])
+    np.testing.assert_allclose(_ballistic.spin_acceleration_np(v, coeffs(spin=tuple(w))),
+                               acceleration(np.r_[0, 0, 0, v, w], PARAMS) - acceleration(np.r_[0, 0, 0, v, 0, 0, 0], PARAMS),
+                               atol=1e-12)
 
 
 def test_no_bounce_outside_the_table():

@@ -12,16 +12,20 @@ explain (Magnus lift of the unknown spin, drag errors), a random walk. docs/filt
      jerk on a; the discrete forms of Bar-Shalom et al. 2001, sec. 6.2-6.3);
 (F3) bounce: when the mean crosses ``z = surface_z + radius`` downwards with the contact point
      inside the table, the step is split at the crossing (linear in z) and the Coulomb bounce of
-     docs/ball_physics.md eqs. (4)-(5) with zero spin is applied to the mean (``v_z' = -e v_z``,
-     friction impulse ``min(mu (1+e) |v_z|, alpha/(1+alpha) |v_xy|)`` against ``v_xy``); the
-     covariance goes through the map's Jacobian and is inflated: velocity variance
-     ``(frac |v'| + floor)^2`` per axis, and the horizontal unexplained acceleration (lift, whose
-     horizontal part flips with v_z) is reset to its prior mean 0 and variance.
+     docs/ball_physics.md eqs. (4)-(5) with the spin prior's mean ``w0`` (zero without one) is
+     applied to the mean (``v_z' = -e v_z``, friction impulse ``min(mu (1+e) |v_z|, alpha/(1+alpha)
+     |s|)`` against the contact slip ``s = v_xy - r (w0 x z)_xy``); the covariance goes through the
+     map's Jacobian and is inflated: velocity variance ``(frac |v'| + floor)^2`` per axis, and the
+     horizontal unexplained acceleration (lift, whose horizontal part flips with v_z) is reset to its
+     prior: mean = the horizontal acceleration ``w0`` causes at the new velocity (eq. 1: Magnus and
+     spin drag; 0 without a spin prior), variance ``accel_prior_var``; the vertical one swaps the
+     spin part at the old velocity for that at the new one.
 
 A numba kernel (:func:`propagate_nb`) and its plain numpy reference (:func:`propagate_np`), which
 agree to rounding (tests/test_filters_kalman.py). Private; inputs are trusted.
-Coefficients ``c`` (16,): ``[g, k_drag, e, mu, alpha, z_contact, x_min, x_max, y_min, y_max,
-q_acc, q_jerk, bounce_frac, bounce_floor_mps, accel_prior_var, max_step_s]``.
+Coefficients ``c`` (23,): ``[g, k_drag, e, mu, alpha, z_contact, x_min, x_max, y_min, y_max,
+q_acc, q_jerk, bounce_frac, bounce_floor_mps, accel_prior_var, max_step_s, w0x, w0y, w0z, k_magnus,
+k_drag_spin r, spin_saturation r, radius]`` (:func:`coefficients`).
 """
 
 from __future__ import annotations
@@ -29,9 +33,30 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["N_COEFFS", "propagate_nb", "propagate_np"]
+__all__ = ["N_COEFFS", "coefficients", "propagate_nb", "propagate_np"]
 
-N_COEFFS = 16
+N_COEFFS = 23
+
+
+def coefficients(params, table, *, q_acc, q_jerk, bounce_frac, bounce_floor_mps, accel_prior_var, max_step_s,
+                 spin_rad_s=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """(N_COEFFS,) packed coefficients from a ``BallParams``, a ``TableGeometry`` and the filter's noises."""
+    p, tb = params, table
+    return np.array(
+        [p.gravity_mps2, p.k_drag, p.table_restitution, p.table_friction, p.inertia_factor,
+         tb.surface_z_m + p.radius_m, tb.x_min_m, tb.x_max_m, tb.y_min_m, tb.y_max_m,
+         q_acc, q_jerk, bounce_frac, bounce_floor_mps, accel_prior_var, max_step_s,
+         *spin_rad_s, p.k_magnus, p.k_drag_spin * p.radius_m, p.spin_saturation * p.radius_m, p.radius_m], float)
+
+
+def spin_acceleration_np(v: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(3,) acceleration the spin ``c[16:19]`` adds at velocity v (eq. 1: Magnus lift and spin drag)."""
+    w = c[16:19]
+    spin = float(np.linalg.norm(w))
+    if spin == 0.0:
+        return np.zeros(3)
+    f = 1.0 / (1.0 + c[21] * spin / max(float(np.linalg.norm(v)), 1e-9))
+    return f * c[19] * np.cross(w, v) - f * c[20] * spin * v
 
 
 # --------------------------------------------------------------------------- numpy reference
@@ -65,7 +90,7 @@ def bounce_np(x: np.ndarray, P: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, 
     """(F3) at the contact: Coulomb bounce of the mean, its Jacobian and the inflation of P."""
     e, mu, alpha = c[2], c[3], c[4]
     vz = x[5]
-    s = x[3:5]
+    s = x[3:5] + c[22] * np.array([-c[17], c[16]])  # contact slip v_xy - r (w0 x z)_xy
     slip = np.linalg.norm(s)
     jn = -(1.0 + e) * min(vz, 0.0)
     J = np.eye(9)
@@ -73,7 +98,6 @@ def bounce_np(x: np.ndarray, P: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, 
     J[6, 6] = J[7, 7] = 0.0  # horizontal unexplained acceleration reset to its prior mean
     x_new = x.copy()
     x_new[5] = -e * vz
-    x_new[6:8] = 0.0
     if slip > 0.0:
         u = s / slip
         if mu * jn < alpha / (1 + alpha) * slip:  # sliding: impulse mu (1+e)|vz|
@@ -83,7 +107,10 @@ def bounce_np(x: np.ndarray, P: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, 
         else:  # rolling: v_xy' = v_xy / (1 + alpha)
             jt = alpha / (1 + alpha) * slip
             J[3:5, 3:5] = np.eye(2) / (1 + alpha)
-        x_new[3:5] = s - jt * u
+        x_new[3:5] = x[3:5] - jt * u
+    a_old, a_new = spin_acceleration_np(x[3:6], c), spin_acceleration_np(x_new[3:6], c)
+    x_new[6:8] = a_new[0:2]
+    x_new[8] = x[8] - a_old[2] + a_new[2]
     P_new = J @ P @ J.T
     infl = (c[12] * np.abs(x_new[3:6]) + c[13]) ** 2
     P_new[3:6, 3:6] += np.diag(infl)
@@ -174,10 +201,26 @@ def _step_nb(x, P, h, c, xo, Po):
 
 
 @numba.njit(cache=True)
+def _spin_acc_nb(vx, vy, vz, c, out):
+    wx, wy, wz = c[16], c[17], c[18]
+    spin = np.sqrt(wx * wx + wy * wy + wz * wz)
+    if spin == 0.0:
+        out[0] = out[1] = out[2] = 0.0
+        return
+    f = 1.0 / (1.0 + c[21] * spin / max(np.sqrt(vx * vx + vy * vy + vz * vz), 1e-9))
+    km, kd = f * c[19], f * c[20] * spin
+    out[0] = km * (wy * vz - wz * vy) - kd * vx
+    out[1] = km * (wz * vx - wx * vz) - kd * vy
+    out[2] = km * (wx * vy - wy * vx) - kd * vz
+
+
+@numba.njit(cache=True)
 def _bounce_nb(x, P, c):
     e, mu, alpha = c[2], c[3], c[4]
     vz = x[5]
-    sx, sy = x[3], x[4]
+    a_old = np.empty(3)
+    _spin_acc_nb(x[3], x[4], x[5], c, a_old)
+    sx, sy = x[3] - c[22] * c[17], x[4] + c[22] * c[16]
     slip = np.sqrt(sx * sx + sy * sy)
     jn = -(1.0 + e) * min(vz, 0.0)
     J = np.eye(9)
@@ -185,8 +228,6 @@ def _bounce_nb(x, P, c):
     J[6, 6] = 0.0
     J[7, 7] = 0.0
     x[5] = -e * vz
-    x[6] = 0.0
-    x[7] = 0.0
     if slip > 0.0:
         ux, uy = sx / slip, sy / slip
         if mu * jn < alpha / (1 + alpha) * slip:
@@ -200,8 +241,13 @@ def _bounce_nb(x, P, c):
         else:
             jt = alpha / (1 + alpha) * slip
             J[3, 3] = J[4, 4] = 1.0 / (1 + alpha)
-        x[3] = sx - jt * ux
-        x[4] = sy - jt * uy
+        x[3] -= jt * ux
+        x[4] -= jt * uy
+    a_new = np.empty(3)
+    _spin_acc_nb(x[3], x[4], x[5], c, a_new)
+    x[6] = a_new[0]
+    x[7] = a_new[1]
+    x[8] += a_new[2] - a_old[2]
     Pn = J @ P @ J.T
     for i in range(3):
         Pn[3 + i, 3 + i] += (c[12] * abs(x[3 + i]) + c[13]) ** 2

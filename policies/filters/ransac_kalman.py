@@ -69,8 +69,9 @@ class RansacKalmanOptions:
     spin_prior_mean_rad_s, spin_prior_cov_rad2_s2 : optional spin prior (world frame, rad/s and (3, 3)
         rad^2/s^2; e.g. a launcher's, docs/ball_physics.md sec. 5). The filter has no spin state: the
         prior of its unexplained acceleration becomes the acceleration this spin causes at the initial
-        velocity (Magnus lift and spin drag, eq. 1) with the spin covariance mapped through it added.
-        Default: no spin (zero mean, no covariance): the acceleration prior is zero-mean.
+        velocity (Magnus lift and spin drag, eq. 1) with the spin covariance mapped through it added,
+        and the table bounce uses the mean spin (docs/filters.md, sec. 3.4).
+        Default: no spin (zero mean, no covariance): zero-mean acceleration prior, spin-free bounce.
     seed : seed of RANSAC's random triples; the generator restarts at every :meth:`reset`
     """
 
@@ -137,11 +138,10 @@ class RansacKalmanFilter:
         self.table = table or TableGeometry()
         self.options = options
         o, p, tb = options, self.params, self.table
-        self._coeffs = np.array(
-            [p.gravity_mps2, p.k_drag, p.table_restitution, p.table_friction, p.inertia_factor,
-             tb.surface_z_m + p.radius_m, tb.x_min_m, tb.x_max_m, tb.y_min_m, tb.y_max_m,
-             o.accel_noise_mps2**2, o.accel_walk_mps3**2, o.bounce_velocity_std_frac, o.bounce_velocity_floor_mps,
-             o.accel_prior_std_mps2**2, o.max_step_s], float)
+        self._coeffs = _ballistic.coefficients(
+            p, tb, q_acc=o.accel_noise_mps2**2, q_jerk=o.accel_walk_mps3**2, bounce_frac=o.bounce_velocity_std_frac,
+            bounce_floor_mps=o.bounce_velocity_floor_mps, accel_prior_var=o.accel_prior_std_mps2**2,
+            max_step_s=o.max_step_s, spin_rad_s=tuple(float(w) for w in o.spin_prior_mean_rad_s))
         assert self._coeffs.shape == (_ballistic.N_COEFFS,)
         self._predict_coeffs = self._coeffs.copy()
         self._predict_coeffs[10] = o.predict_accel_noise_mps2**2
