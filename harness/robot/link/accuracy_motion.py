@@ -1,0 +1,99 @@
+"""The robot half of the accuracy experiment over the robot link: the same seeded motion, run by a robot
+behind a bridge in real time, sampled at the camera frames through the clock-offset estimate.
+
+:func:`harness.accuracy.motion.simulate_motion` runs the simulated WAM in process on one clock.
+:func:`motion_over_link` commands the same seeded trajectory (same seeds, same pieces) to the robot at
+``WamClient``, records its states, and builds the same :class:`RobotMotion`:
+
+* the trajectory starts at robot time ``T0 + start_s`` (``T0`` a whole number of ticks ahead of the
+  robot clock), so a simulated robot with the same seed runs it tick for tick as in process;
+* frame ``k`` is exposed at robot time ``r_k = T0 + start_s + k / rate`` (the simulated lab: what the
+  cameras see there, from the bridge's true joints, ``--publish-truth``); the camera stamps it on the
+  harness clock, ``c_k = r_k - true_offset + clock error`` (the in-process model's camera clock error);
+* the ground truth pairs the *reported* joints with ``c_k`` through the *estimated* robot clock offset
+  (:func:`harness.robot.link.clock.pair_joint_states`), as an experiment on a real robot must.
+
+Times in the returned motion are shifted by ``-T0`` so they read as in process (``t_s = start_s + k /
+rate``); ``info["link"]`` records the offset estimate, the true offset and the shift.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from harness.accuracy.motion import MotionOptions, RobotMotion, _chain_trajectory
+from harness.robot.link.client import WamClient
+from harness.robot.link.clock import ClockEstimate, pair_joint_states
+
+__all__ = ["motion_over_link", "robot_seed_of"]
+
+
+def robot_seed_of(seed: int) -> int:
+    """The simulated robot's seed :func:`simulate_motion` uses for session ``seed`` (``rt2 robot serve --seed``)."""
+    return int(np.random.SeedSequence([int(seed), 1]).spawn(3)[1].generate_state(1)[0])
+
+
+def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int, true_offset_ns: float,
+                     options: MotionOptions = MotionOptions(), clock: ClockEstimate | None = None,
+                     lead_s: float = 0.3) -> RobotMotion:
+    """Run the seeded accuracy motion on the robot behind ``wam`` (see the module docstring).
+
+    true_offset_ns : robot clock minus harness clock as the simulated lab knows it (the bridge's ready line),
+        used only to stamp the simulated cameras; clock : the offset estimate used for the ground truth
+        (default ``wam.clock.estimate()``).
+    """
+    kin = wam.kinematics
+    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 2:
+        raise ValueError(f"n_frames must be an integer >= 2, got {n_frames!r}")
+    if not (isinstance(rate_hz, (int, float)) and 1.0 <= rate_hz <= 10000.0):
+        raise ValueError(f"rate_hz must be a frame rate in [1, 10000] Hz, got {rate_hz!r}")
+    traj_seq, _, clock_seq = np.random.SeedSequence([int(seed), 1]).spawn(3)  # the streams of simulate_motion
+    t_frames = options.start_s + np.arange(int(n_frames)) / float(rate_hz)
+    clock_rng = np.random.default_rng(clock_seq)
+    offset_s = float(clock_rng.normal(0.0, options.clock_offset_std_s)) if options.clock_offset_std_s > 0 else 0.0
+    jitter_s = clock_rng.normal(0.0, options.clock_jitter_std_s, int(n_frames)) if options.clock_jitter_std_s > 0 else 0.0
+    jitter_s = np.clip(jitter_s, -0.25 / rate_hz, 0.25 / rate_hz)
+    t_cmd, q_cmd, qd_cmd, info = _chain_trajectory(kin, t_frames[-1] - options.start_s + 0.01, options,
+                                                   np.random.default_rng(traj_seq))
+    dt = 1.0 / wam.control_rate_hz
+    t0 = np.ceil((wam.t_s + lead_s) / dt) * dt  # whole ticks: the robot samples the reference as in process
+    wam.command_trajectory(t_cmd + options.start_s + t0, q_cmd, qd_cmd)
+    s = wam.advance_to(t0 + t_frames[-1] + abs(offset_s) + 0.05)
+    t_true, q_true_all = wam.take_sim_truth()
+    if t_true.size < 2 or t_true[0] > t0 + t_frames[0] or t_true[-1] < t0 + t_frames[-1]:
+        raise ValueError("the robot published no true joints over the motion; serve it with --publish-truth")
+    est = wam.clock.estimate() if clock is None else clock
+    truth = ClockEstimate(float(true_offset_ns), 0.0, 1, 0.0)
+    r = t_frames + t0  # exposure instants, robot clock
+    c_harness = (r * 1e9 - true_offset_ns) * 1e-9 + offset_s + jitter_s  # the cameras' stamps, harness clock
+    h = 0.5 * dt
+
+    def true_q(t_robot):
+        return pair_joint_states((t_robot * 1e9 - true_offset_ns) * 1e-9, t_true, q_true_all, truth)
+
+    qt = true_q(r)
+    qr = pair_joint_states(c_harness, s.t_s, s.q, est)
+    qdr = pair_joint_states(c_harness, s.t_s, s.qdot, est)
+    if np.isnan(qr).any():
+        raise ValueError("a frame's stamp falls outside the recorded joint states (clock estimate off by > 50 ms?)")
+    p_plus = kin.positions(true_q(r + h), check_limits=False)
+    p_minus = kin.positions(true_q(r - h), check_limits=False)
+    ball_true = kin.positions(qt, check_limits=False)
+    gt_world = kin.positions(qr, check_limits=False)
+    err_mm = np.linalg.norm(gt_world - ball_true, axis=1) * 1e3
+    t_camera_robot = c_harness + est.offset_ns * 1e-9 - t0  # the stamps as the experiment maps them, robot clock - T0
+    info.update({
+        "trajectory_seed": int(traj_seq.generate_state(1)[0]), "robot_seed": robot_seed_of(seed),
+        "clock": {"offset_ms": round(offset_s * 1e3, 4)},
+        "link": {"address": wam.address, "bridge_id": wam.bridge_id, "t0_robot_s": float(t0),
+                 "robot_clock_estimate": est.to_dict(),
+                 "estimate_error_ms": round((est.offset_ns - float(true_offset_ns)) / 1e6, 4)},
+        "gt_vs_true_mm": {"median": float(np.median(err_mm)), "p99": float(np.percentile(err_mm, 99)),
+                          "max": float(err_mm.max())},
+    })
+    return RobotMotion(
+        t_s=t_frames, t_camera_s=t_camera_robot, q_true=qt, q_reported=qr, qdot_reported=qdr,
+        q_command=np.full_like(qt, np.nan), ball_true_world_m=ball_true, ball_velocity_world_mps=(p_plus - p_minus) / (2 * h),
+        links_world_m=kin.link_points(qt, check_limits=False), gt_world_m=gt_world,
+        T_base_to_world=np.array(kin.T_base_to_world), bias_rad=np.full(7, np.nan), info=info,
+    )
