@@ -177,6 +177,11 @@ class PacedFeed:
                 return
             yield item
 
+    @property
+    def origin_s(self) -> float | None:
+        """Host monotonic time of schedule time 0 (``t_sched_s = 0``), None before the first emission."""
+        return self._t0
+
     def schedule_now(self) -> float | None:
         """Where the schedule is now (seconds of ``t_sched_s``), or None before the first emission."""
         t0 = self._t0

@@ -18,6 +18,9 @@ when both run in one process.
 
 The default scene is seeded launcher ball flights (:class:`LauncherFlights`); any callable
 ``t_s -> Scene`` may replace it (e.g. the ball on the WAM's end effector driven by live joint states).
+Scene time ``t_s`` is host time ``feed.origin_s + t_s`` (``sources[i].feed``); a provider that
+follows live state should run with ``render_ahead=1``, so that what it returns is drawn at most about
+a period before the frame is stamped.
 """
 
 from __future__ import annotations
