@@ -166,8 +166,8 @@ def test_other_bad_values_are_one_line(capsys, tmp_path):
     existing.write_bytes(b"keep me")
     rc = rt2(["track", "--log", str(existing)])
     assert rc == 2 and "exists" in capsys.readouterr().err and existing.read_bytes() == b"keep me"
-    rc = rt2(["track", "--log", str(tmp_path / "no" / "dir.mcap")])
-    assert rc == 2 and "does not exist" in capsys.readouterr().err
+    rc = rt2(["track", "--log", str(existing / "under_a_file.mcap")])
+    assert rc == 2 and "is a file, not a folder" in capsys.readouterr().err
 
 
 # -- soak ------------------------------------------------------------------------------------------------

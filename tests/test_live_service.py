@@ -111,6 +111,13 @@ def test_session_log_is_the_experiments_format_and_reevaluates_exactly(rig, tmp_
         out = capsys.readouterr().out
         assert "identical observations (status and position): 60 of 60" in out, out
         assert json.loads((tmp_path / f"{source}.json").read_text())["identical"] == 60
+    # the same log replayed as live cameras through rt2 track: the run ends by itself with the recording
+    stats = tmp_path / "replay.json"
+    assert rt2(["track", "--source", "replay", str(path), "--publish", "127.0.0.1:0", "--status-period", "0",
+                "--json", str(stats)]) == 0
+    s = json.loads(stats.read_text())
+    assert s["frame_sets"] + s["assembly"]["dropped_framesets"] == 60 and "stopped_by" not in s
+    assert s["missing_frames"]["cam1"] >= 20 and s["missing_frames"]["cam0"] == 0
 
 
 def test_service_stops_on_request_and_closes_its_log(rig, tmp_path):

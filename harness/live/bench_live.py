@@ -132,8 +132,8 @@ def run(args) -> int:
         raise ValueError(f"--modes must list some of {sorted(MODES)}, got {args.modes!r}")
     if not (math.isfinite(args.duration) and args.duration > 0 and 0 <= args.warmup < args.duration):
         raise ValueError(f"need --duration > --warmup >= 0 seconds, got {args.duration} and {args.warmup}")
-    if args.json and not Path(args.json).parent.is_dir():
-        raise FileNotFoundError(f"--json {args.json!r}: folder {str(Path(args.json).parent)!r} does not exist")
+    if args.json and Path(args.json).is_dir():
+        raise ValueError(f"--json {args.json!r} is a folder; give a file name")
     if args.source and args.source[0] == "sim" and args.prerender is None:
         args.prerender = 0.5
     rows = []
@@ -158,6 +158,7 @@ def run(args) -> int:
                "goals": GOALS, "goals_met": goals, "modes": rows}
         from harness.live.service import _json_safe
 
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(_json_safe(doc), indent=1) + "\n")
         print(f"wrote {args.json}")
     return 0

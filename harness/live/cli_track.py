@@ -80,15 +80,17 @@ def _addresses(args) -> tuple[str | None, str | None]:
 
 
 def check_output_paths(args) -> None:
-    """Refuse, before anything starts, a log that exists (without --log-overwrite) or output folders that do not."""
+    """Refuse, before anything starts, a log that exists (without --log-overwrite) or an output path
+    that is a folder or lies under a file; missing folders are created when the file is written."""
     for flag, value in (("--log", args.log), ("--json", getattr(args, "json", None))):
         if not value:
             continue
         p = Path(value)
         if p.is_dir():
             raise ValueError(f"{flag} {value!r} is a folder; give a file name")
-        if not p.parent.is_dir():
-            raise FileNotFoundError(f"{flag} {value!r}: folder {str(p.parent)!r} does not exist")
+        parent = next((q for q in p.parents if q.exists()), None)
+        if parent is not None and not parent.is_dir():
+            raise ValueError(f"{flag} {value!r}: {str(parent)!r} is a file, not a folder")
     if args.log and Path(args.log).exists() and not args.log_overwrite:
         raise ValueError(f"--log {args.log!r} exists; pass --log-overwrite to replace it")
 
@@ -161,6 +163,7 @@ def open_service(args, *, status=print, tracker_overrides: dict | None = None):
         if args.log:
             from harness.live.session_log import LiveLog
 
+            Path(args.log).parent.mkdir(parents=True, exist_ok=True)
             log = LiveLog(args.log, rig, tracker, source=described, seed=args.seed, log_images=args.log_images,
                           image_format=args.log_image_format, overwrite=args.log_overwrite,
                           config={"rig": str(args.rig), "source": list(args.source), "rate_hz": args.rate_hz,
@@ -230,6 +233,7 @@ def run(args) -> int:
                                                         if args.log and "stop_to_log_closed_s" in summary else ""), file=sys.stderr)
     _print_summary(summary)
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(_json_safe(summary), indent=1) + "\n")
         print(f"wrote {args.json}")
     return 0

@@ -112,8 +112,8 @@ class TrackingService:
             while not stop.is_set() and time.monotonic() < deadline:
                 afs = source.get(self.options.get_timeout_s)
                 if afs is None:
-                    finished = getattr(source, "finished", None)
-                    if callable(finished) and finished():
+                    finished = getattr(source, "finished", False)  # a property or a method
+                    if finished() if callable(finished) else finished:
                         return
                     yield None
                 else:
