@@ -196,7 +196,7 @@ def test_pickled_member_is_refused_without_advice_to_unpickle(tmp_path):
 
 def test_zip_bomb_model_is_refused_before_decompressing(tmp_path):
     path = tmp_path / "bomb.npz"
-    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
         with zf.open("kernel.npy", "w", force_zip64=True) as f:
             chunk = bytes(1 << 20)
             for _ in range(300):  # 300 MiB of zeros, ~0.3 MB compressed
@@ -399,6 +399,11 @@ def test_disk_full_while_rendering_a_data_set_leaves_the_folder_as_it_was(tmp_pa
 
     import harness.studies.sim_dataset as sds
 
+    d = Rig.load(ROOT / "data" / "rigs" / "lab4_vga.yaml").to_dict()
+    for cam in d["cameras"]:  # the lab rig at 160x120: quick to render
+        cam["image_size"] = [160, 120]
+        cam["K"] = (np.array(cam["K"]) * [[0.25], [0.25], [1.0]]).tolist()
+    Rig.from_dict(d).save(tmp_path / "tiny.yaml")
     out = tmp_path / "ds"
     out.mkdir()
     (out / "mine.txt").write_text("keep")
@@ -413,7 +418,7 @@ def test_disk_full_while_rendering_a_data_set_leaves_the_folder_as_it_was(tmp_pa
         return real(path, img)
 
     monkeypatch.setattr(sds.cv2, "imwrite", imwrite)
-    _one_line_exit_2(["sim", "dataset", "--frames", "1", "--out", str(out)], capsys,
+    _one_line_exit_2(["sim", "dataset", "--rig", str(tmp_path / "tiny.yaml"), "--frames", "1", "--out", str(out)], capsys,
                      "could not write image 'f000000_cam2.png' of the data set (disk full or a file-size limit?)")
     assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]
 

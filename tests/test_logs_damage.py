@@ -153,3 +153,26 @@ def test_crc_of_a_chunk_is_still_checked(finished_log, tmp_path):
         problems = r.verify()
     assert any(p.startswith(f"damaged chunk at offset {victim.offset} skipped") for p in problems)
     assert zlib.crc32(b"") == 0
+
+
+# -- hostile content ------------------------------------------------------------------------------------
+def test_a_rig_attachment_with_yaml_aliases_is_refused(tmp_path):
+    from tests.test_hostile_inputs import ALIAS_BOMB
+
+    with SessionLogWriter(tmp_path / "h.mcap", metadata={"kind": "test"}) as w:
+        w.attach("rig.yaml", ALIAS_BOMB.encode())
+    with SessionLogReader(tmp_path / "h.mcap") as r:
+        with pytest.raises(ValueError, match=r"h\.mcap: attachment rig\.yaml: not valid YAML: YAML aliases \(\*a\) are not allowed"):
+            r.rig()
+
+
+def test_deeply_nested_json_metadata_is_kept_as_text(tmp_path):
+    from harness.logs._mcap_writer import LaneSpec, LaneWriter
+
+    deep = "[" * 100_000 + "]" * 100_000
+    with open(tmp_path / "d.mcap", "wb") as f:
+        w = LaneWriter(f, {"state": LaneSpec()})
+        w.add_metadata("session", {"kind": '"test"', "config": deep})
+        w.finish()
+    with SessionLogReader(tmp_path / "d.mcap") as r:
+        assert r.metadata("session") == {"kind": "test", "config": deep}

@@ -96,8 +96,8 @@ class LogSummary:
 def _decode_json_value(text: str):
     try:
         return json.loads(text)
-    except ValueError:
-        return text  # written by another tool: keep the plain string
+    except (ValueError, RecursionError):
+        return text  # written by another tool (or nested beyond reason): keep the plain string
 
 
 class SessionLogReader:
@@ -161,15 +161,19 @@ class SessionLogReader:
 
     def rig(self):
         """The ``tracker.Rig`` attached as ``rig.yaml``."""
-        import yaml
-
+        from tracker.files import MAX_CONFIG_BYTES, parse_yaml_checked
         from tracker.rig import Rig
 
         source = f"{self.path}: attachment rig.yaml"
+        raw = self.attachment("rig.yaml")
+        if len(raw) > MAX_CONFIG_BYTES:
+            raise LogError(f"{source} is {len(raw)} bytes, more than a rig file may have ({MAX_CONFIG_BYTES})")
         try:
-            data = yaml.safe_load(self.attachment("rig.yaml"))
-        except yaml.YAMLError as exc:
-            raise LogError(f"{source}: not valid YAML: {exc}") from None
+            data = parse_yaml_checked(raw.decode("utf-8"), source)  # a log may be hostile too: no aliases
+        except UnicodeDecodeError:
+            raise LogError(f"{source} is not UTF-8 text") from None
+        except ValueError as exc:  # parse_yaml_checked names the source already
+            raise LogError(str(exc)) from None
         return Rig.from_dict(data, source=source)
 
     def figures(self) -> dict:
