@@ -333,3 +333,39 @@ def test_sim_launcher_flights_tracked_on_the_lab_rig():
     # a served ball flies through the view of 3-4 cameras: most frame sets give a position, within
     # the tracker's centimetre-level error on moving, motion-blurred rendered balls
     assert len(errors) >= 10 and np.median(errors) < 0.01
+
+
+# -- a real recording ------------------------------------------------------------------------------
+def test_video_of_a_real_four_webcam_session_matched_by_time(real_data, tmp_path):
+    """caliscope's four-webcam session (real mp4s, per-camera frame times on one PC clock; see
+    ../shared/data/real/caliscope_4cam/README.md): grouping the frames by time must reproduce the
+    recording's own synchronisation (sync_index) exactly."""
+    import csv
+    from collections import defaultdict
+
+    from tracker import Rig
+
+    src = real_data / "caliscope_4cam" / "calibration" / "extrinsic"
+    rows = list(csv.DictReader(open(src / "timestamps.csv")))
+    per_cam = defaultdict(list)
+    for r in rows:
+        per_cam[int(r["cam_id"])].append((float(r["frame_time"]), int(r["sync_index"])))
+    for c in range(4):
+        (tmp_path / f"cam_{c}.mp4").symlink_to(src / f"cam_{c}.mp4")
+        lines = [f"{sync},{t!r}" for t, sync in sorted(per_cam[c])]
+        (tmp_path / f"cam_{c}.csv").write_text("frame_id,t_s\n" + "\n".join(lines) + "\n")
+    from harness.rigs import resolve_rig
+
+    data = resolve_rig("lab4_vga").to_dict()  # only names and sizes matter to the source
+    for c, cam in enumerate(data["cameras"]):
+        cam["name"], cam["image_size"] = f"cam_{c}", [1280, 720]
+    rig4 = Rig.from_dict(data)
+    sources = open_sources(["video", str(tmp_path)], rig4, speed=None)
+    sets, st = _collect(sources, 100, 6.0, match="time", clock="device", lossless=True)
+    sync_of = {(c, t): s for c in range(4) for t, s in per_cam[c]}
+    assert len(sets) == 48 and st.complete == 48 and st.late == (0, 0, 0, 0)
+    for s in sets:
+        syncs = {sync_of[(c, float(t))] for c, t in enumerate(s.t_device_s)}
+        assert len(syncs) == 1  # the four frames of one synchronised instant
+        assert s.frameset.images[0].shape == (720, 1280, 3)
+

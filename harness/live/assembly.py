@@ -21,7 +21,9 @@ saying why. A frame that arrives after its set was emitted is late: counted and 
 Capture time ``FrameSet.t_s``: the median over the cameras in the set of each frame's capture-time
 estimate on the host's monotonic clock: ``t_device_s + offset`` where the camera gives device stamps
 and its clock offset is estimated (:mod:`.sources.clock`; the offset includes the smallest transfer
-latency), else the arrival stamp ``t_host_s``. Sets are emitted in capture order.
+latency), else the arrival stamp ``t_host_s``. With ``clock="device"`` the device stamps are taken
+as they are (the cameras share one clock: PTP-synchronised cameras, or a recording stamped on one
+machine), falling back to the arrival stamp for frames without one. Sets are emitted in capture order.
 """
 
 from __future__ import annotations
@@ -38,9 +40,10 @@ from harness.live.frames import AssembledFrameSet, Frame, SourceError
 from harness.live.sources.clock import ClockOffset, ClockOffsetEstimator
 from tracker import FrameSet
 
-__all__ = ["AssemblyOptions", "AssemblyStats", "ClockOffset", "FrameSetAssembler", "MATCH_MODES"]
+__all__ = ["AssemblyOptions", "AssemblyStats", "CLOCKS", "ClockOffset", "FrameSetAssembler", "MATCH_MODES"]
 
 MATCH_MODES = ("frame_id", "time")
+CLOCKS = ("host", "device")
 
 
 @dataclass(frozen=True)
@@ -56,6 +59,8 @@ class AssemblyOptions:
     queue_len : frames buffered per camera; output_len : assembled sets waiting for ``get``
     read_timeout_s : how long a reader thread blocks in ``source.read`` before checking for close
     clock_window : frames per camera in the clock-offset window
+    clock : capture times on the ``"host"`` clock (device stamps mapped by each camera's estimated
+        offset) or the ``"device"`` clock as stamped (cameras that share one clock)
     lossless : False (live) = full queues drop their oldest; True (a recording replayed as fast as
         possible) = full queues make the readers and the assembler wait instead, a camera that leads
         the others is held back, and a set waits for every camera until it moves past it or ends (no
@@ -72,12 +77,15 @@ class AssemblyOptions:
     read_timeout_s: float = 0.05
     clock_window: int = 400
     lossless: bool = False
+    clock: str = "host"
 
     def __post_init__(self):
         if not (isinstance(self.rate_hz, (int, float)) and math.isfinite(self.rate_hz) and self.rate_hz > 0):
             raise ValueError(f"AssemblyOptions.rate_hz must be > 0, got {self.rate_hz!r}")
         if self.match not in MATCH_MODES:
             raise ValueError(f"AssemblyOptions.match must be one of {MATCH_MODES}, got {self.match!r}")
+        if self.clock not in CLOCKS:
+            raise ValueError(f"AssemblyOptions.clock must be one of {CLOCKS}, got {self.clock!r}")
         for name in ("max_wait_s", "stall_s"):
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0):
@@ -253,6 +261,8 @@ class FrameSetAssembler:
         clock = self._clocks[i]
         clock.add(frame.t_host_s, frame.t_device_s)
         self._has_device[i] = True
+        if self.options.clock == "device":
+            return frame.t_device_s
         mapped = clock.to_host(frame.t_device_s)
         return frame.t_host_s if mapped is None else mapped
 
