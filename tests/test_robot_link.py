@@ -98,7 +98,7 @@ def test_command_moves_the_robot(bridge, kin):
         assert np.abs(wam.sim_true_q() - q_target).max() < 2e-3  # the simulator's truth: where the arm went
         # reported q = true q + a per-joint zero offset (0.2-0.5 deg std) + encoder noise
         assert np.abs(s.q[-1] - q_target).max() < np.deg2rad(1.5)
-        assert np.abs(s.qdot[-1]).max() < 0.02
+        assert np.abs(s.qdot[-1]).max() < 0.06  # at rest: the reported velocity's encoder noise is ~0.01 rad/s
 
 
 def test_limits_refused_before_leaving_the_harness(bridge, kin):
@@ -145,9 +145,9 @@ def test_malformed_and_out_of_range_requests_are_rejected_never_applied(bridge, 
             (protocol.encode("trajectory", id=9, t_ns=[t_ns - 10**9, t_ns - 5 * 10**8],
                              q=[before.q.tolist(), before.q.tolist()], qdot=None), "not after the robot clock"),
         ]
-        for frame, match in cases:
+        for (frame, match), rid in zip(cases, (None, 1, 7, 8, 9)):
             reply = _raw_request(bridge.address, frame)
-            assert reply["type"] == "error" and match in reply["reason"], reply
+            assert reply["type"] == "error" and match in reply["reason"] and reply["id"] == rid, reply
         listener.advance_to(listener.t_s + 0.2)
         assert listener._latest["cmd_id"] == cmd_before  # nothing applied
         rejected = [e["reason"] for e in listener.events if e["event"] == "rejected"]
@@ -155,7 +155,7 @@ def test_malformed_and_out_of_range_requests_are_rejected_never_applied(bridge, 
 
 
 def test_robot_holds_when_the_commanding_process_dies(bridge, kin):
-    """A client process commands a slow 3 s movement and is killed; the watchdog holds within 0.3 s + a tick."""
+    """A client process commands a slow 3 s movement and is killed; the watchdog holds 0.3 s after its last heartbeat."""
     script = (
         "import sys, time, numpy as np\n"
         "from harness.robot.link import WamClient\n"
@@ -178,10 +178,11 @@ def test_robot_holds_when_the_commanding_process_dies(bridge, kin):
         finally:
             proc.kill()
         holds = [e for e in listener.events if e["event"] == "watchdog_hold"]
-        assert holds and 0.25 <= holds[-1]["t_ns"] * 1e-9 - t_kill <= 0.45, holds
+        # the last heartbeat left up to 0.1 s before the kill; the watchdog holds 0.3 s after it
+        assert holds and 0.15 <= holds[-1]["t_ns"] * 1e-9 - t_kill <= 0.45, holds
         assert listener.mode == "watchdog"
         assert np.abs(s.q[-1, 0] - q_moving[0]) < 0.25  # stopped well short of the 0.6 rad goal
-        assert np.abs(s.qdot[-1]).max() < 0.05
+        assert np.abs(s.qdot[-1]).max() < 0.06
 
 
 # -- the client side rejects malformed states -----------------------------------------------------

@@ -166,7 +166,7 @@ class SimBridge:
         try:
             msg = protocol.decode(frames[1], expect=("hello", "trajectory", "hold", "heartbeat", "clock"))
         except ProtocolError as exc:
-            self._reject(ident, None, str(exc))
+            self._reject(ident, protocol.request_id(frames[1]), str(exc))
             return
         rid, kind = msg["id"], msg["type"]
         if kind == "trajectory":

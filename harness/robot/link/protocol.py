@@ -20,7 +20,7 @@ import math
 import msgpack
 
 __all__ = ["MAX_MESSAGE_BYTES", "MAX_TRAJECTORY_SAMPLES", "MODES", "ProtocolError", "SCHEMA", "VERSION", "decode",
-           "encode"]
+           "encode", "request_id"]
 
 VERSION = 1
 MAX_MESSAGE_BYTES = 4 << 20  #: larger frames are rejected before unpacking
@@ -90,6 +90,16 @@ def decode(frame: bytes, expect: tuple[str, ...] | None = None) -> dict:
     if expect is not None and msg["type"] not in expect:
         raise ProtocolError(f"message type {msg['type']!r} not expected here; expected one of {list(expect)}")
     return msg
+
+
+def request_id(frame: bytes) -> int | None:
+    """The ``id`` of a frame that failed :func:`decode`, when it can still be read (for the ``error`` reply), else None."""
+    try:
+        msg = msgpack.unpackb(frame, raw=False, max_array_len=MAX_TRAJECTORY_SAMPLES + 16) if len(frame) <= MAX_MESSAGE_BYTES else None
+    except Exception:  # the frame is not msgpack: no id to echo
+        return None
+    rid = msg.get("id") if isinstance(msg, dict) else None
+    return rid if _is_int(rid) else None
 
 
 def _short(value) -> str:
