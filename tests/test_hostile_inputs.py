@@ -259,6 +259,10 @@ def _no_work(monkeypatch):
     """Make every command's real work fail loudly: an output error must come before it."""
     import harness.accuracy.experiment as acc
     import harness.reevaluate as ree
+    import harness.studies.bench_estimator as bes
+    import harness.studies.eval_filters as evf
+    import harness.studies.fit_flight as ff
+    import policies._promp_demos as demos
     import harness.studies.eval_detector as evd
     import harness.studies.sim_dataset as sds
     import harness.studies.table1 as t1
@@ -273,6 +277,10 @@ def _no_work(monkeypatch):
     monkeypatch.setattr(trd, "train", boom)
     monkeypatch.setattr(evd, "evaluate", boom)
     monkeypatch.setitem(ree.REEVALUATORS, "accuracy", boom)
+    monkeypatch.setattr(evf, "run_study", boom)
+    monkeypatch.setattr(ff, "run_study", boom)
+    monkeypatch.setattr(demos, "collect_demonstrations", boom)
+    monkeypatch.setattr(bes, "bench", boom)
 
 
 def _commands(tmp_path, synthetic_ball_coco):
@@ -293,11 +301,16 @@ def _commands(tmp_path, synthetic_ball_coco):
         "reevaluate --json": lambda p: ["reevaluate", str(log), "--json", p],
         "reevaluate --plot": lambda p: ["reevaluate", str(log), "--plot", p + ".png"],
         "eval detector --json": lambda p: ["eval", "detector", "--data", data, "--json", p],
+        "eval filters --json": lambda p: ["eval", "filters", "--no-real", "--sim", "2", "--json", p],
+        "sim fit-flight --json": lambda p: ["sim", "fit-flight", "--json", p],
+        "learn promp --out": lambda p: ["learn", "promp", "--out", p + ".npz"],
+        "bench estimator --json": lambda p: ["bench", "estimator", "--json", p],
     }
 
 
 COMMANDS_WITH_OUTPUTS = ["accuracy --out", "accuracy --json", "sim dataset --out", "sim table1 --json", "train --out",
-                         "reevaluate --json", "reevaluate --plot", "eval detector --json"]
+                         "reevaluate --json", "reevaluate --plot", "eval detector --json", "eval filters --json",
+                         "sim fit-flight --json", "learn promp --out", "bench estimator --json"]
 
 
 def _one_line_exit_2(argv, capsys, *patterns):

@@ -38,7 +38,6 @@ the observations with an immediate verdict (not ``pending``, i.e. not in ``ransa
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -347,6 +346,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from harness.outputs import atomic_write_json, check_output_file
+
+    check_output_file(args.json, "--json")  # before the study, not after
     if not 0.0 <= args.outlier_rate < 1.0:
         raise ValueError(f"--outlier-rate must be in [0, 1), got {args.outlier_rate}")
     if args.sim < 0 or (args.no_real and args.sim == 0):
@@ -370,5 +372,5 @@ def run(args: argparse.Namespace) -> int:
         f"{k}: update {v['update_ms']:.3f}, initialising update {v['init_ms']:.2f}, predict 600 points "
         f"{v['predict_600_ms']:.2f}" for k, v in times.items()))
     if args.json:
-        args.json.write_text(json.dumps(rows, indent=1))
+        atomic_write_json(args.json, rows, "--json")
     return 0

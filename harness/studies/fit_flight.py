@@ -19,7 +19,10 @@ the spin prior of the flight's **launcher setting** (wheel speeds and angles, ``
 what the lab sets, so known before the serve) learned from the fit set only -- mean and covariance of
 the spins the joint fit gave the fit flights of that setting, plus ``min_std`` rad/s on the diagonal,
 ``min_std`` chosen by leave-one-flight-out on the fit set. Row ``full-launcher-mix``: the setting is
-not known; the mixture of the settings' priors (eq. 8, Laplace evidence).
+not known; the mixture of the settings' priors (eq. 8, Laplace evidence). Row
+``full-launcher-recognised``: the setting is not told either, but recognised from the launch
+velocity of the 20 samples (each setting's wheels give their own; a Gaussian per setting over the
+fit flights' launch velocities), then that setting's prior.
 
 Row ``full-known-spin`` is a diagnostic, not a predictor: the same 20-sample estimate with the spin
 held at the value that fits the whole held-out flight, i.e. how good prediction gets once the spin
@@ -31,7 +34,6 @@ from __future__ import annotations
 import argparse
 import csv
 import datetime
-import json
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -254,6 +256,29 @@ def _launcher_options(f: Flight, priors: dict, options: EstimatorOptions) -> Est
     return replace(options, spin_prior_mean_rad_s=mean, spin_prior_cov_rad2_s2=cov)
 
 
+def launch_velocity(t_s: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(3,) velocity (m/s) at the first of the given samples, from a per-axis quadratic fit."""
+    return np.polynomial.polynomial.polyfit(t_s - t_s[0], X, 2)[1]
+
+
+def launch_velocity_model(flights: list[Flight], min_std_mps: float = 0.02) -> dict[tuple, tuple]:
+    """Per launcher setting: ``(weight, mean (3,), std (3,))`` of the launch velocities of ``flights``'
+    first ``N_OBSERVED`` samples (the fit set), std floored at ``min_std_mps``."""
+    groups: dict[tuple, list] = {}
+    for f in flights:
+        groups.setdefault(launcher_setting(f), []).append(launch_velocity(f.t_s[:N_OBSERVED], f.X[:N_OBSERVED]))
+    return {k: (len(v) / len(flights), np.mean(v, axis=0), np.maximum(np.std(v, axis=0), min_std_mps))
+            for k, v in groups.items()}
+
+
+def recognise_setting(t_s: np.ndarray, X: np.ndarray, model: dict) -> tuple:
+    """The launcher setting whose launch-velocity Gaussian (``launch_velocity_model``) is most probable
+    for these samples (largest posterior with the settings' shares as prior)."""
+    v = launch_velocity(t_s, X)
+    score = {k: np.log(w) - np.sum(np.log(sd) + 0.5 * ((v - mu) / sd) ** 2) for k, (w, mu, sd) in model.items()}
+    return max(score, key=score.get)
+
+
 def _truth_index(f: Flight, t_target: float) -> int | None:
     i = int(np.argmin(np.abs(f.t_s - t_target)))
     return i if abs(f.t_s[i] - t_target) <= MATCH_TOL_S else None
@@ -269,13 +294,17 @@ def whole_flight_spin(f: Flight, params: BallParams, table: TableGeometry, optio
 
 def prediction_errors(flights: list[Flight], params: BallParams, table: TableGeometry, method: str,
                       options: EstimatorOptions, ekf_options: EKFOptions | None = None,
-                      mixture: list | None = None, launcher_priors: dict | None = None) -> dict:
+                      mixture: list | None = None, launcher_priors: dict | None = None,
+                      launch_model: dict | None = None) -> dict:
     """Step 4: errors (m) per horizon over ``flights``; ``method`` is "map", "mixture", "ekf", "launcher"
     (MAP with the spin prior of the flight's launcher setting, ``launcher_priors`` from
-    :func:`launcher_spin_priors`) or "known-spin" (the diagnostic: position and velocity from the 20
-    samples, the spin from the whole flight)."""
+    :func:`launcher_spin_priors`), "recognised" (the same with the setting recognised from the launch
+    velocity, ``launch_model`` from :func:`launch_velocity_model`; ``recognised`` in the result counts the
+    flights whose setting was recognised right) or "known-spin" (the diagnostic: position and velocity
+    from the 20 samples, the spin from the whole flight)."""
     errors = {h: [] for h in HORIZONS_MS}
     skipped = {h: 0 for h in HORIZONS_MS}
+    recognised = 0
     for f in flights:
         t_obs, X_obs = f.t_s[:N_OBSERVED], f.X[:N_OBSERVED]
         if method == "map":
@@ -286,6 +315,12 @@ def prediction_errors(flights: list[Flight], params: BallParams, table: TableGeo
                 options, estimate_spin=False, spin_prior_mean_rad_s=tuple(spin)))
         elif method == "launcher":
             est, _ = fit_initial_state(t_obs, X_obs, params, table, _launcher_options(f, launcher_priors, options))
+        elif method == "recognised":
+            setting = recognise_setting(t_obs, X_obs, launch_model)
+            recognised += setting == launcher_setting(f)
+            mean, cov = launcher_priors[setting]
+            est, _ = fit_initial_state(t_obs, X_obs, params, table, replace(
+                options, spin_prior_mean_rad_s=mean, spin_prior_cov_rad2_s2=cov))
         elif method == "mixture":
             est, _ = fit_initial_state_mixture(t_obs, X_obs, mixture, params, table, options)
         else:
@@ -303,7 +338,7 @@ def prediction_errors(flights: list[Flight], params: BallParams, table: TableGeo
                 continue
             errors[h].append(float(np.linalg.norm(pos[k] - f.X[i])))
             k += 1
-    return {"errors_m": errors, "skipped": skipped}
+    return {"errors_m": errors, "skipped": skipped, "recognised": recognised}
 
 
 def summarise(model: str, result: dict) -> list[dict]:
@@ -369,6 +404,10 @@ def run_study(data: Path, seed: int, *, max_per_set: int | None = None, max_nfev
     setting_mix = [(weights[k], mean, cov) for k, (mean, cov) in priors.items()]
     out["rows"] += summarise("full-launcher-mix", prediction_errors(held, p_full, t_full, "mixture", EstimatorOptions(),
                                                                     mixture=setting_mix))
+    rec = prediction_errors(held, p_full, t_full, "recognised", EstimatorOptions(), launcher_priors=priors,
+                            launch_model=launch_velocity_model(fit))
+    out["rows"] += summarise("full-launcher-recognised", rec)
+    out["launcher_recognised"] = f"{rec['recognised']}/{len(held)}"
     # Not a predictor: how good the 20-sample prediction gets when the spin is known (from the whole flight).
     out["rows"] += summarise("full-known-spin", prediction_errors(held, p_full, t_full, "known-spin", full_opts))
     out["params"] = {m: _model_params(m, out["fits"][m]["values"])[0] for m in ("baseline", "full")}
@@ -410,6 +449,8 @@ def format_report(out: dict) -> str:
     for p in out["launcher_spin_priors"]:
         wheels = ", ".join(f"{k}={v:g}" for k, v in p["setting"].items())
         lines.append(f"  {wheels}: mean {p['mean_rad_s']} rad/s, std {p['std_rad_s']} rad/s")
+    lines.append(f"full-launcher-recognised: the setting recognised from the launch velocity for "
+                 f"{out['launcher_recognised']} held-out flights")
     return "\n".join(lines)
 
 
@@ -443,6 +484,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from harness.outputs import atomic_write_json, check_output_file
+
+    check_output_file(args.json, "--json")  # before the study, not after
     if args.max_per_set is not None and args.max_per_set < 2:
         raise ValueError(f"--max-per-set must be >= 2 (one fit, one held-out flight per set), got {args.max_per_set}")
     if args.max_nfev < 1:
@@ -450,7 +494,7 @@ def run(args: argparse.Namespace) -> int:
     out = run_study(args.data, args.seed, max_per_set=args.max_per_set, max_nfev=args.max_nfev)
     print(format_report(out))
     if args.json:
-        args.json.write_text(json.dumps(out["rows"], indent=1))
+        atomic_write_json(args.json, out["rows"], "--json")
     if args.save_params:
         cmd = f"rt2 sim fit-flight --seed {args.seed} --save-params {args.save_params}"
         if args.max_per_set is not None:
