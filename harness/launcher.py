@@ -19,6 +19,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from harness.physics import BallWorld, EventKind, WorldOptions
+from harness.seeding import rng_from
 from policies.ball_model import BallParams, TableGeometry, simulate
 
 __all__ = ["BallLauncher", "LauncherOptions", "Serve", "SPIN_KINDS"]
@@ -81,12 +82,10 @@ class BallLauncher:
     def __init__(self, params: BallParams | None = None, options: LauncherOptions = LauncherOptions(), *,
                  world: WorldOptions = WorldOptions(), seed: int | None = None,
                  rng: np.random.Generator | None = None):
-        if rng is not None and seed is not None:
-            raise ValueError("give either seed or rng, not both")
+        self.rng = rng_from(seed, rng, "BallLauncher")  # required: never OS entropy
         self.params = params or BallParams.load()  # fitted defaults, data/ball_params.yaml
         self.options = options
         self.world = world
-        self.rng = rng if rng is not None else np.random.default_rng(seed)
 
     @property
     def table(self) -> TableGeometry:

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from harness.seeding import rng_from
 from robot_models.robot_interface import JointTrajectory
 from robot_models.ik import IkOptions, solve_ik
 
@@ -132,7 +133,7 @@ def random_via_trajectory(kin, box_world_m=BALL_BOX_WORLD_M, *, q_start=None,
     q0 = kin.check_q(kin.q_home if q_start is None else q_start, "q_start")
     if q0.ndim != 1:
         raise ValueError(f"q_start must have shape ({kin.n_joints},), got {q0.shape}")
-    rng = rng if rng is not None else np.random.default_rng(seed)
+    rng = rng_from(seed, rng, "random_via_trajectory")  # required: never OS entropy
     axis = None
     if options.tool_axis_world is not None:
         axis = np.asarray(options.tool_axis_world, float)

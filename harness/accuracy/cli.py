@@ -16,6 +16,7 @@ from pathlib import Path
 from harness.accuracy.config import DEFAULT_FRAMES, DEFAULT_LOG_IMAGES, QUICK_FRAMES, AccuracyConfig
 from harness.accuracy.scene import SCENES
 from harness.accuracy.stats import TRACKER_KINDS, check_goals, fmt, format_goals, format_table
+from harness.executor import add_sweep_arguments, options_from_args
 from harness.logs.codecs import IMAGE_FORMATS
 
 __all__ = ["add_arguments", "events_line", "format_report", "realism_line", "run"]
@@ -29,8 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=None, metavar="N",
                         help=f"frame sets (default {DEFAULT_FRAMES}, --quick {QUICK_FRAMES})")
     parser.add_argument("--rate-hz", type=float, default=200.0, metavar="R", help="camera frame rate (default 200)")
-    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), metavar="W",
-                        help="worker processes rendering and tracking segments of frames (default: 2, or 1 on one core)")
+    add_sweep_arguments(parser, workers_default=min(2, os.cpu_count() or 1))  # --workers W, --ray [ADDRESS]
     parser.add_argument("--json", metavar="PATH", help="also write the per-tracker error statistics here (a JSON list)")
     parser.add_argument("--rig", default="lab4_vga", help="rig name or file (default lab4_vga)")
     parser.add_argument("--model", default=None, metavar="PATH", help="segmentation model .npz (default data/models/ball_seg_default.npz)")
@@ -138,9 +138,12 @@ def run(args) -> int:
 
     config = config_from_args(args)
     check_output_file(args.json, "--json")  # before the run, not after
-    res = run_accuracy(config, args.out, workers=args.workers, log=not args.no_log, log_images=args.log_images,
+    res = run_accuracy(config, args.out, sweep=options_from_args(args), log=not args.no_log, log_images=args.log_images,
                        image_format=args.log_image_format)
     m = res.motion_info
+    if res.partial:
+        print(f"PARTIAL ({res.partial['reason']}): the figures below score the {res.partial['frames_done']} of "
+              f"{config.n_frames} frame sets that finished")
     header = (f"rt2 accuracy: seed {config.seed}, {config.n_frames} frame sets at {config.rate_hz:g} Hz "
               f"({config.n_frames / config.rate_hz:.1f} s), rig {config.rig}, {args.workers} worker(s), "
               f"{res.timing['wall_s']:.0f} s\n"
@@ -155,5 +158,5 @@ def run(args) -> int:
             f"{k[:-3]} {v['median']:.1f} / {v['p99']:.1f} / {v['max']:.1f}" for k, v in t.items() if v))
     if args.json:
         atomic_write_json(args.json, res.rows, "--json")
-    print("\nwrote: " + ", ".join(str(p) for p in res.paths.values()))
-    return 0
+    print("\nwrote: " + ", ".join(str(p) for p in res.paths.values()) + (" (partial)" if res.partial else ""))
+    return res.partial["exit_code"] if res.partial else 0

@@ -9,15 +9,19 @@ cameras and run every tracker on the same images (:mod:`.frames`, in worker proc
 register the robot base to the camera world on the first ``register_fraction`` of the run and score the
 rest (:mod:`.evaluate`); write the histogram (PNG, PDF), ``accuracy.json`` (the ``--json`` list),
 ``summary.json`` (figures + timing) and the session log ``session.mcap`` into the output folder.
+
+Segments run on :mod:`harness.executor` (this process, local worker processes, or Ray). Stopped early
+(SIGINT, SIGTERM, a lost worker): the frames that finished are scored (when enough of them register the
+robot), the outputs are written with ``"partial"`` (rows) and ``partial`` (summary.json: why, frames done),
+the session log is closed with the reason, and :attr:`AccuracyResult.partial` says so.
 """
 
 from __future__ import annotations
 
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+import uuid
 from dataclasses import dataclass, field
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +36,7 @@ from harness.accuracy.scene import SessionScene
 from harness.accuracy.rig_error import estimated_rig
 from harness.accuracy.session_log import AccuracyLogWriter
 from harness.accuracy.stats import check_goals
+from harness.executor import Executor, SweepOptions, SweepStopped, in_task_order
 from harness.logs import check_log_images
 from harness.outputs import atomic_write_json, check_output_dir
 from harness.rigs import resolve_rig
@@ -66,6 +71,7 @@ class AccuracyResult:
     calibration_error: dict = field(default_factory=dict)
     truth: dict = field(default_factory=dict)
     paths: dict = field(default_factory=dict)
+    partial: dict | None = None  #: stopped early: {"reason", "frames_done", "exit_code"}; None = complete
 
 
 def _robot(config):
@@ -83,17 +89,20 @@ def _check_model(config) -> None:
 
 def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool = True,
                  log_images=DEFAULT_LOG_IMAGES, image_format: str = "png", log_flush_s: float = 1.0,
-                 progress: bool = True) -> AccuracyResult:
+                 progress: bool = True, sweep: SweepOptions | None = None) -> AccuracyResult:
     """Run the experiment (see the module docstring); outputs go to ``out_dir`` (created, files replaced).
 
-    workers : processes rendering and tracking segments (1 = this process); log : write ``session.mcap``
-    with images every ``log_images`` frame sets ("all", "none", N) in ``image_format``, flushed at least
-    every ``log_flush_s`` seconds; progress : a tqdm bar on stderr
+    workers : processes rendering and tracking segments (1 = this process); sweep : where the segments run
+    (overrides ``workers``; e.g. Ray); log : write ``session.mcap`` with images every ``log_images`` frame
+    sets ("all", "none", N) in ``image_format``, flushed at least every ``log_flush_s`` seconds;
+    progress : a tqdm bar on stderr. Stopped early: see the module docstring; if too few frames finished to
+    register the robot, raises ValueError after closing the log (no figures to write).
     """
     if not isinstance(config, AccuracyConfig):
         raise ValueError(f"config must be an AccuracyConfig, got {type(config).__name__}")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    sweep = sweep if sweep is not None else SweepOptions(workers=workers)
     every = check_log_images(log_images) if log else 0
     _check_model(config)
     out = check_output_dir(out_dir, "--out")  # a file there, a folder that cannot be written, a full disk: now
@@ -121,18 +130,37 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
     from tqdm import tqdm
 
     bar = tqdm(total=n, desc="accuracy", unit="frame", file=sys.stderr, disable=not progress, smoothing=0.05)
+    partial, done = None, np.zeros(n, bool)
     try:
-        for fr in _frames(config, rig, tracker_rig, motion, kin, open_log, workers, every, stats, bar):
-            writer = session.get("writer")
-            for kind, obs in fr.observations.items():
-                records[kind].put(fr.index, obs)
-                latency[kind][fr.index] = obs.latency_s
-            if writer is not None:
-                writer.write_frame(fr)
+        try:
+            with Executor(sweep) as ex:
+                for fr in _frames(config, rig, tracker_rig, motion, kin, open_log, ex, every, stats, bar):
+                    writer = session.get("writer")
+                    for kind, obs in fr.observations.items():
+                        records[kind].put(fr.index, obs)
+                        latency[kind][fr.index] = obs.latency_s
+                    if writer is not None:
+                        writer.write_frame(fr)
+                    done[fr.index] = True
+        except SweepStopped as stop:  # keep what finished: score it if enough frames register the robot
+            partial = {"reason": str(stop), "frames_done": int(done.sum()), "exit_code": stop.exit_code}
+            if not done.any():
+                raise ValueError(f"accuracy: {stop} before any frame set finished") from None
         t_frames = time.perf_counter() - t0
-        figures, errors = evaluate(config, records, motion.gt_world_m, np.ones(n, bool), motion.T_base_to_world, rig.names)
+        try:
+            figures, errors = evaluate(config, records, motion.gt_world_m, np.ones(n, bool), motion.T_base_to_world, rig.names)
+        except ValueError as exc:
+            if partial is None:
+                raise
+            raise ValueError(f"accuracy: {partial['reason']} after {partial['frames_done']} of {n} frame sets: too few "
+                             f"to score ({exc}); the finished frames are in the session log") from None
+        if partial is not None:
+            figures["partial"] = partial
+            for row in figures["rows"]:
+                row["partial"] = True
         timing = {
-            "wall_s": round(time.perf_counter() - t0, 2), "frames_wall_s": round(t_frames, 2), "workers": workers,
+            "wall_s": round(time.perf_counter() - t0, 2), "frames_wall_s": round(t_frames, 2),
+            "workers": sweep.workers, "backend": sweep.backend,
             "latency_ms": {k: {"p50": round(float(np.nanmedian(v)) * 1e3, 3), "p99": round(float(np.nanpercentile(v, 99)) * 1e3, 3)}
                            for k, v in latency.items()},
         }
@@ -140,14 +168,16 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
         result = AccuracyResult(config, figures["rows"], figures, errors, timing, motion.info, stats,
                                 scene_events=events.summary(float(motion.t_s[-1]), float(motion.t_s[0])),
                                 rtblob_calibration=session.get("rtblob_calibration"), calibration_error=cal_error,
-                                truth=_against_truth(config, records, motion, figures))
+                                truth=_against_truth(config, records, motion, figures), partial=partial)
         write_outputs(result, out)
         if session.get("writer") is not None:
-            session.pop("writer").finish(figures, extra={"timing": timing})
+            extra = {"timing": timing, **({"partial": partial} if partial else {})}
+            session.pop("writer").finish(figures, extra=extra)
             result.paths["log"] = out / "session.mcap"
     except BaseException as exc:
         if session.get("writer") is not None:
-            session.pop("writer").close(error=f"{type(exc).__name__}: {exc}")
+            reason = partial["reason"] + ", partial" if partial else f"{type(exc).__name__}: {exc}"
+            session.pop("writer").close(error=reason)
         raise
     finally:
         bar.close()
@@ -191,11 +221,12 @@ def _add_stats(total: dict, part: dict) -> None:
             acc[key] = acc.get(key, 0) + v
 
 
-def _frames(config, rig, tracker_rig, motion, kin, open_log, workers: int, every: int, stats: dict, bar):
-    """Yield FrameResults in frame order, from this process or from a pool of worker processes;
+def _frames(config, rig, tracker_rig, motion, kin, open_log, executor: Executor, every: int, stats: dict, bar):
+    """Yield FrameResults in frame order, from this process or from the executor's workers;
     ``open_log(rtblob_calibration)`` is called before the first frame."""
     segments = config.segments()
-    one_process = workers == 1 or len(segments) == 1 or (0 < every < _MIN_LOG_EVERY_FOR_WORKERS)
+    opts = executor.options
+    one_process = (opts.ray_address is None and opts.workers == 1) or len(segments) == 1 or (0 < every < _MIN_LOG_EVERY_FOR_WORKERS)
     if one_process:
         producer = FrameProducer(config, rig, motion, kin.link_radii_m, tracker_rig=tracker_rig, log_images_every=every)
         cal = producer.calibration()
@@ -210,18 +241,16 @@ def _frames(config, rig, tracker_rig, motion, kin, open_log, workers: int, every
         finally:
             producer.close()
         return
-    ctx = get_context("spawn")  # fresh interpreters: no forked locks from OpenCV / numba threads
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(segments)), mp_context=ctx, initializer=init_worker,
-                               initargs=(config, rig, tracker_rig, motion, kin.link_radii_m, every))
-    try:
-        cal = pool.submit(calibrate).result()
-        open_log(cal)
-        for frames, seg_stats in pool.map(run_segment, [(a, b, cal) for a, b in segments]):
-            _add_stats(stats, seg_stats)
-            bar.update(len(frames))
-            yield from frames
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)  # on an error, do not start the remaining segments
+    # workers build their producer (renderer, scene) once: both maps share the initialization
+    setup = {"initializer": init_worker, "initargs": (config, rig, tracker_rig, motion, kin.link_radii_m, every),
+             "init_key": uuid.uuid4().hex}
+    (_, cal), = list(executor.map(calibrate, [None], **setup))
+    open_log(cal)
+    tasks = [(a, b, cal) for a, b in segments]
+    for _, (frames, seg_stats) in in_task_order(executor.map(run_segment, tasks, **setup)):
+        _add_stats(stats, seg_stats)
+        bar.update(len(frames))
+        yield from frames
 
 
 def write_outputs(result: AccuracyResult, out: Path, *, stem: str = "accuracy") -> dict:
@@ -229,7 +258,10 @@ def write_outputs(result: AccuracyResult, out: Path, *, stem: str = "accuracy") 
     cfg = result.config
     title = (f"accuracy: ball on the WAM, {cfg.n_frames} frame sets at {cfg.rate_hz:g} Hz, seed {cfg.seed}, "
              f"{result.figures['n_scored']} scored\n{cfg.realism}")
-    png, pdf = plot_histogram(result.errors, [out / f"{stem}_hist.png", out / f"{stem}_hist.pdf"], title=title)
+    if result.partial is None:
+        png, pdf = plot_histogram(result.errors, [out / f"{stem}_hist.png", out / f"{stem}_hist.pdf"], title=title)
+    else:  # stopped early: within the 2 s a signal allows, no figure (its numbers are in the JSON files)
+        png = pdf = None
     js = out / f"{stem}.json"
     atomic_write_json(js, result.rows, "--out")
     summary = out / "summary.json"
@@ -239,5 +271,5 @@ def write_outputs(result: AccuracyResult, out: Path, *, stem: str = "accuracy") 
            "against_true_ball": result.truth,
            "tracker_stats": result.tracker_stats, "timing": result.timing}
     atomic_write_json(summary, doc, "--out", default=float)
-    result.paths.update({"png": png, "pdf": pdf, "json": js, "summary": summary})
+    result.paths.update({**({"png": png, "pdf": pdf} if png else {}), "json": js, "summary": summary})
     return result.paths

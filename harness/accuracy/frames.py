@@ -143,7 +143,7 @@ _WORKER: FrameProducer | None = None
 
 
 def init_worker(config, rig, tracker_rig, motion, link_radii_m, log_images_every: int) -> None:
-    """Process-pool initializer: build this process's producer (renderer, scene) once."""
+    """Worker initializer: build this process's producer (renderer, scene) once."""
     import cv2
 
     global _WORKER
@@ -151,13 +151,13 @@ def init_worker(config, rig, tracker_rig, motion, link_radii_m, log_images_every
     _WORKER = FrameProducer(config, rig, motion, link_radii_m, tracker_rig=tracker_rig, log_images_every=log_images_every)
 
 
-def calibrate() -> dict | None:
-    """Process-pool task: RTBlob's calibration (see :meth:`FrameProducer.calibration`)."""
+def calibrate(_task=None) -> dict | None:
+    """Worker task: RTBlob's calibration (see :meth:`FrameProducer.calibration`)."""
     return _WORKER.calibration()
 
 
 def run_segment(task: tuple) -> tuple[list[FrameResult], dict]:
-    """Process-pool task ``(start, stop, rtblob_calibration)``: one segment's FrameResults and tracker stats."""
+    """Worker task ``(start, stop, rtblob_calibration)``: one segment's FrameResults and tracker stats."""
     start, stop, rtblob_calibration = task
     _WORKER.start(rtblob_calibration)
     frames = list(_WORKER.segment(start, stop))

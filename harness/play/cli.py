@@ -1,6 +1,6 @@
 """``rt2 play`` and ``rt2 play compare``: playing sessions in closed loop, success rates with Wilson 95 % CIs.
 
-    rt2 play --tracker rt2 --filter raw --balls 100 --seed 0 [--source synthetic|vision] [--workers 2]
+    rt2 play --tracker rt2 --filter raw --balls 100 --seed 0 [--source synthetic|vision] [--workers 2] [--ray [ADDRESS]]
     rt2 play compare --balls 500 --seed 0 [--trackers rt2 rtblob] [--filters raw ransac_kalman]
     rt2 play profile --balls 20 --seed 0            # measure the synthetic profiles from the vision source
 
@@ -9,6 +9,10 @@ table on stdout, ``--json PATH`` (a list of objects with keys tracker, filter, b
 success_rate, ci_low, ci_high, source, outcomes, ...), a bar chart ``<out>/play_<mode>_<source>_s<seed>.png``
 and ``.pdf``, and one MCAP session log per configuration in ``--out`` (``--no-log`` to skip; images are
 off unless ``--log-images``). See docs/play.md.
+
+Stopped early (SIGINT, SIGTERM, a lost worker): the configurations done and the balls of the running one
+that finished are printed and written (``"partial": true`` on that row), its session log is closed with
+the reason, no figure is drawn; exit code 128 + signal.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import datetime
 import json
 from pathlib import Path
 
+from harness.executor import Executor, add_sweep_arguments, options_from_args
 from harness.play.experiment import DEFAULT_PROMP, PlayConfig, run_configuration, summarise
 from harness.play.profiles import PROFILE_SETS, PROFILES, load_profiles, profile_for
 
@@ -42,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="vision source: what else the cameras see, a preset of harness.play.scene.SCENES: default "
                              "(a person, white clutter), second_ball (the person holds an orange ball), harsh (orange "
                              "clutter), clean (the arm and the ball)")
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (results do not depend on it)")
+    add_sweep_arguments(parser)
     parser.add_argument("--rate-hz", type=float, default=None, help="tracker frame rate (default: rt2 180, rtblob 60)")
     parser.add_argument("--latency-ms", type=float, default=None, help="tracker latency (default 10 ms)")
     parser.add_argument("--profiles", default="vision", choices=sorted(PROFILE_SETS),
@@ -63,8 +68,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _check(args) -> None:
     if args.balls < 1:
         raise ValueError(f"--balls must be >= 1, got {args.balls}")
-    if args.workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {args.workers}")
     if args.rate_hz is not None and not args.rate_hz > 0:
         raise ValueError(f"--rate-hz must be > 0, got {args.rate_hz}")
     if args.latency_ms is not None and not 0 <= args.latency_ms < 1000:
@@ -120,41 +123,58 @@ def run(args) -> int:
 
     kin = WamKinematics.default()
     ProMP.load(args.promp, robot_id=str(kin.model.name), joint_names=kin.joint_names)  # fails here, not in a worker
-    rows, logs = [], []
-    for config in _configs(args, profiles):
-        log, path = _open_log(args, config) if not args.no_log else (None, None)
-        try:
-            def on_ball(i, result, record, serve, _log=log, _tracker=config.tracker):
-                if _log is not None:
-                    from harness.play.log import write_ball
+    rows, logs, stopped = [], [], []
+    with Executor(options_from_args(args)) as executor:
+        for config in _configs(args, profiles):
+            log, path = _open_log(args, config) if not args.no_log else (None, None)
+            logs += [path] if path is not None else []
+            error = None
+            try:
+                def on_ball(i, result, record, serve, _log=log, _tracker=config.tracker):
+                    if _log is not None:
+                        from harness.play.log import write_ball
 
-                    write_ball(_log, i, _tracker, result, record, serve, kinematics=kin)
+                        write_ball(_log, i, _tracker, result, record, serve, kinematics=kin)
 
-            results = run_configuration(config, balls=args.balls, seed=args.seed, workers=args.workers,
-                                        progress=not args.quiet, on_ball=on_ball)
-            row = summarise(config, results, args.seed)
-            row["profiles" if config.source == "synthetic" else "scene"] = args.profiles if config.source == "synthetic" else args.scene
-            if log is not None:
-                log.write_figures("summary", row)
-        finally:
-            if log is not None:
-                log.close()
-        if path is not None:
-            row["log"] = str(path)
-            logs.append(path)
-        rows.append(row)
-    _print(rows, args)
+                results = run_configuration(config, balls=args.balls, seed=args.seed, progress=not args.quiet,
+                                            on_ball=on_ball, executor=executor, stopped=stopped)
+                if not results:  # stopped before the first ball of this configuration finished
+                    error = f"{stopped[0]} before any ball finished"
+                    break
+                row = summarise(config, results, args.seed)
+                row["profiles" if config.source == "synthetic" else "scene"] = args.profiles if config.source == "synthetic" else args.scene
+                if stopped:
+                    row["partial"] = True
+                    error = f"{stopped[0]}: partial, {len(results)} of {args.balls} balls finished"
+                if log is not None:
+                    log.write_figures("summary", row)
+            except BaseException as exc:
+                error = f"{type(exc).__name__}: {exc}"
+                raise
+            finally:
+                if log is not None:
+                    log.close(error=error)
+            if path is not None:
+                row["log"] = str(path)
+            rows.append(row)
+            if stopped:
+                break
+    if stopped:
+        print(f"PARTIAL ({stopped[0]}): {len(rows)} configuration(s) reported, the last one "
+              f"{'with the balls that finished' if rows and rows[-1].get('partial') else 'complete'}; no figure")
+    if rows:
+        _print(rows, args)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(rows, indent=1))
-    if not args.no_figure:
+    if not args.no_figure and not stopped:
         from harness.play.figure import draw
 
         for p in draw(rows, args.out / f"play_{args.mode}_{args.source}_s{args.seed}", title=_title(args)):
             print(f"figure: {p}")
     for p in logs:
         print(f"session log: {p}")
-    return 0
+    return stopped[0].exit_code if stopped else 0
 
 
 def _title(args) -> str:

@@ -4,14 +4,14 @@ Seeds: ball i of a run with ``seed`` uses ``SeedSequence(seed).spawn(balls)[i]``
 seed (the launcher) and the session's (observation noise, the WAM's zero offsets and noise, the frame
 phase). So every configuration of ``rt2 play compare`` plays the same served balls with the same robot
 errors (common random numbers), and the results do not depend on ``--workers`` or on the order the
-workers finish in (results are put back in ball order).
+workers finish in (results are put back in ball order). The balls run on :mod:`harness.executor` (this
+process, local worker processes, or Ray: ``--ray``).
 
 The success rate's 95 % interval is Wilson's score interval (scipy ``binomtest(...).proportion_ci``).
 """
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from harness.executor import Executor, SweepOptions, SweepStopped
 from harness.play.profiles import PROFILES, TrackerProfile, profile_for
 
 __all__ = ["PlayConfig", "ball_seeds", "run_configuration", "summarise", "wilson_interval"]
@@ -68,10 +69,10 @@ def _build(config: PlayConfig):
     """The session objects of one configuration (once per worker process)."""
     from threadpoolctl import threadpool_limits
 
-    from harness.launcher import BallLauncher
     from harness.play.session import PlaySession
     from harness.play.sources import make_source
     from harness.rigs import resolve_rig
+    from policies.ball_model import BallParams
     from policies.filters import make_filter
     from policies.hitting import HittingOptions
     from policies.promp import ProMP
@@ -93,7 +94,7 @@ def _build(config: PlayConfig):
     source = make_source(config.source, rig, profile, **kwargs)
     session = PlaySession(kin, promp, source, lambda: make_filter(config.filter), profile,
                           policy_options=HittingOptions(**config.policy))
-    return {"config": config, "session": session, "launcher_params": BallLauncher().params}
+    return {"config": config, "session": session, "launcher_params": BallParams.load()}
 
 
 def _play_one(args):
@@ -111,35 +112,46 @@ def _play_one(args):
 
 
 def run_configuration(config: PlayConfig, *, balls: int, seed: int, workers: int = 1, progress: bool = True,
-                      on_ball=None) -> list:
+                      on_ball=None, executor: Executor | None = None, stopped: list | None = None) -> list:
     """Play ``balls`` balls of ``config``; returns the BallResults in ball order.
 
-    on_ball(index, result, record, serve) is called in the parent, in ball order (e.g. to log)."""
+    on_ball(index, result, record, serve) is called in the parent, in ball order (e.g. to log).
+    executor : an open :class:`harness.executor.Executor` to run on (default: ``workers`` local processes);
+    stopped : if a list is given, a sweep stopped early (:class:`harness.executor.SweepStopped`) is appended
+    to it and the balls that finished are handed to ``on_ball`` and returned (ball order, gaps skipped);
+    else the stop propagates."""
     if balls < 1:
         raise ValueError(f"balls must be >= 1, got {balls}")
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+    if executor is None:
+        with Executor(SweepOptions(workers=workers)) as ex:
+            return run_configuration(config, balls=balls, seed=seed, progress=progress, on_ball=on_ball, executor=ex,
+                                     stopped=stopped)
     jobs = [(config, int(seed), i) for i in range(balls)]
     desc = f"play {config.tracker}+{config.filter} ({config.source})"
     results, buffered, next_i = [None] * balls, {}, 0
+
+    def hand_on(i, item):
+        results[i] = item[0]
+        if on_ball is not None:
+            on_ball(i, *item)
+
     bar = tqdm(total=balls, desc=desc, file=sys.stderr, disable=not progress, leave=False)
-    pool = mp.get_context("fork").Pool(workers) if workers > 1 else None
     try:
-        it = pool.imap_unordered(_play_one, jobs) if pool else map(_play_one, jobs)
-        for index, result, record, serve in it:
+        for _, (index, result, record, serve) in executor.map(_play_one, jobs):
             buffered[index] = (result, record, serve)
             bar.update(1)
             while next_i in buffered:  # hand results on in ball order
-                r, rec, sv = buffered.pop(next_i)
-                results[next_i] = r
-                if on_ball is not None:
-                    on_ball(next_i, r, rec, sv)
+                hand_on(next_i, buffered.pop(next_i))
                 next_i += 1
+    except SweepStopped as stop:
+        if stopped is None:
+            raise
+        stopped.append(stop)
+        for i in sorted(buffered):  # finished after a ball still running: keep them too
+            hand_on(i, buffered.pop(i))
+        return [r for r in results if r is not None]
     finally:
         bar.close()
-        if pool is not None:
-            pool.terminate()
-            pool.join()
     return results
 
 

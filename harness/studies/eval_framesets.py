@@ -29,6 +29,11 @@ is a wrong answer). A ball is *seen* by a camera when the renderer labels it the
 
 Trackers: ``rt2`` (ours, with the 3D size test at ``--max-size-ratio``), ``rt2-no-size`` (ours without it:
 ``max_size_ratio=None``) and ``rt2-paper`` (Algorithms 1 and 2 as published).
+
+The frame sets run in chunks of ``CHUNK`` on :mod:`harness.executor` (``--workers``, ``--ray``); every
+frame set depends only on ``(seed, f)`` and the trackers are reset in between, so the figures do not
+depend on the backend or the number of workers. Stopped early (SIGINT, SIGTERM, a lost worker): the
+figures of the chunks that finished are printed and written with ``"partial": true``.
 """
 
 from __future__ import annotations
@@ -39,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.executor import SweepOptions, add_sweep_arguments, options_from_args, run_sweep
+
 __all__ = ["TRACKERS", "FramesetScores", "add_arguments", "evaluate", "format_table", "run", "cameras_with_ball", "score_frameset", "trackable_views"]
 
 #: name -> (Tracker kind, Tracker option overrides)
@@ -48,6 +55,7 @@ TRACKERS = {
     "rt2-paper": ("rt2-paper", {}),
 }
 GOALS = {"wrong_ok_rate": 0.01}
+CHUNK = 20  #: frame sets per task
 
 
 @dataclass
@@ -91,6 +99,15 @@ class FramesetScores:
     @property
     def median_error_cm(self) -> float:
         return float(np.median(self.errors_cm)) if self.errors_cm else float("nan")
+
+    def merge(self, other: "FramesetScores") -> None:
+        """Add the scores of later frame sets (``other``, same tracker) to these."""
+        for k in ("framesets", "trackable", "trackable_3", "found", "found_ok", "positions", "ok_positions", "wrong",
+                  "wrong_ok", "size_rejections", "missed_detector"):
+            setattr(self, k, getattr(self, k) + getattr(other, k))
+        if np.isfinite(other.max_right_size_ratio) and not other.max_right_size_ratio <= self.max_right_size_ratio:
+            self.max_right_size_ratio = other.max_right_size_ratio
+        self.errors_cm.extend(other.errors_cm)
 
     def as_json(self) -> dict:
         out = {k: v for k, v in asdict(self).items() if k != "errors_cm"}
@@ -149,18 +166,19 @@ def trackable_views(balls_m, n_seen, lo, hi) -> np.ndarray:
     return np.asarray(n_seen, int).reshape(-1) * inside
 
 
-def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colour: str = "orange", tol_m: float = 0.04, model=None, max_size_ratio: float = 1.2, progress=True):
+def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colour: str = "orange", tol_m: float = 0.04,
+             model=None, max_size_ratio: float = 1.2, progress=True, sweep: SweepOptions | None = None,
+             stopped: list | None = None):  # fmt: skip
     """Render ``frames`` random frame sets of ``rig`` and score each tracker; list of :class:`FramesetScores`.
 
     max_size_ratio : the ``rt2`` tracker's 3D size test threshold (``TrackerOptions.max_size_ratio``)
+    sweep : where the chunks of frame sets run (default: this process); stopped : if a list is given, a sweep
+    stopped early (:class:`harness.executor.SweepStopped`) is appended to it and the scores of the chunks
+    that finished are returned (else the stop propagates)
     """
     from tqdm import tqdm
 
-    from harness.render import Renderer
-    from harness.render.scene import colour_rgb
-    from harness.render.scenes import random_scene
-    from tracker import FrameSet, RobustOptions, Status
-    from tracker.pipeline import Tracker, load_model
+    from tracker.pipeline import load_model
 
     for name in trackers:
         if name not in TRACKERS:
@@ -169,18 +187,56 @@ def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colo
         raise ValueError(f"ball colour must be 'orange' or 'white', got {ball_colour!r}")
     if rig.workspace_m is None:
         raise ValueError("the rig has no workspace_m: random frame sets need the box where balls fly")
-    target = colour_rgb(ball_colour, "ball_colour")
-    lo, hi = rig.workspace_m + np.array([[-1.0], [1.0]]) * RobustOptions().workspace_margin_m
-    model = load_model(model)
-    renderer = Renderer(rig, seed=seed)
+    model = load_model(model)  # fails here, not in a worker
+    setup = (rig, seed, tuple(trackers), ball_colour, tol_m, model, max_size_ratio)
+    chunks = [(a, min(a + CHUNK, frames)) for a in range(0, frames, CHUNK)]
+    bar = tqdm(total=frames, desc="eval framesets", unit="frame set", disable=not progress, leave=False)
+    with bar:
+        parts = run_sweep(sweep or SweepOptions(), _score_chunk, chunks, stopped=stopped, initializer=_init_worker,
+                          initargs=setup, on_result=lambda i: bar.update(chunks[i][1] - chunks[i][0]))
+    scores = {name: FramesetScores(name) for name in trackers}
+    for i in sorted(parts):  # frame order: the same lists as one pass over the frames
+        for name in trackers:
+            scores[name].merge(parts[i][name])
+    return [scores[name] for name in trackers]
+
+
+_WORKER: dict = {}
+
+
+def _init_worker(rig, seed, trackers, ball_colour, tol_m, model, max_size_ratio) -> None:
+    """Per worker process: the renderer and the trackers (reset before every frame set)."""
+    from harness.render import Renderer
+    from harness.render.scene import colour_rgb
+    from tracker import RobustOptions
+    from tracker.pipeline import Tracker
+
+    for tr in _WORKER.get("runs", {}).values():
+        tr.close()
     overrides = {name: dict(kw) for name, (_, kw) in TRACKERS.items()}
     overrides["rt2"]["max_size_ratio"] = max_size_ratio
-    runs = {name: Tracker(rig, TRACKERS[name][0], roi=False, model=model, **overrides[name]) for name in trackers}
-    scores = {name: FramesetScores(name) for name in trackers}
-    for f in tqdm(range(frames), desc="eval framesets", unit="frame set", disable=not progress, leave=False):
+    _WORKER.clear()
+    _WORKER.update(
+        rig=rig, seed=seed, tol_m=tol_m, target=colour_rgb(ball_colour, "ball_colour"),
+        box=rig.workspace_m + np.array([[-1.0], [1.0]]) * RobustOptions().workspace_margin_m,
+        renderer=Renderer(rig, seed=seed),
+        runs={name: Tracker(rig, TRACKERS[name][0], roi=False, model=model, **overrides[name]) for name in trackers},
+    )
+
+
+def _score_chunk(chunk: tuple[int, int]) -> dict:
+    """Frame sets ``chunk[0] .. chunk[1] - 1`` through every tracker: {tracker: FramesetScores of them}."""
+    from harness.render.scenes import random_scene
+    from tracker import FrameSet, Status
+
+    w = _WORKER
+    rig, seed, tol_m, (lo, hi), runs = w["rig"], w["seed"], w["tol_m"], w["box"], w["runs"]
+    scores = {name: FramesetScores(name) for name in runs}
+    rejections0 = {name: tr.stats.size_rejections for name, tr in runs.items()}
+    for f in range(*chunk):
         scene = random_scene(np.random.default_rng([seed, f]), rig.workspace_m, frame_index=f)
-        images, truths = renderer.render_labelled(scene)
-        ours = [b for b, ball in enumerate(scene.balls) if np.allclose(ball.colour, target)]
+        images, truths = w["renderer"].render_labelled(scene)
+        ours = [b for b, ball in enumerate(scene.balls) if np.allclose(ball.colour, w["target"])]
         balls_m = np.array([scene.balls[b].position_m for b in ours]).reshape(-1, 3)
         n_seen = trackable_views(balls_m, [sum(bool(t[b].visible) for t in truths) for b in ours], lo, hi)
         for name, tr in runs.items():
@@ -193,9 +249,8 @@ def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colo
                 hits = [cameras_with_ball(info.uv_candidates_px, [t[b] for t in truths]) for b, n in zip(ours, n_seen) if n >= 2]
                 sc.missed_detector += max(hits) <= 1
     for name, tr in runs.items():
-        scores[name].size_rejections = tr.stats.size_rejections
-        tr.close()
-    return [scores[name] for name in trackers]
+        scores[name].size_rejections = tr.stats.size_rejections - rejections0[name]
+    return scores
 
 
 def format_table(scores) -> str:
@@ -220,6 +275,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--max-size-ratio", type=float, default=1.2, help="the rt2 tracker's 3D size test threshold (default 1.2, TrackerOptions' default)")
     parser.add_argument("--trackers", nargs="+", default=list(TRACKERS), choices=list(TRACKERS), help="trackers to score (default all)")
     parser.add_argument("--json", default=None, help="also write the figures as JSON to this path")
+    add_sweep_arguments(parser)
 
 
 def run(args) -> int:
@@ -234,14 +290,20 @@ def run(args) -> int:
     if not (np.isfinite(args.max_size_ratio) and args.max_size_ratio > 0):
         raise ValueError(f"--max-size-ratio must be a positive number, got {args.max_size_ratio}")
     rig = resolve_rig(args.rig)
-    scores = evaluate(rig, args.frames, args.seed, trackers=args.trackers, ball_colour=args.ball_colour, tol_m=args.tol_m, model=args.model, max_size_ratio=args.max_size_ratio)
+    stopped: list = []
+    scores = evaluate(rig, args.frames, args.seed, trackers=args.trackers, ball_colour=args.ball_colour, tol_m=args.tol_m, model=args.model,
+                      max_size_ratio=args.max_size_ratio, sweep=options_from_args(args), stopped=stopped)  # fmt: skip
+    done = scores[0].framesets if scores else 0
+    if stopped:
+        print(f"PARTIAL ({stopped[0]}): the figures of the {done} of {args.frames} frame sets that finished")
     print(
-        f"rig {args.rig}: {args.frames} random frame sets, seed {args.seed}; {args.ball_colour} balls; right = within {100 * args.tol_m:g} cm; "
+        f"rig {args.rig}: {done} random frame sets, seed {args.seed}; {args.ball_colour} balls; right = within {100 * args.tol_m:g} cm; "
         f"rt2's max_size_ratio {args.max_size_ratio:g}"
     )
     print(format_table(scores))
     print(f"goal: wrong OK positions <= {100 * GOALS['wrong_ok_rate']:.0f}% (the paper's < 1 % outliers in practice, where the user reads them)")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps([s.as_json() for s in scores], indent=1) + "\n")
-    return 0
+        rows = [{**s.as_json(), **({"partial": True} if stopped else {})} for s in scores]
+        Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
+    return stopped[0].exit_code if stopped else 0

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from harness.executor import Executor, SweepOptions, SweepStopped, add_sweep_arguments, options_from_args
+from harness.executor import SweepOptions, add_sweep_arguments, options_from_args, run_sweep
 from harness.studies.paper_tables import GROSS_ERROR_M, PAPER_TABLE1, failure_floor
 
 __all__ = ["add_arguments", "check_goals", "format_table", "run", "run_table1"]
@@ -101,19 +101,10 @@ def run_table1(cameras=CAMERAS, rates=OUTLIER_RATES, *, trials: int = 10_000, se
         raise ValueError(f"--seed must be >= 0, got {seed}")
     eps_px = RobustOptions(**({} if eps_px is None else {"eps_px": eps_px})).eps_px  # validates it
     tasks = _tasks(cameras, rates, trials, seed, eps_px)
-    results = {}
     bar = tqdm(total=len(tasks), desc="sim table1", unit="chunk", file=sys.stderr, disable=not progress)
-    try:
-        with Executor(sweep) as ex:
-            for i, r in ex.map(_chunk_task, tasks):
-                results[tasks[i]] = r
-                bar.update()
-    except SweepStopped as stop:
-        if stopped is None:
-            raise
-        stopped.append(stop)
-    finally:
-        bar.close()
+    with bar:
+        done = run_sweep(sweep, _chunk_task, tasks, stopped=stopped, on_result=lambda i: bar.update())
+    results = {tasks[i]: r for i, r in done.items()}
     partial = len(results) < len(tasks)
 
     low_code = STATUS_BY_CODE.index(Status.LOW_SUPPORT)
