@@ -8,6 +8,7 @@ import select
 import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -21,13 +22,14 @@ class BridgeProcess:
         cmd = [sys.executable, "-m", "harness.cli", "robot", "serve", "--sim", "--bind", bind, "--ready-json", *extra]
         if state_bind:
             cmd += ["--state-bind", state_bind]
-        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        self._log = tempfile.TemporaryFile(mode="w+")  # the bridge's log; a pipe nobody reads could fill and block it
+        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=self._log, text=True,
                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout_s)
         line = self.proc.stdout.readline() if ready else ""
         if not line:
             self.proc.kill()
-            raise RuntimeError(f"bridge did not start: {self.proc.stderr.read()[-2000:]}")
+            raise RuntimeError(f"bridge did not start: {self.log_text()[-2000:]}")
         self.ready = json.loads(line)
         self.address = self.ready["command"]
 
@@ -44,4 +46,9 @@ class BridgeProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        return self.proc.stderr.read()
+        return self.log_text()
+
+    def log_text(self) -> str:
+        """What the bridge has logged so far (stderr)."""
+        self._log.seek(0)
+        return self._log.read()

@@ -152,6 +152,8 @@ def test_malformed_and_out_of_range_requests_are_rejected_never_applied(bridge, 
         assert listener._latest["cmd_id"] == cmd_before  # nothing applied
         rejected = [e["reason"] for e in listener.events if e["event"] == "rejected"]
         assert len(rejected) == len(cases)
+        log = bridge.log_text()  # the robot side logged every reason
+        assert "rejected: trajectory 8: q" in log and "rejected: protocol version 9" in log
 
 
 def test_robot_holds_when_the_commanding_process_dies(bridge, kin):
