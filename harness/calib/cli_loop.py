@@ -56,7 +56,7 @@ def run(args) -> int:
             table.append({"tracker": tr, "figure": fig, "true_rig": a, "calibrated": b, "ratio": ratio})
     rep = {"rig": args.rig, "calibrated": str(args.calibrated), "frames": args.frames, "seed": args.seed, "figures": table,
            "goal_ratio": GOAL_RATIO, "met": bool(ok),
-           "calibrated_rig_error": {k: cal["calibrated"].get(k) for k in ("reprojection_px", "triangulation_mm", "aligned_mm") if k in cal["calibrated"]}}
+           "calibrated_rig_error": {k: cal["calibrated"].get(k) for k in ("reprojection_px", "triangulation_mm", "triangulation_after_rigid_mm") if k in cal["calibrated"]}}
     out.mkdir(parents=True, exist_ok=True)
     (out / "loop.json").write_text(json.dumps(rep, indent=1, default=float))
     print(f"accuracy, {args.frames} frame sets, seed {args.seed}: trackers with the true rig vs with {args.calibrated}")

@@ -29,7 +29,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--tracker", default=None, help="whose observations to use (default: the log's registration tracker, else the first)")
     parser.add_argument("--out", default=None, help="write T_base_to_world and its uncertainty here (YAML)")
     parser.add_argument("--frames", choices=["register", "all"], default="register",
-                        help="'register': the frames the accuracy run registered on (its config's register mask; all frames for other logs); 'all'")
+                        help="'register': the frames the accuracy run registered on (its register mask without fault-injected frames; all frames for other logs); 'all'")
     parser.add_argument("--bootstrap", type=int, default=200, help="bootstrap resamples for the uncertainty (default 200)")
     parser.add_argument("--seed", type=int, default=0)
 
@@ -60,8 +60,13 @@ def register_from_log(path, tracker=None, *, frames: str = "register", bootstrap
     use = set(fk) & set(cam)
     if frames == "register" and session.get("kind") == "accuracy":
         from harness.accuracy.config import AccuracyConfig
+        from harness.accuracy.evaluate import fault_plan_of
+        from harness.accuracy.faults import affected_frames
 
-        mask = AccuracyConfig.from_dict(cfg, where=f"{path}: session config").register_mask
+        config = AccuracyConfig.from_dict(cfg, where=f"{path}: session config")
+        n_cams = len(session.get("camera_names", []))
+        # the run's registration frames, without the ones its injected faults touched (as the run did)
+        mask = config.register_mask & ~affected_frames(fault_plan_of(config, n_cams), config.n_frames)
         use = {f for f in use if f < len(mask) and mask[f]}
     frames = sorted(use)
     if len(frames) < 10:
