@@ -67,7 +67,7 @@ class LabelledImage:
         for name in ("width", "height"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
-                raise ValueError(f"LabelledImage {str(self.path)!r}: {name} must be a positive integer, got {v!r}")
+                raise ValueError(f"LabelledImage {str(self.path)!r}: {name} must be a positive integer, got {short(v)}")
             object.__setattr__(self, name, int(v))
         boxes = _as_rows(self.boxes_xywh, 4)
         centers = _as_rows(self.centers_px, 2)
@@ -95,7 +95,7 @@ def _as_rows(value, n: int) -> np.ndarray:
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"LabelledImage: expected a numeric (k, {n}) array, got {value!r}") from None
+        raise ValueError(f"LabelledImage: expected a numeric (k, {n}) array, got {short(value)}") from None
     return arr.reshape(0, n) if arr.size == 0 else arr
 
 
@@ -138,18 +138,18 @@ def read_coco(path) -> list[LabelledImage]:
         for key in ("id", "file_name", "width", "height"):
             if key not in im:
                 raise ValueError(f"{where}: missing field {key!r}")
-        where = f"{src}: image id {im['id']!r}"
+        where = f"{src}: image id {short(im['id'])}"
         if im["id"] in images:
             raise ValueError(f"{where}: duplicate image id")
         w, h = im["width"], im["height"]
         for name, v in (("width", w), ("height", h)):
             if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-                raise ValueError(f"{where}: field {name!r} must be a positive integer, got {v!r}")
+                raise ValueError(f"{where}: field {name!r} must be a positive integer, got {short(v)}")
         if not isinstance(im["file_name"], str) or not im["file_name"]:
             raise ValueError(f"{where}: field 'file_name' must be a non-empty string, got {short(im['file_name'])}")
         file = _inside(root, im["file_name"], where)
         if not file.is_file():
-            raise ValueError(f"{where}: field 'file_name' names {im['file_name']!r}, which does not exist (looked for {str(file)!r})")
+            raise ValueError(f"{where}: field 'file_name' names {short(im['file_name'])}, which does not exist (looked for {str(file)!r})")
         images[im["id"]] = (file, w, h, [], [])
         order.append(im["id"])
 
@@ -159,23 +159,23 @@ def read_coco(path) -> list[LabelledImage]:
             raise ValueError(f"{src}: annotations[{i}] must be an object, got {type(ann).__name__}")
         for key in ("id", "image_id", "category_id", "bbox"):
             if key not in ann:
-                raise ValueError(f"{src}: annotations[{i}] (id {ann.get('id')!r}): missing field {key!r}")
-        where = f"{src}: annotation id {ann['id']!r}"
+                raise ValueError(f"{src}: annotations[{i}] (id {short(ann.get('id'))}): missing field {key!r}")
+        where = f"{src}: annotation id {short(ann['id'])}"
         if ann["id"] in seen_ann:
             raise ValueError(f"{where}: duplicate annotation id")
         seen_ann.add(ann["id"])
         if ann["image_id"] not in images:
-            raise ValueError(f"{where}: field 'image_id' refers to unknown image id {ann['image_id']!r}")
+            raise ValueError(f"{where}: field 'image_id' refers to unknown image id {short(ann['image_id'])}")
         if ann["category_id"] not in ball_ids:
             continue
         file, w, h, boxes, centers = images[ann["image_id"]]
         box = _numbers(ann["bbox"], 4, "bbox", where)
         x, y, bw, bh = box
         if bw <= 0 or bh <= 0:
-            raise ValueError(f"{where}: field 'bbox' must have positive width and height, got {ann['bbox']!r}")
+            raise ValueError(f"{where}: field 'bbox' must have positive width and height, got {short(ann['bbox'])}")
         if x < -_BOX_TOL_PX or y < -_BOX_TOL_PX or x + bw > w + _BOX_TOL_PX or y + bh > h + _BOX_TOL_PX:
             raise ValueError(
-                f"{where}: field 'bbox' {ann['bbox']!r} lies outside image id {ann['image_id']!r} ({w}x{h}, {file.name})"
+                f"{where}: field 'bbox' {short(ann['bbox'])} lies outside image id {short(ann['image_id'])} ({w}x{h}, {file.name})"
             )
         if "center_px" in ann:
             center = _numbers(ann["center_px"], 2, "center_px", where)
@@ -204,12 +204,12 @@ def _ball_category_ids(categories: list, src: str) -> set:
     ids = set()
     for i, cat in enumerate(categories):
         if not isinstance(cat, dict) or "id" not in cat or "name" not in cat:
-            raise ValueError(f"{src}: categories[{i}] must be an object with 'id' and 'name', got {cat!r}")
+            raise ValueError(f"{src}: categories[{i}] must be an object with 'id' and 'name', got {short(cat)}")
         names.append(cat["name"])
         if isinstance(cat["name"], str) and cat["name"].strip().lower() == BALL_CATEGORY:
             ids.add(cat["id"])
     if not ids:
-        raise ValueError(f"{src}: field 'categories' has no {BALL_CATEGORY!r} category; categories present: {names}")
+        raise ValueError(f"{src}: field 'categories' has no {BALL_CATEGORY!r} category; categories present: {short(names)}")
     return ids
 
 
@@ -226,7 +226,7 @@ def _numbers(value, n: int, field: str, where: str) -> list[float]:
     ok = isinstance(value, (list, tuple)) and len(value) == n
     ok = ok and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
     if not ok:
-        raise ValueError(f"{where}: field {field!r} must be a list of {n} finite numbers, got {value!r}")
+        raise ValueError(f"{where}: field {field!r} must be a list of {n} finite numbers, got {short(value)}")
     return [float(v) for v in value]
 
 

@@ -20,6 +20,7 @@ radians, roll-pitch-yaw as in URDF: ``R = Rz(yaw) Ry(pitch) Rx(roll)``.
 
 from __future__ import annotations
 
+import reprlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -68,11 +69,11 @@ class RobotConfig:
             try:
                 arr = np.asarray(value, dtype=float)
             except (TypeError, ValueError) as exc:
-                raise ValueError(f"{name} must be {n} numbers, got {value!r}") from exc
+                raise ValueError(f"{name} must be {n} numbers, got {reprlib.repr(value)}") from exc
             if arr.shape != (n,):
-                raise ValueError(f"{name} must have {n} values, got {arr.size} ({value!r})")
+                raise ValueError(f"{name} must have {n} values, got {arr.size} ({reprlib.repr(value)})")
             if not np.isfinite(arr).all():
-                raise ValueError(f"{name} must be finite, got {value!r}")
+                raise ValueError(f"{name} must be finite, got {reprlib.repr(value)}")
             object.__setattr__(self, name, _tup(arr))
         for name in ("qdot_max_rad_s", "qddot_max_rad_s2", "link_radii_m"):
             if min(getattr(self, name)) <= 0:

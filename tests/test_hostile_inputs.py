@@ -224,6 +224,27 @@ def test_coco_file_name_may_not_leave_the_data_folder(tmp_path, name):
         read_coco(data)
 
 
+@pytest.mark.parametrize("field, value", [("width", "x" * 1_000_000), ("bbox", list(range(1_000_000)))])
+def test_coco_errors_quote_huge_values_shortened(tmp_path, field, value):
+    (tmp_path / "a.png").write_bytes(b"x")
+    doc = {"images": [{"id": 1, "file_name": "a.png", "width": 10, "height": 10}],
+           "annotations": [{"id": 1, "image_id": 1, "category_id": 1, "bbox": [1, 1, 2, 2]}],
+           "categories": [{"id": 1, "name": "ball"}]}
+    (doc["images"][0] if field == "width" else doc["annotations"][0])[field] = value
+    (tmp_path / "annotations.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=f"field '{field}'") as err:
+        read_coco(tmp_path)
+    assert len(str(err.value)) < 400
+
+
+def test_rig_errors_quote_huge_values_shortened(tmp_path):
+    path = tmp_path / "r.yaml"
+    path.write_text(yaml.safe_dump({"format": "y" * 1_000_000, "version": 1, "cameras": []}))
+    with pytest.raises(ValueError, match="field 'format' must be 'rt2.rig', got 'yyy") as err:
+        Rig.load(path)
+    assert len(str(err.value)) < 400
+
+
 def test_yaml_dump_of_our_rig_has_no_aliases(tmp_path):
     """What we write we can read: our writers never emit aliases (safe_dump of fresh lists)."""
     rig = Rig.load(ROOT / "data" / "rigs" / "lab4_vga.yaml")

@@ -161,9 +161,9 @@ class Rig:
         if not isinstance(data, dict):
             raise ValueError(f"{source}: expected a mapping at the top level, got {describe(data)}")
         if data.get("format") != FORMAT:
-            raise ValueError(f"{source}: field 'format' must be {FORMAT!r}, got {data.get('format')!r}")
+            raise ValueError(f"{source}: field 'format' must be {FORMAT!r}, got {describe(data.get('format'))}")
         if data.get("version") != VERSION:
-            raise ValueError(f"{source}: field 'version' must be {VERSION}, got {data.get('version')!r}")
+            raise ValueError(f"{source}: field 'version' must be {VERSION}, got {describe(data.get('version'))}")
         cams_data = data.get("cameras")
         if not isinstance(cams_data, list) or not cams_data:
             raise ValueError(f"{source}: field 'cameras' must be a non-empty list, got {describe(cams_data)}")
@@ -180,7 +180,7 @@ class Rig:
                 raise ValueError(f"{where}: field 'distortion' must be {{model: ..., coefficients: [...]}}")
             model = dist.get("model", "plumb_bob")
             if model not in DISTORTION_MODELS:
-                raise ValueError(f"{where}: unknown distortion model {model!r}; valid: {sorted(DISTORTION_MODELS)}")
+                raise ValueError(f"{where}: unknown distortion model {describe(model)}; valid: {sorted(DISTORTION_MODELS)}")
             cams.append(_camera(cd, where, dist["coefficients"]))
         ws = data.get("workspace_m")
         box = None
