@@ -215,6 +215,13 @@ def run(args) -> int:
         stop.set()
 
     service, assembler, closers = open_service(args, status=lambda line: print(line, flush=True))
+    where = [f"{k} stream on {v}" for k, v in (service.publisher.addresses if service.publisher else {}).items()]
+    if service.view is not None:
+        where.append(f"live view on ws://{args.foxglove_host}:{service.view.port}")
+    if service.log is not None:
+        where.append(f"log {service.log.path}")
+    print(f"rt2 track: {args.tracker} on {' '.join(args.source)} ({len(service.rig)} cameras, rig {args.rig}): "
+          + ("; ".join(where) or "nothing published"), flush=True)
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         assembler.start()
