@@ -140,3 +140,26 @@ def test_same_seed_same_result(ewand_dir):
         cv2.setRNGSeed(5)
         runs.append(calibrate_wand(cams, uv, OFFSETS))
     assert np.array_equal(runs[0].R, runs[1].R) and np.array_equal(runs[0].t, runs[1].t)
+
+
+def test_wand_from_a_session_log_with_unlabelled_detections(tmp_path):
+    """Detections as a tracker logs them (unordered, per camera) -> labelled along the wand -> calibrated."""
+    from harness.logs.writer import SessionLogWriter
+
+    truth = resolve_rig("lab4_vga")
+    uv = wand_views(truth, 200, np.random.default_rng(4), noise_px=0.1)
+    rng = np.random.default_rng(5)
+    log = tmp_path / "wand.mcap"
+    w = SessionLogWriter(log, metadata={"kind": "calibration", "seed": 4}, log_images="none")
+    for f in range(uv.shape[1]):
+        for c, name in enumerate(truth.names):
+            pts = uv[c, f][~np.isnan(uv[c, f]).any(axis=1)]
+            pts = pts[rng.permutation(len(pts))]
+            w.write_detections(f * 0.01, name, pts, np.ones(len(pts)), f)
+    w.close()
+    intr = tmp_path / "intrinsics.yaml"
+    Rig(intrinsics_only(truth)).save(intr)
+    out = tmp_path / "rig.yaml"
+    assert main(["calib", "wand", "--recording", str(log), "--intrinsics", str(intr), "--wand", "0.13,0.26", "--out", str(out)]) == 0
+    rig = Rig.load(out)
+    assert compare_to_truth(rig, truth, align=True)["worst"]["centre_mm"] < 3.0

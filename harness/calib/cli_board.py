@@ -8,14 +8,13 @@ optional exports.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from harness.calib.cli_intrinsics import detect_views, format_intrinsics, intrinsics_camera
 from harness.calib.compare import compare_rigs
-from harness.calib.exports import add_export_arguments, read_anipose_toml, write_exports
+from harness.calib.exports import add_export_arguments, read_anipose_toml, save_calibration
 from harness.calib.inputs import load_board, load_intrinsics
 from tracker import Camera, Rig
 from tracker.calibration.board_rig import calibrate_board_rig
@@ -74,12 +73,7 @@ def run(args) -> int:
                             "iqr": float(np.subtract(*np.percentile(sq, [75, 25]))) if len(sq) else None}}
     if ref is not None:
         report["reference"] = compare_rigs(rig, ref)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    rig.save(out)
-    rep = out.with_suffix(".report.json")
-    rep.write_text(json.dumps(report, indent=1))
-    written = write_exports(rig, args, error=float(np.mean([v["rms_px"] for v in res.reproj_px.values()])))
+    written = save_calibration(rig, report, args, error=float(np.mean([v["rms_px"] for v in res.reproj_px.values()])))
     for ln in lines:
         print(ln)
     print(f"{len(names)} cameras, {report['fit_frames']} frame sets fitted, {report['holdout_frames']} held out; world: {names[0]}")
@@ -92,5 +86,5 @@ def run(args) -> int:
     if ref is not None:
         print("against the reference: " + ", ".join(f"{p}: rot {d['rotation_deg']:.2f} deg, baseline {d['baseline_m'] * 1000:.0f} vs "
                                                      f"{d['baseline_ref_m'] * 1000:.0f} mm" for p, d in report["reference"]["pairs"].items()))
-    print(f"wrote {out}, {rep}" + "".join(f", {p}" for p in written))
+    print("wrote " + ", ".join(written))
     return 0

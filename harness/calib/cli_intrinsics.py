@@ -6,13 +6,12 @@ report next to it (per-view errors, rejected views, coverage, standard deviation
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from harness.calib.exports import add_export_arguments, write_exports
+from harness.calib.exports import add_export_arguments, save_calibration
 from harness.calib.inputs import iter_frames, load_board
 from tracker import Camera, Rig
 from tracker.calibration.board import CharucoCorners, detect_charuco, make_detector
@@ -79,9 +78,6 @@ def run(args) -> int:
     cam = intrinsics_camera(name, res)
     rig = Rig([cam], description=f"intrinsics of {name} from {args.images} ({int(res.kept.sum())} ChArUco views"
                                   f"{', board seen mirrored' if mirrored else ''})")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    rig.save(out)
     report = {
         "camera": name, "images": str(args.images), "board": str(args.board), "image_size": list(size), "mirrored": mirrored,
         "model": res.model, "K": res.K.tolist(), "distortion": res.distortion.tolist(), "std": res.std,
@@ -90,11 +86,9 @@ def run(args) -> int:
         "rejected": {names[i]: why for i, why in res.rejected.items()},
         "coverage_cells": res.coverage.tolist(), "coverage_fraction": res.coverage_fraction,
     }
-    report_path = out.with_suffix(".report.json")
-    report_path.write_text(json.dumps(report, indent=1))
-    written = write_exports(rig, args, error=res.rms_px)
+    written = save_calibration(rig, report, args, error=res.rms_px)
     print(format_intrinsics(name, res, len(views), mirrored))
-    print(f"wrote {out}, {report_path}" + "".join(f", {p}" for p in written))
+    print("wrote " + ", ".join(written))
     return 0
 
 

@@ -9,7 +9,6 @@ optional exports (OpenCV FileStorage, aniposelib calibration.toml).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import cv2
@@ -17,7 +16,7 @@ import numpy as np
 import yaml
 
 from harness.calib.compare import compare_rigs, wand_lengths
-from harness.calib.exports import add_export_arguments, write_exports
+from harness.calib.exports import add_export_arguments, save_calibration
 from harness.calib.inputs import load_intrinsics, read_detection_csvs
 from tracker import Camera, Rig
 from tracker.calibration.extrinsics import WandOptions, apply_world, calibrate_wand, order_wand_points, triangulate_views
@@ -145,14 +144,9 @@ def run(args) -> int:
     if ref is not None:
         report["reference"] = compare_rigs(rig, ref)
         report["reference"]["holdout_wand"] = wand_lengths(ref, uv[:, res.holdout_frames], offsets)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    rig.save(out)
-    rep = out.with_suffix(".report.json")
-    rep.write_text(json.dumps(report, indent=1))
-    written = write_exports(rig, args, error=float(np.mean([v["rms_px"] for v in res.reproj_px.values()])))
+    written = save_calibration(rig, report, args, error=float(np.mean([v["rms_px"] for v in res.reproj_px.values()])))
     print(format_report(report))
-    print(f"wrote {out}, {rep}" + "".join(f", {p}" for p in written))
+    print("wrote " + ", ".join(written))
     return 0
 
 

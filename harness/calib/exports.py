@@ -21,6 +21,7 @@ so ``Rig.from_opencv_files(paths, length_unit_m=0.001)`` reads them back.
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from pathlib import Path
@@ -30,7 +31,7 @@ import numpy as np
 
 from tracker import Camera, Rig
 
-__all__ = ["add_export_arguments", "read_anipose_toml", "write_anipose_toml", "write_exports", "write_opencv_files"]
+__all__ = ["add_export_arguments", "read_anipose_toml", "save_calibration", "write_anipose_toml", "write_exports", "write_opencv_files"]
 
 
 def write_opencv_files(rig: Rig, folder, *, length_unit_m: float = 0.001) -> list[Path]:
@@ -132,3 +133,14 @@ def write_exports(rig: Rig, args, *, error: float = 0.0) -> list[str]:
     if getattr(args, "anipose_toml", None):
         out.append(str(write_anipose_toml(rig, args.anipose_toml, error=error)))
     return out
+
+
+def save_calibration(rig: Rig, report: dict, args, *, error: float = 0.0) -> list[str]:
+    """Write ``rig`` to ``args.out``, ``report`` next to it (``.report.json``) and the exports asked for;
+    returns the paths written. Called only once everything was computed: bad input writes nothing."""
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rig.save(out)
+    rep = out.with_suffix(".report.json")
+    rep.write_text(json.dumps(report, indent=1))
+    return [str(out), str(rep), *write_exports(rig, args, error=error)]
