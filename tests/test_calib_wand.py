@@ -163,3 +163,30 @@ def test_wand_from_a_session_log_with_unlabelled_detections(tmp_path):
     assert main(["calib", "wand", "--recording", str(log), "--intrinsics", str(intr), "--wand", "0.13,0.26", "--out", str(out)]) == 0
     rig = Rig.load(out)
     assert compare_to_truth(rig, truth, align=True)["worst"]["centre_mm"] < 3.0
+
+
+def test_single_ball_with_world_points(tmp_path):
+    """--ball: one ball, no length in it; the table corners (clicked = projected + 0.2 px) give scale and frame."""
+    import yaml
+
+    from harness.calib.check import TABLE_CORNERS_M
+
+    truth = resolve_rig("lab4_vga")
+    uv = wand_views(truth, 300, np.random.default_rng(6), noise_px=0.15)[:, :, :1]
+    csvs = tmp_path / "det"
+    csvs.mkdir()
+    for c, name in enumerate(truth.names):
+        rows = [f"{f * 1000};{u:.4f};{v:.4f}" if np.isfinite(u) else f"{f * 1000};-1;-1" for f, (u, v) in enumerate(uv[c, :, 0])]
+        (csvs / f"{c}_{name}.csv").write_text("\n".join(rows) + "\n")
+    click = truth.project(TABLE_CORNERS_M) + np.random.default_rng(7).normal(0, 0.2, (4, 4, 2))
+    points = [{"world_m": X.tolist(), "pixels": {n: click[c, k].tolist() for c, n in enumerate(truth.names)
+                                                 if truth[c].in_image(click[c, k][None])[0]}} for k, X in enumerate(TABLE_CORNERS_M)]
+    (tmp_path / "table.yaml").write_text(yaml.safe_dump(points))
+    intr = tmp_path / "intrinsics.yaml"
+    Rig(intrinsics_only(truth)).save(intr)
+    out = tmp_path / "rig.yaml"
+    base = ["calib", "wand", "--recording", str(csvs), "--intrinsics", str(intr), "--out", str(out)]
+    assert main(base + ["--ball"]) == 2 and not out.exists()  # no scale without world points
+    assert main(base + ["--ball", "--world-points", str(tmp_path / "table.yaml")]) == 0
+    cmp = compare_to_truth(Rig.load(out), truth)
+    assert cmp["worst"]["centre_mm"] < 10 and cmp["worst"]["rotation_deg"] < 0.1

@@ -28,6 +28,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--recording", required=True, help="folder of per-camera detection CSVs, or a session log (.mcap) with detections")
     parser.add_argument("--intrinsics", required=True, nargs="+", help="rt2 rig files and/or OpenCV FileStorage files, in camera order")
     parser.add_argument("--wand", default=None, help="spacings between consecutive balls, metres, e.g. 0.13,0.26")
+    parser.add_argument("--ball", action="store_true",
+                        help="a single ball instead of a wand (no length in it: needs --world-points for the scale)")
     parser.add_argument("--out", required=True, help="rig file to write")
     parser.add_argument("--world-points", default=None,
                         help="YAML list of {world_m: [x, y, z], pixels: {camera: [u, v], ...}}: >= 3 points (e.g. table corners) fixing the world frame")
@@ -114,9 +116,11 @@ def _recording(path, cams, offsets):
 
 
 def run(args) -> int:
-    if args.wand is None:
-        raise ValueError("--wand SPACINGS is required (the single-ball mode is not available: it has no scale)")
-    offsets = parse_wand(args.wand)
+    if (args.wand is None) == (not args.ball):
+        raise ValueError("give either --wand SPACINGS (e.g. 0.13,0.26) or --ball")
+    if args.ball and not args.world_points:
+        raise ValueError("--ball needs --world-points: a single ball carries no length, the scale comes from known points")
+    offsets = np.zeros(1) if args.ball else parse_wand(args.wand)
     cams = load_intrinsics(args.intrinsics)
     names = [c.name for c in cams]
     if len(set(names)) != len(names):
@@ -126,6 +130,8 @@ def run(args) -> int:
     ref = Rig(load_intrinsics(args.reference)) if args.reference else None
     uv = _recording(args.recording, cams, offsets)[:, :: args.every]
     cv2.setRNGSeed(int(args.seed))
+    if args.ball:
+        return _run_ball(args, cams, uv[:, :, 0])
     res = calibrate_wand(cams, uv, offsets, WandOptions(holdout_every=args.holdout_every))
     R, t = res.R, res.t
     world = None
@@ -146,6 +152,35 @@ def run(args) -> int:
         report["reference"]["holdout_wand"] = wand_lengths(ref, uv[:, res.holdout_frames], offsets)
     written = save_calibration(rig, report, args, error=float(np.mean([v["rms_px"] for v in res.reproj_px.values()])))
     print(format_report(report))
+    print("wrote " + ", ".join(written))
+    return 0
+
+
+def _run_ball(args, cams, uv) -> int:
+    from tracker.calibration.ball import apply_similarity, calibrate_ball
+
+    names = [c.name for c in cams]
+    R, t, bres = calibrate_ball(cams, uv)
+    Xw, uvw = read_world_points(args.world_points, names)
+    Xc = triangulate_views(cams, R, t, uvw)
+    if np.isnan(Xc).any():
+        bad = [k for k in range(len(Xw)) if np.isnan(Xc[k]).any()]
+        raise ValueError(f"{args.world_points}: points {bad} are clicked in fewer than two cameras")
+    R, t, scale, resid = apply_similarity(R, t, Xc, Xw)
+    rig = Rig([Camera(name=c.name, K=c.K, distortion=c.distortion, R_world_to_cam=R[i], t_world_to_cam_m=t[i],
+                      image_size=c.image_size) for i, c in enumerate(cams)],
+              description=f"single-ball calibration from {args.recording}, scale and frame from {args.world_points}")
+    reproj = {}
+    for c, n in enumerate(names):
+        e = bres.residual_px[c][bres.inlier[c]]
+        reproj[n] = {"rms_px": float(np.sqrt(np.mean(e ** 2))), "median_px": float(np.median(e)), "observations": int(e.size)}
+    report = {"cameras": names, "mode": "ball", "frames": int(uv.shape[1]), "reprojection_px": reproj,
+              "world": {"points": len(Xw), "scale": scale, "fit_residual_mm": (resid * 1000).round(2).tolist()}}
+    written = save_calibration(rig, report, args, error=float(np.mean([v["rms_px"] for v in reproj.values()])))
+    print(f"{len(names)} cameras from a single ball ({uv.shape[1]} frame sets); scale and world frame from {len(Xw)} points, "
+          f"residual {np.round(resid * 1000, 1).tolist()} mm")
+    for n, r in reproj.items():
+        print(f"  {n:>12s}: rms {r['rms_px']:.2f} px, median {r['median_px']:.2f} px, {r['observations']} obs")
     print("wrote " + ", ".join(written))
     return 0
 

@@ -254,6 +254,8 @@ def order_wand_points(uv: np.ndarray, offsets_m) -> np.ndarray:
     out = np.full((M, 2), np.nan)
     if len(uv) != M:
         return out
+    if M == 1:  # a single ball: nothing to order
+        return uv
     c = uv - uv.mean(axis=0)
     d = np.linalg.svd(c, full_matrices=False)[2][0]
     s = c @ d
