@@ -53,6 +53,11 @@ class TrackerOptions:
         ``sqrt(4 area / pi)``; on true balls the ratio stays below 1 (pixels under ``T_l`` at the
         edge are not counted). None = off
     ball_radius_m : the ball's radius for the size test, metres (0.02 = a 40 mm ball)
+    handover_max_age_s : the support hand-over (``rt2`` only): a ``LOW_SUPPORT`` estimate (too few
+        cameras, e.g. the ball behind the arm in the others) is moved by the median offset between
+        the confirmed positions of the last 50 ms and those same cameras' own estimate then, when the
+        newest confirmed position is at most this old (seconds); it removes the calibration error
+        of a small camera set (:mod:`tracker._pipeline_handover`, docs/pipeline.md). None = off
     """
 
     roi: bool | None = None
@@ -63,6 +68,7 @@ class TrackerOptions:
     eps_px: float | None = None
     max_size_ratio: float | None = 1.2
     ball_radius_m: float = 0.02
+    handover_max_age_s: float | None = 0.25
 
     def __post_init__(self):
         if self.roi is not None and not isinstance(self.roi, (bool, np.bool_)):
@@ -82,6 +88,9 @@ class TrackerOptions:
         m = self.max_size_ratio
         if m is not None and (isinstance(m, bool) or not isinstance(m, (int, float, np.floating, np.integer)) or not (math.isfinite(m) and m > 0)):
             raise ValueError(f"TrackerOptions.max_size_ratio must be a positive number or None (off), got {m!r}")
+        h = self.handover_max_age_s
+        if h is not None and (isinstance(h, bool) or not isinstance(h, (int, float, np.floating, np.integer)) or not (math.isfinite(h) and h > 0)):
+            raise ValueError(f"TrackerOptions.handover_max_age_s must be a positive number of seconds or None (off), got {h!r}")
         r = self.ball_radius_m
         if isinstance(r, bool) or not isinstance(r, (int, float, np.floating, np.integer)) or not (math.isfinite(r) and 0 < r < 1):
             raise ValueError(f"TrackerOptions.ball_radius_m must be a radius in metres in (0, 1), got {r!r}")
@@ -99,6 +108,7 @@ class TrackerStats:
     full_frame_searches : camera images searched over the full frame (no prediction, or a retry)
     full_frame_retries : frame sets re-searched on full frames after the windows gave no OK estimate
     size_rejections : positions rejected by the 3D size test (``TrackerOptions.max_size_ratio``)
+    handovers : ``LOW_SUPPORT`` positions moved by the support hand-over (``TrackerOptions.handover_max_age_s``)
     missing_frames : camera images that were None (no frame delivered)
     bad_frames : camera images of the wrong size, dtype or channels (skipped)
     non_monotonic : frame sets whose time did not increase or was not finite (motion prediction reset)
@@ -113,6 +123,7 @@ class TrackerStats:
     full_frame_searches: int = 0
     full_frame_retries: int = 0
     size_rejections: int = 0
+    handovers: int = 0
     missing_frames: int = 0
     bad_frames: int = 0
     non_monotonic: int = 0

@@ -10,7 +10,9 @@ Kinds (``TRACKER_KINDS``):
   searched first in a window around the predicted ball pixel (ROI, ``tracker._pipeline_roi``),
   then :class:`RobustTriangulator` ``method="ours"`` (Algorithm 2 extended), then the 3D size test
   (``TrackerOptions.max_size_ratio``: a position whose blobs are too wide for a ball at its depth
-  is dropped and the estimate redone).
+  is dropped and the estimate redone), then the support hand-over (``TrackerOptions.handover_max_age_s``:
+  an estimate left with too few cameras is moved by those cameras' offset from the last confirmed
+  positions, ``tracker._pipeline_handover``).
 * ``rt2-paper``: the paper's system: Algorithm 1 as published (argmax, one candidate) on the full
   frame, Algorithm 2 as published (``method="paper"``), no ROI.
 * ``rtblob``: the RTBlob baseline (:class:`RTBlobTracker`), with the same fault handling.
@@ -18,7 +20,8 @@ Kinds (``TRACKER_KINDS``):
 Per frame set (rt2 kinds): validate the frame set (``ValueError`` for a wrong type or camera count),
 flag cameras without a usable frame, predict the ball's pixels, one detector call per camera
 (optionally on a thread pool), the robust estimate, and, when a window search did not confirm the
-ball, a second full-frame search of the cameras that used a window; then the size test (``rt2``).
+ball, a second full-frame search of the cameras that used a window; then the size test and the
+support hand-over (``rt2``).
 See docs/pipeline.md.
 """
 
@@ -44,6 +47,7 @@ from tracker._pipeline_options import (
     load_model,
     with_overrides,
 )
+from tracker._pipeline_handover import SupportHandover
 from tracker._pipeline_roi import MotionPredictor
 from tracker._size_test import SizeTest
 from tracker._rtblob_detect import image_problem
@@ -124,6 +128,9 @@ class Tracker:
             )
         self._motion = MotionPredictor(rig, options.max_gap_s)
         self._size = SizeTest(rig, options.max_size_ratio if kind == "rt2" else None, options.ball_radius_m)
+        self._handover = None
+        if kind == "rt2" and options.handover_max_age_s is not None:
+            self._handover = SupportHandover(self._estimator, len(rig), max_age_s=options.handover_max_age_s)
         n = self.n_cams
         self._uv = np.full((n, k, 2), np.nan)  # the estimator's input, reused every frame set
         self._scores = np.full((n, k), np.nan)
@@ -140,10 +147,15 @@ class Tracker:
         """Forget the motion state and the last timestamp (a new rally or recording); keep the stats
         unless ``clear_stats``."""
         if self._detector is not None:
-            self._motion.reset()
+            self._forget_motion()
         self._last_t_s = None
         if clear_stats:
             self.stats = TrackerStats()
+
+    def _forget_motion(self) -> None:
+        self._motion.reset()
+        if self._handover is not None:
+            self._handover.reset()
 
     def close(self) -> None:
         """Stop the worker threads (``workers > 1``); the tracker refuses frame sets afterwards."""
@@ -179,13 +191,13 @@ class Tracker:
             notes.append(f"timestamp is not finite (t_s={t_s!r}); motion prediction reset, full frames searched")
             self.stats.non_monotonic += 1
             if self._detector is not None:
-                self._motion.reset()
+                self._forget_motion()
             t_s = math.nan  # (inf too) never kept as the last time; the motion model ignores it
         elif self._last_t_s is not None and not t_s > self._last_t_s:
             notes.append(f"non-monotonic timestamp: t_s={t_s!r} after {self._last_t_s!r}; motion prediction reset")
             self.stats.non_monotonic += 1
             if self._detector is not None:
-                self._motion.reset()
+                self._forget_motion()
         if math.isfinite(t_s):
             self._last_t_s = t_s
         usable = self._usable_frames(images, notes)
@@ -257,14 +269,18 @@ class Tracker:
                 self._detect(redo, roi_px, used_roi)
                 X, info, size_ratio = self._estimate(notes)
         ok = info.status is Status.OK
-        if ok and math.isfinite(t_s):
-            self._motion.update(t_s, X)  # only confirmed estimates feed the prediction
-        self.stats.positions += X is not None
-        self.stats.ok += ok
         cand = info.candidate_index
         uv_px = np.full((n, 2), np.nan)
         sel = np.flatnonzero(cand >= 0)
         uv_px[sel] = self._uv[sel, cand[sel]]
+        if ok and math.isfinite(t_s):
+            self._motion.update(t_s, X)  # only confirmed estimates feed the prediction
+            if self._handover is not None:
+                self._handover.record(t_s, X, uv_px)
+        elif info.status is Status.LOW_SUPPORT and self._handover is not None and math.isfinite(t_s):
+            X = self._hand_over(t_s, X, info, notes)
+        self.stats.positions += X is not None
+        self.stats.ok += ok
         pinfo = PipelineInfo(self._uv.copy(), self._scores.copy(), roi_px, used_roi, retried, info, size_ratio, self._areas.copy())
         self._images = None  # do not keep the frames alive
         obs = BallObservation(
@@ -280,6 +296,17 @@ class Tracker:
             notes=tuple(notes),
         )
         return obs, pinfo
+
+    def _hand_over(self, t_s: float, X: np.ndarray, info, notes: list) -> np.ndarray:
+        """A too-small camera set's estimate moved by its offset from the last confirmed ones (step 9,
+        :mod:`tracker._pipeline_handover`); unchanged without a usable reference."""
+        d = self._handover.offset(t_s, info.inliers)
+        if d is None:
+            return X
+        self.stats.handovers += 1
+        notes.append(f"{info.support}-camera estimate moved {1e3 * float(np.linalg.norm(d)):.1f} mm by the offset of those cameras "
+                     "from the last confirmed positions (support hand-over)")
+        return X + d
 
     def _estimate(self, notes: list):
         """The robust estimate of the current candidates, then the 3D size test (the candidates it drops

@@ -30,7 +30,7 @@ import numpy as np
 
 from harness.accuracy.config import AccuracyConfig
 from harness.accuracy.evaluate import TrackRecord, evaluate
-from harness.accuracy.trackers import DETECTION_SUFFIX, build_trackers, estimator_for, size_test_for
+from harness.accuracy.trackers import DETECTION_SUFFIX, build_trackers, estimator_for, handover_for, size_test_for
 from tracker import FrameSet, Status
 from tracker.detection import BallSegmentationModel
 
@@ -116,8 +116,9 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
         else:
             for k in wanted:
                 if k in DETECTION_SUFFIX:
-                    runners[k] = (estimator_for(k, rig, config.eps_px), size_test_for(k, rig))
-                    how[k] = "estimator and size test re-run on the logged detections"
+                    est = estimator_for(k, rig, config.eps_px)
+                    runners[k] = (est, size_test_for(k, rig), handover_for(k, est))
+                    how[k] = "estimator, size test and support hand-over re-run on the logged detections"
                 else:
                     how[k] = "logged observations scored as recorded (no estimator to re-run without images)"
         records = _stream(reader, config, session, src, {"current": runners, "spare": spare}, names, n, progress)
@@ -191,7 +192,7 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
             for kind, tr in runners.items():
                 records[kind].put(k, tr.process(fs))
         elif src == "detections":
-            for kind, (est, size_test) in runners.items():
+            for kind, (est, size_test, handover) in runners.items():
                 uv = np.full((len(names), k_per.get(kind, 1), 2), np.nan)
                 areas = np.full(uv.shape[:2], np.nan)
                 have_areas = True
@@ -206,6 +207,17 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
                     X, info, _, _ = size_test.apply(est, uv, areas, X, info)
                 elif not have_areas and size_test.max_ratio is not None:
                     records["_no_areas"] = True
+                if handover is not None:  # as the live tracker (its history spans segments: the warm-up saw the same frames)
+                    t_k = logged[kind].t_s if kind in logged else t_cam
+                    handover.step(t_k)
+                    if info.status is Status.OK and np.isfinite(t_k):
+                        used = np.full((len(names), 2), np.nan)
+                        sel = np.flatnonzero(info.candidate_index >= 0)
+                        used[sel] = uv[sel, info.candidate_index[sel]]
+                        handover.record(t_k, X, used)
+                    elif info.status is Status.LOW_SUPPORT and np.isfinite(t_k):
+                        d = handover.offset(t_k, info.inliers)
+                        X = X if d is None else X + d
                 r = records[kind]
                 if X is not None:
                     r.position_m[k] = X

@@ -14,10 +14,11 @@ the same :class:`tracker._size_test.SizeTest`.
 from __future__ import annotations
 
 from tracker import RobustOptions, RobustTriangulator, RTBlobOptions, TrackerOptions, make_tracker
+from tracker._pipeline_handover import SupportHandover
 from tracker._size_test import SizeTest
 from tracker.pipeline import load_model
 
-__all__ = ["DETECTION_SUFFIX", "DETECTOR_METHOD", "ESTIMATOR_METHOD", "build_trackers", "detections_camera", "estimator_for", "rtblob_options", "size_test_for"]
+__all__ = ["DETECTION_SUFFIX", "DETECTOR_METHOD", "ESTIMATOR_METHOD", "build_trackers", "detections_camera", "estimator_for", "handover_for", "rtblob_options", "size_test_for"]
 
 #: detector and estimator method of each rt2 kind (as tracker.pipeline uses them)
 DETECTOR_METHOD = {"rt2": "ours", "rt2-paper": "paper"}
@@ -65,6 +66,14 @@ def estimator_for(kind: str, rig, eps_px=None) -> RobustTriangulator:
         raise ValueError(f"tracker {kind!r} has no robust estimator to re-run; valid: {sorted(ESTIMATOR_METHOD)}")
     options = RobustOptions() if eps_px is None else RobustOptions(eps_px=float(eps_px))
     return RobustTriangulator(rig, options, method=ESTIMATOR_METHOD[kind])
+
+
+def handover_for(kind: str, estimator) -> SupportHandover | None:
+    """The support hand-over tracker ``kind`` applies (the Tracker default: on for "rt2", off for "rt2-paper")."""
+    if kind not in ESTIMATOR_METHOD:
+        raise ValueError(f"tracker {kind!r} has no support hand-over; valid: {sorted(ESTIMATOR_METHOD)}")
+    age = TrackerOptions().handover_max_age_s
+    return SupportHandover(estimator, len(estimator.rig), max_age_s=age) if kind == "rt2" and age is not None else None
 
 
 def size_test_for(kind: str, rig) -> SizeTest:
