@@ -132,7 +132,7 @@ def open_service(args, *, status=print, tracker_overrides: dict | None = None):
 
     tracker_overrides : options of the tracker (``roi=False`` for full-frame search, ...)"""
     from harness.live.publish import Publisher
-    from harness.live.service import ServiceOptions, TrackingService
+    from harness.live.service import ServiceOptions, TrackingService, warm_up
     from harness.rigs import resolve_rig
     from tracker import Tracker
 
@@ -147,6 +147,7 @@ def open_service(args, *, status=print, tracker_overrides: dict | None = None):
     try:
         tracker = Tracker(rig, args.tracker, **(tracker_overrides or {}))
         closers.append(tracker.close)
+        warm_up(tracker, rig)
         publisher = None
         if tennicam_addr is not None or rich_addr is not None:
             publisher = Publisher(tennicam_addr, rich_addr)

@@ -28,6 +28,7 @@ import numpy as np
 from harness.live.frames import AssembledFrameSet
 from harness.live.publish import rich_message, tennicam_message
 from harness.live.stats import LiveStats
+from tracker import FrameSet
 
 __all__ = ["ServiceOptions", "TrackingService"]
 
@@ -52,6 +53,26 @@ class ServiceOptions:
         sw = self.switch_interval_s
         if sw is not None and not (isinstance(sw, (int, float)) and 1e-6 <= sw <= 0.1):
             raise ValueError(f"switch_interval_s must be in [1e-6, 0.1] seconds or None, got {sw!r}")
+
+
+def warm_up(tracker, rig, *, n: int = 3) -> None:
+    """Run ``tracker`` on ``n`` made-up frame sets (an orange disk where a ball at the centre of the
+    rig's workspace would be) and forget them, so the first real frame sets do not pay for compiled
+    kernels and first-call allocations."""
+    import cv2
+
+    lo, hi = np.asarray(rig.workspace_m, float) if getattr(rig, "workspace_m", None) is not None else (np.zeros(3), np.ones(3))
+    uv = np.asarray(rig.project((lo + hi) / 2), float).reshape(len(rig), 2)
+    images = []
+    for cam, (u, v) in zip(rig, uv):
+        w, h = cam.image_size
+        img = np.zeros((h, w, 3), np.uint8)
+        if np.isfinite(u) and np.isfinite(v):
+            cv2.circle(img, (int(round(u)), int(round(v))), 6, (255, 120, 0), -1)
+        images.append(img)
+    for k in range(n):
+        tracker.process(FrameSet(float(k) * 1e-3, tuple(images), k))
+    tracker.reset(clear_stats=True)
 
 
 def first_host_stamp(afs: AssembledFrameSet) -> float:
@@ -145,7 +166,7 @@ class TrackingService:
                 if time.monotonic() >= next_status:
                     next_status = time.monotonic() + period
                     if self.status is not None:
-                        self.status(self.stats.status_line())
+                        self.status(self.stats.status_line() + _assembly_status(source))
         except BaseException as exc:
             error = f"{type(exc).__name__}: {exc}"
             raise
@@ -183,6 +204,20 @@ class TrackingService:
                 self._assembly = {"error": f"{type(exc).__name__}: {exc}"}
         if self.log is not None:
             self.log.close(figures=_json_safe(self.summary()), error=error)
+
+
+def _assembly_status(source) -> str:
+    """The assembler's drops for the status line: frame sets the tracker did not take in time, and
+    per camera frames dropped from its queue / arrived too late (nothing where the source has no stats)."""
+    stats = getattr(source, "stats", None)
+    if not callable(stats):
+        return ""
+    try:
+        a = stats()
+        drops = " ".join(f"{d}/{l}" for d, l in zip(a.dropped, a.late))
+        return f", sets dropped {a.dropped_framesets}, frames dropped/late per camera {drops}"
+    except Exception:  # figures only
+        return ""
 
 
 def _time_ns(t_s: float) -> int:
