@@ -283,6 +283,8 @@ def _no_work(monkeypatch):
     import harness.studies.bench_estimator as bes
     import harness.studies.eval_filters as evf
     import harness.studies.fit_flight as ff
+    import harness.play.cli as playexp
+    import harness.studies.eval_framesets as evfs
     import policies._promp_demos as demos
     import harness.studies.eval_detector as evd
     import harness.studies.sim_dataset as sds
@@ -302,6 +304,8 @@ def _no_work(monkeypatch):
     monkeypatch.setattr(ff, "run_study", boom)
     monkeypatch.setattr(demos, "collect_demonstrations", boom)
     monkeypatch.setattr(bes, "bench", boom)
+    monkeypatch.setattr(evfs, "evaluate", boom)
+    monkeypatch.setattr(playexp, "run_configuration", boom)
 
 
 def _commands(tmp_path, synthetic_ball_coco):
@@ -326,12 +330,16 @@ def _commands(tmp_path, synthetic_ball_coco):
         "sim fit-flight --json": lambda p: ["sim", "fit-flight", "--json", p],
         "learn promp --out": lambda p: ["learn", "promp", "--out", p + ".npz"],
         "bench estimator --json": lambda p: ["bench", "estimator", "--json", p],
+        "eval framesets --json": lambda p: ["eval", "framesets", "--frames", "2", "--json", p],
+        "play --json": lambda p: ["play", "--balls", "1", "--no-log", "--no-figure", "--json", p],
+        "play --out": lambda p: ["play", "--balls", "1", "--out", p],
     }
 
 
 COMMANDS_WITH_OUTPUTS = ["accuracy --out", "accuracy --json", "sim dataset --out", "sim table1 --json", "train --out",
                          "reevaluate --json", "reevaluate --plot", "eval detector --json", "eval filters --json",
-                         "sim fit-flight --json", "learn promp --out", "bench estimator --json"]
+                         "sim fit-flight --json", "learn promp --out", "bench estimator --json",
+                         "eval framesets --json", "play --json", "play --out"]
 
 
 def _one_line_exit_2(argv, capsys, *patterns):
@@ -351,7 +359,7 @@ def test_output_under_an_existing_file_fails_before_the_work(command, tmp_path, 
     blocker = tmp_path / "a_file"
     blocker.write_text("keep me")
     _no_work(monkeypatch)
-    target = str(blocker) if command.endswith("--out") and command.split()[0] in ("accuracy", "sim") else str(blocker / "x")
+    target = str(blocker) if command in ("accuracy --out", "sim dataset --out", "play --out") else str(blocker / "x")
     _one_line_exit_2(argv(target), capsys, "a_file", "exists and is a")
     assert blocker.read_text() == "keep me"
 

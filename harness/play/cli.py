@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 from pathlib import Path
 
 from harness.executor import Executor, add_sweep_arguments, options_from_args
@@ -111,7 +110,12 @@ def _open_log(args, config: PlayConfig):
 
 
 def run(args) -> int:
+    from harness.outputs import atomic_write_json, check_output_dir, check_output_file
+
     _check(args)
+    check_output_file(args.json, "--json")  # the outputs before the sessions, not after
+    if args.mode != "profile" and not (args.no_log and args.no_figure):
+        check_output_dir(args.out, "--out")
     base = PROFILE_SETS[args.profiles]
     profiles = load_profiles(args.profile_json, base) if args.profile_json else dict(base)
     if args.mode == "profile":
@@ -165,8 +169,7 @@ def run(args) -> int:
     if rows:
         _print(rows, args)
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(rows, indent=1))
+        atomic_write_json(args.json, rows, "--json")
     if not args.no_figure and not stopped:
         from harness.play.figure import draw
 

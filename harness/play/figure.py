@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from harness.outputs import atomic_path
+
 __all__ = ["draw"]
 
 
@@ -33,6 +35,7 @@ def draw(rows: list[dict], stem: Path, *, title: str = "") -> list[Path]:
     fig.tight_layout()
     out = [stem.with_suffix(".png"), stem.with_suffix(".pdf")]
     for p in out:
-        fig.savefig(p, dpi=150)
+        with atomic_path(p, "figure") as tmp:  # never a half-written figure
+            fig.savefig(tmp, dpi=150)
     plt.close(fig)
     return out

@@ -38,9 +38,7 @@ figures of the chunks that finished are printed and written with ``"partial": tr
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -279,8 +277,10 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from harness.outputs import atomic_write_json, check_output_file
     from harness.rigs import resolve_rig
 
+    check_output_file(args.json, "--json")  # before the frame sets are rendered, not after
     if args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
     if args.seed < 0:
@@ -303,7 +303,6 @@ def run(args) -> int:
     print(format_table(scores))
     print(f"goal: wrong OK positions <= {100 * GOALS['wrong_ok_rate']:.0f}% (the paper's < 1 % outliers in practice, where the user reads them)")
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         rows = [{**s.as_json(), **({"partial": True} if stopped else {})} for s in scores]
-        Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
+        atomic_write_json(args.json, rows, "--json")
     return stopped[0].exit_code if stopped else 0
