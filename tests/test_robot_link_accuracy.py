@@ -14,7 +14,7 @@ from harness.accuracy.motion import simulate_motion
 from harness.rigs import resolve_rig
 from harness.robot import SimWamOptions
 from harness.robot.link import WamClient
-from harness.robot.link.accuracy_motion import motion_over_link, robot_seed_of
+from harness.robot.link.accuracy_motion import link_motion_source, robot_seed_of
 from robot_models import WamKinematics, load_robot_config
 from tests.robot_link_util import BridgeProcess
 
@@ -31,15 +31,14 @@ def test_link_motion_and_figures_match_the_in_process_run():
 
     bridge = BridgeProcess("--seed", str(robot_seed_of(SEED)), "--publish-truth", "--clock-skew-ms", "5")
     try:
-        true_offset_ns = bridge.ready["clock_skew_ns"] - bridge.ready["epoch_monotonic_ns"]
-        with WamClient(bridge.address, kinematics=kin) as wam:
-            wam.sync_clock(32)
-            link = motion_over_link(wam, config.n_frames, config.rate_hz, seed=SEED, true_offset_ns=true_offset_ns,
-                                    options=config.motion)
+        with WamClient(bridge.address, kinematics=kin) as wam:  # the simulation's truth about its clock
+            assert wam.sim_info()["offset_ns"] == bridge.ready["clock_skew_ns"] - bridge.ready["epoch_monotonic_ns"]
+        link = link_motion_source(bridge.address)(kin, config)  # what `rt2 accuracy --robot ADDR` runs
     finally:
         bridge.stop()
 
     assert abs(link.info["link"]["estimate_error_ms"]) < 0.5
+    assert np.array_equal(link.bias_rad, local.bias_rad)  # the same simulated robot (seed)
     # the same physical motion, tick for tick (the robot over the link ran the same seeded trajectory); a state
     # lost on the way (PUB/SUB drops under load) makes the interpolation span 4 ms there: < 0.1 mm
     gap_true_mm = np.linalg.norm(link.ball_true_world_m - local.ball_true_world_m, axis=1) * 1e3
@@ -68,3 +67,11 @@ def test_link_motion_and_figures_match_the_in_process_run():
     for key in ("mean_cm", "median_cm", "p90_cm"):
         assert row_link[key] == pytest.approx(row_local[key], abs=0.01), (key, row_local, row_link)  # 0.1 mm
     assert row_link["frac_missing"] == row_local["frac_missing"]
+
+
+def test_bad_robot_address(tmp_path):
+    from harness.cli import main
+
+    with pytest.raises(ValueError, match="--robot must be a bridge address"):
+        link_motion_source("127.0.0.1:7650")
+    assert main(["accuracy", "--robot", "nowhere", "--frames", "20", "--no-log", "--out", str(tmp_path / "out")]) == 2

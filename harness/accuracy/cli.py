@@ -40,6 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="default (person in white, white clutter), harsh (orange shirt, orange cup, box and juggling ball), clean (arm and ball only)")
     parser.add_argument("--inject-faults", action="store_true",
                         help="a camera without frames for a stretch, wrong-size frames, a timestamp going back")
+    parser.add_argument("--robot", default=None, metavar="ADDR|sim",
+                        help="run the robot over the robot link (docs/robot_link.md): a bridge serving its simulation truth "
+                             "(rt2 robot serve --sim --publish-truth) at ADDR, or 'sim' to start one for this run; "
+                             "default: the simulated WAM in this process")
     r = parser.add_argument_group("realism (docs/accuracy.md); on by default")
     r.add_argument("--ideal", action="store_true",
                    help="switch every realism effect off: trackers get the exact rig, camera and robot clocks agree")
@@ -122,6 +126,13 @@ def realism_line(config, calibration_error: dict, motion_info: dict) -> str:
     return f"realism: {cal}; {clk}"
 
 
+def link_line(link: dict) -> str:
+    """One line: the robot over the link and its clock estimate (``rt2 accuracy --robot``)."""
+    c = link["robot_clock_estimate"]
+    return (f"robot over the link {link['address']} (bridge {link['bridge_id']}): clock offset uncertainty "
+            f"{c['uncertainty_ms']:.3f} ms, estimate off the simulation's truth by {link['estimate_error_ms']:+.3f} ms")
+
+
 def events_line(events: dict) -> str:
     """One line: the distractor episodes of the run (the scene's orange balls that come and go)."""
     if not events:
@@ -138,8 +149,13 @@ def run(args) -> int:
 
     config = config_from_args(args)
     check_output_file(args.json, "--json")  # before the run, not after
+    motion_source = None
+    if args.robot is not None:
+        from harness.robot.link.accuracy_motion import link_motion_source
+
+        motion_source = link_motion_source(args.robot)
     res = run_accuracy(config, args.out, sweep=options_from_args(args), log=not args.no_log, log_images=args.log_images,
-                       image_format=args.log_image_format)
+                       image_format=args.log_image_format, motion_source=motion_source)
     m = res.motion_info
     if res.partial:
         print(f"PARTIAL ({res.partial['reason']}): the figures below score the {res.partial['frames_done']} of "
@@ -150,7 +166,8 @@ def run(args) -> int:
               f"robot: {m['via_points']} via points, ball speed median {m['ball_speed_mps']['median']:.2f} m/s "
               f"(max {m['ball_speed_mps']['max']:.2f}); ground truth (FK of reported joints) vs true ball: "
               f"median {m['gt_vs_true_mm']['median']:.1f} mm, max {m['gt_vs_true_mm']['max']:.1f} mm\n"
-              f"{realism_line(config, res.calibration_error, m)}\n{events_line(res.scene_events)}")
+              f"{realism_line(config, res.calibration_error, m)}\n{events_line(res.scene_events)}"
+              + (f"\n{link_line(m['link'])}" if "link" in m else ""))
     print(format_report(res.figures, res.rows, header=header))
     t = res.truth
     if t.get("registered_ground_truth_mm"):

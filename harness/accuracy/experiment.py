@@ -89,7 +89,7 @@ def _check_model(config) -> None:
 
 def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool = True,
                  log_images=DEFAULT_LOG_IMAGES, image_format: str = "png", log_flush_s: float = 1.0,
-                 progress: bool = True, sweep: SweepOptions | None = None) -> AccuracyResult:
+                 progress: bool = True, sweep: SweepOptions | None = None, motion_source=None) -> AccuracyResult:
     """Run the experiment (see the module docstring); outputs go to ``out_dir`` (created, files replaced).
 
     workers : processes rendering and tracking segments (1 = this process); sweep : where the segments run
@@ -97,6 +97,8 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
     sets ("all", "none", N) in ``image_format``, flushed at least every ``log_flush_s`` seconds;
     progress : a tqdm bar on stderr. Stopped early: see the module docstring; if too few frames finished to
     register the robot, raises ValueError after closing the log (no figures to write).
+    motion_source : None = the simulated WAM in this process; else a callable ``(kin, config) -> RobotMotion``,
+    e.g. the robot over the robot link (``rt2 accuracy --robot``, :mod:`harness.robot.link.accuracy_motion`).
     """
     if not isinstance(config, AccuracyConfig):
         raise ValueError(f"config must be an AccuracyConfig, got {type(config).__name__}")
@@ -111,8 +113,11 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
     box = rig.workspace_m if rig.workspace_m is not None else config.motion.box_world_m  # where the error is measured
     tracker_rig, cal_error = estimated_rig(rig, config.calibration_error, seed=config.seed, workspace_m=box)  # what the trackers get
     kin, sim_options = _robot(config)
-    motion = simulate_motion(kin, config.n_frames, config.rate_hz, seed=config.seed, options=config.motion,
-                             sim_options=sim_options)
+    if motion_source is None:
+        motion = simulate_motion(kin, config.n_frames, config.rate_hz, seed=config.seed, options=config.motion,
+                                 sim_options=sim_options)
+    else:
+        motion = motion_source(kin, config)
     n = config.n_frames
     records = {kind: TrackRecord.empty(n) for kind in config.trackers}
     latency = {kind: np.full(n, np.nan) for kind in config.trackers}

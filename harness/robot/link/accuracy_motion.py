@@ -9,12 +9,14 @@ behind a bridge in real time, sampled at the camera frames through the clock-off
   robot clock), so a simulated robot with the same seed runs it tick for tick as in process;
 * frame ``k`` is exposed at robot time ``r_k = T0 + start_s + k / rate`` (the simulated lab: what the
   cameras see there, from the bridge's true joints, ``--publish-truth``); the camera stamps it on the
-  harness clock, ``c_k = r_k - true_offset + clock error`` (the in-process model's camera clock error);
+  harness clock, ``c_k = r_k - true_offset + clock error`` (the in-process model's camera clock error;
+  ``true_offset``, the robot clock's true relation to the host's, is simulation truth from the bridge);
 * the ground truth pairs the *reported* joints with ``c_k`` through the *estimated* robot clock offset
   (:func:`harness.robot.link.clock.pair_joint_states`), as an experiment on a real robot must.
 
 Times in the returned motion are shifted by ``-T0`` so they read as in process (``t_s = start_s + k /
-rate``); ``info["link"]`` records the offset estimate, the true offset and the shift.
+rate``); ``info["link"]`` records the offset estimate, its error and ``T0``. ``q_command`` is the commanded
+trajectory interpolated at the frames (the in-process run logs the simulator's clamped reference).
 """
 
 from __future__ import annotations
@@ -22,10 +24,10 @@ from __future__ import annotations
 import numpy as np
 
 from harness.accuracy.motion import MotionOptions, RobotMotion, _chain_trajectory
-from harness.robot.link.client import WamClient
+from harness.robot.link.client import LinkLostError, WamClient
 from harness.robot.link.clock import ClockEstimate, pair_joint_states
 
-__all__ = ["motion_over_link", "robot_seed_of"]
+__all__ = ["link_motion_source", "motion_over_link", "robot_seed_of"]
 
 
 def robot_seed_of(seed: int) -> int:
@@ -33,16 +35,21 @@ def robot_seed_of(seed: int) -> int:
     return int(np.random.SeedSequence([int(seed), 1]).spawn(3)[1].generate_state(1)[0])
 
 
-def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int, true_offset_ns: float,
+def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int,
                      options: MotionOptions = MotionOptions(), clock: ClockEstimate | None = None,
                      lead_s: float = 0.3) -> RobotMotion:
     """Run the seeded accuracy motion on the robot behind ``wam`` (see the module docstring).
 
-    true_offset_ns : robot clock minus harness clock as the simulated lab knows it (the bridge's ready line),
-        used only to stamp the simulated cameras; clock : the offset estimate used for the ground truth
-        (default ``wam.clock.estimate()``).
+    The robot must be a simulated one serving its truth (``rt2 robot serve --sim --publish-truth``): the
+    simulated cameras need the true joints and the true clock relation (``WamClient.sim_info``); the
+    ground truth uses only reported joints and ``clock``, the offset estimate (default ``wam.clock.estimate()``).
     """
     kin = wam.kinematics
+    sim = wam.sim_info()
+    if not sim or "offset_ns" not in sim:
+        raise ValueError(f"the robot at {wam.address} publishes no simulation truth: the accuracy experiment's simulated "
+                         "cameras need it (serve it with `rt2 robot serve --sim --publish-truth`)")
+    true_offset_ns = float(sim["offset_ns"])
     if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 2:
         raise ValueError(f"n_frames must be an integer >= 2, got {n_frames!r}")
     if not (isinstance(rate_hz, (int, float)) and 1.0 <= rate_hz <= 10000.0):
@@ -72,6 +79,7 @@ def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int
         return pair_joint_states((t_robot * 1e9 - true_offset_ns) * 1e-9, t_true, q_true_all, truth)
 
     qt = true_q(r)
+    q_ref = np.stack([np.interp(r, t_cmd + options.start_s + t0, q_cmd[:, j]) for j in range(q_cmd.shape[1])], axis=1)
     qr = pair_joint_states(c_harness, s.t_s, s.q, est)
     qdr = pair_joint_states(c_harness, s.t_s, s.qdot, est)
     if np.isnan(qr).any():
@@ -82,9 +90,14 @@ def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int
     gt_world = kin.positions(qr, check_limits=False)
     err_mm = np.linalg.norm(gt_world - ball_true, axis=1) * 1e3
     t_camera_robot = c_harness + est.offset_ns * 1e-9 - t0  # the stamps as the experiment maps them, robot clock - T0
+    at_exposure = pair_joint_states((r * 1e9 - true_offset_ns) * 1e-9, s.t_s, s.q, truth)
+    shift_mm = np.linalg.norm(gt_world - kin.positions(at_exposure, check_limits=False), axis=1) * 1e3
+    speed = np.linalg.norm(p_plus - p_minus, axis=1) / (2 * h)
     info.update({
         "trajectory_seed": int(traj_seq.generate_state(1)[0]), "robot_seed": robot_seed_of(seed),
-        "clock": {"offset_ms": round(offset_s * 1e3, 4)},
+        "clock": {"offset_ms": round(offset_s * 1e3, 4), "jitter_std_ms": round(float(np.std(jitter_s)) * 1e3, 4),
+                  "gt_shift_mm": {"median": round(float(np.median(shift_mm)), 4), "max": round(float(shift_mm.max()), 4)}},
+        "ball_speed_mps": {"median": float(np.median(speed)), "max": float(np.max(speed))},
         "link": {"address": wam.address, "bridge_id": wam.bridge_id, "t0_robot_s": float(t0),
                  "robot_clock_estimate": est.to_dict(),
                  "estimate_error_ms": round((est.offset_ns - float(true_offset_ns)) / 1e6, 4)},
@@ -93,7 +106,32 @@ def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int
     })
     return RobotMotion(
         t_s=t_frames, t_camera_s=t_camera_robot, q_true=qt, q_reported=qr, qdot_reported=qdr,
-        q_command=np.full_like(qt, np.nan), ball_true_world_m=ball_true, ball_velocity_world_mps=(p_plus - p_minus) / (2 * h),
+        q_command=q_ref, ball_true_world_m=ball_true, ball_velocity_world_mps=(p_plus - p_minus) / (2 * h),
         links_world_m=kin.link_points(qt, check_limits=False), gt_world_m=gt_world,
-        T_base_to_world=np.array(kin.T_base_to_world), bias_rad=np.full(7, np.nan), info=info,
+        T_base_to_world=np.array(kin.T_base_to_world), bias_rad=np.array(sim["bias_rad"], float), info=info,
     )
+
+
+def link_motion_source(address: str):
+    """``run_accuracy``'s ``motion_source`` for the robot at ``address``; ``"sim"`` starts ``rt2 robot serve --sim
+    --publish-truth`` with the session's robot seed as a separate process for the run (and stops it after)."""
+    if not isinstance(address, str) or not (address == "sim" or address.startswith(("tcp://", "ipc://"))):
+        raise ValueError(f"--robot must be a bridge address like tcp://127.0.0.1:7650 or 'sim', got {address!r}")
+
+    def run_on(addr: str, kin, config) -> RobotMotion:
+        try:
+            with WamClient(addr, kinematics=kin) as wam:
+                wam.sync_clock(32)
+                return motion_over_link(wam, config.n_frames, config.rate_hz, seed=config.seed, options=config.motion)
+        except LinkLostError as exc:
+            raise ValueError(f"robot link: {exc}") from None
+
+    def source(kin, config) -> RobotMotion:
+        if address != "sim":
+            return run_on(address, kin, config)
+        from harness.robot.link.spawn import SimBridgeProcess
+
+        with SimBridgeProcess("--seed", str(robot_seed_of(config.seed)), "--publish-truth") as bridge:
+            return run_on(bridge.address, kin, config)
+
+    return source

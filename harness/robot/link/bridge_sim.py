@@ -45,7 +45,7 @@ class BridgeOptions:
     state_bind: str | None = None
     watchdog_s: float = 0.3  #: hold after this long without a valid request
     clock_skew_ns: int = 0  #: added to the robot clock (tests of the clock-offset estimate)
-    publish_truth: bool = False  #: add the simulator's true joints to every state (``sim.q_true``)
+    publish_truth: bool = False  #: add the simulator's truth to every state (``sim``: q_true, bias_rad, offset_ns)
 
     def __post_init__(self):
         for name in ("bind",) + (("state_bind",) if self.state_bind is not None else ()):
@@ -99,6 +99,9 @@ class SimBridge:
         self._last_contact_ns: int | None = None
         self._stop = False
         self._ticks = 0  # control ticks run (the robot time of the latest is _ticks * dt_ns)
+        # simulation truth for --publish-truth: the zero offsets, and robot clock minus host monotonic clock
+        self._bias = np.asarray(wam.bias_rad, float).tolist()
+        self._true_offset_ns = options.clock_skew_ns - self.epoch_ns
 
     # -- clock ------------------------------------------------------------------------------------
     def robot_ns(self) -> int:
@@ -145,7 +148,8 @@ class SimBridge:
         for i in range(n):
             self.seq += 1
             t_ns = int(round(samples.t_s[i] * 1e9))
-            sim = None if truth is None else {"q_true": truth[i].tolist()}
+            sim = None if truth is None else {"q_true": truth[i].tolist(), "bias_rad": self._bias,
+                                              "offset_ns": self._true_offset_ns}
             self._pub.send(protocol.encode("state", seq=self.seq, t_ns=t_ns, q=samples.q[i].tolist(),
                                            qdot=samples.qdot[i].tolist(), effort=None, mode=self.mode,
                                            cmd_id=self.cmd_id, sim=sim))

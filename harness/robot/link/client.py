@@ -246,6 +246,12 @@ class WamClient:
         """The robot's mode in the latest state: idle, track, hold or watchdog."""
         return self._latest["mode"]
 
+    def sim_info(self) -> dict | None:
+        """A simulated robot's truth at the latest state (``--publish-truth``): ``q_true`` (7,) rad, ``bias_rad``
+        (7,) its zero offsets, ``offset_ns`` its clock minus the host's monotonic clock; None from a real robot."""
+        sim = self._latest.get("sim")
+        return dict(sim) if sim else None
+
     def sim_true_q(self) -> np.ndarray | None:
         """(7,) rad: a simulated robot's true joints at the latest state (bridges run with ``--publish-truth``), else None.
 
