@@ -190,3 +190,22 @@ def test_single_ball_with_world_points(tmp_path):
     assert main(base + ["--ball", "--world-points", str(tmp_path / "table.yaml")]) == 0
     cmp = compare_to_truth(Rig.load(out), truth)
     assert cmp["worst"]["centre_mm"] < 10 and cmp["worst"]["rotation_deg"] < 0.1
+
+
+def test_detection_csvs_bad_input_is_named(tmp_path):
+    from harness.calib.inputs import read_detection_csvs
+
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_text("timestamp_ns;u1;v1\n1;10;20\n2;11;21\n")
+    b.write_text("1;10;20;30;40\n")
+    with pytest.raises(ValueError, match="disagree on the number of balls"):
+        read_detection_csvs([a, b])
+    b.write_text("1;10;20\n2;x;21\n")
+    with pytest.raises(ValueError, match=r"b.csv: line 2 is not numbers"):
+        read_detection_csvs([a, b])
+    b.write_text("7;10;20\n")
+    with pytest.raises(ValueError, match="share no timestamp"):
+        read_detection_csvs([a, b])
+    b.write_text("2;-1;-1\n1;5;6\n")
+    ts, uv = read_detection_csvs([a, b])
+    assert ts.tolist() == [1, 2] and np.isnan(uv[1, 1]).all() and uv[1, 0, 0].tolist() == [5, 6]
