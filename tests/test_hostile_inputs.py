@@ -107,6 +107,20 @@ def test_link_to_dev_zero_is_read_only_up_to_the_cap(tmp_path):
         read_bytes_capped(path, 1000, "file")
 
 
+def test_a_pipe_as_a_rig_is_refused_without_waiting(tmp_path):
+    path = tmp_path / "fifo.yaml"
+    os.mkfifo(path)
+    with pytest.raises(ValueError, match=r"rig file '.*fifo\.yaml' is a pipe or socket, not a file"):
+        Rig.load(path)
+
+
+def test_deeply_nested_yaml_is_refused(tmp_path):
+    path = tmp_path / "deep.yaml"
+    path.write_text("a: " + "[" * 10_000 + "]" * 10_000 + "\n")
+    with pytest.raises(ValueError, match=r"deep\.yaml: (YAML nested too deeply|not valid YAML)"):
+        Rig.load(path)
+
+
 def test_huge_profiles_and_coco_files_are_refused(tmp_path):
     path = tmp_path / "profiles.json"
     with open(path, "wb") as f:

@@ -61,6 +61,12 @@ def read_bytes_capped(path, max_bytes: int, what: str = "file") -> bytes:
     """
     path = Path(path)
     try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        raise ValueError(f"cannot read {what} {str(path)!r}: {exc.strerror or exc}") from None
+    if stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode):  # opening a pipe would wait for a writer forever
+        raise ValueError(f"{what} {str(path)!r} is a pipe or socket, not a file")
+    try:
         with open(path, "rb") as f:
             st = os.fstat(f.fileno())
             if stat.S_ISDIR(st.st_mode):
