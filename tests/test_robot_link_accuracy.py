@@ -75,3 +75,22 @@ def test_bad_robot_address(tmp_path):
     with pytest.raises(ValueError, match="--robot must be a bridge address"):
         link_motion_source("127.0.0.1:7650")
     assert main(["accuracy", "--robot", "nowhere", "--frames", "20", "--no-log", "--out", str(tmp_path / "out")]) == 2
+
+
+@pytest.mark.slow
+def test_rt2_accuracy_robot_sim_matches_in_process_and_reevaluates(tmp_path, capsys):
+    """The one-command run (`rt2 accuracy --robot sim`: the bridge as its own process) against the in-process run
+    of the same seed, and `rt2 reevaluate` on its session log (about 2 minutes on 2 shared cores)."""
+    import json
+
+    from harness.cli import main
+
+    args = ["accuracy", "--frames", "100", "--rate-hz", "100", "--trackers", "rt2", "--workers", "1", "--seed", "4"]
+    assert main(args + ["--robot", "sim", "--out", str(tmp_path / "link"), "--json", str(tmp_path / "link.json")]) == 0
+    assert main(args + ["--no-log", "--out", str(tmp_path / "local"), "--json", str(tmp_path / "local.json")]) == 0
+    link, local = (json.loads((tmp_path / f"{k}.json").read_text())[0] for k in ("link", "local"))
+    for key in ("mean_cm", "median_cm", "p90_cm", "max_cm"):
+        assert link[key] == pytest.approx(local[key], abs=0.01), (key, link, local)  # 0.1 mm
+    capsys.readouterr()
+    assert main(["reevaluate", str(tmp_path / "link" / "session.mcap")]) == 0
+    assert "reproduced exactly" in capsys.readouterr().out

@@ -66,6 +66,10 @@ def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int
     t0 = np.ceil((wam.t_s + lead_s) / dt) * dt  # whole ticks: the robot samples the reference as in process
     wam.command_trajectory(t_cmd + options.start_s + t0, q_cmd, qd_cmd)
     s = wam.advance_to(t0 + t_frames[-1] + abs(offset_s) + 0.05)
+    held = [e for e in wam.events if e["event"] == "watchdog_hold" and e["t_ns"] * 1e-9 >= t0]
+    if held:
+        raise ValueError(f"the robot at {wam.address} stopped the motion: {held[0]['reason']} (this machine too "
+                         "busy to send heartbeats in time?)")
     t_true, q_true_all = wam.take_sim_truth()
     if t_true.size < 2 or t_true[0] > t0 + t_frames[0] or t_true[-1] < t0 + t_frames[-1]:
         raise ValueError("the robot published no true joints over the motion; serve it with --publish-truth")

@@ -64,6 +64,17 @@ class BridgeOptions:
         return f"{head}:{int(port) + 1}" if self.bind.startswith("tcp://") and port.isdigit() else f"{head}:*"
 
 
+def _warm_up(wam: SimulatedWam) -> None:
+    """Run the command and tick paths once on a throwaway simulator, so that compiling the tracking kernel
+    and first uses of the spline code happen before the clock starts, not as a stall in the control loop."""
+    spare = SimulatedWam(wam.kinematics, wam.options, seed=0, q0=wam.true_state().q)
+    q = spare.true_state().q
+    spare.command_trajectory([0.002, 0.01, 0.02], np.stack([q, q, q]))
+    spare.step(6)
+    spare.command_trajectory([0.014, 0.03], np.stack([q, q]), np.zeros((2, q.size)))
+    spare.step(10)
+
+
 class SimBridge:
     """Serve ``wam`` over the robot link in real time (see the module docstring).
 
@@ -91,6 +102,7 @@ class SimBridge:
             raise ValueError(f"cannot bind the robot link at {options.bind} / {options.resolved_state_bind()}: {exc}") from None
         self.command_endpoint = self._router.getsockopt_string(zmq.LAST_ENDPOINT)
         self.state_endpoint = self._pub.getsockopt_string(zmq.LAST_ENDPOINT)
+        _warm_up(wam)
         self.epoch_ns = time.monotonic_ns()
         self.mode = "idle"
         self.cmd_id = -1
