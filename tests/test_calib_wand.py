@@ -209,3 +209,10 @@ def test_detection_csvs_bad_input_is_named(tmp_path):
     b.write_text("2;-1;-1\n1;5;6\n")
     ts, uv = read_detection_csvs([a, b])
     assert ts.tolist() == [1, 2] and np.isnan(uv[1, 1]).all() and uv[1, 0, 0].tolist() == [5, 6]
+
+
+def test_order_wand_points_ignores_extra_candidates():
+    uv = np.array([[10.0, 10.0], [12.0, 140.0], [16.0, 400.0]])  # 130 : 260, a slightly slanted line
+    noisy = np.vstack([uv, [[200.0, 50.0], [90.0, 300.0]]])[[3, 1, 4, 0, 2]]
+    assert np.allclose(order_wand_points(noisy, OFFSETS), uv)
+    assert np.isnan(order_wand_points(np.array([[0.0, 0], [50, 80], [300, 10], [120, 400]]), OFFSETS)).all()

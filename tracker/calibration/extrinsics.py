@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from itertools import combinations
 
 import cv2
 import numpy as np
@@ -241,28 +242,43 @@ def apply_world(R: np.ndarray, t: np.ndarray, X_calib: np.ndarray, X_world: np.n
     return Rn, tn, resid
 
 
-def order_wand_points(uv: np.ndarray, offsets_m) -> np.ndarray:
-    """Label one camera's unlabelled detections of a wand: (k, 2) pixels -> (M, 2) in wand order, NaN if not k == M.
+def order_wand_points(uv: np.ndarray, offsets_m, *, max_candidates: int = 8, max_ratio_error: float = 0.2,
+                      max_line_frac: float = 0.02) -> np.ndarray:
+    """Label one camera's unlabelled detections of a wand: (k, 2) pixels -> (M, 2) in wand order, NaN if none fits.
 
     The balls are sorted along their best-fit image line; of the two directions the one whose
     spacing ratios are closer to the wand's (``offsets_m``) wins (perspective keeps 130:260 far from 260:130).
+    With more than M candidates (other things the detector found; at most ``max_candidates``), every
+    M-subset is tried and the one that is straightest and best matches the spacing ratios is kept, if
+    its points lie within ``max_line_frac`` of its length of a line and its ratios within ``max_ratio_error``.
     """
     offsets = np.asarray(offsets_m, float)
     M = len(offsets)
     uv = np.asarray(uv, float).reshape(-1, 2)
     uv = uv[~np.isnan(uv).any(axis=1)]
     out = np.full((M, 2), np.nan)
-    if len(uv) != M:
+    if len(uv) < M or len(uv) > max_candidates:
         return out
-    if M == 1:  # a single ball: nothing to order
-        return uv
-    c = uv - uv.mean(axis=0)
-    d = np.linalg.svd(c, full_matrices=False)[2][0]
-    s = c @ d
-    order = np.argsort(s)
-    gaps = np.diff(s[order])
+    if M == 1:  # a single ball: only an unambiguous detection counts
+        return uv if len(uv) == 1 else out
     want = np.diff(offsets) / (offsets[-1] - offsets[0])
-    fwd = gaps / max(gaps.sum(), 1e-12)
-    if np.abs(fwd[::-1] - want).sum() < np.abs(fwd - want).sum():
-        order = order[::-1]
-    return uv[order]
+    best, best_score = None, np.inf
+    for subset in combinations(range(len(uv)), M):
+        pts = uv[list(subset)]
+        c = pts - pts.mean(axis=0)
+        _, sv, vt = np.linalg.svd(c, full_matrices=False)
+        s = c @ vt[0]
+        order = np.argsort(s)
+        gaps = np.diff(s[order])
+        length = max(gaps.sum(), 1e-12)
+        fwd = gaps / length
+        err_f, err_b = np.abs(fwd - want).sum(), np.abs(fwd[::-1] - want).sum()
+        if err_b < err_f:
+            order, err_f = order[::-1], err_b
+        line = sv[1] / np.sqrt(M) / length if M > 2 else 0.0
+        if len(uv) > M and (line > max_line_frac or err_f > max_ratio_error):
+            continue
+        score = err_f + line
+        if score < best_score:
+            best, best_score = pts[order], score
+    return out if best is None else best
