@@ -157,3 +157,23 @@ def test_status_line_and_summary(rig):
     assert lines and "frame sets" in lines[0] and "latency p50" in lines[0] and "cam3:0" in lines[0]
     assert summary["frame_sets"] == 40 and 100 < summary["rate_hz"] < 300
     assert set(summary["latency_ms"]) >= {"p50", "p99", "max"}
+
+
+def test_a_failing_log_never_stops_tracking_or_publishing(rig, tmp_path):
+    """The log's file fails mid-run (as a full disk would): the service says so once and goes on."""
+    lines = []
+    with Tracker(rig, "rt2") as tr, Publisher("tcp://127.0.0.1:0", None) as pub:
+        log = LiveLog(tmp_path / "fails.mcap", rig, tr, source="test", log_images="none")
+        service = TrackingService(rig, tr, publisher=pub, log=log, options=ServiceOptions(status_period_s=0),
+                                  status=lines.append)
+
+        def frames():
+            for k, afs in enumerate(assembled(80)):
+                if k == 20:
+                    log.bg.writer._file.close()  # the disk goes away under the writer
+                yield afs
+
+        summary = service.run(frames())
+    assert summary["frame_sets"] == 80 and summary["published"]["tennicam"] == 80
+    assert summary["log"]["error"] and "log writer failed" in summary["log"]["error"]
+    assert sum("the session log failed" in ln for ln in lines) == 1

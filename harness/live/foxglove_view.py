@@ -117,6 +117,7 @@ class LiveView:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self.sent = {"images": 0, "scenes": 0, "observations": 0}
+        self.error: str | None = None
         self._thread = threading.Thread(target=self._run, name="rt2-live-view", daemon=True)
         self._thread.start()
 
@@ -131,6 +132,12 @@ class LiveView:
 
     # -- the view's thread ----------------------------------------------------------------------
     def _run(self) -> None:
+        try:
+            self._loop()
+        except Exception as exc:  # the view stops; the tracker never notices (error reported in ``error``)
+            self.error = f"{type(exc).__name__}: {exc}"
+
+    def _loop(self) -> None:
         o = self.options
         next_static = next_image = next_scene = 0.0
         while not self._stop.is_set():

@@ -100,6 +100,7 @@ class TrackingService:
         if not isinstance(self.options, ServiceOptions):
             raise ValueError(f"options must be a ServiceOptions, got {type(self.options).__name__}")
         self.status = status
+        self.log_error: str | None = None  # the log failed (disk full, ...): tracking and publishing went on
         self.stats = LiveStats(rig.names)
         self.num = 0
         self._names = rig.names
@@ -121,8 +122,13 @@ class TrackingService:
                 tennicam_message(num, _time_ns(afs.frameset.t_s), time.monotonic() - t_first, obs.position_m), rich)
         latency = t_done - t_first
         self.stats.add(afs, obs, latency, t_done)
-        if self.log is not None:
-            self.log.write(num, self.log.log_time(t_first), afs, obs, info)
+        if self.log is not None and self.log_error is None:
+            try:
+                self.log.write(num, self.log.log_time(t_first), afs, obs, info)
+            except Exception as exc:  # the robot keeps its stream: stop logging, say so, go on
+                self.log_error = f"{type(exc).__name__}: {exc}"
+                if self.status is not None:
+                    self.status(f"the session log failed at frame set {num}; tracking and publishing go on without it: {self.log_error}")
         if self.view is not None:
             self.view.update(num, afs, obs, info)
         return obs
@@ -183,8 +189,10 @@ class TrackingService:
             s["published"] = dict(self.publisher.sent)
             s["publish_failed"] = dict(self.publisher.failed)
             s["addresses"] = dict(self.publisher.addresses)
+        if self.view is not None:
+            s["view"] = {"port": self.view.port, "sent": dict(self.view.sent), "error": self.view.error}
         if self.log is not None:
-            s["log"] = {"path": str(self.log.path), "dropped": self.log.dropped}
+            s["log"] = {"path": str(self.log.path), "dropped": self.log.dropped, "error": self.log_error}
         if self._assembly is not None:
             s["assembly"] = self._assembly
         return s
@@ -203,7 +211,12 @@ class TrackingService:
             except Exception as exc:  # figures only: never lose the log over them
                 self._assembly = {"error": f"{type(exc).__name__}: {exc}"}
         if self.log is not None:
-            self.log.close(figures=_json_safe(self.summary()), error=error)
+            try:
+                self.log.close(figures=_json_safe(self.summary()), error=error or self.log_error)
+            except Exception as exc:
+                if self.log_error is None:
+                    raise
+                self.log_error += f"; closing it: {type(exc).__name__}: {exc}"
 
 
 def _assembly_status(source) -> str:
