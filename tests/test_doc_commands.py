@@ -22,7 +22,9 @@ PLACEHOLDER = re.compile(r"[|<>\[\]{}]|\.\.\.|…|\b[A-Z]{2,}\b|\bM\.npz")
 
 def _commands(text: str) -> list[str]:
     found = [" ".join(m.split()) for m in re.findall(r"`(rt2 [^`]+)`", text)]
-    for block in re.findall(r"```(?:sh|bash)?\n(.*?)```", text, flags=re.S):
+    for lang, block in re.findall(r"```(\w*)\n(.*?)```", text, flags=re.S):  # pair every fence, whatever its language
+        if lang not in ("", "sh", "bash"):
+            continue
         for line in block.splitlines():
             line = line.split("#", 1)[0].strip()
             if line.startswith("rt2 "):

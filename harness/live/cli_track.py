@@ -198,7 +198,7 @@ def _print_summary(s: dict) -> None:
     a = s.get("assembly")
     if isinstance(a, dict) and "dropped_framesets" in a:
         print(f"  assembly: {a.get('complete')} complete, {a.get('incomplete')} incomplete, "
-              f"{a.get('dropped_framesets')} frame sets dropped before the tracker (rt2 too slow), "
+              f"{a.get('dropped_framesets')} frame sets dropped before the tracker (it did not take them in time), "
               f"frames dropped per camera {list(a.get('dropped', ()))}, late {list(a.get('late', ()))}")
         for e in a.get("errors", ()) or ():
             if e:
