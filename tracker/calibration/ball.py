@@ -15,8 +15,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from tracker.calibration.bundle import BundleOptions, BundleResult, PointModel, bundle_adjust
-from tracker.calibration.extrinsics import _undistort, check_spread, pair_essential, triangulate_views
+from tracker.calibration.bundle import BundleOptions, PointModel, bundle_adjust
+from tracker.calibration.extrinsics import check_spread, pair_essential, triangulate_views, undistort_pixels
 from tracker.calibration.poses import rigid_fit, rvec_to_R
 
 __all__ = ["apply_similarity", "calibrate_ball"]
@@ -26,7 +26,7 @@ def calibrate_ball(cameras, uv, *, min_matches: int = 30, ransac_px: float = 2.0
                    options: BundleOptions | None = None):
     """Poses of ``cameras`` (intrinsics used) from one ball: ``uv`` (n_cams, F, 2) distorted pixels, NaN = not seen.
 
-    returns (R (n, 3, 3), t (n, 3) in the unit "first pair's baseline", :class:`BundleResult`)
+    returns (R (n, 3, 3), t (n, 3) in the unit "first pair's baseline", the bundle adjustment's ``BundleResult``)
     """
     cams = list(cameras)
     names = [c.name for c in cams]
@@ -38,7 +38,7 @@ def calibrate_ball(cameras, uv, *, min_matches: int = 30, ransac_px: float = 2.0
     for c in range(n):
         if seen[c].sum() < min_matches:
             raise ValueError(f"camera {names[c]}: only {int(seen[c].sum())} ball detections, need >= {min_matches}")
-    xn = np.stack([_undistort(c, uv[i]) for i, c in enumerate(cams)])
+    xn = np.stack([undistort_pixels(c, uv[i]) for i, c in enumerate(cams)])
     f_mean = float(np.mean([c.K[0, 0] for c in cams]))
     both = seen[:, None] & seen[None, :]
     shared = both.sum(axis=2)

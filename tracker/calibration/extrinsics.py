@@ -26,7 +26,7 @@ from tracker.calibration.poses import chain_poses, rigid_fit
 from tracker.camera import Camera
 from tracker.triangulation import triangulate_linear
 
-__all__ = ["WandOptions", "WandResult", "apply_world", "calibrate_wand", "check_spread", "order_wand_points", "pair_essential", "triangulate_views"]
+__all__ = ["WandOptions", "WandResult", "apply_world", "calibrate_wand", "check_spread", "order_wand_points", "pair_essential", "triangulate_views", "undistort_pixels"]
 
 
 @dataclass(frozen=True)
@@ -88,12 +88,13 @@ def pair_essential(xn_a: np.ndarray, xn_b: np.ndarray, threshold: float):
 
 def triangulate_views(cams, R, t, uv: np.ndarray) -> np.ndarray:
     """Linear triangulation of (n, P, 2) distorted pixels (NaN: not seen) with poses R, t -> (P, 3)."""
-    xn = np.stack([_undistort(c, uv[i]) for i, c in enumerate(cams)], axis=1)  # (P, n, 2)
+    xn = np.stack([undistort_pixels(c, uv[i]) for i, c in enumerate(cams)], axis=1)  # (P, n, 2)
     P = np.concatenate([R, t[:, :, None]], axis=2)
     return triangulate_linear(xn, P)
 
 
-def _undistort(cam: Camera, uv: np.ndarray) -> np.ndarray:
+def undistort_pixels(cam: Camera, uv: np.ndarray) -> np.ndarray:
+    """(..., 2) distorted pixels of ``cam`` -> (..., 2) normalised coordinates; NaN stays NaN."""
     out = np.full(uv.shape, np.nan)
     ok = ~np.isnan(uv).any(axis=-1)
     if ok.any():
@@ -139,7 +140,7 @@ def calibrate_wand(cameras, uv, offsets_m, options: WandOptions | None = None) -
         k = int(seen[c, fit].sum())
         if k < opt.min_camera_obs:
             raise ValueError(f"camera {names[c]}: only {k} ball detections in the fitted frames, need >= {opt.min_camera_obs}")
-    xn = np.stack([_undistort(c, uv[i]) for i, c in enumerate(cams)])  # (n, F, M, 2)
+    xn = np.stack([undistort_pixels(c, uv[i]) for i, c in enumerate(cams)])  # (n, F, M, 2)
     f_mean = float(np.mean([c.K[0, 0] for c in cams]))
     edges, support, degenerate = {}, {}, {}
     model = WandModel(offsets)
