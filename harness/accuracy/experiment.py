@@ -135,7 +135,7 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
     from tqdm import tqdm
 
     bar = tqdm(total=n, desc="accuracy", unit="frame", file=sys.stderr, disable=not progress, smoothing=0.05)
-    partial, done = None, np.zeros(n, bool)
+    partial = None
     try:
         try:
             with Executor(sweep) as ex:
@@ -146,8 +146,8 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
                         latency[kind][fr.index] = obs.latency_s
                     if writer is not None:
                         writer.write_frame(fr)
-                    done[fr.index] = True
         except SweepStopped as stop:  # keep what finished: score it if enough frames register the robot
+            done = np.all([r.present for r in records.values()], axis=0)  # every tracker's answer is in
             partial = {"reason": str(stop), "frames_done": int(done.sum()), "exit_code": stop.exit_code}
             if not done.any():
                 raise ValueError(f"accuracy: {stop} before any frame set finished") from None
