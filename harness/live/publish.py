@@ -86,12 +86,12 @@ def _stamps(values) -> list:
     return [_num(v) for v in np.asarray(values, float).ravel().tolist()]
 
 
-def rich_message(num: int, afs, obs, *, t_first_host_s: float, t_publish_s: float, camera_names) -> dict:
+def rich_message(num: int, afs, obs, *, t_first_host_s: float, camera_names, t_publish_s: float | None = None) -> dict:
     """rt2's own message for one frame set (every field documented in docs/live.md).
 
     afs : the :class:`~harness.live.frames.AssembledFrameSet`; obs : its ``tracker.BallObservation``;
     t_first_host_s / t_publish_s : ``time.monotonic()`` seconds of the first frame's arrival and of
-    the publication
+    the publication (None: :meth:`Publisher.publish` stamps it, and ``latency_s``, just before the send)
     """
     pos = None if obs.position_m is None else [float(v) for v in obs.position_m]
     cov = None if obs.covariance_m2 is None else np.asarray(obs.covariance_m2, float).tolist()
@@ -112,9 +112,9 @@ def rich_message(num: int, afs, obs, *, t_first_host_s: float, t_publish_s: floa
         "t_device_s": _stamps(afs.t_device_s),
         "t_first_host_s": float(t_first_host_s),
         "t_assembled_s": float(afs.t_assembled_s),
-        "t_publish_s": float(t_publish_s),
+        "t_publish_s": None if t_publish_s is None else float(t_publish_s),
         "tracker_latency_s": float(obs.latency_s),
-        "latency_s": float(t_publish_s - t_first_host_s),
+        "latency_s": None if t_publish_s is None else float(t_publish_s - t_first_host_s),
         "notes": [str(n) for n in (*afs.notes, *obs.notes)],
     }
 

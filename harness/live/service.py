@@ -116,8 +116,7 @@ class TrackingService:
         t_first = first_host_stamp(afs)
         t_done = time.monotonic()
         if self.publisher is not None:
-            rich = rich_message(num, afs, obs, t_first_host_s=t_first, t_publish_s=0.0, camera_names=self._names)
-            rich["t_publish_s"] = None  # stamped by the publisher just before its send
+            rich = rich_message(num, afs, obs, t_first_host_s=t_first, camera_names=self._names)  # stamped at the send
             t_done = self.publisher.publish(
                 tennicam_message(num, _time_ns(afs.frameset.t_s), time.monotonic() - t_first, obs.position_m), rich)
         latency = t_done - t_first
