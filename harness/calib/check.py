@@ -111,6 +111,8 @@ def run_check(cfg: CheckConfig) -> dict:
     total = (res.total_m - WAND_OFFSETS_M[-1]) * 1000
     return {"rig": cfg.rig, "seed": cfg.seed, "cameras": len(truth), "intrinsics": {"per_camera": intr, "vs_truth": intr_cmp},
             "wand": {"detected_fraction": found, "fit_frames": int(len(res.fit_frames)), "reprojection_px": res.reproj_px,
-                     "holdout_total_error_mm": {"mean": float(np.nanmean(total)), "std": float(np.nanstd(total)), "n": int(np.isfinite(total).sum())}},
+                     "holdout_total_error_mm": {"mean": float(np.nanmean(total)), "std": float(np.nanstd(total)),
+                                                "robust_std": float(1.4826 * np.nanmedian(np.abs(total - np.nanmedian(total)))),
+                                                "max_abs": float(np.nanmax(np.abs(total))), "n": int(np.isfinite(total).sum())}},
             "table_fit_residual_mm": (resid * 1000).round(2).tolist(),
             "extrinsics_vs_truth": ext, "extrinsics_vs_truth_aligned": ext_aligned, "rig_obj": rig}

@@ -52,7 +52,8 @@ def format_check(res: dict) -> str:
     lines.append(f"{'worst':>8s} {wi['focal_pct']:8.3f} {wi['principal_px']:6.2f} {w['centre_mm']:9.2f} {w['rotation_deg']:8.4f}")
     lines.append(f"{'goal':>8s} {GOALS['focal_pct']:8.3f} {GOALS['principal_px']:6.2f} {GOALS['centre_mm']:9.2f} {GOALS['rotation_deg']:8.4f}")
     h = res["wand"]["holdout_total_error_mm"]
-    lines.append(f"wand 390 mm on {h['n']} held-out frame sets: error {h['mean']:+.2f} mm mean, {h['std']:.2f} mm std (goal std <= 0.5); "
+    lines.append(f"wand 390 mm on {h['n']} held-out frame sets: error {h['mean']:+.2f} mm mean, {h['std']:.2f} mm std (goal std <= 0.5), "
+                 f"{h.get('robust_std', float('nan')):.2f} mm robust std (1.4826 MAD), max |error| {h.get('max_abs', float('nan')):.2f} mm; "
                  f"balls labelled in {100 * res['wand']['detected_fraction']:.0f} % of camera views; table fit residual "
                  f"{max(res['table_fit_residual_mm']):.1f} mm")
     return "\n".join(lines)
