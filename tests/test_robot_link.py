@@ -166,7 +166,7 @@ def test_robot_holds_when_the_commanding_process_dies(bridge, kin):
         "w.command_trajectory([s.t_s + 0.02, s.t_s + 3.0], np.stack([s.q, q1]))\n"
         "print('commanded', flush=True)\n"
         "time.sleep(30)\n")
-    with WamClient(bridge.address, kinematics=kin, heartbeat_s=None) as listener:
+    with WamClient(bridge.address, kinematics=kin, heartbeat_s=None, timeout_s=1.0) as listener:
         proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, stdout=subprocess.PIPE, text=True)
         try:
             assert proc.stdout.readline().strip() == "commanded"

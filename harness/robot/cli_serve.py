@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="add this to the robot clock (to test the clock-offset estimate)")
     parser.add_argument("--publish-truth", action="store_true",
                         help="add the simulator's true joint angles to every state (simulated scenes need them)")
+    parser.add_argument("--batch", type=int, default=1, metavar="N",
+                        help="run and publish the ticks N at a time (default 1: every state as its tick comes; on a busy "
+                             "machine N > 1 uses less CPU at N - 1 ticks of extra delay; the stamps stay the ticks')")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     parser.add_argument("--ready-json", action="store_true", help="print the ready line as JSON")
 
@@ -54,7 +57,8 @@ def run(args) -> int:
     if args.duration is not None and not args.duration > 0:
         raise ValueError(f"--duration must be > 0 s, got {args.duration!r}")
     options = BridgeOptions(bind=args.bind, state_bind=args.state_bind, watchdog_s=args.watchdog,
-                            clock_skew_ns=int(round(args.clock_skew_ms * 1e6)), publish_truth=args.publish_truth)
+                            clock_skew_ns=int(round(args.clock_skew_ms * 1e6)), publish_truth=args.publish_truth,
+                            batch_ticks=args.batch)
     bridge = SimBridge(SimulatedWam(kin, sim_opts, seed=args.seed), options)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: bridge.stop())

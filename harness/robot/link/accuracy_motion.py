@@ -135,7 +135,8 @@ def link_motion_source(address: str):
             return run_on(address, kin, config)
         from harness.robot.link.spawn import SimBridgeProcess
 
-        with SimBridgeProcess("--seed", str(robot_seed_of(config.seed)), "--publish-truth") as bridge:
+        # --batch 5: the bridge wakes every 10 ms (same stamps, less CPU; the motion is commanded ahead of time)
+        with SimBridgeProcess("--seed", str(robot_seed_of(config.seed)), "--publish-truth", "--batch", "5") as bridge:
             return run_on(bridge.address, kin, config)
 
     return source

@@ -18,6 +18,7 @@ estimate against a known skew; ``epoch_ns`` is reported on the ready line for th
 from __future__ import annotations
 
 import logging
+import math
 import time
 import uuid
 from dataclasses import dataclass
@@ -46,6 +47,7 @@ class BridgeOptions:
     watchdog_s: float = 0.3  #: hold after this long without a valid request
     clock_skew_ns: int = 0  #: added to the robot clock (tests of the clock-offset estimate)
     publish_truth: bool = False  #: add the simulator's truth to every state (``sim``: q_true, bias_rad, offset_ns)
+    batch_ticks: int = 1  #: wake every this many ticks (1: each state as its tick comes; N: less CPU, N-1 ticks later)
 
     def __post_init__(self):
         for name in ("bind",) + (("state_bind",) if self.state_bind is not None else ()):
@@ -54,6 +56,8 @@ class BridgeOptions:
                 raise ValueError(f"BridgeOptions.{name} must be a ZeroMQ endpoint like tcp://127.0.0.1:7650, got {value!r}")
         if not 0.01 <= float(self.watchdog_s) <= 10:
             raise ValueError(f"BridgeOptions.watchdog_s must be in [0.01, 10] s, got {self.watchdog_s!r}")
+        if isinstance(self.batch_ticks, bool) or not isinstance(self.batch_ticks, int) or not 1 <= self.batch_ticks <= 50:
+            raise ValueError(f"BridgeOptions.batch_ticks must be an integer in [1, 50], got {self.batch_ticks!r}")
         if not isinstance(self.clock_skew_ns, int) or abs(self.clock_skew_ns) > 10**12:
             raise ValueError(f"BridgeOptions.clock_skew_ns must be an int of at most 1000 s, got {self.clock_skew_ns!r}")
 
@@ -134,8 +138,8 @@ class SimBridge:
         try:
             while not self._stop and (end_ns is None or self.robot_ns() < end_ns):
                 self._run_ticks()
-                wait_ms = ((self._ticks + 1) * self.dt_ns - self.robot_ns()) / 1e6
-                if poller.poll(timeout=max(0, int(wait_ms))):
+                wait_ms = ((self._ticks + self.options.batch_ticks) * self.dt_ns - self.robot_ns()) / 1e6
+                if poller.poll(timeout=max(1, math.ceil(wait_ms))):  # sleeps (a tick runs <= 1 ms late), never spins
                     for _ in range(_MAX_REQUESTS_PER_TICK):  # a flood of requests never starves the control ticks
                         if not self._router.poll(0):
                             break
