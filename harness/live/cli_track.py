@@ -240,6 +240,11 @@ def run(args) -> int:
         service.finish()
         for close in reversed(closers):
             close()
+    errors = (summary.get("assembly") or {}).get("errors") or ()
+    if summary["frame_sets"] == 0 and errors and all(errors):  # no camera ever delivered: nothing to keep
+        if args.log:
+            Path(args.log).unlink(missing_ok=True)
+        raise ValueError("no camera delivered a frame: " + "; ".join(str(e) for e in errors))
     if "signal" in got:
         summary["stopped_by"] = got["signal"]
         print(f"rt2 track: stopped by {got['signal']}" + (f"; log finished {summary['stop_to_log_closed_s']:.2f} s later"
