@@ -179,7 +179,8 @@ class WamClient:
                 if sub.poll(5):
                     while sub.poll(0):
                         self._receive(sub.recv())
-                elif time.monotonic() - self._last_state_mono > self.timeout_s:
+                elif self._latest is not None and time.monotonic() - self._last_state_mono > self.timeout_s:
+                    # (before the first state the constructor waits up to connect_timeout_s)
                     with self._lock:
                         self._lose(f"no joint state from the robot at {self.address} for "
                                    f"{time.monotonic() - self._last_state_mono:.3f} s (limit {self.timeout_s:g} s)")
