@@ -98,8 +98,10 @@ def test_sim_frames_ids_stamps_and_same_seed_same_images(rig):
 
 
 def test_sim_real_time_rate_and_host_stamps(rig):
-    sources = open_sources(["sim"], rig, rate_hz=50.0, seed=0, scene_provider=_ball_scene, duration_s=0.5)
-    sets, st = _collect(sources, 25, 50.0)
+    # long queues: a loaded machine may starve the reader threads for longer than 8 frames
+    sources = open_sources(["sim"], rig, rate_hz=50.0, seed=0, scene_provider=_ball_scene, duration_s=0.5,
+                           queue_len=64)
+    sets, st = _collect(sources, 25, 50.0, queue_len=64)
     assert len(sets) + sources[0].stats().skipped == 25
     t = np.array([s.t_host_s[0] for s in sets])
     k = np.array([s.frame_id for s in sets])
@@ -117,6 +119,25 @@ def test_sim_prerendered_clip_loops(rig):
     assert [s.frame_id for s in sets] == list(range(12)) and st.complete == 12
     assert np.array_equal(sets[7].frameset.images[1], sets[2].frameset.images[1])  # 5 frame sets, looped
     assert not np.array_equal(sets[3].frameset.images[1], sets[2].frameset.images[1])
+
+
+def test_sim_render_process_gives_the_thread_s_images(rig):
+    from harness.live.sources.sim import LauncherFlights
+
+    flights = LauncherFlights(0, n_serves=1)  # picklable: goes to the child process
+    runs = []
+    for in_process in (False, True):
+        sources = open_sources(["sim"], rig, rate_hz=100.0, seed=5, speed=None, scene_provider=flights,
+                               duration_s=0.08, render_process=in_process)
+        feed = sources[0].feed
+        sets, st = _collect(sources, 20, 100.0, lossless=True)
+        assert [s.frame_id for s in sets] == list(range(8)) and st.complete == 8
+        runs.append(sets)
+    for a, b in zip(*runs):
+        assert all(np.array_equal(x, y) for x, y in zip(a.frameset.images, b.frameset.images))
+    assert feed._closers == []  # closing the sources ended the child process and freed the shared memory
+    with pytest.raises(ValueError, match="picklable scene_provider"):
+        open_sources(["sim"], rig, scene_provider=lambda t: _ball_scene(t), render_process=True)
 
 
 def test_close_stops_an_endless_sim_promptly(rig):

@@ -23,7 +23,9 @@ estimate on the host's monotonic clock: ``t_device_s + offset`` where the camera
 and its clock offset is estimated (:mod:`.sources.clock`; the offset includes the smallest transfer
 latency), else the arrival stamp ``t_host_s``. With ``clock="device"`` the device stamps are taken
 as they are (the cameras share one clock: PTP-synchronised cameras, or a recording stamped on one
-machine), falling back to the arrival stamp for frames without one. Sets are emitted in capture order.
+machine), falling back to the arrival stamp for frames without one. Sets are emitted in capture order,
+and ``t_s`` increases strictly: an estimate at or before the previous set's (arrival jitter) is moved
+just after it and counted (``clamped_times``).
 """
 
 from __future__ import annotations
@@ -119,6 +121,8 @@ class AssemblyStats:
     missing : sets emitted without this camera's frame
     ended : the source is exhausted or failed; errors : the failure message, or None
     clock_offsets : :class:`~harness.live.sources.clock.ClockOffset` per camera, None without device stamps
+    clamped_times : sets whose capture-time estimate came out at or before the previous set's (arrival
+        jitter without device stamps) and was moved just after it, so ``t_s`` always increases
     sources : per camera, the source's own counters (its ``stats()`` where it has one, else None): sim,
         replay and video report their shared feed's :class:`~harness.live.sources._feed.FeedStats`
         (late and skipped frame sets: the renderer could not keep up), pylon its grab errors
@@ -137,6 +141,7 @@ class AssemblyStats:
     errors: tuple
     clock_offsets: tuple
     sources: tuple = ()
+    clamped_times: int = 0
 
 
 @dataclass
@@ -182,6 +187,7 @@ class FrameSetAssembler:
         self._dropped = [0] * n
         self._missing = [0] * n
         self._framesets = self._complete = self._delivered = self._dropped_sets = 0
+        self._last_t_s, self._clamped = -math.inf, 0
         self._threads: list[threading.Thread] = []
         self._started = False
         self._t_start = 0.0
@@ -333,6 +339,10 @@ class FrameSetAssembler:
     def _emit(self, p: _Pending, notes: list, now: float) -> None:
         present = [f for f in p.frames if f is not None]
         t_s = float(np.median([t for t in p.t_capture if not math.isnan(t)]))
+        if t_s <= self._last_t_s:  # arrival jitter would put this set before the previous one
+            t_s = math.nextafter(self._last_t_s, math.inf)
+            self._clamped += 1
+        self._last_t_s = t_s
         frame_id = int(p.order) if self.options.match == "frame_id" else self._set_number
         images = tuple(None if f is None else f.image for f in p.frames)
         t_host = np.array([math.nan if f is None else f.t_host_s for f in p.frames])
@@ -420,7 +430,7 @@ class FrameSetAssembler:
                 late=tuple(self._late), dropped=tuple(self._dropped), missing=tuple(self._missing),
                 ended=tuple(self._ended), errors=tuple(self._errors),
                 clock_offsets=tuple(c.estimate() if has else None for c, has in zip(self._clocks, self._has_device)),
-                sources=own)
+                sources=own, clamped_times=self._clamped)
 
 
 def _source_stats(source):

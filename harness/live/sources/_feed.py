@@ -111,6 +111,7 @@ class PacedFeed:
         self._started = False
         self._open_views = 0
         self.skipped = 0  # counted by producers that skip ahead (sim)
+        self._closers: list = []
 
     # -- lifetime ---------------------------------------------------------------------------------
     def start(self) -> None:
@@ -136,6 +137,12 @@ class PacedFeed:
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(timeout=5.0)
+        while self._closers:
+            self._closers.pop()()
+
+    def add_closer(self, fn: Callable[[], None]) -> None:
+        """Call ``fn`` when the feed closes (after its threads have stopped), e.g. to end a child process."""
+        self._closers.append(fn)
 
     def _attach(self) -> None:
         with self._cond:

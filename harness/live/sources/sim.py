@@ -49,6 +49,8 @@ class SimOptions:
     speed : 1.0 real time, None = as fast as rendering allows (for benchmarks and tests)
     queue_len : frames buffered per camera before the oldest is dropped (counted)
     exposure : the cameras' exposure (constant)
+    render_process : render in a child process (another core, never holding the tracker's interpreter
+        lock; the scene provider must be picklable; ~1 s per VGA camera to start) instead of a thread
     """
 
     rate_hz: float = 200.0
@@ -59,6 +61,7 @@ class SimOptions:
     speed: float | None = 1.0
     queue_len: int = 8
     exposure: Exposure = Exposure(exposure_s=0.002, gain=1.0, light_level=1.0)
+    render_process: bool = False
 
     def __post_init__(self):
         if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
@@ -137,10 +140,17 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
         provider = LauncherFlights(options.seed, exposure=options.exposure)
     if not callable(provider):
         raise ValueError(f"scene_provider must be a callable t_s -> Scene, got {type(provider).__name__}")
-    renderer = Renderer(rig, render_options, seed=options.seed)  # ray-casts the static lab now (~1 s per VGA camera)
     n = len(rig.cameras)
     period = 1.0 / options.rate_hz
     n_total = None if options.duration_s is None else int(round(options.duration_s * options.rate_hz))
+    process = None
+    if options.render_process and options.prerender_s is None:
+        from harness.live.sources._render_process import RenderProcess
+
+        process = RenderProcess(rig, render_options, options.seed, provider, slots=options.render_ahead)
+        renderer = None
+    else:
+        renderer = Renderer(rig, render_options, seed=options.seed)  # ray-casts the static lab (~1 s per VGA camera)
 
     def render(k: int) -> tuple:
         scene = provider(k * period)
@@ -152,21 +162,54 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
     if options.prerender_s is not None:
         clip = [render(k) for k in range(max(1, int(round(options.prerender_s * options.rate_hz))))]
 
+    def next_index(k: int) -> int:
+        """k, or the first frame set not yet due when k already is (counted in ``skipped``)."""
+        now = feed.schedule_now()
+        if now is not None and clip is None and k * period < now:
+            k_next = int(now / period) + 1
+            feed.skipped += k_next - k
+            return k_next
+        return k
+
     def produce():
         k = 0
         while n_total is None or k < n_total:
-            now = feed.schedule_now()
-            if now is not None and clip is None and k * period < now:  # already due: skip to the next frame set
-                k_next = int(now / period) + 1
-                feed.skipped += k_next - k
-                k = k_next
-                if n_total is not None and k >= n_total:
-                    break
+            k = next_index(k)
+            if n_total is not None and k >= n_total:
+                break
             images = clip[k % len(clip)] if clip is not None else render(k)
             t = k * period
             yield FeedItem((k,) * n, t, (t,) * n, images)
             k += 1
 
-    feed = PacedFeed("sim", range(n), rig.names, produce, speed=options.speed, queue_len=options.queue_len,
-                     prefetch=0 if clip is not None else options.render_ahead, late_tolerance_s=period, slide=False)
+    def produce_in_process():
+        free, asked, k = list(range(process.slots)), 0, 0
+        while True:
+            while free and (n_total is None or k < n_total):
+                k = next_index(k)
+                if n_total is not None and k >= n_total:
+                    break
+                process.request(k, free.pop(), k * period)
+                asked += 1
+                k += 1
+            if not asked:
+                return
+            got = None
+            while got is None:
+                if feed._stop.is_set():
+                    return
+                got = process.result(0.1)
+            k_done, slot = got
+            asked -= 1
+            images = process.images(slot)
+            free.append(slot)
+            t = k_done * period
+            yield FeedItem((k_done,) * n, t, (t,) * n, images)
+
+    feed = PacedFeed("sim", range(n), rig.names, produce_in_process if process is not None else produce,
+                     speed=options.speed, queue_len=options.queue_len,
+                     prefetch=0 if clip is not None or process is not None else options.render_ahead,
+                     late_tolerance_s=period, slide=False)
+    if process is not None:
+        feed.add_closer(process.close)
     return feed.views(), feed

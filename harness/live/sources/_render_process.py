@@ -1,0 +1,187 @@
+"""The ``sim`` source's renderer in a child process, so that rendering runs on another core and never
+holds the tracker's interpreter lock.
+
+The child is a fresh interpreter (``python -m harness.live.sources._render_process``: nothing of the
+parent's threads, locks or ``__main__`` is inherited, so it works from any script). It builds its
+own :class:`harness.render.Renderer` for the rig, then renders the frame sets it is asked for into a
+ring of ``slots`` frame sets in shared memory and answers with the slot; the parent copies the
+images out and gives the slot back. Requests are served in order; messages are pickles over the
+child's stdin / stdout. The scene provider is pickled into the child, so it must be picklable
+(:class:`~.sim.LauncherFlights` is; a lambda is not).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pickle
+import queue
+import subprocess
+import sys
+import threading
+import time
+from multiprocessing import shared_memory
+
+import numpy as np
+
+__all__ = ["RenderProcess"]
+
+
+def _views(buf, shapes, slots: int) -> list[list[np.ndarray]]:
+    per_set = sum(int(np.prod(s)) for s in shapes)
+    out = []
+    for slot in range(slots):
+        offset, row = slot * per_set, []
+        for s in shapes:
+            n = int(np.prod(s))
+            row.append(np.ndarray(s, np.uint8, buffer=buf, offset=offset))
+            offset += n
+        out.append(row)
+    return out
+
+
+def _serve(inp, out) -> None:
+    """The child: read the set-up, then requests ``(k, slot, t_s)`` until None or end of input."""
+    shm, views = None, None
+
+    def send(msg) -> None:
+        pickle.dump(msg, out)
+        out.flush()
+
+    try:
+        rig_dict, render_options, seed, provider, shm_name, shapes, slots = pickle.load(inp)
+        from harness.render import Renderer, Scene
+        from tracker import Rig
+
+        shm = shared_memory.SharedMemory(name=shm_name)
+        try:  # the parent owns the block: keep this process's resource tracker from unlinking it at exit
+            from multiprocessing import resource_tracker
+
+            resource_tracker.unregister(shm._name, "shared_memory")
+        except Exception:  # noqa: BLE001 - Python versions differ; at worst a warning at exit
+            pass
+        renderer = Renderer(Rig.from_dict(rig_dict), render_options, seed=seed)
+        views = _views(shm.buf, shapes, slots)
+        send(("ready",))
+        while True:
+            try:
+                req = pickle.load(inp)
+            except EOFError:  # the parent is gone
+                break
+            if req is None:
+                break
+            k, slot, t_s = req
+            scene = provider(t_s)
+            if not isinstance(scene, Scene):
+                raise ValueError(f"scene_provider({t_s:.4f}) returned {type(scene).__name__}, not a Scene")
+            for view, image in zip(views[slot], renderer.render(dataclasses.replace(scene, frame_index=k))):
+                view[...] = image
+            send(("done", k, slot))
+    except BaseException as exc:  # noqa: BLE001 - reported to the parent, which raises it to the readers
+        try:
+            send(("error", f"{type(exc).__name__}: {exc}"))
+        except (OSError, ValueError):
+            pass
+    finally:
+        if shm is not None:
+            views = None
+            shm.close()
+
+
+class RenderProcess:
+    """A child process rendering frame sets of ``rig`` (see the module docstring)."""
+
+    def __init__(self, rig, render_options, seed: int, provider, *, slots: int = 16, start_timeout_s: float = 300.0):
+        try:
+            pickle.dumps(provider)
+        except Exception as exc:  # noqa: BLE001 - any pickling failure means the same thing here
+            raise ValueError(f"the sim renderer process needs a picklable scene_provider (a module-level function "
+                             f"or an object such as LauncherFlights), got {provider!r}: {exc}") from None
+        self.shapes = [(c.image_size[1], c.image_size[0], 3) for c in rig.cameras]
+        self.slots = int(slots)
+        per_set = sum(int(np.prod(s)) for s in self.shapes)
+        self.shm = shared_memory.SharedMemory(create=True, size=per_set * self.slots)
+        self.views = _views(self.shm.buf, self.shapes, self.slots)
+        self._results: queue.Queue = queue.Queue()
+        self.proc = subprocess.Popen([sys.executable, "-m", "harness.live.sources._render_process"],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self._lock = threading.Lock()
+        self._reader = threading.Thread(target=self._read_results, name="sim renderer results", daemon=True)
+        self._reader.start()
+        try:
+            self._send((rig.to_dict(), render_options, seed, provider, self.shm.name, self.shapes, self.slots))
+            deadline = time.monotonic() + start_timeout_s
+            msg = None
+            while msg is None and time.monotonic() < deadline:
+                try:
+                    msg = self._results.get(timeout=0.2)
+                except queue.Empty:
+                    if self.proc.poll() is not None and self._results.empty():
+                        msg = ("error", f"it exited during start-up (exit code {self.proc.returncode})")
+            if msg is None:
+                raise ValueError(f"the sim renderer process did not start within {start_timeout_s:.0f} s")
+            if msg[0] != "ready":
+                raise ValueError(f"the sim renderer process failed to start: {msg[1]}")
+        except BaseException:
+            self.close()
+            raise
+
+    def _send(self, msg) -> None:
+        with self._lock:
+            pickle.dump(msg, self.proc.stdin)
+            self.proc.stdin.flush()
+
+    def _read_results(self) -> None:
+        try:
+            while True:
+                self._results.put(pickle.load(self.proc.stdout))
+        except (EOFError, OSError, ValueError, pickle.UnpicklingError):
+            self._results.put(("exit",))
+
+    def request(self, k: int, slot: int, t_s: float) -> None:
+        try:
+            self._send((int(k), int(slot), float(t_s)))
+        except (BrokenPipeError, OSError, ValueError):
+            raise RuntimeError(f"the sim renderer process is gone (exit code {self.proc.poll()})") from None
+
+    def result(self, timeout_s: float) -> tuple[int, int] | None:
+        """(k, slot) of the next rendered frame set, None on a timeout; raises what the child raised."""
+        try:
+            msg = self._results.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+        if msg[0] == "error":
+            raise RuntimeError(f"the sim renderer process failed: {msg[1]}")
+        if msg[0] == "exit":
+            raise RuntimeError(f"the sim renderer process died (exit code {self.proc.wait(timeout=5.0)})")
+        return msg[1], msg[2]
+
+    def images(self, slot: int) -> tuple:
+        """Copies of the frame set in ``slot`` (the slot may be reused at once)."""
+        return tuple(v.copy() for v in self.views[slot])
+
+    def close(self) -> None:
+        if self.proc is not None:
+            try:
+                self._send(None)
+                self.proc.stdin.close()
+            except (BrokenPipeError, OSError, ValueError):
+                pass
+            try:
+                self.proc.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=2.0)
+            self._reader.join(timeout=2.0)
+            self.proc.stdout.close()
+            self.proc = None
+        if self.shm is not None:
+            self.views = None
+            self.shm.close()
+            self.shm.unlink()
+            self.shm = None
+
+
+if __name__ == "__main__":
+    _pipe_out = sys.stdout.buffer
+    sys.stdout = sys.stderr  # anything printed goes to stderr, never into the pickle stream
+    _serve(sys.stdin.buffer, _pipe_out)
