@@ -189,3 +189,16 @@ def test_sigterm_accuracy_scores_the_finished_frames_and_closes_the_log(tmp_path
     with SessionLogReader(tmp_path / "session.mcap") as log:
         assert log.finished_cleanly
         assert "SIGTERM" in log.summary().session_end["partial"]["reason"]
+
+
+# -- a data set is all or nothing: a signal leaves --out as it was ------------------------------------------
+def test_sigterm_sim_dataset_stops_fast_and_leaves_out_as_it_was(tmp_path):
+    out = tmp_path / "set"
+    run = Run(cli("sim", "dataset", "--frames", "200", "--seed", "1", "--workers", "2", "--out", str(out)))
+    run.wait_progress(r"(\d+)/200", 8)
+    workers = children(run.proc.pid)
+    code, dt, _ = run.signal_and_wait(signal.SIGTERM)
+    assert code == 128 + signal.SIGTERM, run.err.decode()[-2000:]
+    assert dt < STOP_WITHIN_S
+    assert_gone(workers)
+    assert list(out.iterdir()) == []  # no annotations.json, no image, no staging folder left behind

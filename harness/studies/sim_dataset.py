@@ -6,12 +6,12 @@ least 0.5 (category ``ball``), with the exact projected centre (``center_px``), 
 diameter and the visibility as extra annotation fields; balls seen less than that are listed in
 the image's ``hidden_balls`` field instead (not labels, not lost). Frame f uses the generator
 ``default_rng([seed, f])`` and the renderer's noise for (seed, f), so the output is byte-identical
-for a seed whatever the number of workers.
+for a seed whatever the number of workers. A signal or a lost worker leaves ``--out`` as it was (the
+set is rendered into a staging folder and moved into place only when complete).
 """
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
 import shutil
 import sys
@@ -23,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from harness.coco import ANNOTATIONS_FILE, LabelledImage, write_coco
+from harness.executor import Executor, SweepOptions
 from harness.outputs import OutputError, check_output_dir
 
 __all__ = ["add_arguments", "generate", "run"]
@@ -91,11 +92,12 @@ def _generate_in(rig, rig_obj, frames: int, seed: int, out: Path, workers: int, 
             for task in tasks:
                 results.append(_render_chunk(task))
                 bar.update(len(task[3]))
-        else:
-            with mp.get_context("spawn").Pool(min(workers, len(tasks))) as pool:
-                for res in pool.imap_unordered(_render_chunk, tasks):
+        else:  # worker processes that die with this one (harness.executor); they write into the local
+            # staging folder, so the set is rendered on this machine (no --ray)
+            with Executor(SweepOptions(workers=min(workers, len(tasks)))) as ex:
+                for i, res in ex.map(_render_chunk, tasks):
                     results.append(res)
-                    bar.update(len({key[0] for key, *_ in res}))
+                    bar.update(len(tasks[i][3]))
     finally:  # the bar ends its line before any error message
         bar.close()
     rows = sorted((r for chunk in results for r in chunk), key=lambda r: r[0])
