@@ -67,6 +67,17 @@ class Run:
         return self.proc.returncode, time.monotonic() - t0, out.decode()
 
 
+def stop(run: Run, signum) -> str:
+    """Signal the main process alone; check it exits with 128 + signal within 2 s and leaves no worker; its stdout."""
+    workers = children(run.proc.pid)
+    assert len(workers) >= 2, "the sweep should be running on worker processes"
+    code, dt, out = run.signal_and_wait(signum)
+    assert code == 128 + signum, run.err.decode()[-2000:]
+    assert dt < STOP_WITHIN_S
+    assert_gone(workers)
+    return out
+
+
 def children(pid: int) -> list[int]:
     """Live processes whose parent is ``pid`` (from /proc/*/stat)."""
     out = []
@@ -117,12 +128,7 @@ def test_sigterm_play_stops_fast_keeps_finished_balls_and_closes_the_log(tmp_pat
 
     run = Run(_play(tmp_path))
     run.wait_progress(r"(\d+)/60", 1)
-    workers = children(run.proc.pid)
-    assert len(workers) >= 2
-    code, dt, out = run.signal_and_wait(signal.SIGTERM)
-    assert code == 128 + signal.SIGTERM, run.err.decode()[-2000:]
-    assert dt < STOP_WITHIN_S
-    assert_gone(workers)
+    out = stop(run, signal.SIGTERM)
     assert "PARTIAL (interrupted by SIGTERM)" in out
     (row,) = json.loads((tmp_path / "play.json").read_text())
     assert row["partial"] is True and 1 <= row["balls"] < 60
@@ -135,11 +141,7 @@ def test_sigterm_play_stops_fast_keeps_finished_balls_and_closes_the_log(tmp_pat
 def test_sigint_table1_stops_fast_and_writes_the_finished_chunks(tmp_path):
     run = Run(_table1(tmp_path))
     run.wait_progress(r"(\d+)/160", 4)
-    workers = children(run.proc.pid)
-    code, dt, out = run.signal_and_wait(signal.SIGINT)
-    assert code == 128 + signal.SIGINT, run.err.decode()[-2000:]
-    assert dt < STOP_WITHIN_S
-    assert_gone(workers)
+    out = stop(run, signal.SIGINT)
     assert "PARTIAL (interrupted by SIGINT)" in out
     rows = json.loads((tmp_path / "table1.json").read_text())
     assert rows and all(r["partial"] is True for r in rows)
@@ -174,11 +176,7 @@ def test_sigterm_accuracy_scores_the_finished_frames_and_closes_the_log(tmp_path
 
     run = Run([sys.executable, "-c", ACCURACY, str(tmp_path)])
     run.wait_progress(r"(\d+)/144", 72)  # >= 2 segments handed on: frames 0-35 register, the rest are scored
-    workers = children(run.proc.pid)
-    code, dt, out = run.signal_and_wait(signal.SIGTERM)
-    assert code == 128 + signal.SIGTERM, run.err.decode()[-2000:]
-    assert dt < STOP_WITHIN_S
-    assert_gone(workers)
+    out = stop(run, signal.SIGTERM)
     assert out.startswith("PARTIAL")
     (row,) = json.loads((tmp_path / "accuracy.json").read_text())
     assert row["partial"] is True and row["tracker"] == "rt2"
@@ -196,9 +194,5 @@ def test_sigterm_sim_dataset_stops_fast_and_leaves_out_as_it_was(tmp_path):
     out = tmp_path / "set"
     run = Run(cli("sim", "dataset", "--frames", "200", "--seed", "1", "--workers", "2", "--out", str(out)))
     run.wait_progress(r"(\d+)/200", 8)
-    workers = children(run.proc.pid)
-    code, dt, _ = run.signal_and_wait(signal.SIGTERM)
-    assert code == 128 + signal.SIGTERM, run.err.decode()[-2000:]
-    assert dt < STOP_WITHIN_S
-    assert_gone(workers)
+    stop(run, signal.SIGTERM)
     assert list(out.iterdir()) == []  # no annotations.json, no image, no staging folder left behind
