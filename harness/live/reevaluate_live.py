@@ -8,8 +8,8 @@ statuses, positions, and whether the re-run reproduces the live observations. Tw
   kind, rig and weights runs on the logged images with the logged frame-set times. PNG/raw images
   are lossless, so the observations are the live ones; JPEG re-runs on the compressed images and
   differs a little.
-* ``detections``: rt2's robust estimator and 3D size test re-run on the logged candidates (exactly
-  what the live estimator saw), so with the same settings every status and position is reproduced;
+* ``detections``: rt2's robust estimator, 3D size test and support hand-over re-run on the logged
+  candidates (exactly what the live estimator saw), so with the same settings every status and position is reproduced;
   ``--eps-px`` shows what another threshold would have made of the same session.
 
 RTBlob sessions log no detections: their observations are counted as recorded.
@@ -29,9 +29,28 @@ from tracker import FrameSet, Status
 __all__ = ["reevaluate_track", "run_reevaluate"]
 
 
+def _handover(handover, t_s: float, X, info, uv: np.ndarray):
+    """rt2's support hand-over on one re-run estimate, as ``tracker.Tracker`` applies it: confirmed
+    estimates become references, estimates from fewer cameras are moved by the references' offset."""
+    handover.step(t_s)
+    if X is None or not np.isfinite(t_s):
+        return X
+    used = np.full((uv.shape[0], 2), np.nan)
+    sel = np.flatnonzero(info.candidate_index >= 0)
+    used[sel] = uv[sel, info.candidate_index[sel]]
+    if hasattr(handover, "apply"):  # SupportHandover.apply: any smaller camera set, hand-overs chain
+        return handover.apply(t_s, X, used, info.status is Status.OK)[0]
+    if info.status is Status.OK:  # the two-camera form: record confirmed, move LOW_SUPPORT
+        handover.record(t_s, X, used)
+    elif info.status is Status.LOW_SUPPORT:
+        d = handover.offset(t_s, info.inliers)
+        X = X if d is None else X + d
+    return X
+
+
 def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
     """Figures of a re-run on a ``track`` log (a :class:`~harness.logs.SessionLogReader`)."""
-    from harness.accuracy.trackers import estimator_for, size_test_for
+    from harness.accuracy.trackers import estimator_for, handover_for, size_test_for
 
     where = str(reader.path)
     session = reader.metadata("session")
@@ -52,7 +71,7 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
     if not reader.finished_cleanly:
         notes.append("the log was not finished cleanly: re-evaluating the frame sets recovered")
     k_per = int(session.get("candidates_per_camera") or 1)
-    tracker = est = size_test = None
+    tracker = est = size_test = handover = None
     tmp = tempfile.TemporaryDirectory()
     try:
         if source == "images":
@@ -66,6 +85,7 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
             topics = [f"/tracker/{kind}/ball", "/camera/*/image"]
         elif source == "detections":
             est, size_test = estimator_for(kind, rig, eps_px), size_test_for(kind, rig)
+            handover = handover_for(kind, est)
             topics = [f"/tracker/{kind}/ball", "/camera/*/detections"]
         else:
             topics = [f"/tracker/{kind}/ball"]
@@ -98,6 +118,8 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
                 X, info = est.estimate(uv)
                 if X is not None and have_areas:
                     X, info, _, _ = size_test.apply(est, uv, areas, X, info)
+                if handover is not None:  # the support hand-over, as the live tracker applied it
+                    X = _handover(handover, obs.t_s, X, info, uv)
                 status, pos = info.status, X
             else:
                 status, pos = obs.status, obs.position_m
