@@ -6,7 +6,8 @@ robot's workspace; after 15 frame sets in all four cameras it is hidden in cam0 
 arm) and only the two cameras at the launcher's end (cam1, cam2: 26 degrees apart, 7.5 m away) see it.
 Their two-camera estimate is centimetres away in depth from where four cameras put it; the hand-over
 keeps it within a few millimetres. With the hand-over off (the code before it), the same frames are
-more than 10 mm off.
+more than 10 mm off. The same for three cameras (cam3, the one at the robot's end, hidden): a
+confirmed (``OK``) estimate, millimetres off without the hand-over.
 """
 
 from __future__ import annotations
@@ -54,12 +55,21 @@ def _frameset(rig_true, X, k, visible):
     return FrameSet(k * DT_S, tuple(images), k)
 
 
-@pytest.fixture(scope="module")
-def framesets(rigs):
+def _framesets(rigs, later):
     true, _ = rigs
     X = X0_M + V_MPS * DT_S * np.arange(N_ALL + N_TWO)[:, None]
-    sets = [_frameset(true, X[k], k, (0, 1, 2, 3) if k < N_ALL else (1, 2)) for k in range(len(X))]
+    sets = [_frameset(true, X[k], k, (0, 1, 2, 3) if k < N_ALL else later) for k in range(len(X))]
     return sets, X
+
+
+@pytest.fixture(scope="module")
+def framesets(rigs):
+    return _framesets(rigs, (1, 2))
+
+
+@pytest.fixture(scope="module")
+def framesets_3(rigs):
+    return _framesets(rigs, (0, 1, 2))
 
 
 def _errors_mm(rigs, model, framesets, **options):
@@ -96,6 +106,14 @@ def test_without_the_handover_the_two_cameras_are_centimetres_off(rigs, model, f
     assert stats.handovers == 0 and not any("hand-over" in n for o in obs for n in o.notes)
 
 
+def test_three_camera_estimates_are_handed_over_too(rigs, model, framesets_3):
+    status, err, obs, stats = _errors_mm(rigs, model, framesets_3)
+    _, err_off, _, _ = _errors_mm(rigs, model, framesets_3, handover_max_age_s=None)
+    assert all(s is Status.OK for s in status)
+    assert stats.handovers == N_TWO and err[N_ALL:].max() < 2.0, err[N_ALL:]
+    assert np.median(err_off[N_ALL:]) > 2.0 * np.median(err[N_ALL:]) and np.median(err_off[N_ALL:]) > 2.0, err_off[N_ALL:]
+
+
 def test_the_handover_ends_after_max_age(rigs, model, framesets):
     """Frames later than handover_max_age_s after the last confirmed one are left as estimated."""
     age_s = 4.5 * DT_S
@@ -120,26 +138,34 @@ def test_reset_and_time_going_back_forget_the_reference(rigs, model, framesets):
 
 
 # -- the component --------------------------------------------------------------------------------------
-def test_component_offset_cache_and_limits(rigs):
+def _used(rig_true, X, cams=(0, 1, 2, 3)):
+    uv = rig_true.project(X)  # true pixels; the estimator has the estimated rig: its frame is off
+    out = np.full_like(uv, np.nan)
+    out[list(cams)] = uv[list(cams)]
+    return out
+
+
+def test_component_offset_episode_and_limits(rigs):
     true, est = rigs
-    X = X0_M + V_MPS * DT_S * np.arange(5)[:, None]
-    ho = SupportHandover(RobustTriangulator(est), len(est), max_offset_m=0.05)
+    X = X0_M + V_MPS * DT_S * np.arange(8)[:, None]
+    tri = RobustTriangulator(est)
+    ho = SupportHandover(tri, len(est), max_offset_m=0.05)
     pair = np.array([False, True, True, False])
     assert ho.offset(0.0, pair) is None  # no confirmed frame yet
     for k in range(4):
-        uv = true.project(X[k])  # true pixels, estimated rig: the estimator's frame is off
-        X_ok, info = RobustTriangulator(est).estimate(uv)
+        X_ok, info = tri.estimate(_used(true, X[k]))
         assert info.status is Status.OK
-        ho.record(k * DT_S, X_ok, uv)
-    d = ho.offset(4 * DT_S, pair)
-    assert d is not None and 5e-3 < np.linalg.norm(d) < 5e-2
-    assert ho.offset(4 * DT_S, pair) is d  # one computation per episode
-    assert ho.offset(3 * DT_S, pair) is None  # not after the newest confirmed frame
+        X_out, d = ho.apply(k * DT_S, X_ok, _used(true, X[k]), True)
+        assert d is None and np.array_equal(X_out, X_ok)  # all four cameras: nothing to hand over
+    X_two, _ = tri.estimate(_used(true, X[4], (1, 2)))
+    X_out, d = ho.apply(4 * DT_S, X_two, _used(true, X[4], (1, 2)), False)
+    assert d is not None and 5e-3 < np.linalg.norm(d) < 5e-2 and np.allclose(X_out, X_two + d)
+    assert ho.offset(5 * DT_S, pair) is d  # the episode's offset, computed once
+    assert ho.offset(3 * DT_S - 1e-3, pair) is None  # not before the newest confirmed frame
     assert ho.offset(3 * DT_S + 0.3, pair) is None  # too old (max_age_s 0.25)
-    tight = SupportHandover(RobustTriangulator(est), len(est), max_offset_m=1e-3)
+    tight = SupportHandover(tri, len(est), max_offset_m=1e-3)
     for k in range(4):
-        uv = true.project(X[k])
-        tight.record(k * DT_S, RobustTriangulator(est).estimate(uv)[0], uv)
+        tight.apply(k * DT_S, tri.estimate(_used(true, X[k]))[0], _used(true, X[k]), True)
     assert tight.offset(4 * DT_S, pair) is None  # larger than max_offset_m: not a calibration offset
     ho.step(5 * DT_S)
     assert ho.offset(5 * DT_S, pair) is not None

@@ -1,26 +1,28 @@
-"""Support hand-over: keep a two-camera estimate in the frame of the last confirmed ones.
+"""Support hand-over: keep an estimate from fewer cameras in the frame of the last confirmed ones.
 
-When the ball slips behind the arm or the hand in all but two cameras, the ``rt2`` estimate rests on
-those two (``Status.LOW_SUPPORT``). With a real calibration (1.3 px re-projection error) two cameras
-that see the ball from nearly the same side triangulate it centimetres away from where three or four
-cameras put it: on ``lab4_vga`` the two cameras at the launcher's end (26 degrees apart, 7.5 m away)
-are 2.5 cm off in depth, a jump in the track exactly when the ball is hard to see (docs/pipeline.md,
-step 9). The offset comes from the calibration, so it is nearly constant over a few centimetres of
-motion: measured on the last confirmed estimates, it can be carried over.
+When the ball slips behind the arm or the hand in some cameras, the ``rt2`` estimate rests on the
+others. With a real calibration (1.3 px re-projection error) a smaller camera set triangulates the
+ball somewhere else than the full set: on ``lab4_vga`` the two cameras at the launcher's end (26
+degrees apart, 7.5 m away) are 2.5 cm off in depth, the three left when the camera at the robot's end
+loses the ball about 1 cm: a jump in the track exactly when the ball is hard to see
+(docs/pipeline.md, step 9). The offset comes from the calibration, so it is nearly constant over a
+few centimetres of motion: measured on the last confirmed estimates, it can be carried over.
 
-:class:`SupportHandover` keeps the last ``history`` confirmed (``Status.OK``) estimates with the pixels
-they used. For a two-camera estimate ``X_ab`` (cameras ``a``, ``b``) at time ``t``:
+:class:`SupportHandover` keeps the last ``history`` confirmed (``Status.OK``) estimates, as reported,
+with the pixels their inliers used. For an estimate ``X_S`` from the camera set ``S`` at time ``t``:
 
-* reference frames: the confirmed ones within ``window_s`` of the newest, which is at most
-  ``max_age_s`` older than ``t``, and in which ``a`` and ``b`` were both inliers;
-* per reference frame ``r``: ``X_r`` its confirmed position, ``X_ab,r`` the same estimator run on only
-  the pixels ``a`` and ``b`` used in ``r``; offset ``X_r - X_ab,r``;
-* the estimate becomes ``X_ab + median offset`` (per axis) unless that exceeds ``max_offset_m``.
+* references: the confirmed frames within ``window_s`` of the newest, which is at most ``max_age_s``
+  older than ``t``, whose inliers included ``S`` and more cameras;
+* per reference ``r``: ``X_r`` its position, ``X_S,r`` the same estimator run on only the pixels the
+  cameras of ``S`` used in ``r``; offset ``X_r - X_S,r``;
+* the estimate becomes ``X_S + median offset`` (per axis) unless that exceeds ``max_offset_m``; the
+  offset is kept while ``S`` carries the estimate (an episode: computed once), and a confirmed
+  estimate becomes a reference as reported, so hand-overs chain (4 -> 3 -> 2 cameras).
 
 The median over a window (not the newest frame alone) matters: a camera about to disappear behind an
 occluder is often already partly hidden in the last confirmed frames, its blob centre off by 2-3 px.
-The offsets of one episode are computed once (the estimator on a few frames) and reused while the same
-pair carries the estimate. Plain numpy plus the estimator (which has its own numba/numpy twins).
+Plain numpy plus the estimator (which has its own numba/numpy twins); nothing per frame when the
+camera set does not shrink but one small copy of a confirmed frame.
 """
 
 from __future__ import annotations
@@ -44,13 +46,12 @@ class SupportHandover:
                  max_offset_m: float = 0.05, history: int = 16):
         self._estimator = estimator
         self.window_s, self.max_age_s, self.max_offset_m = float(window_s), float(max_age_s), float(max_offset_m)
-        self._t_s = np.full(history, np.nan)  # ring buffer of confirmed frames
-        self._X_m = np.full((history, 3), np.nan)
-        self._uv_px = np.full((history, n_cams, 2), np.nan)  # the pixels each camera's inlier used, NaN otherwise
+        self._t_s = np.full(history, np.nan)  # ring buffer of confirmed frames (NaN: empty slot)
+        self._X_m = np.full((history, 3), np.nan)  # their positions (as reported: hand-over included)
+        self._uv_px = np.full((history, n_cams, 2), np.nan)  # the pixels each inlier used, NaN rows elsewhere
         self._next = 0
         self._t_last = None  # the last frame set's time (``step``)
-        self._cache_key = None  # the inlier cameras whose offset is cached (valid until the next record)
-        self._cache_offset = None
+        self._episode = None  # (inlier cameras, offset) of the hand-over under way
 
     def step(self, t_s: float) -> None:
         """The tracker's time rule, for a caller without a Tracker (re-evaluation from logged detections):
@@ -65,40 +66,52 @@ class SupportHandover:
     def reset(self) -> None:
         """Forget every confirmed frame (a new rally, a time jump)."""
         self._t_s.fill(np.nan)
-        self._cache_key = None
+        self._episode = None
 
-    def record(self, t_s: float, X_m: np.ndarray, uv_used_px: np.ndarray) -> None:
-        """A confirmed estimate ``X_m`` (3,) at ``t_s`` and the (n_cams, 2) pixels of its inliers (NaN rows elsewhere)."""
-        i = self._next
-        self._t_s[i] = t_s
-        self._X_m[i] = X_m
-        self._uv_px[i] = uv_used_px
-        self._next = (i + 1) % len(self._t_s)
-        self._cache_key = None  # a new confirmed frame starts a new episode
+    def apply(self, t_s: float, X_m: np.ndarray, uv_used_px: np.ndarray, confirmed: bool):
+        """One estimate through the hand-over: ``(X_m + offset, offset)`` (offset None: unchanged).
+
+        t_s : its time, seconds; X_m : (3,) the estimate, metres; uv_used_px : (n_cams, 2) the pixel
+        each inlier camera used, NaN rows for the others; confirmed : ``Status.OK`` (it then becomes a
+        reference, as reported, for later estimates)
+        """
+        inliers = np.isfinite(uv_used_px[:, 0])
+        d = self.offset(t_s, inliers)
+        if d is not None:
+            X_m = X_m + d
+        if confirmed:
+            i = self._next
+            self._t_s[i], self._X_m[i], self._uv_px[i] = t_s, X_m, uv_used_px
+            self._next = (i + 1) % len(self._t_s)
+        return X_m, d
 
     def offset(self, t_s: float, inliers: np.ndarray) -> np.ndarray | None:
-        """(3,) offset to add to a two-camera estimate at ``t_s`` whose inlier cameras are ``inliers``
-        (n_cams,) bool, metres; None when there is no usable reference."""
+        """(3,) offset for an estimate at ``t_s`` from the cameras ``inliers`` (n_cams,) bool, metres:
+        the one of the hand-over under way for these cameras, or a new one when recent confirmed
+        frames had these cameras and more; None when the cameras are not fewer than the references'
+        or there is no usable reference."""
         t_new = self._t_s[(self._next - 1) % len(self._t_s)]  # the newest confirmed frame (NaN: none)
         if not 0.0 < t_s - t_new <= self.max_age_s:
+            self._episode = None
             return None
         cams = np.flatnonzero(inliers)
         key = tuple(cams.tolist())
-        if key == self._cache_key:
-            return self._cache_offset
+        if self._episode is not None and self._episode[0] == key:
+            return self._episode[1]
         offsets = []
         for j in np.flatnonzero(t_new - self._t_s <= self.window_s):  # NaN (empty slots) compare False
-            if not np.isfinite(self._uv_px[j, cams, 0]).all():
-                continue  # a camera of the pair was not an inlier then
+            have = np.isfinite(self._uv_px[j, :, 0])
+            if not have[cams].all() or have.sum() <= len(cams):
+                continue  # a reference must have had these cameras and more
             uv = np.full_like(self._uv_px[j], np.nan)
             uv[cams] = self._uv_px[j, cams]
-            X_pair, _ = self._estimator.estimate(uv)
-            if X_pair is not None:
-                offsets.append(self._X_m[j] - X_pair)
-        result = None
+            X_sub, _ = self._estimator.estimate(uv)
+            if X_sub is not None:
+                offsets.append(self._X_m[j] - X_sub)
+        d = None
         if offsets:
             d = np.median(np.asarray(offsets), axis=0)
-            if float(np.linalg.norm(d)) <= self.max_offset_m:
-                result = d
-        self._cache_key, self._cache_offset = key, result
-        return result
+            if not float(np.linalg.norm(d)) <= self.max_offset_m:
+                d = None
+        self._episode = None if d is None else (key, d)
+        return d

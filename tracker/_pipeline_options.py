@@ -53,11 +53,11 @@ class TrackerOptions:
         ``sqrt(4 area / pi)``; on true balls the ratio stays below 1 (pixels under ``T_l`` at the
         edge are not counted). None = off
     ball_radius_m : the ball's radius for the size test, metres (0.02 = a 40 mm ball)
-    handover_max_age_s : the support hand-over (``rt2`` only): a ``LOW_SUPPORT`` estimate (too few
-        cameras, e.g. the ball behind the arm in the others) is moved by the median offset between
-        the confirmed positions of the last 50 ms and those same cameras' own estimate then, when the
-        newest confirmed position is at most this old (seconds); it removes the calibration error
-        of a small camera set (:mod:`tracker._pipeline_handover`, docs/pipeline.md). None = off
+    handover_max_age_s : the support hand-over (``rt2`` only): an estimate from fewer cameras than the
+        last confirmed ones (the ball behind the arm in some cameras) is moved by the median offset
+        between the confirmed positions of the last 50 ms and those cameras' own estimate then, while
+        the newest confirmed position is at most this old (seconds); it removes the calibration error
+        of a smaller camera set (:mod:`tracker._pipeline_handover`, docs/pipeline.md). None = off
     """
 
     roi: bool | None = None
@@ -108,7 +108,7 @@ class TrackerStats:
     full_frame_searches : camera images searched over the full frame (no prediction, or a retry)
     full_frame_retries : frame sets re-searched on full frames after the windows gave no OK estimate
     size_rejections : positions rejected by the 3D size test (``TrackerOptions.max_size_ratio``)
-    handovers : ``LOW_SUPPORT`` positions moved by the support hand-over (``TrackerOptions.handover_max_age_s``)
+    handovers : positions moved by the support hand-over (``TrackerOptions.handover_max_age_s``)
     missing_frames : camera images that were None (no frame delivered)
     bad_frames : camera images of the wrong size, dtype or channels (skipped)
     non_monotonic : frame sets whose time did not increase or was not finite (motion prediction reset)

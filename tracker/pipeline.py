@@ -273,12 +273,10 @@ class Tracker:
         uv_px = np.full((n, 2), np.nan)
         sel = np.flatnonzero(cand >= 0)
         uv_px[sel] = self._uv[sel, cand[sel]]
+        if X is not None and self._handover is not None and math.isfinite(t_s):
+            X = self._hand_over(t_s, X, info, uv_px, ok, notes)
         if ok and math.isfinite(t_s):
             self._motion.update(t_s, X)  # only confirmed estimates feed the prediction
-            if self._handover is not None:
-                self._handover.record(t_s, X, uv_px)
-        elif info.status is Status.LOW_SUPPORT and self._handover is not None and math.isfinite(t_s):
-            X = self._hand_over(t_s, X, info, notes)
         self.stats.positions += X is not None
         self.stats.ok += ok
         pinfo = PipelineInfo(self._uv.copy(), self._scores.copy(), roi_px, used_roi, retried, info, size_ratio, self._areas.copy())
@@ -297,16 +295,15 @@ class Tracker:
         )
         return obs, pinfo
 
-    def _hand_over(self, t_s: float, X: np.ndarray, info, notes: list) -> np.ndarray:
-        """A too-small camera set's estimate moved by its offset from the last confirmed ones (step 9,
-        :mod:`tracker._pipeline_handover`); unchanged without a usable reference."""
-        d = self._handover.offset(t_s, info.inliers)
-        if d is None:
-            return X
-        self.stats.handovers += 1
-        notes.append(f"{info.support}-camera estimate moved {1e3 * float(np.linalg.norm(d)):.1f} mm by the offset of those cameras "
-                     "from the last confirmed positions (support hand-over)")
-        return X + d
+    def _hand_over(self, t_s: float, X: np.ndarray, info, uv_px: np.ndarray, ok: bool, notes: list) -> np.ndarray:
+        """An estimate from fewer cameras than the last confirmed ones, moved by those cameras' offset
+        from them (step 9, :mod:`tracker._pipeline_handover`); unchanged otherwise."""
+        X, d = self._handover.apply(t_s, X, uv_px, ok)
+        if d is not None:
+            self.stats.handovers += 1
+            notes.append(f"{info.support}-camera estimate moved {1e3 * float(np.linalg.norm(d)):.1f} mm by the offset of those cameras "
+                         "from the last confirmed positions (support hand-over)")
+        return X
 
     def _estimate(self, notes: list):
         """The robust estimate of the current candidates, then the 3D size test (the candidates it drops

@@ -210,14 +210,11 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
                 if handover is not None:  # as the live tracker (its history spans segments: the warm-up saw the same frames)
                     t_k = logged[kind].t_s if kind in logged else t_cam
                     handover.step(t_k)
-                    if info.status is Status.OK and np.isfinite(t_k):
+                    if X is not None and np.isfinite(t_k):
                         used = np.full((len(names), 2), np.nan)
                         sel = np.flatnonzero(info.candidate_index >= 0)
                         used[sel] = uv[sel, info.candidate_index[sel]]
-                        handover.record(t_k, X, used)
-                    elif info.status is Status.LOW_SUPPORT and np.isfinite(t_k):
-                        d = handover.offset(t_k, info.inliers)
-                        X = X if d is None else X + d
+                        X, _ = handover.apply(t_k, X, used, info.status is Status.OK)
                 r = records[kind]
                 if X is not None:
                     r.position_m[k] = X
