@@ -14,7 +14,7 @@ import numpy as np
 from harness.live.frames import AssembledFrameSet
 from tracker import FrameSet
 
-RIG = "data/rigs/lab4_vga.yaml"
+RIG = "lab4_vga"  # data/rigs/lab4_vga.yaml, whatever the working directory
 
 
 @functools.lru_cache(maxsize=1)

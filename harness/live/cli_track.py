@@ -27,13 +27,13 @@ from pathlib import Path
 
 __all__ = ["add_arguments", "run", "open_service"]
 
-DEFAULT_RIG = "data/rigs/lab4_vga.yaml"
+DEFAULT_RIG = "lab4_vga"  # data/rigs/lab4_vga.yaml, found from any working directory
 _TRACKERS = ("rt2", "rt2-paper", "rtblob")
 
 
 def add_source_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rig", default=DEFAULT_RIG, metavar="RIG",
-                        help=f"rig file or name in data/rigs (default {DEFAULT_RIG})")
+                        help=f"rig file or name in data/rigs (default {DEFAULT_RIG}: the simulated lab's four VGA cameras)")
     parser.add_argument("--source", nargs="+", default=["sim"], metavar="SPEC",
                         help="sim (default: the simulated lab), replay LOG.mcap, video DIR, opencv 0,1,2,3, "
                              "pylon [SERIALS], genicam [PRODUCER.cti [SERIALS]] (docs/live.md)")
