@@ -168,7 +168,7 @@ def test_a_failing_log_never_stops_tracking_or_publishing(rig, tmp_path):
                                   status=lines.append)
 
         def frames():
-            for k, afs in enumerate(assembled(80)):
+            for k, afs in enumerate(assembled(80, pace=True, rate_hz=50)):  # 1.6 s: the writer flushes on its timer
                 if k == 20:
                     log.bg.writer._file.close()  # the disk goes away under the writer
                 yield afs
@@ -177,3 +177,18 @@ def test_a_failing_log_never_stops_tracking_or_publishing(rig, tmp_path):
     assert summary["frame_sets"] == 80 and summary["published"]["tennicam"] == 80
     assert summary["log"]["error"] and "log writer failed" in summary["log"]["error"]
     assert sum("the session log failed" in ln for ln in lines) == 1
+
+
+def test_a_log_that_fails_only_when_closed_is_reported_not_raised(rig, tmp_path):
+    with Tracker(rig, "rt2") as tr:
+        log = LiveLog(tmp_path / "fails_late.mcap", rig, tr, source="test", log_images="none")
+        service = TrackingService(rig, tr, log=log, options=ServiceOptions(status_period_s=0))
+
+        def frames():
+            for k, afs in enumerate(assembled(30)):
+                if k == 29:
+                    log.bg.writer._file.close()
+                yield afs
+
+        summary = service.run(frames())
+    assert summary["frame_sets"] == 30 and summary["log"]["error"]

@@ -250,8 +250,11 @@ def run(args) -> int:
         print(f"rt2 track: stopped by {got['signal']}" + (f"; log finished {summary['stop_to_log_closed_s']:.2f} s later"
                                                         if args.log and "stop_to_log_closed_s" in summary else ""), file=sys.stderr)
     _print_summary(summary)
+    log_error = (summary.get("log") or {}).get("error")
+    if log_error:
+        print(f"rt2 track: error: the session log {args.log} failed ({log_error}); tracking and publishing went on", file=sys.stderr)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(_json_safe(summary), indent=1) + "\n")
         print(f"wrote {args.json}")
-    return 0
+    return 1 if log_error else 0

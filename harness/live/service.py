@@ -212,10 +212,9 @@ class TrackingService:
         if self.log is not None:
             try:
                 self.log.close(figures=_json_safe(self.summary()), error=error or self.log_error)
-            except Exception as exc:
-                if self.log_error is None:
-                    raise
-                self.log_error += f"; closing it: {type(exc).__name__}: {exc}"
+            except Exception as exc:  # reported in the summary (``log.error``); the run's figures stand
+                what = f"closing it: {type(exc).__name__}: {exc}"
+                self.log_error = what if self.log_error is None else f"{self.log_error}; {what}"
 
 
 def _assembly_status(source) -> str:
