@@ -137,8 +137,9 @@ def test_slow_subscriber_never_stalls_the_publisher():
         total = time.perf_counter() - t0
         assert pub.sent == {"tennicam": 20_000, "rt2": 20_000}
         sub.communicate(timeout=30)
-    assert total < 10.0, f"20,000 publications took {total:.1f} s"
-    assert worst < 0.25, f"one publication took {worst * 1e3:.0f} ms"
+    # a blocking send would wait for a reader that has stopped reading: forever
+    assert total < 20.0, f"20,000 publications took {total:.1f} s"
+    assert worst < 1.0, f"one publication took {worst * 1e3:.0f} ms"
 
 
 def test_late_subscriber_gets_the_current_stream():
