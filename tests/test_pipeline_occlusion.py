@@ -173,6 +173,21 @@ def test_component_offset_episode_and_limits(rigs):
     assert ho.offset(6 * DT_S, pair) is None
 
 
+def test_component_episode_ends_when_the_ball_moved_away(rigs):
+    """The calibration offset changes over the workspace: not carried farther than max_travel_m."""
+    true, est = rigs
+    X = X0_M + V_MPS * DT_S * np.arange(5)[:, None]
+    tri = RobustTriangulator(est)
+    ho = SupportHandover(tri, len(est), max_travel_m=0.3)
+    for k in range(4):
+        ho.apply(k * DT_S, tri.estimate(_used(true, X[k]))[0], _used(true, X[k]), True)
+    X_two, _ = tri.estimate(_used(true, X[4], (1, 2)))
+    assert ho.apply(4 * DT_S, X_two, _used(true, X[4], (1, 2)), False)[1] is not None
+    far = X_two + np.array([0.4, 0.0, 0.0])
+    X_out, d = ho.apply(5 * DT_S, far, _used(true, X[4], (1, 2)), False)
+    assert d is None and np.array_equal(X_out, far)
+
+
 def test_bad_option_values_raise():
     for bad in (0, -1.0, float("nan"), True, "0.25"):
         with pytest.raises(ValueError, match="handover_max_age_s"):

@@ -16,7 +16,8 @@ with the pixels their inliers used. For an estimate ``X_S`` from the camera set 
 * per reference ``r``: ``X_r`` its position, ``X_S,r`` the same estimator run on only the pixels the
   cameras of ``S`` used in ``r``; offset ``X_r - X_S,r``;
 * the estimate becomes ``X_S + median offset`` (per axis) unless that exceeds ``max_offset_m``; the
-  offset is kept while ``S`` carries the estimate (an episode: computed once), and a confirmed
+  offset is kept while ``S`` carries the estimate and stays within ``max_travel_m`` of the references
+  (an episode: computed once), and a confirmed
   estimate becomes a reference as reported, so hand-overs chain (4 -> 3 -> 2 cameras).
 
 The median over a window (not the newest frame alone) matters: a camera about to disappear behind an
@@ -39,19 +40,22 @@ class SupportHandover:
     window_s : confirmed frames this close to the newest one give the offset, seconds
     max_age_s : no correction when the newest confirmed frame is older than this, seconds
     max_offset_m : a larger median offset is not applied (not a calibration offset), metres
+    max_travel_m : an episode ends when the estimate is this far from the references it was measured
+        on (the calibration offset changes over the workspace), metres
     history : confirmed frames kept
     """
 
     def __init__(self, estimator, n_cams: int, *, window_s: float = 0.05, max_age_s: float = 0.25,
-                 max_offset_m: float = 0.05, history: int = 16):
+                 max_offset_m: float = 0.05, max_travel_m: float = 0.3, history: int = 16):
         self._estimator = estimator
         self.window_s, self.max_age_s, self.max_offset_m = float(window_s), float(max_age_s), float(max_offset_m)
+        self.max_travel_m = float(max_travel_m)
         self._t_s = np.full(history, np.nan)  # ring buffer of confirmed frames (NaN: empty slot)
         self._X_m = np.full((history, 3), np.nan)  # their positions (as reported: hand-over included)
         self._uv_px = np.full((history, n_cams, 2), np.nan)  # the pixels each inlier used, NaN rows elsewhere
         self._next = 0
         self._t_last = None  # the last frame set's time (``step``)
-        self._episode = None  # (inlier cameras, offset) of the hand-over under way
+        self._episode = None  # (inlier cameras, offset, where it was measured) of the hand-over under way
 
     def step(self, t_s: float) -> None:
         """The tracker's time rule, for a caller without a Tracker (re-evaluation from logged detections):
@@ -77,6 +81,8 @@ class SupportHandover:
         """
         inliers = np.isfinite(uv_used_px[:, 0])
         d = self.offset(t_s, inliers)
+        if d is not None and not float(np.linalg.norm(X_m + d - self._episode[2])) <= self.max_travel_m:
+            d = self._episode = None  # moved too far from where the offset was measured
         if d is not None:
             X_m = X_m + d
         if confirmed:
@@ -98,7 +104,7 @@ class SupportHandover:
         key = tuple(cams.tolist())
         if self._episode is not None and self._episode[0] == key:
             return self._episode[1]
-        offsets = []
+        offsets, where = [], []
         for j in np.flatnonzero(t_new - self._t_s <= self.window_s):  # NaN (empty slots) compare False
             have = np.isfinite(self._uv_px[j, :, 0])
             if not have[cams].all() or have.sum() <= len(cams):
@@ -108,10 +114,11 @@ class SupportHandover:
             X_sub, _ = self._estimator.estimate(uv)
             if X_sub is not None:
                 offsets.append(self._X_m[j] - X_sub)
+                where.append(self._X_m[j])
         d = None
         if offsets:
             d = np.median(np.asarray(offsets), axis=0)
             if not float(np.linalg.norm(d)) <= self.max_offset_m:
                 d = None
-        self._episode = None if d is None else (key, d)
+        self._episode = None if d is None else (key, d, np.median(np.asarray(where), axis=0))
         return d
