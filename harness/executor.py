@@ -200,6 +200,19 @@ def _exit_at_once(code: int) -> None:
     os._exit(code)
 
 
+def _register_exit_at_once(code: int) -> None:
+    """Have :func:`_exit_at_once` run when the main thread is done, before the interpreter joins threads:
+    threading's own exit hooks run before that join (and before :mod:`atexit`), last registered first, so
+    this one precedes concurrent.futures' join of its manager threads. Falls back to :mod:`atexit`."""
+    register = getattr(threading, "_register_atexit", None)
+    try:
+        if register is None:
+            raise RuntimeError("no threading exit hooks")
+        register(_exit_at_once, code)
+    except RuntimeError:  # already shutting down, or another Python
+        atexit.register(_exit_at_once, code)
+
+
 
 class Executor:
     """Runs a sweep's tasks (module docstring). Use as a context manager: while open, SIGINT/SIGTERM raise
@@ -232,7 +245,7 @@ class Executor:
     def _on_signal(self, signum, frame) -> None:
         if self._signum is None:  # the first signal stops the sweep; a second one before the workers are
             self._signum = signum  # stopped is ignored
-            atexit.register(_exit_at_once, 128 + signum)  # runs first at exit, once everything is written
+            _register_exit_at_once(128 + signum)  # runs first at exit, once everything is written
             raise SweepInterrupted(signum)
 
     def close(self, *, kill: bool = False) -> None:
