@@ -1,7 +1,8 @@
 """Rendered frame sets of the simulated lab for the live-service tests (no camera code needed).
 
 ``rendered_images(n)`` renders a ball flying along the table through the lab rig once per process;
-``assembled(...)`` turns them into :class:`AssembledFrameSet` objects stamped like live ones.
+``assembled(...)`` turns them into :class:`AssembledFrameSet` objects stamped like live ones;
+``drain(asm, n_max, timeout_s)`` takes frame sets from a running assembler.
 """
 
 from __future__ import annotations
@@ -61,3 +62,17 @@ def assembled(n_sets: int, *, rate_hz: float = 200.0, drop_camera: int | None = 
             notes = (f"camera {drop_camera}: no frame in time",)
         yield AssembledFrameSet(frameset=FrameSet(float(np.nanmin(t_host)), tuple(imgs), k), frame_id=k, t_host_s=t_host,
                                 t_device_s=np.full(n_cams, np.nan), t_assembled_s=time.monotonic(), notes=notes)
+
+
+def drain(asm, n_max: int, timeout_s: float = 3.0) -> list:
+    """Up to ``n_max`` frame sets from the assembler ``asm`` (``get``/``finished``), until it has
+    finished or ``timeout_s`` seconds have passed."""
+    out = []
+    deadline = time.monotonic() + timeout_s
+    while len(out) < n_max and time.monotonic() < deadline:
+        fs = asm.get(0.2)
+        if fs is None and asm.finished:
+            break
+        if fs is not None:
+            out.append(fs)
+    return out

@@ -12,6 +12,7 @@ import pytest
 from harness.live.assembly import AssemblyOptions, FrameSetAssembler
 from harness.live.frames import Frame, FrameSource, SourceError
 from harness.live.sources.clock import ClockOffsetEstimator
+from tests._live_frames import drain
 
 
 class _Start:
@@ -76,18 +77,6 @@ class ScriptedCamera:
         self.closed = True
 
 
-def _drain(asm, n_max, timeout_s=3.0):
-    out = []
-    deadline = time.monotonic() + timeout_s
-    while len(out) < n_max and time.monotonic() < deadline:
-        fs = asm.get(0.2)
-        if fs is None and asm.finished:
-            break
-        if fs is not None:
-            out.append(fs)
-    return out
-
-
 def test_scripted_camera_is_a_frame_source():
     assert isinstance(ScriptedCamera(0, [], _Start()), FrameSource)
 
@@ -105,7 +94,7 @@ def test_lost_and_late_frames_counted_exactly():
     sources = [ScriptedCamera(0, cam0, start), ScriptedCamera(1, cam1, start), ScriptedCamera(2, cam2, start)]
     opts = AssemblyOptions(rate_hz=1 / period, max_wait_s=0.06, stall_s=1.0, output_len=64, queue_len=64)
     with FrameSetAssembler(sources, opts) as asm:
-        sets = _drain(asm, 100)
+        sets = drain(asm, 100)
         st = asm.stats()
     assert [s.frame_id for s in sets] == list(ids)
     assert st.framesets == 40 and st.delivered == 40 and st.dropped_framesets == 0
@@ -134,7 +123,7 @@ def test_camera_that_stops_becomes_none_with_a_note_and_assembly_goes_on():
                ScriptedCamera(2, full[:10], start, ends=False)]  # stops after frame 9, never says so
     opts = AssemblyOptions(rate_hz=1 / period, max_wait_s=0.08, stall_s=0.2, output_len=32, queue_len=64)
     with FrameSetAssembler(sources, opts) as asm:
-        sets = _drain(asm, 30)
+        sets = drain(asm, 30)
         st = asm.stats()
     assert [s.frame_id for s in sets] == list(range(30)), st
     assert all(s.frameset.images[2] is None for s in sets[10:])
@@ -151,7 +140,7 @@ def test_failed_camera_is_reported_and_the_rest_goes_on():
     full = [(k * period, k, None) for k in range(20)]
     sources = [ScriptedCamera(0, full, start), ScriptedCamera(1, full, start, fail_after=5)]
     with FrameSetAssembler(sources, AssemblyOptions(rate_hz=1 / period, max_wait_s=0.08, queue_len=64)) as asm:
-        sets = _drain(asm, 20)
+        sets = drain(asm, 20)
         st = asm.stats()
         assert asm.finished
     assert len(sets) == 20 and st.missing == (0, 15)
@@ -169,7 +158,7 @@ def test_slow_consumer_drops_oldest_sets_and_counts_them():
         deadline = time.monotonic() + 5.0
         while not (asm.stats().ended == (True, True) and asm.stats().framesets == 50) and time.monotonic() < deadline:
             time.sleep(0.05)  # the consumer is busy elsewhere
-        sets = _drain(asm, 10)
+        sets = drain(asm, 10)
         st = asm.stats()
     assert [s.frame_id for s in sets] == [46, 47, 48, 49]  # the newest survive
     assert st.framesets == 50 and st.dropped_framesets == 46 and st.delivered == 4
@@ -200,7 +189,7 @@ def test_per_camera_queue_drops_oldest_when_the_assembler_lags():
     sources = [ScriptedCamera(0, burst, start)]
     opts = AssemblyOptions(rate_hz=100.0, queue_len=1)
     with FrameSetAssembler(sources, opts) as asm:
-        sets = _drain(asm, 20)
+        sets = drain(asm, 20)
         st = asm.stats()
     assert st.frames[0] + st.dropped[0] == 20 and st.framesets == len(sets) == st.frames[0]
     assert sets[-1].frame_id == 19
@@ -216,7 +205,7 @@ def test_match_by_time_with_unrelated_frame_ids_and_device_stamps():
     sources = [ScriptedCamera(0, cam0, start), ScriptedCamera(1, cam1, start)]
     opts = AssemblyOptions(rate_hz=1 / period, match="time", max_wait_s=0.1, stall_s=1.0, queue_len=64)
     with FrameSetAssembler(sources, opts) as asm:
-        sets = _drain(asm, 25)
+        sets = drain(asm, 25)
         st = asm.stats()
         offsets = asm.clock_offsets()
     assert len(sets) == 25 and st.incomplete == 1 and st.missing == (0, 1)

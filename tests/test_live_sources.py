@@ -16,6 +16,7 @@ from harness.live.frames import FrameSource
 from harness.live.sources import (SourceSpec, SourceUnavailable, open_sources, parse_source_spec,
                                   require_driver)
 from harness.render import Ball, Scene
+from tests._live_frames import drain
 
 
 @pytest.fixture(scope="module")
@@ -29,15 +30,7 @@ def _ball_scene(t_s: float) -> Scene:
 
 def _collect(sources, n, rate_hz, **opts):
     with FrameSetAssembler(sources, AssemblyOptions(rate_hz=rate_hz, output_len=1000, **opts)) as asm:
-        out = []
-        deadline = time.monotonic() + 20.0
-        while len(out) < n and time.monotonic() < deadline:
-            fs = asm.get(0.2)
-            if fs is None and asm.finished:
-                break
-            if fs is not None:
-                out.append(fs)
-        return out, asm.stats()
+        return drain(asm, n, 20.0), asm.stats()
 
 
 # -- spec ------------------------------------------------------------------------------------------
