@@ -13,13 +13,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from harness.calib.compare import compare_rigs, wand_lengths
 from harness.calib.exports import add_export_arguments, save_calibration
 from harness.calib.inputs import load_intrinsics, read_detection_csvs
 from tracker import Camera, Rig
 from tracker.calibration.extrinsics import WandOptions, apply_world, calibrate_wand, order_wand_points, triangulate_views
+from tracker.files import load_yaml_checked
 
 __all__ = ["add_arguments", "parse_wand", "read_world_points", "run", "wand_uv_from_log"]
 
@@ -78,12 +78,7 @@ def wand_uv_from_log(path, names, offsets) -> np.ndarray:
 def read_world_points(path, names):
     """World points with their clicked pixels -> (X_world (P, 3), uv (n_cams, P, 2) NaN where not clicked)."""
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ValueError(f"cannot read {str(path)!r}: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not valid YAML: {exc}") from None
+    data = load_yaml_checked(path, "world points file")
     if not isinstance(data, list) or len(data) < 3:
         raise ValueError(f"{path}: expected a list of >= 3 points {{world_m: [x, y, z], pixels: {{camera: [u, v]}}}}")
     X = np.full((len(data), 3), np.nan)

@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from tracker import Camera, Rig
+from tracker.files import MAX_CONFIG_BYTES, read_text_capped
 
 __all__ = ["add_export_arguments", "read_anipose_toml", "save_calibration", "write_anipose_toml", "write_exports", "write_opencv_files"]
 
@@ -92,9 +93,7 @@ def read_anipose_toml(path, *, length_unit_m: float = 1.0) -> Rig:
     as caliscope writes it). Tables without ``matrix`` (``metadata``) are skipped."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise ValueError(f"cannot read {str(path)!r}: {exc.strerror}") from None
+        data = tomllib.loads(read_text_capped(path, MAX_CONFIG_BYTES, "calibration file"))
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not valid TOML: {exc}") from None
     tables = [(k, v) for k, v in data.items() if isinstance(v, dict) and "matrix" in v]

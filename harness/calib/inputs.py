@@ -10,10 +10,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from tracker import Rig
 from tracker.calibration.board import BoardSpec, board_from_dict
+from tracker.files import MAX_CONFIG_BYTES, MAX_DATA_BYTES, parse_yaml_checked, read_bytes_capped, read_text_capped
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "iter_frames", "load_board", "load_intrinsics", "read_detection_csvs"]
 
@@ -26,11 +26,13 @@ def load_board(path) -> BoardSpec:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"board spec {str(path)!r}: no such file")
-    text = path.read_text()
+    text = read_text_capped(path, MAX_CONFIG_BYTES, "board spec")
+    if path.suffix != ".toml":
+        return board_from_dict(parse_yaml_checked(text, f"board spec {path}"), source=str(path))
     try:
-        data = tomllib.loads(text) if path.suffix == ".toml" else yaml.safe_load(text)
-    except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
-        raise ValueError(f"board spec {path}: not valid {path.suffix.lstrip('.') or 'YAML'}: {exc}") from None
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"board spec {path}: not valid toml: {exc}") from None
     return board_from_dict(data, source=str(path))
 
 
@@ -94,7 +96,7 @@ def load_intrinsics(paths, names=None) -> list:
     for p in paths:
         if not p.is_file():
             raise ValueError(f"intrinsics {str(p)!r}: no such file")
-        head = p.read_text(errors="replace")[:4000]
+        head = read_bytes_capped(p, MAX_CONFIG_BYTES, "intrinsics file")[:4000].decode(errors="replace")
         if "rt2.rig" in head:
             cams.extend(Rig.load(p).cameras)
         else:
@@ -118,7 +120,7 @@ def read_detection_csvs(paths) -> tuple[np.ndarray, np.ndarray]:
     for p in map(Path, paths):
         if not p.is_file():
             raise ValueError(f"detections {str(p)!r}: no such file")
-        lines = [ln.strip() for ln in p.read_text().splitlines() if ln.strip()]
+        lines = [ln.strip() for ln in read_text_capped(p, MAX_DATA_BYTES, "detections file").splitlines() if ln.strip()]
         rows = []
         for k, ln in enumerate(lines):
             parts = ln.replace(",", ";").split(";")
