@@ -97,18 +97,18 @@ class SupportHandover:
         frames had these cameras and more; None when the cameras are not fewer than the references'
         or there is no usable reference."""
         t_new = self._t_s[(self._next - 1) % len(self._t_s)]  # the newest confirmed frame (NaN: none)
-        if not 0.0 < t_s - t_new <= self.max_age_s:
+        cams = np.flatnonzero(inliers)
+        if not 0.0 < t_s - t_new <= self.max_age_s or len(cams) == len(inliers):  # all cameras: none had more
             self._episode = None
             return None
-        cams = np.flatnonzero(inliers)
         key = tuple(cams.tolist())
         if self._episode is not None and self._episode[0] == key:
             return self._episode[1]
+        refs = np.flatnonzero(t_new - self._t_s <= self.window_s)  # NaN (empty slots) compare False
+        have = np.isfinite(self._uv_px[refs, :, 0])  # (m, n_cams)
+        refs = refs[have[:, cams].all(axis=1) & (have.sum(axis=1) > len(cams))]  # these cameras and more
         offsets, where = [], []
-        for j in np.flatnonzero(t_new - self._t_s <= self.window_s):  # NaN (empty slots) compare False
-            have = np.isfinite(self._uv_px[j, :, 0])
-            if not have[cams].all() or have.sum() <= len(cams):
-                continue  # a reference must have had these cameras and more
+        for j in refs:
             uv = np.full_like(self._uv_px[j], np.nan)
             uv[cams] = self._uv_px[j, cams]
             X_sub, _ = self._estimator.estimate(uv)

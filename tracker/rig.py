@@ -197,7 +197,7 @@ class Rig:
     def load(cls, path) -> "Rig":
         """Read a rig written by :meth:`save` (or by hand in that format)."""
         path = Path(path)
-        data = load_yaml_checked(path, "rig file", max_bytes=MAX_CONFIG_BYTES)
+        data = load_yaml_checked(path, "rig file")
         return cls.from_dict(data, source=str(path))
 
     # -- OpenCV FileStorage import --------------------------------------------------------------
