@@ -35,7 +35,7 @@ import numpy as np
 from harness.robot.sim_wam import SimulatedWam, SimWamOptions
 from harness.trajectories import BALL_BOX_WORLD_M, TrajectoryOptions, random_via_trajectory
 
-__all__ = ["GT_SAMPLINGS", "MotionOptions", "RobotMotion", "simulate_motion", "world_to_base"]
+__all__ = ["GT_SAMPLINGS", "MotionOptions", "MotionPlan", "RobotMotion", "plan_motion", "simulate_motion", "world_to_base"]
 
 GT_SAMPLINGS = ("interpolate", "hold")
 
@@ -156,6 +156,47 @@ def _chain_trajectory(kin, duration_s: float, options: MotionOptions, rng: np.ra
     return np.concatenate(t_parts), np.concatenate(q_parts), np.concatenate(qd_parts), info
 
 
+@dataclass(frozen=True)
+class MotionPlan:
+    """What a seeded session commands and how its cameras stamp frames, before any robot runs it.
+
+    t_frames_s : (n,) exposure instants (robot clock, from ``start_s``); offset_s : the session's camera clock
+    offset; jitter_s : (n,) per-frame jitter (or 0.0); t_cmd_s, q_cmd, qdot_cmd : (m,), (m, 7), (m, 7) the
+    commanded trajectory from 0; info : the trajectory's pieces; trajectory_seed, robot_seed : the streams' seeds.
+    """
+
+    t_frames_s: np.ndarray
+    offset_s: float
+    jitter_s: np.ndarray | float
+    t_cmd_s: np.ndarray
+    q_cmd: np.ndarray
+    qdot_cmd: np.ndarray
+    info: dict
+    trajectory_seed: int
+    robot_seed: int
+
+
+def plan_motion(kin, n_frames: int, rate_hz: float, *, seed: int, options: MotionOptions = MotionOptions()) -> MotionPlan:
+    """The seeded trajectory and camera clock of session ``seed``: the same for the in-process WAM
+    (:func:`simulate_motion`) and a robot over the link (:mod:`harness.robot.link.accuracy_motion`)."""
+    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 2:
+        raise ValueError(f"n_frames must be an integer >= 2, got {n_frames!r}")
+    if not (isinstance(rate_hz, (int, float)) and 1.0 <= rate_hz <= 10000.0):
+        raise ValueError(f"rate_hz must be a frame rate in [1, 10000] Hz, got {rate_hz!r}")
+    if not isinstance(options, MotionOptions):
+        raise ValueError(f"options must be MotionOptions, got {type(options).__name__}")
+    traj_seq, robot_seq, clock_seq = np.random.SeedSequence([int(seed), 1]).spawn(3)
+    t_frames = options.start_s + np.arange(int(n_frames)) / float(rate_hz)
+    clock_rng = np.random.default_rng(clock_seq)
+    offset_s = float(clock_rng.normal(0.0, options.clock_offset_std_s)) if options.clock_offset_std_s > 0 else 0.0
+    jitter_s = clock_rng.normal(0.0, options.clock_jitter_std_s, int(n_frames)) if options.clock_jitter_std_s > 0 else 0.0
+    jitter_s = np.clip(jitter_s, -0.25 / rate_hz, 0.25 / rate_hz)  # timestamps stay increasing at any frame rate
+    duration = t_frames[-1] - options.start_s + 0.01
+    t_cmd, q_cmd, qd_cmd, info = _chain_trajectory(kin, duration, options, np.random.default_rng(traj_seq))
+    return MotionPlan(t_frames, offset_s, jitter_s, t_cmd, q_cmd, qd_cmd, info,
+                      int(traj_seq.generate_state(1)[0]), int(robot_seq.generate_state(1)[0]))
+
+
 def _interp_rows(t_query: np.ndarray, t: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """Linear interpolation of the rows of ``Y`` (m, d) sampled at increasing ``t`` (m,), vectorised."""
     j = np.clip(np.searchsorted(t, t_query, side="right") - 1, 0, len(t) - 2)
@@ -177,22 +218,11 @@ def simulate_motion(kin, n_frames: int, rate_hz: float, *, seed: int, options: M
     seed : seeds the trajectory and the robot's bias and noise (independent streams)
     sim_options : :class:`harness.robot.SimWamOptions` (default: SimWamOptions())
     """
-    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 2:
-        raise ValueError(f"n_frames must be an integer >= 2, got {n_frames!r}")
-    if not (isinstance(rate_hz, (int, float)) and 1.0 <= rate_hz <= 10000.0):
-        raise ValueError(f"rate_hz must be a frame rate in [1, 10000] Hz, got {rate_hz!r}")
-    if not isinstance(options, MotionOptions):
-        raise ValueError(f"options must be MotionOptions, got {type(options).__name__}")
-    traj_seq, robot_seq, clock_seq = np.random.SeedSequence([int(seed), 1]).spawn(3)
-    t_frames = options.start_s + np.arange(int(n_frames)) / float(rate_hz)
-    clock_rng = np.random.default_rng(clock_seq)
-    offset_s = float(clock_rng.normal(0.0, options.clock_offset_std_s)) if options.clock_offset_std_s > 0 else 0.0
-    jitter_s = clock_rng.normal(0.0, options.clock_jitter_std_s, int(n_frames)) if options.clock_jitter_std_s > 0 else 0.0
-    jitter_s = np.clip(jitter_s, -0.25 / rate_hz, 0.25 / rate_hz)  # timestamps stay increasing at any frame rate
-    t_camera = t_frames + offset_s + jitter_s
-    duration = t_frames[-1] - options.start_s + 0.01
-    t_cmd, q_cmd, qd_cmd, info = _chain_trajectory(kin, duration, options, np.random.default_rng(traj_seq))
-    robot_seed = int(robot_seq.generate_state(1)[0])
+    plan = plan_motion(kin, n_frames, rate_hz, seed=seed, options=options)
+    t_frames, offset_s, t_cmd, q_cmd, qd_cmd, info = (plan.t_frames_s, plan.offset_s, plan.t_cmd_s, plan.q_cmd,
+                                                      plan.qdot_cmd, plan.info)
+    t_camera = t_frames + offset_s + plan.jitter_s
+    robot_seed = plan.robot_seed
     sim = SimulatedWam(kin, sim_options if sim_options is not None else SimWamOptions(), seed=robot_seed, q0=q_cmd[0])
     true0, rep0 = sim.true_state(), sim.read_state()
     sim.command_trajectory(t_cmd + options.start_s, q_cmd, qd_cmd)
@@ -214,7 +244,7 @@ def simulate_motion(kin, n_frames: int, rate_hz: float, *, seed: int, options: M
     err_mm = np.linalg.norm(gt_world - ball_true, axis=1) * 1e3
     shift_mm = np.linalg.norm(gt_world - kin.positions(sample(t_frames, t, q_rep), check_limits=False), axis=1) * 1e3
     info.update({
-        "trajectory_seed": int(traj_seq.generate_state(1)[0]),
+        "trajectory_seed": plan.trajectory_seed,
         "clock": {"offset_ms": round(offset_s * 1e3, 4), "jitter_std_ms": round(float(np.std(t_camera - t_frames - offset_s)) * 1e3, 4),
                   "gt_shift_mm": {"median": round(float(np.median(shift_mm)), 4), "max": round(float(shift_mm.max()), 4)}},
         "robot_seed": robot_seed,

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.accuracy.motion import MotionOptions, RobotMotion, _chain_trajectory
+from harness.accuracy.motion import MotionOptions, RobotMotion, plan_motion
 from harness.robot.link.client import LinkLostError, WamClient
 from harness.robot.link.clock import ClockEstimate, pair_joint_states
 
@@ -50,18 +50,9 @@ def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int
         raise ValueError(f"the robot at {wam.address} publishes no simulation truth: the accuracy experiment's simulated "
                          "cameras need it (serve it with `rt2 robot serve --sim --publish-truth`)")
     true_offset_ns = float(sim["offset_ns"])
-    if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 2:
-        raise ValueError(f"n_frames must be an integer >= 2, got {n_frames!r}")
-    if not (isinstance(rate_hz, (int, float)) and 1.0 <= rate_hz <= 10000.0):
-        raise ValueError(f"rate_hz must be a frame rate in [1, 10000] Hz, got {rate_hz!r}")
-    traj_seq, _, clock_seq = np.random.SeedSequence([int(seed), 1]).spawn(3)  # the streams of simulate_motion
-    t_frames = options.start_s + np.arange(int(n_frames)) / float(rate_hz)
-    clock_rng = np.random.default_rng(clock_seq)
-    offset_s = float(clock_rng.normal(0.0, options.clock_offset_std_s)) if options.clock_offset_std_s > 0 else 0.0
-    jitter_s = clock_rng.normal(0.0, options.clock_jitter_std_s, int(n_frames)) if options.clock_jitter_std_s > 0 else 0.0
-    jitter_s = np.clip(jitter_s, -0.25 / rate_hz, 0.25 / rate_hz)
-    t_cmd, q_cmd, qd_cmd, info = _chain_trajectory(kin, t_frames[-1] - options.start_s + 0.01, options,
-                                                   np.random.default_rng(traj_seq))
+    plan = plan_motion(kin, n_frames, rate_hz, seed=seed, options=options)  # the same as simulate_motion's
+    t_frames, offset_s, jitter_s = plan.t_frames_s, plan.offset_s, plan.jitter_s
+    t_cmd, q_cmd, qd_cmd, info = plan.t_cmd_s, plan.q_cmd, plan.qdot_cmd, plan.info
     dt = 1.0 / wam.control_rate_hz
     t0 = np.ceil((wam.t_s + lead_s) / dt) * dt  # whole ticks: the robot samples the reference as in process
     wam.command_trajectory(t_cmd + options.start_s + t0, q_cmd, qd_cmd)
@@ -98,7 +89,7 @@ def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int
     shift_mm = np.linalg.norm(gt_world - kin.positions(at_exposure, check_limits=False), axis=1) * 1e3
     speed = np.linalg.norm(p_plus - p_minus, axis=1) / (2 * h)
     info.update({
-        "trajectory_seed": int(traj_seq.generate_state(1)[0]), "robot_seed": robot_seed_of(seed),
+        "trajectory_seed": plan.trajectory_seed, "robot_seed": plan.robot_seed,
         "clock": {"offset_ms": round(offset_s * 1e3, 4), "jitter_std_ms": round(float(np.std(jitter_s)) * 1e3, 4),
                   "gt_shift_mm": {"median": round(float(np.median(shift_mm)), 4), "max": round(float(shift_mm.max()), 4)}},
         "ball_speed_mps": {"median": float(np.median(speed)), "max": float(np.max(speed))},
