@@ -210,8 +210,9 @@ def fit_initial_state(t_s, X_world, params: BallParams | None = None, table: Tab
     res = least_squares(residuals, x0, jac=jacobian, loss=loss, f_scale=options.robust_scale or 1.0,
                         x_scale="jac", max_nfev=options.max_nfev, method="trf")
     J = res.jac
-    cov_free = np.linalg.pinv(J.T @ J)  # Laplace approximation, unit-variance residuals
-    sign, logdet_h = np.linalg.slogdet(J.T @ J)
+    H = J.T @ J  # Gauss-Newton Hessian
+    cov_free = np.linalg.pinv(H)  # Laplace approximation, unit-variance residuals
+    sign, logdet_h = np.linalg.slogdet(H)
     cov0 = np.zeros((9, 9))
     cov0[:n_free, :n_free] = cov_free
     state0 = full(res.x)
