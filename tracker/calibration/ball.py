@@ -17,7 +17,7 @@ import numpy as np
 
 from tracker.calibration.bundle import BundleOptions, PointModel, bundle_adjust
 from tracker.calibration.extrinsics import check_spread, pair_essential, triangulate_views, undistort_pixels
-from tracker.calibration.poses import rigid_fit, rvec_to_R
+from tracker.calibration.poses import reframe_poses, rvec_to_R
 
 __all__ = ["apply_similarity", "calibrate_ball"]
 
@@ -90,8 +90,4 @@ def calibrate_ball(cameras, uv, *, min_matches: int = 30, ransac_px: float = 2.0
 
 def apply_similarity(R: np.ndarray, t: np.ndarray, X_calib: np.ndarray, X_world: np.ndarray):
     """Re-frame and re-scale poses so ``X_calib`` (N >= 3, 3) land on ``X_world``: returns (R', t', scale, residual (N,) m)."""
-    A, b, s = rigid_fit(X_calib, X_world, scale=True)
-    Rn = R @ A.T
-    tn = s * t - np.einsum("nij,j->ni", Rn, b)
-    resid = np.linalg.norm(s * X_calib @ A.T + b - X_world, axis=1)
-    return Rn, tn, s, resid
+    return reframe_poses(R, t, X_calib, X_world, scale=True)

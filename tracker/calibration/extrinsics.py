@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from tracker.calibration.bundle import BundleOptions, BundleResult, WandModel, bundle_adjust, project_cameras
-from tracker.calibration.poses import chain_poses, rigid_fit
+from tracker.calibration.poses import chain_poses, reframe_poses
 from tracker.camera import Camera
 from tracker.triangulation import triangulate_linear
 
@@ -236,10 +236,7 @@ def apply_world(R: np.ndarray, t: np.ndarray, X_calib: np.ndarray, X_world: np.n
 
     returns (R', t', fit residual (N,) metres)
     """
-    A, b, _ = rigid_fit(X_calib, X_world)
-    Rn = R @ A.T
-    tn = t - np.einsum("nij,j->ni", Rn, b)
-    resid = np.linalg.norm((X_calib @ A.T + b) - X_world, axis=1)
+    Rn, tn, _, resid = reframe_poses(R, t, X_calib, X_world)
     return Rn, tn, resid
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["chain_poses", "mean_rotation", "rigid_fit", "rotation_angle_deg", "rvec_to_R", "R_to_rvec"]
+__all__ = ["chain_poses", "mean_rotation", "reframe_poses", "rigid_fit", "rotation_angle_deg", "rvec_to_R", "R_to_rvec"]
 
 
 def rvec_to_R(rvec: np.ndarray) -> np.ndarray:
@@ -56,6 +56,16 @@ def rigid_fit(A: np.ndarray, B: np.ndarray, *, scale: bool = False):
     R = U @ D @ Vt
     s = float(np.trace(np.diag(S) @ D) / np.sum(A0 * A0)) if scale else 1.0
     return R, cb - s * R @ ca, s
+
+
+def reframe_poses(R: np.ndarray, t: np.ndarray, X_calib: np.ndarray, X_world: np.ndarray, *, scale: bool = False):
+    """Re-frame (and with ``scale`` re-scale) world -> camera poses R (n, 3, 3), t (n, 3) so points
+    ``X_calib`` (N >= 3, 3) land on their known ``X_world``: returns (R', t', s, fit residual (N,) metres)."""
+    A, b, s = rigid_fit(X_calib, X_world, scale=scale)
+    Rn = R @ A.T
+    tn = s * t - np.einsum("nij,j->ni", Rn, b)
+    resid = np.linalg.norm(s * X_calib @ A.T + b - X_world, axis=1)
+    return Rn, tn, s, resid
 
 
 def chain_poses(n_cams: int, edges: dict, weights: dict, *, names=None, root: int = 0):
