@@ -115,10 +115,13 @@ class TrackingService:
         self.num += 1
         t_first = first_host_stamp(afs)
         t_done = time.monotonic()
-        if self.publisher is not None:
-            rich = rich_message(num, afs, obs, t_first_host_s=t_first, camera_names=self._names)  # stamped at the send
-            t_done = self.publisher.publish(
-                tennicam_message(num, _time_ns(afs.frameset.t_s), time.monotonic() - t_first, obs.position_m), rich)
+        if self.publisher is not None:  # a message only for a stream that is on (``--publish-rt2 none``)
+            on = self.publisher.addresses
+            rich = (rich_message(num, afs, obs, t_first_host_s=t_first, camera_names=self._names)  # stamped at the send
+                    if "rt2" in on else None)
+            tennicam = (tennicam_message(num, _time_ns(afs.frameset.t_s), time.monotonic() - t_first, obs.position_m)
+                        if "tennicam" in on else None)
+            t_done = self.publisher.publish(tennicam, rich)
         latency = t_done - t_first
         self.stats.add(afs, obs, latency, t_done)
         if self.log is not None and self.log_error is None:

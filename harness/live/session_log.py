@@ -19,6 +19,7 @@ never waits for the disk (what it had to drop is counted in ``session_end``).
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -59,7 +60,7 @@ class LiveLog:
         if self._detections:
             from tracker._pipeline_options import DEFAULT_MODEL
 
-            writer.attach("model.npz", open(model_path or DEFAULT_MODEL, "rb").read(), "application/x-npz")
+            writer.attach("model.npz", Path(model_path or DEFAULT_MODEL).read_bytes(), "application/x-npz")
         writer.write_scene_static(0.0, rig)
         writer.flush()
         self.image_every = writer.image_every
