@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from policies.ball_model import BallParams, TableGeometry, _check_states, _check_times, simulate
+from policies.ball_model import BallParams, TableGeometry, _check_times, simulate
 
 __all__ = ["BallEKF", "BallEstimate", "EKFOptions", "EstimatorOptions", "fit_initial_state", "fit_initial_state_mixture",
            "spin_prior_from_spins"]
