@@ -123,8 +123,8 @@ class BallSegmentationModel:
         if kernel.dtype.kind not in "biuf":
             raise ValueError(f"{where}: kernel must be real numbers, got dtype {kernel.dtype}")
         kernel = kernel.astype(np.float32)
-        scale, offset = (_real_vector(v, name, where) for v, name in ((self.input_scale, "input_scale"),
-                                                                       (self.input_offset, "input_offset")))
+        scale = _real_vector(self.input_scale, "input_scale", where)
+        offset = _real_vector(self.input_offset, "input_offset", where)
         for name, arr in (("input_scale", scale), ("input_offset", offset)):
             if arr.shape != (3,):
                 raise ValueError(f"{where}: {name} must have 3 values (one per channel), got shape {arr.shape}")
