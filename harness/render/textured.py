@@ -82,12 +82,11 @@ def draw_textured_plane(image: np.ndarray, camera: Camera, plane: TexturedPlane,
     R = camera.R_world_to_cam @ plane.R_plane_to_world  # plane -> camera
     p0 = camera.R_world_to_cam @ plane.t_plane_to_world_m + camera.t_world_to_cam_m
     n = R[:, 2]
-    corners_c = (plane.corners_world() @ camera.R_world_to_cam.T) + camera.t_world_to_cam_m
-    if (corners_c[:, 2] <= 1e-6).any():
+    cw = plane.corners_world()
+    if (camera.depth(cw) <= 1e-6).any():
         return out  # (part of) the plane behind the camera: not drawn
     # bounding box from the distorted projection of the plane's outline (dense along the edges)
     s = np.linspace(0, 1, 17)[:, None]
-    cw = plane.corners_world()
     edge = np.concatenate([cw[k] + s * (cw[(k + 1) % 4] - cw[k]) for k in range(4)])
     uv = camera.project(edge)
     H, W = out.shape[:2]
