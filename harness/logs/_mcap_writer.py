@@ -151,16 +151,8 @@ class LaneWriter:
         """Close every lane chunk whose oldest message is 3/4 of ``flush_period_s`` old in wall time
         (what the timer calls every ``flush_period_s / 4``)."""
         with self._lock:
-            if self._finished:
-                return
-            wall = time.monotonic()
-            closed = False
-            for ln in self._lanes.values():
-                if ln.n_messages and wall - ln.opened_wall_s >= 0.75 * self._flush_s:
-                    self._close_chunk(ln)
-                    closed = True
-            if closed:
-                self._stream.flush()
+            if not self._finished:
+                self._close_old(None, 0.75 * self._flush_s)
 
     def stop_timer(self) -> None:
         """Stop the flush timer (if any) and wait for it; safe to call more than once."""
@@ -261,10 +253,15 @@ class LaneWriter:
             self._flush_due(now_log_ns)
 
     def _flush_due(self, now_log_ns: int) -> None:
+        self._close_old(now_log_ns, self._flush_s)
+
+    def _close_old(self, now_log_ns: int | None, wall_age_s: float) -> None:
+        """Close the lane chunks ``flush_period_s`` old in log time (None: not checked) or ``wall_age_s`` in wall time."""
         wall = time.monotonic()
         closed = False
         for ln in self._lanes.values():
-            if ln.n_messages and (now_log_ns - ln.start_ns >= self._flush_ns or wall - ln.opened_wall_s >= self._flush_s):
+            if ln.n_messages and ((now_log_ns is not None and now_log_ns - ln.start_ns >= self._flush_ns)
+                                  or wall - ln.opened_wall_s >= wall_age_s):
                 self._close_chunk(ln)
                 closed = True
         if closed:
