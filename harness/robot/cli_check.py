@@ -60,7 +60,7 @@ def check_link(address: str, *, duration_s: float = 3.0, move_rad: float | None 
     if not 0.2 <= float(duration_s) <= 3600:
         raise ValueError(f"--duration must be in [0.2, 3600] s, got {duration_s!r}")
     with WamClient(address, heartbeat_s=None if move_rad is None else 0.1) as wam:
-        est = wam.sync_clock(32)
+        wam.sync_clock(32)
         wam.take_arrivals()
         rtt = []
         t_end = time.monotonic() + float(duration_s)
