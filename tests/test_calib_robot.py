@@ -20,6 +20,7 @@ def test_robot_registration_matches_the_accuracy_run(accuracy_session, tmp_path,
     assert got["inliers"] == reg["inliers"]
     assert got["std_rotation_deg"] > 0 and all(s > 0 for s in got["std_translation_mm"])
     assert abs(got["vs_nominal_mount"]["rotation_deg"] - reg["vs_true_mount"]["rotation_deg"]) < 1e-3
+    assert abs(got["vs_nominal_mount"]["translation_mm"] - 10 * reg["vs_true_mount"]["translation_cm"]) < 1e-2
 
 
 def test_same_seed_same_uncertainty(accuracy_session):

@@ -17,7 +17,7 @@ import numpy as np
 import yaml
 
 from harness.accuracy.motion import world_to_base
-from harness.accuracy.registration import RegistrationOptions, fit_rigid, register_rigid, registration_std
+from harness.accuracy.registration import RegistrationOptions, fit_rigid, register_rigid, registration_std, transform_difference
 from tracker import Status
 from tracker.calibration.poses import rotation_angle_deg
 
@@ -86,14 +86,14 @@ def register_from_log(path, tracker=None, *, frames: str = "register", bootstrap
         rots.append(float(rotation_angle_deg(Tb[:3, :3], T[:3, :3])))
         trans.append(Tb[:3, 3] - T[:3, 3])
     pos_std = registration_std(A, info.rms_m, A)
+    nominal_deg, nominal_m = transform_difference(T, T_nom)
     return {
         "T_base_to_world": T.tolist(), "tracker": name, "pairs": info.n_pairs, "inliers": info.n_inliers,
         "rms_mm": 1000 * info.rms_m, "max_mm": 1000 * info.max_m,
         "std_rotation_deg": float(np.sqrt(np.mean(np.square(rots)))) if rots else None,
         "std_translation_mm": (1000 * np.std(trans, axis=0)).tolist() if trans else None,
         "ball_position_std_mm": {"median": float(1000 * np.median(pos_std)), "max": float(1000 * pos_std.max())},
-        "vs_nominal_mount": {"rotation_deg": float(rotation_angle_deg(T[:3, :3], T_nom[:3, :3])),
-                             "translation_mm": float(1000 * np.linalg.norm(T[:3, 3] - T_nom[:3, 3]))},
+        "vs_nominal_mount": {"rotation_deg": nominal_deg, "translation_mm": 1000 * nominal_m},
         "spread_m": info.spread_m.tolist(),
     }
 
