@@ -38,14 +38,7 @@ def _handover(handover, t_s: float, X, info, uv: np.ndarray):
     used = np.full((uv.shape[0], 2), np.nan)
     sel = np.flatnonzero(info.candidate_index >= 0)
     used[sel] = uv[sel, info.candidate_index[sel]]
-    if hasattr(handover, "apply"):  # SupportHandover.apply: any smaller camera set, hand-overs chain
-        return handover.apply(t_s, X, used, info.status is Status.OK)[0]
-    if info.status is Status.OK:  # the two-camera form: record confirmed, move LOW_SUPPORT
-        handover.record(t_s, X, used)
-    elif info.status is Status.LOW_SUPPORT:
-        d = handover.offset(t_s, info.inliers)
-        X = X if d is None else X + d
-    return X
+    return handover.apply(t_s, X, used, info.status is Status.OK)[0]
 
 
 def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
