@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from harness.calib.compare import compare_rigs, wand_lengths
+from harness.calib.compare import compare_rigs, length_rows, wand_lengths
 from harness.calib.exports import add_export_arguments, save_calibration
 from harness.calib.inputs import load_intrinsics, read_detection_csvs
 from tracker import Camera, Rig
@@ -181,25 +181,10 @@ def _run_ball(args, cams, uv) -> int:
 
 
 def wand_report(res, offsets, rig, world) -> dict:
-    L = res.lengths_m
-    rows = {}
-    known = np.diff(offsets)
-    for k in range(L.shape[1]):
-        rows[f"ball{k + 1}-ball{k + 2}"] = _length_stats(L[:, k], known[k])
-    rows[f"ball1-ball{len(offsets)}"] = _length_stats(res.total_m, offsets[-1] - offsets[0])
+    rows = length_rows(res.lengths_m, res.total_m, offsets)
     return {"cameras": rig.names, "fit_frames": int(len(res.fit_frames)), "holdout_frames": int(len(res.holdout_frames)),
             "reprojection_px": res.reproj_px, "holdout_wand_mm": rows, "pair_support": {f"{i}-{j}": v for (i, j), v in res.pair_support.items()},
             "world": world or "camera 0", "bundle": {"cost_initial": res.bundle.cost_initial, "cost_final": res.bundle.cost_final, "nfev": res.bundle.nfev}}
-
-
-def _length_stats(values_m, known_m) -> dict:
-    v = values_m[np.isfinite(values_m)] * 1000
-    if not len(v):
-        return {"known": known_m * 1000, "n": 0}
-    e = v - known_m * 1000
-    q25, q75 = np.percentile(v, [25, 75])
-    return {"known": round(known_m * 1000, 3), "n": int(len(v)), "median": float(np.median(v)), "iqr": float(q75 - q25),
-            "error_mean": float(e.mean()), "error_std": float(e.std()), "error_abs_median": float(np.median(np.abs(e)))}
 
 
 def format_report(rep: dict) -> str:

@@ -8,7 +8,7 @@ from tracker import Rig
 from tracker.calibration.extrinsics import triangulate_views
 from tracker.calibration.poses import rigid_fit, rotation_angle_deg
 
-__all__ = ["compare_rigs", "compare_to_truth", "wand_lengths"]
+__all__ = ["compare_rigs", "compare_to_truth", "length_rows", "wand_lengths"]
 
 
 def compare_rigs(rig: Rig, ref: Rig) -> dict:
@@ -53,13 +53,26 @@ def compare_to_truth(rig: Rig, truth: Rig, *, align: bool = False) -> dict:
 
 def wand_lengths(rig: Rig, uv: np.ndarray, offsets) -> dict:
     """Wand lengths (mm stats) triangulated with ``rig`` from (n, F, M, 2) detections."""
-    from harness.calib.cli_wand import _length_stats
-
     n, F, M, _ = uv.shape
     st = rig.stacked()
     X = triangulate_views(rig.cameras, st["R"], st["t"], uv.reshape(n, -1, 2)).reshape(F, M, 3)
-    gaps = np.linalg.norm(np.diff(X, axis=1), axis=2)
+    return length_rows(np.linalg.norm(np.diff(X, axis=1), axis=2), np.linalg.norm(X[:, -1] - X[:, 0], axis=1), offsets)
+
+
+def length_rows(gaps_m: np.ndarray, total_m: np.ndarray, offsets) -> dict:
+    """Stats (mm) of triangulated wand lengths: gaps_m (F, M-1) consecutive balls, total_m (F,) first to last,
+    against the known spacings of ``offsets`` (M,) -> {"ball1-ball2": ..., ..., "ball1-ballM": ...}."""
     known = np.diff(offsets)
-    rows = {f"ball{k + 1}-ball{k + 2}": _length_stats(gaps[:, k], known[k]) for k in range(M - 1)}
-    rows[f"ball1-ball{M}"] = _length_stats(np.linalg.norm(X[:, -1] - X[:, 0], axis=1), offsets[-1] - offsets[0])
+    rows = {f"ball{k + 1}-ball{k + 2}": _length_stats(gaps_m[:, k], known[k]) for k in range(len(known))}
+    rows[f"ball1-ball{len(offsets)}"] = _length_stats(total_m, offsets[-1] - offsets[0])
     return rows
+
+
+def _length_stats(values_m, known_m) -> dict:
+    v = values_m[np.isfinite(values_m)] * 1000
+    if not len(v):
+        return {"known": known_m * 1000, "n": 0}
+    e = v - known_m * 1000
+    q25, q75 = np.percentile(v, [25, 75])
+    return {"known": round(known_m * 1000, 3), "n": int(len(v)), "median": float(np.median(v)), "iqr": float(q75 - q25),
+            "error_mean": float(e.mean()), "error_std": float(e.std()), "error_abs_median": float(np.median(np.abs(e)))}
