@@ -34,7 +34,7 @@ from mcap.stream_reader import breakup_chunk
 from harness.logs._mcap_writer import MCAP_MAGIC
 from harness.logs.topics import LogError
 
-__all__ = ["ChunkInfo", "FileIndex", "RecoveryReport", "build_index", "scan", "load_chunk", "chunk_records",
+__all__ = ["ChunkInfo", "FileIndex", "RecoveryReport", "build_index", "scan", "load_chunk", "chunk_records", "summary_start",
            "DECODE_ERRORS", "MAX_CHUNK_BYTES"]
 
 #: what a damaged chunk can raise while being decompressed or parsed
@@ -202,6 +202,17 @@ def build_index(path) -> FileIndex:
         return scan(f, path, size, reason)
 
 
+def _read_footer(f, size: int) -> bytes:
+    """The footer record (opcode, length, summary start, summary offset start, crc) before the closing magic."""
+    f.seek(size - 8 - _FOOTER_LEN)
+    return f.read(_FOOTER_LEN)
+
+
+def summary_start(f, size: int) -> int:
+    """Where a finished file's summary section starts (its data section ends), from the footer."""
+    return struct.unpack("<BQQQI", _read_footer(f, size))[2]
+
+
 def _summary_problem(f, size: int) -> str | None:
     """Why the footer/summary cannot be trusted, or None if it can."""
     if size < 8 + _FOOTER_LEN + 8:
@@ -209,8 +220,7 @@ def _summary_problem(f, size: int) -> str | None:
     f.seek(size - 8)
     if f.read(8) != MCAP_MAGIC:
         return "no footer (the writer was killed or the file was cut)"
-    f.seek(size - 8 - _FOOTER_LEN)
-    raw = f.read(_FOOTER_LEN)
+    raw = _read_footer(f, size)
     op, length, summary_start, offset_start, crc = struct.unpack("<BQQQI", raw)
     if op != Opcode.FOOTER or length != 20 or summary_start == 0 or summary_start >= size:
         return "no usable summary section (footer without a summary)"

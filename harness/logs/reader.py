@@ -22,7 +22,7 @@ from mcap.records import Message
 from mcap_protobuf.decoder import DecoderFactory
 
 from harness.logs import codecs
-from harness.logs._index import DECODE_ERRORS, FileIndex, RecoveryReport, build_index, load_chunk, scan
+from harness.logs._index import DECODE_ERRORS, FileIndex, RecoveryReport, build_index, load_chunk, scan, summary_start
 from harness.logs.topics import LogError
 
 __all__ = ["SessionLogReader", "LogMessage", "LogSummary", "TopicStats"]
@@ -236,8 +236,7 @@ class SessionLogReader:
     def _data_end(self) -> int:
         """Where the data section of a finished file ends (its summary starts)."""
         with open(self.path, "rb") as f:
-            f.seek(self._index.size_bytes - 8 - 29 + 9)
-            return struct.unpack("<Q", f.read(8))[0]
+            return summary_start(f, self._index.size_bytes)
 
     # -- messages -------------------------------------------------------------------------------
     def _select(self, topics) -> set:
