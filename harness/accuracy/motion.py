@@ -35,7 +35,7 @@ import numpy as np
 from harness.robot.sim_wam import SimulatedWam, SimWamOptions
 from harness.trajectories import BALL_BOX_WORLD_M, TrajectoryOptions, random_via_trajectory
 
-__all__ = ["GT_SAMPLINGS", "MotionOptions", "MotionPlan", "RobotMotion", "plan_motion", "simulate_motion", "world_to_base"]
+__all__ = ["GT_SAMPLINGS", "MotionOptions", "MotionPlan", "RobotMotion", "plan_motion", "seed_streams", "simulate_motion", "world_to_base"]
 
 GT_SAMPLINGS = ("interpolate", "hold")
 
@@ -176,6 +176,11 @@ class MotionPlan:
     robot_seed: int
 
 
+def seed_streams(seed: int) -> tuple:
+    """The independent streams of session ``seed``: (trajectory, robot, camera clock) ``SeedSequence`` s."""
+    return tuple(np.random.SeedSequence([int(seed), 1]).spawn(3))
+
+
 def plan_motion(kin, n_frames: int, rate_hz: float, *, seed: int, options: MotionOptions = MotionOptions()) -> MotionPlan:
     """The seeded trajectory and camera clock of session ``seed``: the same for the in-process WAM
     (:func:`simulate_motion`) and a robot over the link (:mod:`harness.robot.link.accuracy_motion`)."""
@@ -185,7 +190,7 @@ def plan_motion(kin, n_frames: int, rate_hz: float, *, seed: int, options: Motio
         raise ValueError(f"rate_hz must be a frame rate in [1, 10000] Hz, got {rate_hz!r}")
     if not isinstance(options, MotionOptions):
         raise ValueError(f"options must be MotionOptions, got {type(options).__name__}")
-    traj_seq, robot_seq, clock_seq = np.random.SeedSequence([int(seed), 1]).spawn(3)
+    traj_seq, robot_seq, clock_seq = seed_streams(seed)
     t_frames = options.start_s + np.arange(int(n_frames)) / float(rate_hz)
     clock_rng = np.random.default_rng(clock_seq)
     offset_s = float(clock_rng.normal(0.0, options.clock_offset_std_s)) if options.clock_offset_std_s > 0 else 0.0

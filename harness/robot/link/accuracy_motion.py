@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.accuracy.motion import MotionOptions, RobotMotion, plan_motion
+from harness.accuracy.motion import MotionOptions, RobotMotion, plan_motion, seed_streams
 from harness.robot.link.client import LinkLostError, WamClient
 from harness.robot.link.clock import ClockEstimate, pair_joint_states
 
@@ -32,7 +32,7 @@ __all__ = ["link_motion_source", "motion_over_link", "robot_seed_of"]
 
 def robot_seed_of(seed: int) -> int:
     """The simulated robot's seed :func:`simulate_motion` uses for session ``seed`` (``rt2 robot serve --seed``)."""
-    return int(np.random.SeedSequence([int(seed), 1]).spawn(3)[1].generate_state(1)[0])
+    return int(seed_streams(seed)[1].generate_state(1)[0])
 
 
 def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int,
