@@ -80,7 +80,7 @@ def test_error_messages_never_expand_a_huge_value():
         inner = [inner] * 9
     t0 = time.perf_counter()
     text = describe(inner)
-    assert time.perf_counter() - t0 < 0.1 and len(text) <= 80
+    assert time.perf_counter() - t0 < 2.0 and len(text) <= 80
     assert text.startswith("[[[")
 
 
