@@ -2,13 +2,35 @@
 robot interface contract (``robot_interface.py``: ``WamInterface`` and the joint types) that policies act through.
 
 Imports nothing else of rt2 (see docs/architecture.md). Poses are in the lab world frame, metres.
+
+The names below are loaded on first use (PEP 562), so that ``robot_models.robot_interface``,
+``robot_models.config`` and ``robot_models.limits`` import without Pinocchio: the robot link's ROS
+bridge runs them under a system Python that has numpy and PyYAML only (docs/robot_link.md).
 """
 
-from robot_models.config import DEFAULT_CONFIG_PATH, DEFAULT_URDF_PATH, RobotConfig, load_robot_config, mount_transform
-from robot_models.ik import IkOptions, solve_ik
-from robot_models.kinematics import LINK_CHAIN, REQUIRED_FRAMES, WamKinematics
-from robot_models.robot_interface import JointSamples, JointState, JointTrajectory, WamInterface, check_joint_trajectory
+from importlib import import_module
 
-__all__ = ["DEFAULT_CONFIG_PATH", "DEFAULT_URDF_PATH", "IkOptions", "JointSamples", "JointState", "JointTrajectory",
-           "LINK_CHAIN", "REQUIRED_FRAMES", "RobotConfig", "WamInterface", "WamKinematics", "check_joint_trajectory",
-           "load_robot_config", "mount_transform", "solve_ik"]
+_WHERE = {
+    "DEFAULT_CONFIG_PATH": "config", "DEFAULT_URDF_PATH": "config", "RobotConfig": "config",
+    "load_robot_config": "config", "mount_transform": "config",
+    "IkOptions": "ik", "solve_ik": "ik",
+    "LINK_CHAIN": "kinematics", "REQUIRED_FRAMES": "kinematics", "WamKinematics": "kinematics",
+    "JointLimits": "limits",
+    "JointSamples": "robot_interface", "JointState": "robot_interface", "JointTrajectory": "robot_interface",
+    "WamInterface": "robot_interface", "check_joint_trajectory": "robot_interface",
+}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module 'robot_models' has no attribute {name!r}")
+    value = getattr(import_module(f"robot_models.{module}"), name)
+    globals()[name] = value  # later lookups skip this function
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_WHERE))

@@ -19,6 +19,7 @@ import pinocchio as pin
 
 from robot_models._batch_fk import fk_frames_numba, fk_frames_numpy
 from robot_models.config import RobotConfig, load_robot_config
+from robot_models.limits import check_joint_angles
 
 __all__ = ["FK_METHODS", "JACOBIAN_REFERENCES", "LINK_CHAIN", "REQUIRED_FRAMES", "WamKinematics"]
 
@@ -145,26 +146,7 @@ class WamKinematics:
         q : (7,) or (N, 7) joint angles, rad. Raises ValueError naming ``name`` for a wrong length,
         non-finite values, or (with ``limits``) a joint outside ``[q_min - tol, q_max + tol]``.
         """
-        try:
-            arr = np.asarray(q, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{name} must be numeric joint angles, got {q!r}") from exc
-        if arr.ndim not in (1, 2) or arr.shape[-1] != self.n_joints:
-            raise ValueError(f"{name} must have length {self.n_joints} (or shape (N, {self.n_joints})), "
-                             f"got shape {arr.shape}")
-        if not np.isfinite(arr).all():
-            raise ValueError(f"{name} must be finite, got {arr.tolist() if arr.size <= 14 else 'non-finite values'}")
-        if limits:
-            low = arr < self.q_min - tol_rad
-            high = arr > self.q_max + tol_rad
-            if low.any() or high.any():
-                idx = np.argwhere(low | high)[0]
-                j = int(idx[-1])
-                val = float(arr[tuple(idx)])
-                row = f" (row {int(idx[0])})" if arr.ndim == 2 else ""
-                raise ValueError(f"{name}{row}: {self.joint_names[j]} = {val:.6g} rad is outside its limits "
-                                 f"[{self.q_min[j]:g}, {self.q_max[j]:g}] rad")
-        return arr
+        return check_joint_angles(self.joint_names, self.q_min, self.q_max, q, name, limits=limits, tol_rad=tol_rad)
 
     def within_limits(self, q, tol_rad: float = 1e-9) -> np.ndarray | bool:
         """True where every joint of ``q`` (7,) or (N, 7) is within the URDF limits; bool or (N,) bool."""

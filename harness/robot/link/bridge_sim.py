@@ -17,24 +17,18 @@ estimate against a known skew; ``epoch_ns`` is reported on the ready line for th
 
 from __future__ import annotations
 
-import logging
 import math
 import time
-import uuid
 from dataclasses import dataclass
 
 import numpy as np
 import zmq
 
-from harness.robot.link import protocol
-from harness.robot.link.protocol import ProtocolError
+from harness.robot.link.bridge_core import BridgeCore, check_endpoint, default_state_bind
 from harness.robot.sim_wam import SimulatedWam
 from robot_models.robot_interface import check_joint_trajectory
 
 __all__ = ["BridgeOptions", "SimBridge"]
-
-log = logging.getLogger("rt2.robot.link.bridge")
-_MAX_REQUESTS_PER_TICK = 64
 
 
 @dataclass(frozen=True)
@@ -51,9 +45,7 @@ class BridgeOptions:
 
     def __post_init__(self):
         for name in ("bind",) + (("state_bind",) if self.state_bind is not None else ()):
-            value = getattr(self, name)
-            if not isinstance(value, str) or not value.startswith(("tcp://", "ipc://", "inproc://")):
-                raise ValueError(f"BridgeOptions.{name} must be a ZeroMQ endpoint like tcp://127.0.0.1:7650, got {value!r}")
+            check_endpoint(f"BridgeOptions.{name}", getattr(self, name))
         if not 0.01 <= float(self.watchdog_s) <= 10:
             raise ValueError(f"BridgeOptions.watchdog_s must be in [0.01, 10] s, got {self.watchdog_s!r}")
         if isinstance(self.batch_ticks, bool) or not isinstance(self.batch_ticks, int) or not 1 <= self.batch_ticks <= 50:
@@ -62,10 +54,7 @@ class BridgeOptions:
             raise ValueError(f"BridgeOptions.clock_skew_ns must be an int of at most 1000 s, got {self.clock_skew_ns!r}")
 
     def resolved_state_bind(self) -> str:
-        if self.state_bind is not None:
-            return self.state_bind
-        head, _, port = self.bind.rpartition(":")
-        return f"{head}:{int(port) + 1}" if self.bind.startswith("tcp://") and port.isdigit() else f"{head}:*"
+        return default_state_bind(self.bind) if self.state_bind is None else self.state_bind
 
 
 def _warm_up(wam: SimulatedWam) -> None:
@@ -79,7 +68,7 @@ def _warm_up(wam: SimulatedWam) -> None:
     spare.step(10)
 
 
-class SimBridge:
+class SimBridge(BridgeCore):
     """Serve ``wam`` over the robot link in real time (see the module docstring).
 
     wam : a fresh :class:`SimulatedWam` (clock at 0); options : :class:`BridgeOptions`.
@@ -89,31 +78,12 @@ class SimBridge:
     def __init__(self, wam: SimulatedWam, options: BridgeOptions = BridgeOptions(), *, context=None):
         if not isinstance(wam, SimulatedWam) or wam.t_s != 0:
             raise ValueError(f"SimBridge needs a fresh SimulatedWam, got {wam!r}")
+        super().__init__(options.bind, options.resolved_state_bind(), options.watchdog_s, context=context)
         self.wam, self.options = wam, options
         self.kin = wam.kinematics
         self.dt_ns = int(round(1e9 / wam.control_rate_hz))
-        self.bridge_id = uuid.uuid4().hex[:12]  # tells the harness that a restarted bridge is a new robot session
-        self._ctx = context or zmq.Context.instance()
-        self._router = self._ctx.socket(zmq.ROUTER)
-        self._pub = self._ctx.socket(zmq.PUB)
-        for sock in (self._router, self._pub):
-            sock.setsockopt(zmq.LINGER, 0)
-        try:
-            self._router.bind(options.bind)
-            self._pub.bind(options.resolved_state_bind())
-        except zmq.ZMQError as exc:
-            self.close()
-            raise ValueError(f"cannot bind the robot link at {options.bind} / {options.resolved_state_bind()}: {exc}") from None
-        self.command_endpoint = self._router.getsockopt_string(zmq.LAST_ENDPOINT)
-        self.state_endpoint = self._pub.getsockopt_string(zmq.LAST_ENDPOINT)
         _warm_up(wam)
         self.epoch_ns = time.monotonic_ns()
-        self.mode = "idle"
-        self.cmd_id = -1
-        self.seq = 0
-        self.rejected = 0
-        self._last_contact_ns: int | None = None
-        self._stop = False
         self._ticks = 0  # control ticks run (the robot time of the latest is _ticks * dt_ns)
         # simulation truth for --publish-truth: the zero offsets, and robot clock minus host monotonic clock
         self._bias = np.asarray(wam.bias_rad, float).tolist()
@@ -125,33 +95,22 @@ class SimBridge:
         return time.monotonic_ns() - self.epoch_ns + self.options.clock_skew_ns
 
     # -- loop -------------------------------------------------------------------------------------
-    def stop(self) -> None:
-        """Ask :meth:`serve` to return after the present iteration (signal handlers call this)."""
-        self._stop = True
-
     def serve(self, duration_s: float | None = None) -> None:
         """Run until :meth:`stop` (or for ``duration_s`` of robot time); closes the sockets at the end."""
         end_ns = None if duration_s is None else self.robot_ns() + int(duration_s * 1e9)
         poller = zmq.Poller()
         poller.register(self._router, zmq.POLLIN)
-        self._event("started", f"simulated WAM at {self.wam.control_rate_hz:g} Hz, bridge {self.bridge_id}")
+        self.event("started", f"simulated WAM at {self.wam.control_rate_hz:g} Hz, bridge {self.bridge_id}")
         try:
             while not self._stop and (end_ns is None or self.robot_ns() < end_ns):
                 self._run_ticks()
                 wait_ms = ((self._ticks + self.options.batch_ticks) * self.dt_ns - self.robot_ns()) / 1e6
                 if poller.poll(timeout=max(1, math.ceil(wait_ms))):  # sleeps (a tick runs <= 1 ms late), never spins
-                    for _ in range(_MAX_REQUESTS_PER_TICK):  # a flood of requests never starves the control ticks
-                        if not self._router.poll(0):
-                            break
-                        self._handle(self._router.recv_multipart())
-                self._watchdog()
+                    self.serve_requests()
+                self.watchdog()
         finally:
-            self._event("stopping", "bridge shutting down")
+            self.event("stopping", "bridge shutting down")
             self.close()
-
-    def close(self) -> None:
-        for sock in (self._router, self._pub):
-            sock.close(linger=0)
 
     def _run_ticks(self) -> None:
         target = self.robot_ns() // self.dt_ns
@@ -162,82 +121,27 @@ class SimBridge:
         self._ticks += int(n)
         truth = samples.q_true if self.options.publish_truth else None
         for i in range(n):
-            self.seq += 1
-            t_ns = int(round(samples.t_s[i] * 1e9))
             sim = None if truth is None else {"q_true": truth[i].tolist(), "bias_rad": self._bias,
                                               "offset_ns": self._true_offset_ns}
-            self._pub.send(protocol.encode("state", seq=self.seq, t_ns=t_ns, q=samples.q[i].tolist(),
-                                           qdot=samples.qdot[i].tolist(), effort=None, mode=self.mode,
-                                           cmd_id=self.cmd_id, sim=sim))
+            self.publish_state(int(round(samples.t_s[i] * 1e9)), samples.q[i].tolist(), samples.qdot[i].tolist(),
+                               None, sim)
 
-    def _event(self, event: str, reason: str) -> None:
-        self._pub.send(protocol.encode("event", t_ns=self.robot_ns(), event=event, reason=reason))
+    # -- BridgeCore ---------------------------------------------------------------------------------
+    def welcome_fields(self) -> dict:
+        k = self.kin
+        return {"robot": "rt2 simulated WAM", "joint_names": list(k.joint_names),
+                "control_rate_hz": float(self.wam.control_rate_hz), "q_min": np.asarray(k.q_min, float).tolist(),
+                "q_max": np.asarray(k.q_max, float).tolist(), "qdot_max": np.asarray(k.qdot_max, float).tolist()}
 
-    # -- requests ---------------------------------------------------------------------------------
-    def _reply(self, ident: bytes, msg_type: str, **fields) -> None:
-        self._router.send_multipart([ident, protocol.encode(msg_type, **fields)])
-
-    def _handle(self, frames: list[bytes]) -> None:
-        t_recv = self.robot_ns()
-        ident = frames[0]
-        if len(frames) != 2:
-            self._reject(ident, None, f"expected one message frame, got {len(frames) - 1}")
-            return
-        try:
-            msg = protocol.decode(frames[1], expect=("hello", "trajectory", "hold", "heartbeat", "clock"))
-        except ProtocolError as exc:
-            self._reject(ident, protocol.request_id(frames[1]), str(exc))
-            return
-        rid, kind = msg["id"], msg["type"]
-        if kind == "trajectory":
-            try:
-                self._apply_trajectory(msg)
-            except ValueError as exc:
-                self._reject(ident, rid, f"trajectory {rid}: {exc}")
-                return
-        if kind in ("trajectory", "hold", "heartbeat"):  # what keeps the watchdog quiet (not hello, not clock)
-            self._last_contact_ns = t_recv
-        if kind == "hello":
-            k = self.kin
-            self._reply(ident, "welcome", id=rid, robot="rt2 simulated WAM", bridge_id=self.bridge_id,
-                        joint_names=list(k.joint_names), control_rate_hz=float(self.wam.control_rate_hz),
-                        q_min=np.asarray(k.q_min, float).tolist(), q_max=np.asarray(k.q_max, float).tolist(),
-                        qdot_max=np.asarray(k.qdot_max, float).tolist(), state_endpoint=self.state_endpoint,
-                        watchdog_s=float(self.options.watchdog_s), t_ns=self.robot_ns())
-            log.info("hello from %s", msg["client"])
-        elif kind == "clock":
-            self._reply(ident, "clock_reply", id=rid, t0_ns=msg["t0_ns"], t1_ns=t_recv, t2_ns=self.robot_ns())
-        else:
-            if kind == "hold":
-                self._hold("hold")
-            self._reply(ident, "ok", id=rid, t_ns=self.robot_ns())
-
-    def _apply_trajectory(self, msg: dict) -> None:
+    def apply_trajectory(self, msg: dict) -> None:
         t_s = np.asarray(msg["t_ns"], dtype=np.int64) * 1e-9
         t, Q, Qd = check_joint_trajectory(self.kin, t_s, msg["q"], msg["qdot"], now_s=self.wam.t_s)
         self.wam.command_trajectory(t, Q, Qd)
         self.cmd_id, self.mode = int(msg["id"]), "track"
 
-    def _reject(self, ident: bytes, rid, reason: str) -> None:
-        self.rejected += 1
-        log.warning("rejected: %s", reason)
-        self._reply(ident, "error", id=rid, reason=reason)
-        self._event("rejected", reason)
-
-    # -- holding ----------------------------------------------------------------------------------
-    def _hold(self, mode: str) -> None:
+    def hold(self, mode: str) -> None:
         """Hold the present (true) joint position from now on."""
         q = np.clip(self.wam.true_state().q, self.kin.q_min, self.kin.q_max)
         now = self.wam.t_s
         self.wam.command_trajectory([now, now + 1.0 / self.wam.control_rate_hz], np.stack([q, q]), np.zeros((2, q.size)))
         self.mode = mode
-
-    def _watchdog(self) -> None:
-        if self.mode not in ("track", "hold") or self._last_contact_ns is None:
-            return
-        silent_s = (self.robot_ns() - self._last_contact_ns) * 1e-9
-        if silent_s > self.options.watchdog_s:
-            self._hold("watchdog")
-            reason = f"no command or heartbeat for {silent_s:.3f} s (limit {self.options.watchdog_s:g} s): holding position"
-            log.warning("watchdog: %s", reason)
-            self._event("watchdog_hold", reason)
