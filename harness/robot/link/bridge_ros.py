@@ -121,7 +121,7 @@ class RosBridge(BridgeCore):
             n = self.limits.n_joints
             if not names:
                 idx = np.arange(n) if n_values == n else None
-            elif all(j in names for j in self.joint_names):
+            elif len(names) == n_values and all(j in names for j in self.joint_names):
                 idx = np.array([names.index(j) for j in self.joint_names])
             else:
                 idx = None
