@@ -28,6 +28,8 @@ from harness.robot.link import WamClient, protocol
 ROOT = Path(__file__).resolve().parents[1]
 SYSTEM_PYTHON = "/usr/bin/python3"
 ROS_MODULES = "rospy, rosgraph, genpy, genmsg, sensor_msgs.msg, std_srvs.srv, zmq, msgpack, numpy, scipy, yaml"
+#: the bridge's watchdog here: wam_node's 0.3 s would hold whenever the loaded test machine delays a heartbeat
+WATCHDOG_S = 0.6
 BARRETT_RTJOINTPOS_MD5 = "6db71b8c4d3c870c701b3f89e85b7a36"  # wam_msgs/RTJointPos as published by barrett-ros-pkg
 
 
@@ -118,7 +120,8 @@ def lab(tmp_path_factory):
         group.start("fake", [SYSTEM_PYTHON, "tests/fake_wam_node.py", "--ns", "/wam", "--log", str(fake_log)],
                     stdout=subprocess.DEVNULL)
         bridge = group.start("bridge", [SYSTEM_PYTHON, "-m", "harness.robot.link.bridge_ros", "--address",
-                                        "tcp://127.0.0.1:*", "--ns", "/wam", "--wait", "40", "--ready-json"],
+                                        "tcp://127.0.0.1:*", "--ns", "/wam", "--wait", "40", "--watchdog", str(WATCHDOG_S),
+                                        "--ready-json"],
                              stdout=subprocess.PIPE)
         ready, _, _ = select.select([bridge.stdout], [], [], 60)
         line = bridge.stdout.readline() if ready else ""
@@ -128,6 +131,12 @@ def lab(tmp_path_factory):
         yield json.loads(line), fake_log, group
     finally:
         group.stop_all()
+
+
+def _client(address: str, **kw) -> WamClient:
+    """A client with link-loss limits for a loaded 2-core machine, where roscore, the fake wam_node and the bridge
+    (three Python processes) can each be kept from running for a few hundred ms."""
+    return WamClient(address, timeout_s=2.0, request_timeout_s=2.0, **kw)
 
 
 def _fake_lines(path: Path, after: float) -> list[str]:
@@ -143,9 +152,9 @@ def test_generated_types_are_barretts(lab):
 
 def test_states_stream_at_the_wam_node_rate(lab):
     ready, _, _ = lab
-    with WamClient(ready["command"]) as wam:
+    with _client(ready["command"]) as wam:
         assert wam.robot_info["robot"] == "WAM via ROS wam_node at /wam"
-        assert wam.control_rate_hz == 250.0 and wam.robot_info["watchdog_s"] == 0.3
+        assert wam.control_rate_hz == 250.0 and wam.robot_info["watchdog_s"] == WATCHDOG_S
         t0 = wam.t_s
         wam.advance_to(t0)  # hands out the states buffered since the connection
         s = wam.advance_to(t0 + 1.0)
@@ -162,26 +171,28 @@ def test_states_stream_at_the_wam_node_rate(lab):
 def test_trajectory_is_followed_by_the_arm(lab):
     ready, fake_log, _ = lab
     since = time.time()
-    with WamClient(ready["command"]) as wam:
+    with _client(ready["command"]) as wam:
         q0 = wam.read_state().q
         q1 = q0.copy()
         q1[6] += 0.2 if q0[6] < 2.5 else -0.2
         t0 = wam.t_s + 0.1
         wam.command_trajectory([t0, t0 + 0.5], np.stack([q0, q1]), np.zeros((2, 7)))
         during = wam.advance_to(t0 + 0.5)
-        after = wam.advance_to(t0 + 1.0)
+        after = wam.advance_to(t0 + 1.5)
         assert wam.mode == "track"
     assert np.abs(after.q[-1] - q1).max() < 0.005  # arrived and holds q[-1]
     inside = (during.t_s > t0) & (during.t_s < t0 + 0.5)
     s = (during.t_s[inside] - t0) / 0.5
     ref = q0[6] + (q1[6] - q0[6]) * (3 * s**2 - 2 * s**3)  # the cubic Hermite with zero end velocities
-    assert np.abs(during.q[inside, 6] - ref).max() < 0.05  # the fake's 30 ms lag at <= 0.6 rad/s: ~0.02 rad
+    err = np.abs(during.q[inside, 6] - ref)
+    # the fake's 30 ms lag at <= 0.6 rad/s: ~0.02 rad; a starved fake or bridge may fall behind for a moment
+    assert np.median(err) < 0.03 and err.max() < 0.1
     assert any(ln.startswith("mode rt (jnt_pos_cmd)") for ln in _fake_lines(fake_log, since))
 
 
 def test_out_of_limits_command_is_refused_before_leaving_the_harness(lab):
     ready, _, _ = lab
-    with WamClient(ready["command"]) as wam:
+    with _client(ready["command"]) as wam:
         q0 = wam.read_state().q
         bad = q0.copy()
         bad[3] = 3.9  # joint_4 beyond 3.1 rad
@@ -211,24 +222,24 @@ def test_out_of_limits_command_is_refused_before_leaving_the_harness(lab):
 def test_watchdog_holds_when_the_client_goes_silent(lab):
     ready, fake_log, _ = lab
     since = time.time()
-    with WamClient(ready["command"], heartbeat_s=None) as listener:  # sends no heartbeat: cannot keep it moving
-        cmd = WamClient(ready["command"])
+    with _client(ready["command"], heartbeat_s=None) as listener:  # sends no heartbeat: cannot keep it moving
+        cmd = _client(ready["command"])
         q0 = cmd.read_state().q
         goal = q0.copy()
         goal[0] += 0.6 if q0[0] < 1.0 else -0.6
         t0 = cmd.t_s + 0.1
-        cmd.command_trajectory([t0, t0 + 3.0], np.stack([q0, goal]), np.zeros((2, 7)))
+        cmd.command_trajectory([t0, t0 + 4.0], np.stack([q0, goal]), np.zeros((2, 7)))
         cmd.advance_to(t0 + 0.5)
         t_silent = cmd.t_s
         cmd.close()  # heartbeats stop, as when the commanding process dies
-        s = listener.advance_to(t_silent + 1.5)
+        s = listener.advance_to(t_silent + WATCHDOG_S + 1.2)
         held = [e for e in listener.events if e["event"] == "watchdog_hold"]
         assert listener.mode == "watchdog"
     assert len(held) == 1
-    # 0.3 s after the last heartbeat, which left up to one heartbeat period (0.1 s) before t_silent
-    assert 0.19 < held[0]["t_ns"] * 1e-9 - t_silent < 1.0
-    assert 0.3 <= float(re.search(r"for ([0-9.]+) s", held[0]["reason"]).group(1)) < 0.7
-    assert abs(s.q[-1, 0] - q0[0]) < 0.3  # well short of the 0.6 rad goal
+    # WATCHDOG_S after the last heartbeat, which left up to one heartbeat period (0.1 s) before t_silent
+    assert WATCHDOG_S - 0.11 < held[0]["t_ns"] * 1e-9 - t_silent < WATCHDOG_S + 1.0
+    assert WATCHDOG_S <= float(re.search(r"for ([0-9.]+) s", held[0]["reason"]).group(1)) < WATCHDOG_S + 1.0
+    assert abs(s.q[-1, 0] - q0[0]) < 0.35  # well short of the 0.6 rad goal (0.2 rad at t_silent + WATCHDOG_S)
     last = s.t_s > s.t_s[-1] - 0.3
     assert np.ptp(s.q[last, 0]) < 0.002  # and still
     assert "hold_joint_pos(True)" in _fake_lines(fake_log, since)
@@ -297,7 +308,7 @@ def test_joint_states_become_protocol_states(lab):
 # -- clock --------------------------------------------------------------------------------------------------------
 def test_clock_estimate_finds_the_ros_clock(lab):
     ready, _, _ = lab
-    with WamClient(ready["command"]) as wam:
+    with _client(ready["command"]) as wam:
         est = wam.sync_clock(32)
         latest_ns = wam.read_state().t_s * 1e9
         now_mono = time.monotonic_ns()
