@@ -299,7 +299,7 @@ def _no_work(monkeypatch):
     import harness.studies.fit_flight as ff
     import harness.play.cli as playexp
     import harness.studies.eval_framesets as evfs
-    import policies._promp_demos as demos
+    import policies.promp_demos as demos
     import harness.studies.eval_detector as evd
     import harness.studies.sim_dataset as sds
     import harness.studies.table1 as t1

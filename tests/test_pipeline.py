@@ -14,6 +14,7 @@ import pytest
 
 from tracker import (
     BallObservation,
+    CandidateEstimator,
     DetectorOptions,
     FrameSet,
     RobustOptions,
@@ -316,19 +317,26 @@ def test_size_rejection_in_the_windows_falls_back_to_the_full_frame(rig, model):
 def test_logged_candidates_and_areas_reproduce_the_size_test(rig, model):
     # What re-evaluation from a log's detections does (harness.accuracy.reevaluate): the estimator and
     # the size test on the candidates and areas the live tracker reported give its position exactly.
-    from harness.accuracy.trackers import estimator_for, size_test_for
-
     X_ball, X_big = X0_M, X0_M + np.array([0.3, -0.5, 0.2])
     obs, info = Tracker(rig, model=model, roi=False).process_with_info(_wide_object_and_ball(rig, X_big, X_ball))
     assert np.isfinite(info.areas_px[:, :2]).all() and np.isnan(info.areas_px[:, 2:]).all()
-    est, size_test = estimator_for("rt2", rig), size_test_for("rt2", rig)
+    ce = CandidateEstimator(rig, "rt2")
     uv = info.uv_candidates_px.copy()
-    X, ei = est.estimate(uv)
+    X, ei = ce.estimator.estimate(uv)
     assert np.linalg.norm(X - X_big) < 0.01  # the estimator alone picks the wide object
-    X2, ei2, ratio, rejected = size_test.apply(est, uv, info.areas_px, X, ei)
+    X2, ei2, ratio, rejected = ce.size_test.apply(ce.estimator, uv, info.areas_px, X, ei)
     assert rejected == 1 and ratio == info.size_ratio
     np.testing.assert_array_equal(X2, obs.position_m)
-    assert size_test_for("rt2-paper", rig).max_ratio is None
+    # the public entry does the same in one call; without areas it keeps the wide object
+    X3, ei3 = CandidateEstimator(rig, "rt2").estimate(obs.t_s, uv, info.areas_px)
+    np.testing.assert_array_equal(X3, obs.position_m)
+    assert ei3.status is obs.status and ei3.support == obs.support
+    X4, _ = CandidateEstimator(rig, "rt2").estimate(obs.t_s, uv)
+    assert np.linalg.norm(X4 - X_big) < 0.01
+    assert CandidateEstimator(rig, "rt2-paper").size_test.max_ratio is None
+    assert CandidateEstimator(rig, "rt2-paper").handover is None
+    with pytest.raises(ValueError, match=r"tracker 'rtblob' has no robust estimator to re-run; valid: \['rt2', 'rt2-paper'\]"):
+        CandidateEstimator(rig, "rtblob")
 
 
 def test_size_test_keeps_fast_blurred_balls_with_the_trained_model(rig, renderer):

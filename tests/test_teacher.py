@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from policies._promp_demos import HitDistribution, collect_demonstrations
+from policies.promp_demos import HitDistribution, collect_demonstrations
 from policies.promp import ProMP
 from policies.teacher import Demonstration, ScriptedTeacher, TeacherOptions, racket_kinematics
 
