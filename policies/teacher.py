@@ -181,19 +181,19 @@ class ScriptedTeacher:
         for s in np.linspace(0.0, 1.0, self.options.ik_steps + 1)[1:]:  # continuation from the reference
             ns = (1 - s) * self._n_ref + s * n
             q, info = self._ik(self._x_ref + s * (x_hit - self._x_ref), ns / np.linalg.norm(ns), q)
-        if info["success"] and self.options.posture_refine_iters > 0:
+        if info.success and self.options.posture_refine_iters > 0:
             q = self._refine_posture(q, x_hit, n)
         if rng is not None and self.options.null_space_std_rad > 0:
             A = self._task_jacobian(q)
             null = np.eye(7) - np.linalg.pinv(A) @ A
             q_pert = q + null @ rng.normal(0.0, self.options.null_space_std_rad, 7)
             q2, info2 = self._ik(x_hit, n, np.clip(q_pert, self.kin.q_min, self.kin.q_max))
-            if info2["success"]:
+            if info2.success:
                 q, info = q2, info2
-        if not info["success"]:
+        if not info.success:
             raise ValueError(f"hitting point {x_hit.round(3).tolist()} m with normal {n.round(3).tolist()} is "
-                             f"unreachable for the teacher's arm style (IK error {info['pos_err_m']:.3g} m, "
-                             f"{np.degrees(info['angle_err_rad']):.2g} deg)")
+                             f"unreachable for the teacher's arm style (IK error {info.pos_err_m:.3g} m, "
+                             f"{np.degrees(info.angle_err_rad):.2g} deg)")
         return q
 
     def _posture_cost(self, q) -> tuple[float, np.ndarray]:
@@ -223,7 +223,7 @@ class ScriptedTeacher:
                 break
             q_try = np.clip(q + step * min(1.0, _REFINE_STEP_RAD / size), self.kin.q_min, self.kin.q_max)
             q_try, info = self._ik(x_hit, n, q_try)
-            if not info["success"]:
+            if not info.success:
                 break
             cost_try, grad_try = self._posture_cost(q_try)
             if cost_try >= cost:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,7 @@ from policies import (
     BallEKF,
     BallParams,
     EstimatorOptions,
+    FitInfo,
     TableGeometry,
     acceleration,
     fit_initial_state,
@@ -181,7 +184,10 @@ def noisy_flight():
 def test_fitter_recovers_state_and_spin(noisy_flight):
     params, truth, t, X, out = noisy_flight
     est, info = fit_initial_state(t, X, params, options=EstimatorOptions(spin_prior_std_rad_s=200.0))
-    assert info["success"] and info["rms_m"] < 0.0015
+    assert info.success and info.rms_m < 0.0015
+    assert isinstance(info, FitInfo) and info.residuals_m.shape == (len(t), 3) and info.component is None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        info.rms_m = 0.0
     assert est.t_s == pytest.approx(t[-1])
     np.testing.assert_allclose(est.position, out[-1, :3], atol=0.002)
     np.testing.assert_allclose(est.velocity, out[-1, 3:6], atol=0.05)
@@ -218,8 +224,8 @@ def test_real_flight_is_fitted_to_millimetres(real_data):
     n = int(np.argmin(pre)) if not pre.all() else len(pre)
     est, info = fit_initial_state(f.t_s[:n], f.X[:n], BallParams.load(),
                                   options=EstimatorOptions(spin_prior_std_rad_s=200.0))
-    assert info["rms_m"] < 0.004
-    assert info["state_t0"][7] < -20.0  # backspin on a +x flight: w_y < 0
+    assert info.rms_m < 0.004
+    assert info.state_t0[7] < -20.0  # backspin on a +x flight: w_y < 0
 
 
 # -- the table and net: one definition ------------------------------------------------------------
