@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 
 from policies import _ball_integrate as _bi
-from tracker.files import load_yaml_checked
+from checks.files import load_yaml_checked
 
 __all__ = [
     "BallParams",

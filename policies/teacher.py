@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
-from policies._promp_checks import as_array, as_positive
+from checks.arrays import check_array, check_positive
 
 __all__ = ["Demonstration", "ScriptedTeacher", "TeacherOptions", "racket_kinematics"]
 
@@ -95,9 +95,9 @@ class TeacherOptions:
 
     def __post_init__(self):
         for name in ("rate_hz", "backswing_frac", "follow_frac", "return_frac", "min_prepare_s", "limit_margin"):
-            as_positive(getattr(self, name), f"TeacherOptions.{name}")
+            check_positive(getattr(self, name), f"TeacherOptions.{name}")
         for name in ("timing_jitter", "null_space_std_rad", "rest_std_rad", "encoder_noise_rad"):
-            as_positive(getattr(self, name), f"TeacherOptions.{name}", allow_zero=True)
+            check_positive(getattr(self, name), f"TeacherOptions.{name}", allow_zero=True)
         if not self.backswing_frac < 1.0 or not self.limit_margin <= 1.0:
             raise ValueError(f"TeacherOptions needs backswing_frac < 1 and limit_margin <= 1, got "
                              f"{self.backswing_frac}, {self.limit_margin}")
@@ -172,8 +172,8 @@ class ScriptedTeacher:
     def hitting_posture(self, x_hit_m, normal, rng: np.random.Generator | None = None) -> np.ndarray:
         """(7,) joint angles putting the racket at ``x_hit_m`` with normal ``normal``, in the teacher's
         arm style; with ``rng`` a random null-space offset is added (human variability)."""
-        x_hit = as_array(x_hit_m, "x_hit_m", (3,))
-        n = as_array(normal, "normal", (3,))
+        x_hit = check_array(x_hit_m, "x_hit_m", (3,), finite=True)
+        n = check_array(normal, "normal", (3,), finite=True)
         if np.linalg.norm(n) < 1e-9:
             raise ValueError(f"normal must be non-zero, got {n.tolist()}")
         n = n / np.linalg.norm(n)
@@ -242,7 +242,7 @@ class ScriptedTeacher:
         """(7,) least-norm joint velocity giving the racket centre the velocity ``v_hit_m_s``: J_v^+ v.
         (The racket may turn while it hits; in the ~1 ms of contact that changes its normal negligibly.)"""
         _, J = self.kin.fk_and_jacobian(np.asarray(q_hit, float), self._fid)
-        return np.linalg.pinv(J[:3]) @ as_array(v_hit_m_s, "v_hit_m_s", (3,))
+        return np.linalg.pinv(J[:3]) @ check_array(v_hit_m_s, "v_hit_m_s", (3,), finite=True)
 
     # ---------------------------------------------------------------- the movement
     def demonstrate(self, x_hit_m, t_hit_s: float, normal, v_hit_m_s, rng: np.random.Generator) -> Demonstration:
@@ -250,8 +250,8 @@ class ScriptedTeacher:
         if not isinstance(rng, np.random.Generator):
             raise ValueError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         opt, kin = self.options, self.kin
-        t_hit = as_positive(t_hit_s, "t_hit_s")
-        v_hit = as_array(v_hit_m_s, "v_hit_m_s", (3,))
+        t_hit = check_positive(t_hit_s, "t_hit_s")
+        v_hit = check_array(v_hit_m_s, "v_hit_m_s", (3,), finite=True)
         where = f"hitting point {np.round(np.asarray(x_hit_m, float), 3).tolist()} m"
         q_hit = self.hitting_posture(x_hit_m, normal, rng)
         qd_hit = self.hitting_velocity(q_hit, v_hit)

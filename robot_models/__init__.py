@@ -1,7 +1,7 @@
 """rt2 robot models: the 7-DOF Barrett WAM's URDF, its configuration, kinematics and IK over Pinocchio, and the
 robot interface contract (``robot_interface.py``: ``WamInterface`` and the joint types) that policies act through.
 
-Imports nothing else of rt2 (see docs/architecture.md). Poses are in the lab world frame, metres.
+Imports nothing else of rt2 but its lowest layer, ``checks`` (see docs/architecture.md). Poses are in the lab world frame, metres.
 """
 
 from robot_models.config import DEFAULT_CONFIG_PATH, DEFAULT_URDF_PATH, RobotConfig, load_robot_config, mount_transform

@@ -27,9 +27,9 @@ from policies.ball_model import BallParams
 from policies.promp import ProMP
 from robot_models.config import load_robot_config
 from tracker import Rig
-from tracker._checks import describe
+from checks.arrays import describe
 from tracker.detection.model import BallSegmentationModel
-from tracker.files import MAX_CONFIG_BYTES, load_npz_checked, load_yaml_checked, read_bytes_capped
+from checks.files import MAX_CONFIG_BYTES, load_npz_checked, load_yaml_checked, read_bytes_capped
 from tests.test_rig import OPENCV_TEMPLATE
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,6 +1,6 @@
 """rt2 tracker: cameras, calibration, detection, robust triangulation and the real-time pipeline.
 
-Imports nothing else of rt2 (see docs/architecture.md).
+Imports nothing else of rt2 but its lowest layer, ``checks`` (see docs/architecture.md).
 """
 
 from tracker.camera import Camera

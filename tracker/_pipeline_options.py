@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tracker._checks import describe
+from checks.arrays import describe
 from tracker.detection import BallSegmentationModel, DetectorOptions
 from tracker.robust import RobustOptions
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker._checks import check_array, check_finite, check_rotation, describe
+from checks.arrays import check_array, check_finite, check_rotation, describe
 from tracker.distortion import distort, undistort
 
 __all__ = ["Camera", "DISTORTION_MODELS"]

@@ -34,7 +34,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from tracker._checks import describe
+from checks.arrays import describe
 from tracker._pipeline_options import (
     DEFAULT_MODEL,
     KINDS,

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker._checks import describe
+from checks.arrays import describe
 from tracker._rtblob_detect import RTBlobDetector, image_problem, likelihood_reference
 from tracker._rtblob_options import CORRELATION_METHODS, RTBlobOptions
 from tracker._rtblob_pairs import pair_covariances, triangulate_fixed_pairs

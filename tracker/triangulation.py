@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker._checks import check_finite
+from checks.arrays import check_finite
 from tracker.distortion import distort_jacobian
 
 __all__ = [
