@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.rt2-installed
 JOBS   ?= 2
 
-.PHONY: setup demo test test-all bench clean
+.PHONY: setup demo test test-all bench clean clean-numba
 
 setup: $(STAMP)
 
@@ -33,3 +33,7 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
+
+# numba's cache does not see edits to jitted helpers imported from another file (tracker/distortion.py)
+clean-numba:
+	find tracker harness policies -name '*.nbi' -delete -o -name '*.nbc' -delete

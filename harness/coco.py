@@ -35,7 +35,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from harness.outputs import atomic_write_text
-from tracker.files import MAX_DATA_BYTES, read_text_capped, short
+from checks.files import MAX_DATA_BYTES, read_text_capped, short
 
 __all__ = ["ANNOTATIONS_FILE", "BALL_CATEGORY", "LabelledImage", "read_coco", "write_coco"]
 

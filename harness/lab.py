@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from policies.ball_model import TableGeometry
 from tracker import Camera, Rig
 
 __all__ = [
@@ -34,6 +35,7 @@ __all__ = [
     "NET_HEIGHT_M",
     "ROBOT_BASE_M",
     "ROOM_M",
+    "TABLE",
     "TABLE_HALF_LENGTH_M",
     "TABLE_HALF_WIDTH_M",
     "TABLE_THICKNESS_M",
@@ -49,14 +51,17 @@ __all__ = [
 ]
 
 # -- static geometry (ITTF table and net) ----------------------------------------------------------
-TABLE_TOP_Z_M = 0.76
-TABLE_HALF_LENGTH_M = 1.37  #: table x in [-1.37, 1.37]
-TABLE_HALF_WIDTH_M = 0.7625  #: table y in [-0.7625, 0.7625]
-TABLE_THICKNESS_M = 0.025
+# The lab's table and net are policies.ball_model.TableGeometry's defaults (their one definition);
+# these names are that geometry in the terms the renderer and the scenes use.
+TABLE = TableGeometry()
+TABLE_TOP_Z_M = TABLE.surface_z_m
+TABLE_HALF_LENGTH_M = TABLE.x_max_m  #: table x in [-1.37, 1.37]
+TABLE_HALF_WIDTH_M = TABLE.y_max_m  #: table y in [-0.7625, 0.7625]
+TABLE_THICKNESS_M = TABLE.thickness_m
 TABLE_EDGE_LINE_M = 0.02  #: white lines along all four edges
 TABLE_CENTRE_LINE_M = 0.003  #: white centre line along x (for doubles)
-NET_HEIGHT_M = 0.1525  #: net top above the table surface
-NET_HALF_SPAN_M = 0.915  #: net spans y in [-0.915, 0.915] at x = 0
+NET_HEIGHT_M = TABLE.net_height_m  #: net top above the table surface
+NET_HALF_SPAN_M = TABLE.net_half_span_m  #: net spans y in [-0.915, 0.915] at x = 0
 NET_TOP_BAND_M = 0.015  #: white band along the top of the net
 BALL_RADIUS_M = 0.02  #: 40 mm ball
 

@@ -47,9 +47,7 @@ class RacketParams:
 class WorldOptions:
     """Geometry and contact parameters of the world (lab defaults)."""
 
-    table: TableGeometry = field(default_factory=TableGeometry)
-    net_height_m: float = 0.1525
-    net_half_width_m: float = 0.915
+    table: TableGeometry = field(default_factory=TableGeometry)  # and the net (height, span)
     net_restitution: float = 0.05
     net_friction: float = 0.8
     floor_z_m: float = 0.0
@@ -59,8 +57,7 @@ class WorldOptions:
     def __post_init__(self):
         if not (0 < self.dt_s <= 0.01):
             raise ValueError(f"WorldOptions.dt_s must be in (0, 0.01] s, got {self.dt_s!r}")
-        if not (self.net_height_m > 0 and self.net_half_width_m > 0 and 0 <= self.net_restitution <= 1
-                and 0 <= self.net_friction <= 1):
+        if not (0 <= self.net_restitution <= 1 and 0 <= self.net_friction <= 1):
             raise ValueError(f"WorldOptions: bad net parameters in {self}")
 
 
@@ -169,8 +166,9 @@ class BallWorld:
             return None
         s = d0 / (d0 - d1)
         p = p0 + s * (p1 - p0)
-        top = self.options.table.surface_z_m + self.options.net_height_m
-        if self.options.table.surface_z_m <= p[2] <= top + r and abs(p[1]) <= self.options.net_half_width_m:
+        table = self.options.table
+        top = table.surface_z_m + table.net_height_m
+        if table.surface_z_m <= p[2] <= top + r and abs(p[1]) <= table.net_half_span_m:
             return float(s)
         return None
 

@@ -149,7 +149,7 @@ def random_via_trajectory(kin, box_world_m=BALL_BOX_WORLD_M, *, q_start=None,
         p = rng.uniform(box[0], box[1])
         normal = None if axis is None else _cone_direction(axis, options.tool_cone_deg, rng)
         q, info = solve_ik(kin, p, options.frame, normal_world=normal, q0=via_q[-1], options=options.ik, rng=rng)
-        if info["success"]:
+        if info.success:
             T = _quintic_durations((q - via_q[-1])[None], vmax, amax, options.min_segment_s)
             t = np.linspace(0.0, T[0], max(2, int(T[0] / check_dt) + 1))
             path = kin.positions(_quintic(np.stack([via_q[-1], q]), np.array([0.0, T[0]]), t)[0], options.frame)

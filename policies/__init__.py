@@ -10,6 +10,7 @@ from policies.ball_estimation import (
     BallEstimate,
     EKFOptions,
     EstimatorOptions,
+    FitInfo,
     fit_initial_state,
     fit_initial_state_mixture,
 )
@@ -40,6 +41,7 @@ __all__ = [
     "EstimatorOptions",
     "TableGeometry",
     "acceleration",
+    "FitInfo",
     "fit_initial_state",
     "fit_initial_state_mixture",
     "make_state",

@@ -23,8 +23,8 @@ class HittingOptions:
     max_mahalanobis2 : a best candidate further than this (squared Mahalanobis distance of decision
         rule S2; chi^2 with 3 dof at 0.9999 by default) is out of the racket's reach: no plan
     max_candidates : best-ranked candidates tried before giving up on this step
-    target_xy_m : where the return should land on the opponent's half; net_height_m, net_clearance_m :
-        the net's top above the table, and how far above it the return should cross
+    target_xy_m : where the return should land on the opponent's half; net_clearance_m : how far above
+        the net's top (the policy's ``TableGeometry.net_height_m``) the return should cross
     racket_restitution, racket_friction : the policy's model of the racket contact (the world's values)
     max_return_residual_m : the refined return must meet its three targets this closely
     commit_before_hit_s : no re-planning closer than this to the hit (the commit point)
@@ -43,7 +43,6 @@ class HittingOptions:
     max_mahalanobis2: float = 21.1
     max_candidates: int = 3
     target_xy_m: tuple = (0.6, 0.0)
-    net_height_m: float = 0.1525
     net_clearance_m: float = 0.3
     racket_restitution: float = 0.78
     racket_friction: float = 0.25
@@ -64,7 +63,7 @@ class HittingOptions:
         t = np.asarray(self.target_xy_m, float)
         if t.shape != (2,) or not np.isfinite(t).all() or t[0] <= 0:
             raise ValueError(f"HittingOptions.target_xy_m must be (x > 0, y) on the opponent's half, got {self.target_xy_m!r}")
-        for name in ("horizon_s", "candidate_dt_s", "max_mahalanobis2", "net_height_m", "max_return_residual_m",
+        for name in ("horizon_s", "candidate_dt_s", "max_mahalanobis2", "max_return_residual_m",
                      "replan_period_s", "control_rate_hz"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from policies._promp_checks import as_array
+from checks.arrays import check_array
 
 __all__ = ["RBFBasis"]
 
@@ -93,7 +93,7 @@ class RBFBasis:
     @staticmethod
     def check_phase(z, name: str = "phase", tol: float = 1e-9) -> np.ndarray:
         """``z`` as a finite (n,) array inside [0, 1] (values within ``tol`` outside are clipped)."""
-        z = as_array(np.atleast_1d(z), name, (None,))
+        z = check_array(np.atleast_1d(z), name, (None,), finite=True)
         if z.size and (z.min() < -tol or z.max() > 1.0 + tol):
             bad = z[(z < -tol) | (z > 1.0 + tol)][0]
             raise ValueError(f"{name} must lie in [0, 1] (t_s in [0, duration_s]), got {bad!r}")

@@ -25,7 +25,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from policies._promp_checks import as_array, as_covariance, as_positive
+from checks.arrays import check_array, check_covariance, check_positive
 
 __all__ = ["condition_on_joint", "condition_on_task", "eval_kinematics"]
 
@@ -69,8 +69,8 @@ def condition_on_joint(promp, t_s, q_mean, q_cov, qd_mean, qd_cov, duration_s):
                 raise ValueError(f"{name}_cov given without {name}_mean")
             continue
         rows.append(_block(feat, D))
-        ys.append(as_array(mean, f"{name}_mean", (D,)))
-        covs.append(np.zeros((D, D)) if cov is None else as_covariance(cov, f"{name}_cov", D))
+        ys.append(check_array(mean, f"{name}_mean", (D,), finite=True))
+        covs.append(np.zeros((D, D)) if cov is None else check_covariance(cov, f"{name}_cov", D))
     if not rows:
         raise ValueError("give q_mean and/or qd_mean to condition on")
     R = np.zeros((len(covs) * D, len(covs) * D))
@@ -89,8 +89,8 @@ def eval_kinematics(fk, jacobian, q: np.ndarray, n_dims: int):
         raise ValueError(f"fk and jacobian must be callables, got {type(fk).__name__} and {type(jacobian).__name__}")
     xs, Js = [], []
     for qi in np.atleast_2d(q):
-        x = as_array(fk(qi.copy()), "fk(q)", (None,))
-        J = as_array(jacobian(qi.copy()), "jacobian(q)", (x.size, n_dims))
+        x = check_array(fk(qi.copy()), "fk(q)", (None,), finite=True)
+        J = check_array(jacobian(qi.copy()), "jacobian(q)", (x.size, n_dims), finite=True)
         xs.append(x)
         Js.append(J)
     return np.array(xs), np.array(Js)
@@ -99,12 +99,12 @@ def eval_kinematics(fk, jacobian, q: np.ndarray, n_dims: int):
 def condition_on_task(promp, t_s, x_target, x_cov, fk, jacobian, iterations, tol, max_residual_m, duration_s):
     """See :meth:`ProMP.condition_on_task`."""
     D = promp.n_dims
-    x_target = as_array(x_target, "x_target", (None,))
+    x_target = check_array(x_target, "x_target", (None,), finite=True)
     m = x_target.size
-    R = np.zeros((m, m)) if x_cov is None else as_covariance(x_cov, "x_cov", m)
+    R = np.zeros((m, m)) if x_cov is None else check_covariance(x_cov, "x_cov", m)
     if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 1:
         raise ValueError(f"iterations must be a positive integer, got {iterations!r}")
-    tol = as_positive(tol, "tol", allow_zero=True)
+    tol = check_positive(tol, "tol", allow_zero=True)
     z, _ = promp.phase(_scalar_time(t_s), duration_s=duration_s)
     Psi = _block(promp.basis(z)[0], D)  # (D, d)
     mu0, S0 = np.asarray(promp.mu_w), np.asarray(promp.Sigma_w)

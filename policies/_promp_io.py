@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from policies._promp_basis import RBFBasis
-from tracker.files import load_npz_checked
+from checks.files import load_npz_checked
 
 __all__ = ["FORMAT", "VERSION", "load", "save"]
 

@@ -37,9 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from policies._promp_basis import RBFBasis
-from policies._promp_checks import as_positive
+from checks.arrays import check_array, check_positive
 
-__all__ = ["EMInfo", "NIWPrior", "demo_log_likelihood", "fit_em"]
+__all__ = ["EMInfo", "NIWPrior", "check_demos", "demo_log_likelihood", "fit_em"]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -88,10 +88,10 @@ class NIWPrior:
     def __post_init__(self):
         if self.scale not in PRIOR_SCALES:
             raise ValueError(f"unknown prior scale {self.scale!r}; valid: {sorted(PRIOR_SCALES)}")
-        as_positive(self.kappa0, "NIWPrior.kappa0", allow_zero=True)
-        as_positive(self.pseudo_demos, "NIWPrior.pseudo_demos")
-        as_positive(self.scale_floor, "NIWPrior.scale_floor", allow_zero=True)
-        as_positive(self.sigma_y0, "NIWPrior.sigma_y0")
+        check_positive(self.kappa0, "NIWPrior.kappa0", allow_zero=True)
+        check_positive(self.pseudo_demos, "NIWPrior.pseudo_demos")
+        check_positive(self.scale_floor, "NIWPrior.scale_floor", allow_zero=True)
+        check_positive(self.sigma_y0, "NIWPrior.sigma_y0")
         for name in ("nu0", "nu_y0"):
             value = getattr(self, name)
             if value is not None and not np.isfinite(float(value)):
@@ -289,3 +289,39 @@ def demo_log_likelihood(basis: RBFBasis, mu_w, Sigma_w, Sigma_y, demos: list, ti
     """(N,) exact log marginal likelihood of each validated demo under N(mu_w, Sigma_w), Sigma_y."""
     _, _, ll = _e_step(_stats(basis, demos, times), mu_w, Sigma_w, Sigma_y)
     return ll
+
+
+def check_demos(demos, times, *, n_dims: int | None = None, min_samples: int = 2) -> tuple[list, list]:
+    """Validate demonstrations; return lists of (T_n, D) and (T_n,) float arrays.
+
+    demos : sequence of (T_n, D) joint trajectories; times : sequence of (T_n,) strictly increasing s
+    """
+    if isinstance(demos, np.ndarray) and demos.ndim == 3:
+        demos = list(demos)
+    if isinstance(times, np.ndarray) and times.ndim == 2:
+        times = list(times)
+    if not isinstance(demos, (list, tuple)) or not isinstance(times, (list, tuple)):
+        raise ValueError(f"demos and times must be lists of arrays, got {type(demos).__name__} and {type(times).__name__}")
+    if len(demos) != len(times):
+        raise ValueError(f"got {len(demos)} demos but {len(times)} time arrays")
+    if len(demos) == 0:
+        raise ValueError("no demonstrations given")
+    out_q, out_t = [], []
+    for n, (q, t) in enumerate(zip(demos, times)):
+        q = check_array(q, f"demos[{n}]", (None, n_dims), finite=True)
+        if n_dims is None:
+            n_dims = q.shape[1]
+        if n_dims < 1:
+            raise ValueError(f"demos[{n}] has no joints: shape {q.shape}")
+        t = check_array(t, f"times[{n}]", (None,), finite=True)
+        if t.shape[0] != q.shape[0]:
+            raise ValueError(f"times[{n}] has {t.shape[0]} samples but demos[{n}] has {q.shape[0]}")
+        if q.shape[0] < min_samples:
+            raise ValueError(f"demos[{n}] has too few samples: {q.shape[0]} < {min_samples}")
+        dt = np.diff(t)
+        if (dt <= 0).any():
+            i = int(np.argmax(dt <= 0))
+            raise ValueError(f"times[{n}] must be strictly increasing; times[{n}][{i + 1}] = {t[i + 1]!r} <= {t[i]!r}")
+        out_q.append(q)
+        out_t.append(t)
+    return out_q, out_t

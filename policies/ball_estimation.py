@@ -25,7 +25,7 @@ from scipy.optimize import least_squares
 
 from policies.ball_model import BallParams, TableGeometry, _check_times, simulate
 
-__all__ = ["BallEKF", "BallEstimate", "EKFOptions", "EstimatorOptions", "fit_initial_state", "fit_initial_state_mixture",
+__all__ = ["BallEKF", "BallEstimate", "EKFOptions", "EstimatorOptions", "FitInfo", "fit_initial_state", "fit_initial_state_mixture",
            "spin_prior_from_spins"]
 
 # Forward-difference steps for the state Jacobians: position (m), velocity (m/s), spin (rad/s).
@@ -165,15 +165,37 @@ def _propagate_with_jacobian(state, t_from, t_to, params, table, dt_s):
     return end[0], ((end[1:] - end[0]) / _FD_STEP[:, None]).T
 
 
+@dataclass(frozen=True)
+class FitInfo:
+    """What :func:`fit_initial_state` (and the mixture fit) found besides the estimate.
+
+    residuals_m : (N, 3) fitted minus observed positions, metres; rms_m : their RMS; state_t0 : (9,)
+    the fitted state at the first observation time; nfev : residual evaluations; success : the
+    least-squares solver converged; cost : its final cost (half the sum of squared whitened residuals);
+    logdet_hessian : log det of the Gauss-Newton Hessian (inf when singular); component, scores : for
+    :func:`fit_initial_state_mixture`, the chosen spin-prior component and every component's score
+    (None and () otherwise)
+    """
+
+    residuals_m: np.ndarray
+    rms_m: float
+    state_t0: np.ndarray
+    nfev: int
+    success: bool
+    cost: float
+    logdet_hessian: float
+    component: int | None = None
+    scores: tuple = ()
+
+
 def fit_initial_state(t_s, X_world, params: BallParams | None = None, table: TableGeometry | None = None,
-                      options: EstimatorOptions = EstimatorOptions()) -> tuple[BallEstimate, dict]:
+                      options: EstimatorOptions = EstimatorOptions()) -> tuple[BallEstimate, FitInfo]:
     """MAP estimate of the ball state from observed positions (docs/ball_physics.md, eq. 7).
 
     t_s : (N,) strictly increasing observation times, seconds
     X_world : (N, 3) observed ball centres, world frame, metres
     Returns ``(estimate, info)``: the estimate is at the **last** observation time (what a policy
-    predicts from), with its covariance propagated from the fit; ``info`` has ``residuals_m``
-    (N, 3), ``rms_m``, ``state_t0`` (9,) at ``t_s[0]``, ``nfev`` and ``success``.
+    predicts from), with its covariance propagated from the fit; ``info`` is a :class:`FitInfo`.
     """
     t, X = _check_observations(t_s, X_world)
     params = params or BallParams.load()  # fitted defaults, data/ball_params.yaml
@@ -221,15 +243,15 @@ def fit_initial_state(t_s, X_world, params: BallParams | None = None, table: Tab
                             table=table)
     out, _ = simulate(state0, t, params, table, t0_s=t[0], dt_s=options.dt_s)
     resid = out[:, 0:3] - X
-    info = {"residuals_m": resid, "rms_m": float(np.sqrt(np.mean(resid**2))), "state_t0": state0,
-            "nfev": int(res.nfev), "success": bool(res.success), "cost": float(res.cost),
-            "logdet_hessian": float(logdet_h) if sign > 0 else float("inf")}
+    info = FitInfo(residuals_m=resid, rms_m=float(np.sqrt(np.mean(resid**2))), state_t0=state0, nfev=int(res.nfev),
+                   success=bool(res.success), cost=float(res.cost),
+                   logdet_hessian=float(logdet_h) if sign > 0 else float("inf"))
     return estimate, info
 
 
 def fit_initial_state_mixture(t_s, X_world, spin_priors, params: BallParams | None = None,
                               table: TableGeometry | None = None,
-                              options: EstimatorOptions = EstimatorOptions()) -> tuple[BallEstimate, dict]:
+                              options: EstimatorOptions = EstimatorOptions()) -> tuple[BallEstimate, FitInfo]:
     """MAP estimate under a Gaussian-mixture spin prior (docs/ball_physics.md, eq. 8).
 
     spin_priors : sequence of ``(weight, mean (3,) rad/s, std)`` components, ``std`` a number (rad/s,
@@ -237,7 +259,7 @@ def fit_initial_state_mixture(t_s, X_world, spin_priors, params: BallParams | No
     fitted flights (:func:`spin_prior_from_spins`). Each component is fitted with
     :func:`fit_initial_state`; the one with the largest Laplace evidence is returned (eq. 8: smallest
     ``cost + log det(H)/2 + log det(Sigma_k)/2 - log weight``, H the Gauss-Newton Hessian at the
-    component's optimum), ``info["component"]`` its index and ``info["scores"]`` every component's score.
+    component's optimum), ``info.component`` its index and ``info.scores`` every component's score.
     """
     comps = list(spin_priors)
     if not comps:
@@ -260,11 +282,11 @@ def fit_initial_state_mixture(t_s, X_world, spin_priors, params: BallParams | No
         opts = dataclasses.replace(options, spin_prior_mean_rad_s=mean, estimate_spin=True,
                                    spin_prior_cov_rad2_s2=tuple(map(tuple, cov)))
         est, info = fit_initial_state(t_s, X_world, params, table, opts)
-        score = info["cost"] + 0.5 * info["logdet_hessian"] + 0.5 * np.linalg.slogdet(cov)[1] - np.log(weight)
+        score = info.cost + 0.5 * info.logdet_hessian + 0.5 * np.linalg.slogdet(cov)[1] - np.log(weight)
         scores.append(float(score))
         if best is None or score < best[0]:
-            best = (score, est, dict(info, component=k))
-    return best[1], dict(best[2], scores=scores)
+            best = (score, est, dataclasses.replace(info, component=k))
+    return best[1], dataclasses.replace(best[2], scores=tuple(scores))
 
 
 def spin_prior_from_spins(spins_rad_s, *, min_std_rad_s: float = 3.0, inflation: float = 1.0

@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 
 from policies import _ball_integrate as _bi
-from tracker.files import load_yaml_checked
+from checks.files import load_yaml_checked
 
 __all__ = [
     "BallParams",
@@ -162,10 +162,14 @@ class BallParams:
 
 @dataclass(frozen=True)
 class TableGeometry:
-    """The table's playing surface: a horizontal rectangle at height ``surface_z_m`` (world frame).
+    """The table and net (world frame): the one definition of their geometry, used by the ball
+    model, the policy, the simulated world, the renderer and the logged 3D scene.
 
-    Defaults are the lab frame (docs/architecture.md): top at z = 0.76 m, x in [-1.37, 1.37],
-    y in [-0.7625, 0.7625]. Bounces happen only where the contact point lies inside the extent.
+    The playing surface is a horizontal rectangle at height ``surface_z_m``; bounces happen only
+    where the contact point lies inside its extent. Defaults are the lab frame
+    (docs/architecture.md) and the ITTF table: top at z = 0.76 m, x in [-1.37, 1.37],
+    y in [-0.7625, 0.7625], a 25 mm top; the net at x = 0, its top ``net_height_m`` = 0.1525 m
+    above the surface, spanning y in [-``net_half_span_m``, ``net_half_span_m``] (0.915 m).
     """
 
     surface_z_m: float = 0.76
@@ -173,6 +177,9 @@ class TableGeometry:
     x_max_m: float = 1.37
     y_min_m: float = -0.7625
     y_max_m: float = 0.7625
+    thickness_m: float = 0.025
+    net_height_m: float = 0.1525
+    net_half_span_m: float = 0.915
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -181,9 +188,18 @@ class TableGeometry:
                 raise ValueError(f"TableGeometry.{f.name} must be a number, got {v!r}")
         if not (self.x_min_m < self.x_max_m and self.y_min_m < self.y_max_m):
             raise ValueError(f"TableGeometry needs x_min < x_max and y_min < y_max, got {self}")
+        for name in ("thickness_m", "net_height_m", "net_half_span_m"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"TableGeometry.{name} must be > 0, got {getattr(self, name)!r}")
 
     def as_array(self) -> np.ndarray:
         return np.array([self.surface_z_m, self.x_min_m, self.x_max_m, self.y_min_m, self.y_max_m], float)
+
+    def corners_m(self) -> np.ndarray:
+        """(4, 3) the playing surface's corners, world frame: (x_min, y_min), (x_max, y_min),
+        (x_max, y_max), (x_min, y_max), all at ``surface_z_m``."""
+        x0, x1, y0, y1, z = self.x_min_m, self.x_max_m, self.y_min_m, self.y_max_m, self.surface_z_m
+        return np.array([[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]], float)
 
     def contains_xy(self, xy) -> np.ndarray:
         """xy : (..., 2) world x, y -> (...,) bool, inside the surface's extent."""

@@ -241,7 +241,7 @@ class HittingPolicy:
         o, plan = self.options, self.plan
         ret = solve_return(x_ball, v_ball, np.zeros(3), o.target_xy_m, self.params, self.table,
                            restitution=o.racket_restitution, friction=o.racket_friction,
-                           net_top_z_m=self.table.surface_z_m + o.net_height_m, net_clearance_m=o.net_clearance_m,
+                           net_top_z_m=self.table.surface_z_m + self.table.net_height_m, net_clearance_m=o.net_clearance_m,
                            warm_start=self._last_return)
         if ret.residual_m > o.max_return_residual_m:
             raise ValueError(f"no racket state returns the ball to {list(o.target_xy_m)} (residual {ret.residual_m:.3f} m)")

@@ -20,7 +20,8 @@ import numpy as np
 from policies import _promp_condition as _cond
 from policies import _promp_io as _io
 from policies._promp_basis import RBFBasis
-from policies._promp_checks import as_array, as_covariance, as_positive, check_demos
+from checks.arrays import check_array, check_covariance, check_positive
+from policies._promp_learning import check_demos
 from policies._promp_learning import EMInfo, NIWPrior, demo_log_likelihood, fit_em
 
 __all__ = ["EMInfo", "NIWPrior", "ProMP", "RBFBasis"]
@@ -60,12 +61,12 @@ class ProMP:
         if not isinstance(self.basis, RBFBasis):
             raise ValueError(f"basis must be an RBFBasis, got {type(self.basis).__name__}")
         K = self.basis.n_functions
-        mu_w = as_array(self.mu_w, "mu_w", (None,))
+        mu_w = check_array(self.mu_w, "mu_w", (None,), finite=True)
         if mu_w.size == 0 or mu_w.size % K:
             raise ValueError(f"mu_w must have n_dims * {K} entries (n_functions = {K}), got {mu_w.size}")
         n_dims = mu_w.size // K
-        Sigma_w = as_covariance(self.Sigma_w, "Sigma_w", mu_w.size)
-        Sigma_y = as_covariance(self.Sigma_y, "Sigma_y", n_dims)
+        Sigma_w = check_covariance(self.Sigma_w, "Sigma_w", mu_w.size)
+        Sigma_y = check_covariance(self.Sigma_y, "Sigma_y", n_dims)
         names = tuple(str(n) for n in self.joint_names) or tuple(f"joint_{d}" for d in range(n_dims))
         if len(names) != n_dims:
             raise ValueError(f"joint_names has {len(names)} names but the weights describe {n_dims} joints")
@@ -77,8 +78,8 @@ class ProMP:
         object.__setattr__(self, "Sigma_w", _readonly(Sigma_w))
         object.__setattr__(self, "Sigma_y", _readonly(Sigma_y))
         object.__setattr__(self, "joint_names", names)
-        object.__setattr__(self, "duration_s", as_positive(self.duration_s, "duration_s"))
-        object.__setattr__(self, "duration_std_s", as_positive(self.duration_std_s, "duration_std_s", allow_zero=True))
+        object.__setattr__(self, "duration_s", check_positive(self.duration_s, "duration_s"))
+        object.__setattr__(self, "duration_std_s", check_positive(self.duration_std_s, "duration_std_s", allow_zero=True))
         object.__setattr__(self, "metadata", dict(self.metadata))
 
     def __repr__(self) -> str:
@@ -106,18 +107,18 @@ class ProMP:
         duration_s : movement duration, seconds; ``None`` -> :attr:`duration_s`
         returns z (n,), dz/dt = 1 / duration_s (1/s)
         """
-        T = self.duration_s if duration_s is None else as_positive(duration_s, "duration_s")
+        T = self.duration_s if duration_s is None else check_positive(duration_s, "duration_s")
         if (t_s is None) == (phase is None):
             raise ValueError("give exactly one of t_s and phase")
         if phase is None:
-            z = as_array(np.atleast_1d(t_s), "t_s", (None,)) / T
+            z = check_array(np.atleast_1d(t_s), "t_s", (None,), finite=True) / T
             return RBFBasis.check_phase(z, f"t_s / duration_s (duration_s = {T:g})"), 1.0 / T
         return RBFBasis.check_phase(phase), 1.0 / T
 
     def with_duration(self, duration_s: float) -> ProMP:
         """The same primitive executed in ``duration_s`` (time scaling: positions at equal phase are
         equal, velocities scale with 1 / duration_s)."""
-        return replace(self, duration_s=as_positive(duration_s, "duration_s"))
+        return replace(self, duration_s=check_positive(duration_s, "duration_s"))
 
     def _features(self, z: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
         phi, dphi = self.basis.evaluate(z)
@@ -224,7 +225,7 @@ class ProMP:
         basis = RBFBasis(n_basis, width, n_poly)
         if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
             raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
-        tol = as_positive(tol, "tol", allow_zero=True)
+        tol = check_positive(tol, "tol", allow_zero=True)
         if prior is not None and not isinstance(prior, NIWPrior):
             raise ValueError(f"prior must be an NIWPrior or None, got {type(prior).__name__}")
         n_dims = len(joint_names) if joint_names else None

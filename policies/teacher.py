@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
-from policies._promp_checks import as_array, as_positive
+from checks.arrays import check_array, check_positive
 
 __all__ = ["Demonstration", "ScriptedTeacher", "TeacherOptions", "racket_kinematics"]
 
@@ -95,9 +95,9 @@ class TeacherOptions:
 
     def __post_init__(self):
         for name in ("rate_hz", "backswing_frac", "follow_frac", "return_frac", "min_prepare_s", "limit_margin"):
-            as_positive(getattr(self, name), f"TeacherOptions.{name}")
+            check_positive(getattr(self, name), f"TeacherOptions.{name}")
         for name in ("timing_jitter", "null_space_std_rad", "rest_std_rad", "encoder_noise_rad"):
-            as_positive(getattr(self, name), f"TeacherOptions.{name}", allow_zero=True)
+            check_positive(getattr(self, name), f"TeacherOptions.{name}", allow_zero=True)
         if not self.backswing_frac < 1.0 or not self.limit_margin <= 1.0:
             raise ValueError(f"TeacherOptions needs backswing_frac < 1 and limit_margin <= 1, got "
                              f"{self.backswing_frac}, {self.limit_margin}")
@@ -172,8 +172,8 @@ class ScriptedTeacher:
     def hitting_posture(self, x_hit_m, normal, rng: np.random.Generator | None = None) -> np.ndarray:
         """(7,) joint angles putting the racket at ``x_hit_m`` with normal ``normal``, in the teacher's
         arm style; with ``rng`` a random null-space offset is added (human variability)."""
-        x_hit = as_array(x_hit_m, "x_hit_m", (3,))
-        n = as_array(normal, "normal", (3,))
+        x_hit = check_array(x_hit_m, "x_hit_m", (3,), finite=True)
+        n = check_array(normal, "normal", (3,), finite=True)
         if np.linalg.norm(n) < 1e-9:
             raise ValueError(f"normal must be non-zero, got {n.tolist()}")
         n = n / np.linalg.norm(n)
@@ -181,19 +181,19 @@ class ScriptedTeacher:
         for s in np.linspace(0.0, 1.0, self.options.ik_steps + 1)[1:]:  # continuation from the reference
             ns = (1 - s) * self._n_ref + s * n
             q, info = self._ik(self._x_ref + s * (x_hit - self._x_ref), ns / np.linalg.norm(ns), q)
-        if info["success"] and self.options.posture_refine_iters > 0:
+        if info.success and self.options.posture_refine_iters > 0:
             q = self._refine_posture(q, x_hit, n)
         if rng is not None and self.options.null_space_std_rad > 0:
             A = self._task_jacobian(q)
             null = np.eye(7) - np.linalg.pinv(A) @ A
             q_pert = q + null @ rng.normal(0.0, self.options.null_space_std_rad, 7)
             q2, info2 = self._ik(x_hit, n, np.clip(q_pert, self.kin.q_min, self.kin.q_max))
-            if info2["success"]:
+            if info2.success:
                 q, info = q2, info2
-        if not info["success"]:
+        if not info.success:
             raise ValueError(f"hitting point {x_hit.round(3).tolist()} m with normal {n.round(3).tolist()} is "
-                             f"unreachable for the teacher's arm style (IK error {info['pos_err_m']:.3g} m, "
-                             f"{np.degrees(info['angle_err_rad']):.2g} deg)")
+                             f"unreachable for the teacher's arm style (IK error {info.pos_err_m:.3g} m, "
+                             f"{np.degrees(info.angle_err_rad):.2g} deg)")
         return q
 
     def _posture_cost(self, q) -> tuple[float, np.ndarray]:
@@ -223,7 +223,7 @@ class ScriptedTeacher:
                 break
             q_try = np.clip(q + step * min(1.0, _REFINE_STEP_RAD / size), self.kin.q_min, self.kin.q_max)
             q_try, info = self._ik(x_hit, n, q_try)
-            if not info["success"]:
+            if not info.success:
                 break
             cost_try, grad_try = self._posture_cost(q_try)
             if cost_try >= cost:
@@ -242,7 +242,7 @@ class ScriptedTeacher:
         """(7,) least-norm joint velocity giving the racket centre the velocity ``v_hit_m_s``: J_v^+ v.
         (The racket may turn while it hits; in the ~1 ms of contact that changes its normal negligibly.)"""
         _, J = self.kin.fk_and_jacobian(np.asarray(q_hit, float), self._fid)
-        return np.linalg.pinv(J[:3]) @ as_array(v_hit_m_s, "v_hit_m_s", (3,))
+        return np.linalg.pinv(J[:3]) @ check_array(v_hit_m_s, "v_hit_m_s", (3,), finite=True)
 
     # ---------------------------------------------------------------- the movement
     def demonstrate(self, x_hit_m, t_hit_s: float, normal, v_hit_m_s, rng: np.random.Generator) -> Demonstration:
@@ -250,8 +250,8 @@ class ScriptedTeacher:
         if not isinstance(rng, np.random.Generator):
             raise ValueError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         opt, kin = self.options, self.kin
-        t_hit = as_positive(t_hit_s, "t_hit_s")
-        v_hit = as_array(v_hit_m_s, "v_hit_m_s", (3,))
+        t_hit = check_positive(t_hit_s, "t_hit_s")
+        v_hit = check_array(v_hit_m_s, "v_hit_m_s", (3,), finite=True)
         where = f"hitting point {np.round(np.asarray(x_hit_m, float), 3).tolist()} m"
         q_hit = self.hitting_posture(x_hit_m, normal, rng)
         qd_hit = self.hitting_velocity(q_hit, v_hit)

@@ -1,7 +1,7 @@
 """rt2 robot models: the 7-DOF Barrett WAM's URDF, its configuration, kinematics and IK over Pinocchio, and the
 robot interface contract (``robot_interface.py``: ``WamInterface`` and the joint types) that policies act through.
 
-Imports nothing else of rt2 (see docs/architecture.md). Poses are in the lab world frame, metres.
+Imports nothing else of rt2 but its lowest layer, ``checks`` (see docs/architecture.md). Poses are in the lab world frame, metres.
 
 The names below are loaded on first use (PEP 562), so that ``robot_models.robot_interface``,
 ``robot_models.config`` and ``robot_models.limits`` import without Pinocchio: the robot link's ROS
@@ -13,7 +13,7 @@ from importlib import import_module
 _WHERE = {
     "DEFAULT_CONFIG_PATH": "config", "DEFAULT_URDF_PATH": "config", "RobotConfig": "config",
     "load_robot_config": "config", "mount_transform": "config",
-    "IkOptions": "ik", "solve_ik": "ik",
+    "IkInfo": "ik", "IkOptions": "ik", "solve_ik": "ik",
     "LINK_CHAIN": "kinematics", "REQUIRED_FRAMES": "kinematics", "WamKinematics": "kinematics",
     "JointLimits": "limits",
     "JointSamples": "robot_interface", "JointState": "robot_interface", "JointTrajectory": "robot_interface",

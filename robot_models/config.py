@@ -26,7 +26,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
+
+from checks.files import load_yaml_checked
 
 __all__ = ["DEFAULT_CONFIG_PATH", "DEFAULT_URDF_PATH", "RobotConfig", "load_robot_config", "mount_transform"]
 
@@ -98,42 +99,6 @@ def mount_transform(xyz_m, rpy_rad) -> np.ndarray:
     return T
 
 
-_MAX_CONFIG_BYTES = 4 << 20  # as tracker.files.MAX_CONFIG_BYTES
-
-
-class _NoAliasSafeLoader(yaml.SafeLoader):
-    """SafeLoader refusing YAML aliases (how a 449-byte file expands to gigabytes)."""
-
-    def compose_node(self, parent, index):
-        if self.check_event(yaml.AliasEvent):
-            event = self.peek_event()
-            raise yaml.composer.ComposerError(None, None, f"YAML aliases (*{event.anchor}) are not allowed in rt2 files",
-                                              event.start_mark)
-        return super().compose_node(parent, index)
-
-
-def _load_yaml_checked(path: Path):
-    """Capped, alias-free reading of a robot YAML file. robot_models may import nothing of ours, so this
-    is a minimal copy of ``tracker.files.load_yaml_checked`` (docs/reliability.md)."""
-    try:
-        with open(path, "rb") as f:
-            data = f.read(_MAX_CONFIG_BYTES + 1)
-    except OSError as exc:
-        raise ValueError(f"cannot read robot config {str(path)!r}: {exc.strerror or exc}") from None
-    if len(data) > _MAX_CONFIG_BYTES:
-        raise ValueError(f"robot config {str(path)!r} is larger than {_MAX_CONFIG_BYTES >> 20} MiB; refusing to read it")
-    try:
-        return yaml.load(data.decode("utf-8"), Loader=_NoAliasSafeLoader)  # noqa: S506 (a SafeLoader subclass)
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"robot config {str(path)!r} is not a UTF-8 text file (byte {exc.start})") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        raise ValueError(f"{path}: not valid YAML: {(getattr(exc, 'problem', None) or str(exc))[:200]}{where}") from None
-    except RecursionError:
-        raise ValueError(f"{path}: YAML nested too deeply") from None
-
-
 def load_robot_config(path: str | Path | None = None) -> RobotConfig:
     """Read and validate a robot YAML file (default ``data/robot/wam.yaml``).
 
@@ -143,7 +108,7 @@ def load_robot_config(path: str | Path | None = None) -> RobotConfig:
     path = Path(path) if path is not None else DEFAULT_CONFIG_PATH
     if not path.is_file():
         raise FileNotFoundError(f"robot config not found: {path}")
-    doc = _load_yaml_checked(path)
+    doc = load_yaml_checked(path, "robot config")  # capped, alias-free (docs/reliability.md)
     if not isinstance(doc, dict):
         raise ValueError(f"{path}: expected a mapping at top level, got {type(doc).__name__}")
     if doc.get("format") != FORMAT or doc.get("version") != VERSION:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["IkOptions", "solve_ik"]
+__all__ = ["IkInfo", "IkOptions", "solve_ik"]
 
 
 @dataclass(frozen=True)
@@ -106,6 +106,22 @@ def _solve_from(kin, q, fid, p_des, n_des, low, high, opt: IkOptions):
     return q, pos_err, ang_err, min(it, opt.max_iters)
 
 
+@dataclass(frozen=True)
+class IkInfo:
+    """What :func:`solve_ik` found besides the joint angles.
+
+    success : both tolerances met; pos_err_m, angle_err_rad : the returned solution's position error,
+    metres, and normal error, radians (0 without a normal); iterations : over all starts; starts :
+    how many starts were tried
+    """
+
+    success: bool
+    pos_err_m: float
+    angle_err_rad: float
+    iterations: int
+    starts: int
+
+
 def solve_ik(kin, position_world_m, frame: str = "racket", *, normal_world=None, q0=None,
              options: IkOptions = IkOptions(), rng: np.random.Generator | None = None, seed: int | None = 0):
     """Joint angles placing ``frame``'s origin at ``position_world_m`` (3,) m, lab world.
@@ -113,8 +129,7 @@ def solve_ik(kin, position_world_m, frame: str = "racket", *, normal_world=None,
     normal_world : optional (3,) direction (normalised here) for the frame's z axis (the racket normal).
     q0 : (7,) first start (default ``kin.q_home``); later starts are uniform within the limits, from
     ``rng`` (or ``np.random.default_rng(seed)``).
-    Returns ``(q (7,), info)`` with info keys ``success`` (bool), ``pos_err_m``, ``angle_err_rad``,
-    ``iterations`` (total), ``starts``. On failure ``q`` is the best attempt (least position error).
+    Returns ``(q (7,), IkInfo)``. On failure ``q`` is the best attempt (least position error).
     """
     fid = kin.frame_id(frame)
     p_des = np.asarray(position_world_m, dtype=float)
@@ -150,5 +165,4 @@ def solve_ik(kin, position_world_m, frame: str = "racket", *, normal_world=None,
             break
     _, q, pos_err, ang_err = best
     success = pos_err < options.tol_m and ang_err < options.tol_rad
-    return q, {"success": bool(success), "pos_err_m": pos_err, "angle_err_rad": ang_err,
-               "iterations": total, "starts": start + 1}
+    return q, IkInfo(bool(success), float(pos_err), float(ang_err), int(total), start + 1)

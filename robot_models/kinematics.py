@@ -248,7 +248,7 @@ class WamKinematics:
         return self.T_base_to_world @ self.data.oMf[fid].homogeneous, J
 
     def ik(self, position_world_m, frame: str = "racket", **kwargs):
-        """Damped-least-squares IK; see :func:`robot_models.ik.solve_ik`. Returns ``(q (7,), info)``."""
+        """Damped-least-squares IK; see :func:`robot_models.ik.solve_ik`. Returns ``(q (7,), IkInfo)``."""
         from robot_models.ik import solve_ik
 
         return solve_ik(self, position_world_m, frame, **kwargs)

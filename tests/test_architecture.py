@@ -1,5 +1,5 @@
-"""The house stays a tree: tracker/ and robot_models/ import nothing of ours, policies/ never
-imports harness/, and inference code in tracker/ never imports torch (docs/architecture.md)."""
+"""The house stays a tree: checks/ imports nothing of ours, tracker/ and robot_models/ only checks/,
+policies/ never imports harness/, and inference code in tracker/ never imports torch (docs/architecture.md)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,12 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-OURS = {"tracker", "robot_models", "policies", "harness"}
+OURS = {"checks", "tracker", "robot_models", "policies", "harness"}
 ALLOWED = {
-    "tracker": {"tracker"},
-    "robot_models": {"robot_models"},
-    "policies": {"policies", "robot_models", "tracker"},
+    "checks": {"checks"},
+    "tracker": {"tracker", "checks"},
+    "robot_models": {"robot_models", "checks"},
+    "policies": {"policies", "robot_models", "tracker", "checks"},
     "harness": OURS,
 }
 

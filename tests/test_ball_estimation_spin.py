@@ -55,7 +55,7 @@ def test_launcher_prior_recovers_spin_and_beats_the_spin_free_fit(seed):
     mean, cov = _launcher_prior(seed)
     opts = EstimatorOptions(position_noise_m=NOISE_M, spin_prior_mean_rad_s=mean, spin_prior_cov_rad2_s2=cov)
     est, info = fit_initial_state(t[:20], X[:20], options=opts)
-    w0 = info["state_t0"][6:9]
+    w0 = info.state_t0[6:9]
     sd = np.sqrt(np.diag(est.covariance)[6:9])
     for axis in (1, 2):
         assert abs(w0[axis] - TRUE_SPIN[axis]) < min(3 * sd[axis], 12.0), (w0, sd)
@@ -78,8 +78,8 @@ def test_mixture_of_launcher_settings_picks_the_right_one():
     top = _launcher_prior(0, spin=np.array([-5.0, 45.0, -1.0]))
     est, info = fit_initial_state_mixture(t[:20], X[:20], [(0.5, *top), (0.5, *back)],
                                           options=EstimatorOptions(position_noise_m=NOISE_M))
-    assert info["component"] == 1 and len(info["scores"]) == 2
-    assert info["scores"][1] < info["scores"][0]
+    assert info.component == 1 and len(info.scores) == 2
+    assert info.scores[1] < info.scores[0]
     assert est.spin[1] < -30.0  # backspin
 
 

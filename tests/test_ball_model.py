@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,7 @@ from policies import (
     BallEKF,
     BallParams,
     EstimatorOptions,
+    FitInfo,
     TableGeometry,
     acceleration,
     fit_initial_state,
@@ -181,7 +184,10 @@ def noisy_flight():
 def test_fitter_recovers_state_and_spin(noisy_flight):
     params, truth, t, X, out = noisy_flight
     est, info = fit_initial_state(t, X, params, options=EstimatorOptions(spin_prior_std_rad_s=200.0))
-    assert info["success"] and info["rms_m"] < 0.0015
+    assert info.success and info.rms_m < 0.0015
+    assert isinstance(info, FitInfo) and info.residuals_m.shape == (len(t), 3) and info.component is None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        info.rms_m = 0.0
     assert est.t_s == pytest.approx(t[-1])
     np.testing.assert_allclose(est.position, out[-1, :3], atol=0.002)
     np.testing.assert_allclose(est.velocity, out[-1, 3:6], atol=0.05)
@@ -218,5 +224,28 @@ def test_real_flight_is_fitted_to_millimetres(real_data):
     n = int(np.argmin(pre)) if not pre.all() else len(pre)
     est, info = fit_initial_state(f.t_s[:n], f.X[:n], BallParams.load(),
                                   options=EstimatorOptions(spin_prior_std_rad_s=200.0))
-    assert info["rms_m"] < 0.004
-    assert info["state_t0"][7] < -20.0  # backspin on a +x flight: w_y < 0
+    assert info.rms_m < 0.004
+    assert info.state_t0[7] < -20.0  # backspin on a +x flight: w_y < 0
+
+
+# -- the table and net: one definition ------------------------------------------------------------
+def test_table_geometry_is_the_one_definition_of_table_and_net():
+    from harness import lab
+    from harness.calib.check import TABLE_CORNERS_M
+    from harness.logs.scene import TABLE as LOGGED_TABLE
+    from harness.physics import WorldOptions
+
+    t = TableGeometry()
+    assert (t.surface_z_m, t.x_max_m, t.y_max_m) == (0.76, 1.37, 0.7625)
+    assert (t.thickness_m, t.net_height_m, t.net_half_span_m) == (0.025, 0.1525, 0.915)
+    assert (lab.TABLE_TOP_Z_M, lab.TABLE_HALF_LENGTH_M, lab.TABLE_HALF_WIDTH_M) == (t.surface_z_m, t.x_max_m, t.y_max_m)
+    assert (lab.TABLE_THICKNESS_M, lab.NET_HEIGHT_M, lab.NET_HALF_SPAN_M) == (t.thickness_m, t.net_height_m, t.net_half_span_m)
+    assert LOGGED_TABLE == t and WorldOptions().table == t
+    assert np.array_equal(TABLE_CORNERS_M, t.corners_m())
+    assert np.array_equal(t.corners_m()[:, :2], [[-1.37, -0.7625], [1.37, -0.7625], [1.37, 0.7625], [-1.37, 0.7625]])
+
+
+@pytest.mark.parametrize("field", ["thickness_m", "net_height_m", "net_half_span_m"])
+def test_table_geometry_rejects_a_non_positive_size(field):
+    with pytest.raises(ValueError, match=f"TableGeometry.{field} must be > 0, got 0.0"):
+        TableGeometry(**{field: 0.0})

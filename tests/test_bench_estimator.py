@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from harness.cli import main
-from harness.sim_rigs import load_sim_rig, simulate_observations
+from harness.sim_rigs import load_sim_rig
+from tracker.synthetic import simulate_observations
 from harness.studies.bench_estimator import bench, naive_estimate
 from tracker import RobustTriangulator
 

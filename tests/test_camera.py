@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 
 from tracker import Camera
-from tracker.camera import distort_normalised, undistort_normalised
+from tracker.distortion import (
+    distort,
+    distort_jacobian,
+    distort_point,
+    distort_point_jacobian,
+    undistort,
+    undistort_point,
+)
 
 
 def look_at(center, target, up=(0.0, 0.0, 1.0)):
@@ -94,7 +101,45 @@ def test_distortion_roundtrip_functions():
     rng = np.random.default_rng(4)
     d8 = np.array([-0.2, 0.1, 0.001, 0.002, -0.02, 0.0, 0.0, 0.0])
     xn = rng.uniform(-0.5, 0.5, (100, 2))
-    assert np.abs(undistort_normalised(distort_normalised(xn, d8), d8) - xn).max() < 1e-12
+    assert np.abs(undistort(distort(xn, d8), d8) - xn).max() < 1e-12
+
+
+# -- the one lens model: numpy and numba twins agree ----------------------------------------------
+RATIONAL = np.array([0.3, -0.1, 0.001, 0.002, 0.01, 0.4, -0.05, 0.02])
+PLUMB_BOB = np.array([-0.21, 0.12, 0.001, -0.0005, -0.03, 0.0, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("d8", [PLUMB_BOB, RATIONAL], ids=["plumb_bob", "rational"])
+def test_numba_distortion_twins_match_numpy(d8):
+    xn = np.random.default_rng(6).uniform(-0.6, 0.6, (300, 2))
+    xd, J = distort_jacobian(xn, d8)
+    assert np.array_equal(distort(xn, d8), xd)
+    for (x, y), ref, Jref in zip(xn, xd, J):
+        assert distort_point(x, y, *d8) == pytest.approx(tuple(ref), abs=1e-15)
+        xd_, yd_, j00, j01, j11 = distort_point_jacobian(x, y, *d8)
+        assert (xd_, yd_) == pytest.approx(tuple(ref), abs=1e-15)
+        assert (j00, j01, j01, j11) == pytest.approx(tuple(Jref.ravel()), abs=1e-14)
+        assert undistort_point(*ref, *d8) == pytest.approx((x, y), abs=1e-10)  # stops at a 1e-12 residual
+    assert np.abs(undistort(xd, d8) - xn).max() < 1e-12
+
+
+def test_distortion_jacobian_matches_finite_differences():
+    xn = np.random.default_rng(7).uniform(-0.5, 0.5, (50, 2))
+    _, J = distort_jacobian(xn, RATIONAL)
+    h = 1e-7
+    for k in range(2):
+        step = np.zeros(2)
+        step[k] = h
+        fd = (distort(xn + step, RATIONAL) - distort(xn - step, RATIONAL)) / (2 * h)
+        assert np.abs(J[:, :, k] - fd).max() < 1e-7
+
+
+def test_distortion_broadcasts_one_coefficient_row_per_camera():
+    # (n_cams, 8) coefficients with (M, n_cams, 2) points: each camera applies its own lens.
+    xn = np.random.default_rng(8).uniform(-0.5, 0.5, (10, 2, 2))
+    both = distort(xn, np.stack([PLUMB_BOB, RATIONAL]))
+    assert np.array_equal(both[:, 0], distort(xn[:, 0], PLUMB_BOB))
+    assert np.array_equal(both[:, 1], distort(xn[:, 1], RATIONAL))
 
 
 def test_rays_point_at_the_world_points():

@@ -296,7 +296,7 @@ def test_outliers_inside_the_ransac_window_are_excluded(flights):
     f = make_filter("ransac_kalman")
     ups = fl.feed(f, 12, Z)
     assert all(u.pending for u in ups[:11]) and ups[11].accepted
-    assert f.last_ransac["n_inliers"] == 10 and not f.last_ransac["inliers"][[2, 7]].any()
+    assert f.last_ransac.n_inliers == 10 and not f.last_ransac.inliers[[2, 7]].any()
     assert np.linalg.norm(f.state().position - fl.X[11]) < 0.01
 
 

@@ -10,6 +10,7 @@ from policies.ball_model import BallParams, TableGeometry, simulate
 from policies.filters import _ballistic
 from policies.filters._base import measurement_noise
 from policies.filters._ransac import ransac_quadratic
+from policies.filters import RansacInfo
 
 PARAMS = BallParams.load()
 TABLE = TableGeometry()
@@ -155,8 +156,9 @@ def test_ransac_finds_the_inliers_and_the_track():
     track, info = ransac_quadratic(t, X, inlier_threshold_m=0.02, min_inliers=8, iterations=100, rng=rng)
     expected = np.ones(len(t), bool)
     expected[bad] = False
-    np.testing.assert_array_equal(info["inliers"], expected)
-    assert info["rms_m"] < 0.004
+    np.testing.assert_array_equal(info.inliers, expected)
+    assert info.rms_m < 0.004
+    assert isinstance(info, RansacInfo) and info.n_inliers == expected.sum() and info.iterations == 100
     np.testing.assert_allclose(track.position(t[[0]])[0], coef[0], atol=0.005)
     np.testing.assert_allclose(track.velocity(t[[0]])[0], coef[1], atol=0.3)
 
@@ -166,7 +168,7 @@ def test_ransac_without_consensus_returns_none():
     t = np.sort(rng.uniform(0, 0.08, 12))
     X = rng.uniform(-1, 1, (12, 3))
     track, info = ransac_quadratic(t, X, inlier_threshold_m=0.02, min_inliers=8, iterations=100, rng=rng)
-    assert track is None and info["n_inliers"] < 8
+    assert track is None and info.n_inliers < 8
 
 
 def test_ransac_is_deterministic_given_the_generator():
@@ -175,7 +177,7 @@ def test_ransac_is_deterministic_given_the_generator():
     a = ransac_quadratic(t, X, inlier_threshold_m=0.02, min_inliers=8, iterations=30, rng=np.random.default_rng(9))
     b = ransac_quadratic(t, X, inlier_threshold_m=0.02, min_inliers=8, iterations=30, rng=np.random.default_rng(9))
     np.testing.assert_array_equal(a[0].coef, b[0].coef)
-    np.testing.assert_array_equal(a[1]["inliers"], b[1]["inliers"])
+    np.testing.assert_array_equal(a[1].inliers, b[1].inliers)
 
 
 # --------------------------------------------------------------------------- measurement noise

@@ -27,9 +27,9 @@ from policies.ball_model import BallParams
 from policies.promp import ProMP
 from robot_models.config import load_robot_config
 from tracker import Rig
-from tracker._checks import describe
+from checks.arrays import describe
 from tracker.detection.model import BallSegmentationModel
-from tracker.files import MAX_CONFIG_BYTES, load_npz_checked, load_yaml_checked, read_bytes_capped
+from checks.files import MAX_CONFIG_BYTES, load_npz_checked, load_yaml_checked, read_bytes_capped
 from tests.test_rig import OPENCV_TEMPLATE
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -299,7 +299,7 @@ def _no_work(monkeypatch):
     import harness.studies.fit_flight as ff
     import harness.play.cli as playexp
     import harness.studies.eval_framesets as evfs
-    import policies._promp_demos as demos
+    import policies.promp_demos as demos
     import harness.studies.eval_detector as evd
     import harness.studies.sim_dataset as sds
     import harness.studies.table1 as t1

@@ -439,3 +439,24 @@ def test_bench_log_runs_and_reports_the_json_keys(tmp_path, capsys):
     with pytest.raises(SystemExit):
         rt2_main(["bench", "log", "--repeats"])
     assert rt2_main(["bench", "log", "--formats", "gif"]) == 2
+
+
+def test_json_values_strict_for_logs_lenient_for_figures():
+    import dataclasses
+
+    from harness.logs import LogError
+    from harness.logs.codecs import to_json_value
+
+    @dataclasses.dataclass(frozen=True)
+    class Counts:
+        sent: int
+        rate_hz: float
+
+    figures = {"cams": (np.int64(2), np.bool_(True)), "counts": Counts(3, np.nan), "status": Status.OK}
+    assert to_json_value(figures, "figures") == {"cams": [2, True], "counts": {"sent": 3, "rate_hz": None}, "status": "ok"}
+    with pytest.raises(LogError, match=r"figures: keys must be strings, got 7"):
+        to_json_value({7: 1.0}, "figures")
+    with pytest.raises(LogError, match=r"figures.x: cannot store a value of type object in a log"):
+        to_json_value({"x": object()}, "figures")
+    marker = object()
+    assert to_json_value({7: [np.float32(np.inf), marker]}, "figures", lenient=True) == {"7": [None, marker]}

@@ -1,4 +1,4 @@
-"""The ball behind the arm in all but two cameras: the support hand-over (tracker._pipeline_handover).
+"""The ball behind the arm in all but two cameras: the support hand-over (tracker.handover).
 
 Scene: lab4_vga, the images drawn with the TRUE rig, the tracker given a rig with a real calibration's
 error (1.3 px re-projection error, harness.accuracy.rig_error, seed 0). The ball moves slowly over the
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from tracker import FrameSet, Status, Tracker, TrackerOptions
-from tracker._pipeline_handover import SupportHandover
+from tracker.handover import SupportHandover
 from tracker.detection.synthetic import draw_disk, hand_made_model
 from tracker.robust import RobustTriangulator
 

@@ -357,8 +357,8 @@ def _good(n=3, T=40, D=3):
 @pytest.mark.parametrize("mutate, match", [
     (lambda q, t: (q[:1] + [q[1][:, :2]] + q[2:], t), r"demos\[1\] must have shape \(N, 3\), got shape \(40, 2\)"),
     (lambda q, t: ([q[0].ravel()] + q[1:], t), r"demos\[0\] must have shape \(N, N\)"),
-    (lambda q, t: (q[:2] + [np.where(np.arange(40)[:, None] == 7, np.nan, q[2])], t), r"demos\[2\] must be finite; found nan at index \(7, 0\)"),
-    (lambda q, t: ([np.full_like(q[0], np.inf)] + q[1:], t), r"demos\[0\] must be finite; found inf"),
+    (lambda q, t: (q[:2] + [np.where(np.arange(40)[:, None] == 7, np.nan, q[2])], t), r"demos\[2\] must not contain NaN or inf; found nan at index \(7, 0\)"),
+    (lambda q, t: ([np.full_like(q[0], np.inf)] + q[1:], t), r"demos\[0\] must not contain NaN or inf; found inf"),
     (lambda q, t: (q, t[:2] + [t[2][:-1]]), r"times\[2\] has 39 samples but demos\[2\] has 40"),
     (lambda q, t: (q, [t[0][::-1]] + t[1:]), r"times\[0\] must be strictly increasing"),
     (lambda q, t: ([x[:5] for x in q], [x[:5] for x in t]), r"demos\[0\] has too few samples: 5 < 8"),
@@ -397,7 +397,7 @@ def test_bad_evaluation_and_conditioning_input_raises(truth):
         truth.with_duration(-1.0)
     with pytest.raises(ValueError, match="rng must be a numpy.random.Generator"):
         truth.sample(np.random.RandomState(0), 2, [0.5])
-    with pytest.raises(ValueError, match=r"q_mean must have shape \(3\), got shape \(7,\)"):
+    with pytest.raises(ValueError, match=r"q_mean must have shape \(3,\), got shape \(7,\)"):
         truth.condition_on_joint(0.5, q_mean=np.zeros(7))
     with pytest.raises(ValueError, match="q_cov must be symmetric"):
         truth.condition_on_joint(0.5, q_mean=np.zeros(3), q_cov=np.triu(np.ones((3, 3))))
@@ -409,7 +409,7 @@ def test_bad_evaluation_and_conditioning_input_raises(truth):
         truth.condition_on_task(0.5, np.zeros(2), None, _fk, lambda q: np.zeros((3, 3)))
     with pytest.raises(ValueError, match=r"fk\(q\) returns 2 values but x_target has 3"):
         truth.condition_on_task(0.5, np.zeros(3), None, _fk, _jac)
-    with pytest.raises(ValueError, match="x_target must be finite"):
+    with pytest.raises(ValueError, match="x_target must not contain NaN or inf"):
         truth.condition_on_task(0.5, [np.nan, 0.0], None, _fk, _jac)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from harness.cli import main
 
 
@@ -29,9 +31,26 @@ def test_sim_reach_small_grid_is_seeded(capsys):
     assert region["reached"] == region["points"] == 8
 
 
-def test_bench_robot_runs(capsys):
-    r = _json(capsys, ["bench", "robot", "--n", "50", "--ticks", "50", "--repeats", "1", "--json"])
-    assert {row["what"] for row in r["rows"]} >= {"fk_batch numba", "simulated ticks numba"}
+def test_bench_robot_rows_are_consistent_measurements(capsys):
+    r = _json(capsys, ["bench", "robot", "--n", "50", "--ticks", "40", "--repeats", "1", "--json"])
+    assert (r["n"], r["ticks"], r["repeats"]) == (50, 40, 1)
+    rows = {row["what"]: row for row in r["rows"]}
+    # every row, each timed per its own unit: a batch of --n configurations, one call, --ticks ticks
+    per_unit = {"fk_batch pinocchio loop": ("config", 50), "fk_batch numpy": ("config", 50), "fk_batch numba": ("config", 50),
+                "link_points (9 frames)": ("config", 50), "jacobian (one q)": ("call", 1),
+                "ik racket position+normal": ("solve", 1), "simulated ticks numpy": ("tick", 40),
+                "simulated ticks numba": ("tick", 40)}
+    assert list(rows) == list(per_unit)
+    for what, (per, count) in per_unit.items():
+        row = rows[what]
+        assert row["per"] == per and 0 < row["median_s"] < 60, row
+        assert row["per_item_us"] == pytest.approx(row["median_s"] / count * 1e6, rel=1e-12), row
+    # speed-ups are the baseline row's median over this row's, against rows that exist
+    for what, baseline in (("fk_batch numpy", "fk_batch pinocchio loop"), ("fk_batch numba", "fk_batch pinocchio loop"),
+                           ("simulated ticks numba", "simulated ticks numpy")):
+        assert rows[what]["speedup_vs"] == baseline
+        assert rows[what]["speedup"] == pytest.approx(rows[baseline]["median_s"] / rows[what]["median_s"], rel=1e-12)
+    assert all(rows[w]["speedup"] is None for w in ("fk_batch pinocchio loop", "jacobian (one q)", "simulated ticks numpy"))
 
 
 def test_bad_config_is_one_line_error(capsys, tmp_path):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import itertools
 from pathlib import Path
 
@@ -9,7 +11,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from robot_models import LINK_CHAIN, REQUIRED_FRAMES, IkOptions, WamKinematics, mount_transform
+from robot_models import LINK_CHAIN, REQUIRED_FRAMES, IkInfo, IkOptions, WamKinematics, mount_transform
 from robot_models import _urdf_gen
 
 URDF = Path(__file__).resolve().parents[1] / "robot_models" / "wam7.urdf"
@@ -240,7 +242,7 @@ def test_ik_recovers_reachable_poses(kin):
     for q_true in _random_q(kin, 8, seed=7) * 0.8:
         T = kin.fk(q_true, "racket")
         q, info = kin.ik(T[:3, 3], "racket", normal_world=T[:3, 2], rng=rng)
-        assert info["success"], info
+        assert info.success, info
         T_sol = kin.fk(q, "racket")
         assert np.linalg.norm(T_sol[:3, 3] - T[:3, 3]) < 1e-4
         assert np.arccos(np.clip(T_sol[:3, 2] @ T[:3, 2], -1, 1)) < 1e-3
@@ -255,15 +257,18 @@ def test_hitting_region_reachable_with_racket_facing_opponent(kin):
     failed = []
     for p in pts:
         q, info = kin.ik(p, "racket", normal_world=target - p, rng=rng)
-        if not info["success"]:
+        if not info.success:
             failed.append(p.tolist())
     assert not failed, f"unreachable hitting points: {failed}"
 
 
 def test_ik_reports_failure_out_of_reach(kin):
     q, info = kin.ik([1.0, 0.0, 1.0], "racket", options=IkOptions(restarts=1, max_iters=50))  # 2.75 m away
-    assert not info["success"] and info["pos_err_m"] > 1.0
+    assert not info.success and info.pos_err_m > 1.0
     assert kin.within_limits(q)
+    assert isinstance(info, IkInfo) and info.starts == 2 and 0 < info.iterations <= 100
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        info.success = True
 
 
 # -- real data -------------------------------------------------------------------------------------------
@@ -283,6 +288,6 @@ def test_real_launcher_balls_at_robot_end_are_reachable(kin, real_data):
         p = np.array([x_lab[i], -f["y_m"][i], f["z_m"][i]])
         assert -1.45 < p[0] < -1.15 and 0.8 < p[2] < 1.4, p  # the mapping puts the ball in the hitting region
         _, info = kin.ik(p, "racket", normal_world=np.array([0.685, 0.0, 0.91]) - p, rng=rng)
-        reached += info["success"]
+        reached += info.success
         total += 1
     assert reached == total

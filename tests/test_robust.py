@@ -8,19 +8,20 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from harness.sim_rigs import make_sim_rig, simulate_observations
+from tests._tracker_scenes import shipped_rig
+from tracker.synthetic import simulate_observations
 from tracker import Camera, EstimateInfo, Rig, RobustOptions, RobustTriangulator, Status
 from tracker.triangulation import triangulate_pairs
 
 
 @pytest.fixture(scope="module")
 def rig4():
-    return make_sim_rig(4)
+    return shipped_rig("sim_c4")
 
 
 @pytest.fixture(scope="module")
 def rig8():
-    return make_sim_rig(8)
+    return shipped_rig("sim_c8")
 
 
 def scene(rig, n, p, seed):

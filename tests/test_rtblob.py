@@ -13,8 +13,7 @@ import pytest
 import scipy.ndimage
 
 from tracker import BallObservation, Camera, FrameSet, Rig, RTBlobDetector, RTBlobOptions, RTBlobTracker, Status
-from tracker._rtblob_detect import likelihood_reference
-from tracker._rtblob_options import CORRELATION_METHODS
+from tracker.rtblob import CORRELATION_METHODS, likelihood_reference
 from tracker._rtblob_pairs import pair_covariances, triangulate_fixed_pairs
 
 W, H = 640, 480

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from harness.sim_rigs import make_sim_rig
+from tests._tracker_scenes import shipped_rig
 from tracker import Camera, Rig, refine_point, triangulate, triangulate_linear, triangulate_pairs
 from tracker.triangulation import camera_pairs, project_points, projection_jacobian, reprojection_errors
 
 
 @pytest.fixture(scope="module")
 def rig():
-    return make_sim_rig(8)
+    return shipped_rig("sim_c8")
 
 
 def normalised(rig, X):
@@ -125,7 +125,7 @@ def test_jacobian_matches_finite_differences(rig):
 def test_refinement_lowers_pixel_error_under_distortion():
     """The linear solution ignores distortion-weighted pixel geometry; LM minimises the pixel loss."""
     rng = np.random.default_rng(3)
-    rig = make_sim_rig(4)
+    rig = shipped_rig("sim_c4")
     X = np.array([-1.5, 0.7, 1.6])
     uv = rig.project(X) + rng.normal(0, 1.3, (4, 2))
     xn = np.stack([c.undistort(uv[i]) for i, c in enumerate(rig)])
@@ -152,7 +152,7 @@ def test_refine_respects_mask(rig):
 
 # -- statistical check (seeded) -------------------------------------------------------------------------
 def test_refined_error_is_unbiased_and_small():
-    rig = make_sim_rig(8)
+    rig = shipped_rig("sim_c8")
     rng = np.random.default_rng(4)
     X = np.array([-1.1, 0.0, 1.26])
     errs = []

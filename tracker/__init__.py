@@ -1,6 +1,6 @@
 """rt2 tracker: cameras, calibration, detection, robust triangulation and the real-time pipeline.
 
-Imports nothing else of rt2 (see docs/architecture.md).
+Imports nothing else of rt2 but its lowest layer, ``checks`` (see docs/architecture.md).
 """
 
 from tracker.camera import Camera
@@ -11,5 +11,6 @@ from tracker.robust import EstimateBatch, EstimateInfo, RobustOptions, RobustTri
 from tracker.triangulation import refine_point, triangulate, triangulate_linear, triangulate_pairs
 from tracker.rtblob import RTBlobDetector, RTBlobOptions, RTBlobTracker
 from tracker.pipeline import Tracker, TrackerOptions, make_tracker
+from tracker.candidates import CandidateEstimator
 
-__all__ = ["BallDetector", "BallObservation", "BallSegmentationModel", "Camera", "DetectorOptions", "Detections", "FrameSet", "RTBlobDetector", "RTBlobOptions", "RTBlobTracker", "Rig", "Status", "EstimateBatch", "EstimateInfo", "RobustOptions", "RobustTriangulator", "refine_point", "triangulate", "triangulate_linear", "triangulate_pairs", "Tracker", "TrackerOptions", "make_tracker"]
+__all__ = ["BallDetector", "CandidateEstimator", "BallObservation", "BallSegmentationModel", "Camera", "DetectorOptions", "Detections", "FrameSet", "RTBlobDetector", "RTBlobOptions", "RTBlobTracker", "Rig", "Status", "EstimateBatch", "EstimateInfo", "RobustOptions", "RobustTriangulator", "refine_point", "triangulate", "triangulate_linear", "triangulate_pairs", "Tracker", "TrackerOptions", "make_tracker"]

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tracker._checks import describe
+from checks.arrays import describe
 from tracker.detection import BallSegmentationModel, DetectorOptions
 from tracker.robust import RobustOptions
 
@@ -57,7 +57,7 @@ class TrackerOptions:
         last confirmed ones (the ball behind the arm in some cameras) is moved by the median offset
         between the confirmed positions of the last 50 ms and those cameras' own estimate then, while
         the newest confirmed position is at most this old (seconds); it removes the calibration error
-        of a smaller camera set (:mod:`tracker._pipeline_handover`, docs/pipeline.md). None = off
+        of a smaller camera set (:mod:`tracker.handover`, docs/pipeline.md). None = off
     """
 
     roi: bool | None = None

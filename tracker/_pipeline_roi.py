@@ -21,7 +21,7 @@ import math
 import numba
 import numpy as np
 
-from tracker.camera import distort_normalised
+from tracker.distortion import distort, distort_point
 from tracker.rig import Rig
 
 __all__ = ["BACKENDS", "MotionPredictor", "project_point", "project_point_numba"]
@@ -41,9 +41,7 @@ def project_point(X_world: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarr
     with np.errstate(divide="ignore", invalid="ignore"):
         xn = X_cam[:, :2] / z[:, None]
     xn[~(z > 0)] = np.nan
-    # distort_normalised is elementwise: passing the coefficients as (8, n_cams) rows applies each
-    # camera's own coefficients to its own point.
-    xd = distort_normalised(xn, dist8.T)
+    xd = distort(xn, dist8)  # each camera's own coefficients for its own point
     u = K[:, 0, 0] * xd[:, 0] + K[:, 0, 1] * xd[:, 1] + K[:, 0, 2]
     v = K[:, 1, 1] * xd[:, 1] + K[:, 1, 2]
     return np.stack([u, v], axis=1)
@@ -66,12 +64,8 @@ def project_point_numba(X_world, R, t, K, dist8, out):
             continue
         x = xc / zc
         y = yc / zc
-        k1, k2, p1, p2, k3, k4, k5, k6 = dist8[c, 0], dist8[c, 1], dist8[c, 2], dist8[c, 3], dist8[c, 4], dist8[c, 5], dist8[c, 6], dist8[c, 7]
-        r2 = x * x + y * y
-        radial = (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-        xy2 = 2.0 * x * y
-        xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)  # OpenCV distortion, as distort_normalised
-        yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
+        d = dist8[c]
+        xd, yd = distort_point(x, y, d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7])
         out[c, 0] = K[c, 0, 0] * xd + K[c, 0, 1] * yd + K[c, 0, 2]
         out[c, 1] = K[c, 1, 1] * yd + K[c, 1, 2]
     return out

@@ -9,7 +9,11 @@ propagate pixel noise to a covariance. Inputs are trusted (validated in :mod:`tr
 
 All numba code of the estimator lives in this one file on purpose: numba's on-disk cache
 (``cache=True``) only notices edits to the file of the cached function, not to jitted helpers
-imported from other files (numba issue #1833), so a split would serve stale machine code.
+imported from other files (numba issue #1833), so a split would serve stale machine code. The one
+exception is the lens model, :mod:`tracker.distortion` (one definition for every kernel): after
+editing it, delete the ``__pycache__/*.nbi``/``*.nbc`` files of the kernels (``make clean-numba``);
+``tests/test_robust.py`` compares these kernels with the numpy twin, which uses the edited model,
+so stale machine code fails the tests rather than going unnoticed.
 
 Packed camera row (``cam[m]``, 25 floats, see :func:`pack_cameras`): fx, skew, cx, fy, cy,
 k1, k2, p1, p2, k3, k4, k5, k6, R_world_to_cam (9, row-major), t_world_to_cam_m (3).
@@ -21,6 +25,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from tracker.distortion import distort_point, distort_point_jacobian, undistort_point
 
 # -- layout of the option vectors, outputs and workspaces ----------------------------------------
 F_EPS_PX, F_MIN_DEPTH_M, F_SIGMA_PX, F_TOL_M, F_BOX = 0, 1, 2, 3, 4  # F_BOX..+5: box min xyz, max xyz
@@ -61,36 +67,16 @@ def pack_cameras(stacked: dict) -> np.ndarray:
 
 
 # -- camera model ---------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _distort(cam, m, x, y):
-    """Distorted normalised coordinates and their 2x2 Jacobian (OpenCV model)."""
-    k1, k2, p1, p2, k3, k4, k5, k6 = cam[m, 5], cam[m, 6], cam[m, 7], cam[m, 8], cam[m, 9], cam[m, 10], cam[m, 11], cam[m, 12]
-    r2 = x * x + y * y
-    num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
-    rad = num / den
-    xd = x * rad + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * rad + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    drad = ((k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)) * den - num * (k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2))) / (den * den)
-    j00 = rad + 2.0 * x * x * drad + 2.0 * p1 * y + 6.0 * p2 * x
-    j01 = 2.0 * x * y * drad + 2.0 * p1 * x + 2.0 * p2 * y
-    j11 = rad + 2.0 * y * y * drad + 6.0 * p1 * y + 2.0 * p2 * x
-    return xd, yd, j00, j01, j11
+    """Distorted normalised coordinates and their 2x2 Jacobian (tracker.distortion) in camera m."""
+    return distort_point_jacobian(x, y, cam[m, 5], cam[m, 6], cam[m, 7], cam[m, 8], cam[m, 9], cam[m, 10], cam[m, 11], cam[m, 12])
 
 
 @njit(cache=True)
 def _undistort(cam, m, xd, yd):
-    """Newton inversion of the distortion (as tracker.camera.undistort_normalised)."""
-    x, y = xd, yd
-    for _ in range(20):
-        fx_, fy_, j00, j01, j11 = _distort(cam, m, x, y)
-        rx, ry = fx_ - xd, fy_ - yd
-        if max(abs(rx), abs(ry)) < 1e-12:
-            break
-        det = j00 * j11 - j01 * j01
-        x -= (j11 * rx - j01 * ry) / det
-        y -= (j00 * ry - j01 * rx) / det
-    return x, y
+    """Newton inversion of the distortion in camera m (tracker.distortion.undistort_point)."""
+    return undistort_point(xd, yd, cam[m, 5], cam[m, 6], cam[m, 7], cam[m, 8], cam[m, 9], cam[m, 10], cam[m, 11], cam[m, 12])
 
 
 @njit(cache=True)
@@ -317,13 +303,9 @@ def _errors_one_candidate(camT, U, V, X0, X1, X2, e2):
         iz = 1.0 / zc
         x = xc * iz
         y = yc * iz
-        r2 = x * x + y * y
-        num = 1.0 + r2 * (camT[5, m] + r2 * (camT[6, m] + r2 * camT[9, m]))
-        den = 1.0 + r2 * (camT[10, m] + r2 * (camT[11, m] + r2 * camT[12, m]))
-        rad = num / den
-        p1, p2 = camT[7, m], camT[8, m]
-        xd = x * rad + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        yd = y * rad + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        xd, yd = distort_point(
+            x, y, camT[5, m], camT[6, m], camT[7, m], camT[8, m], camT[9, m], camT[10, m], camT[11, m], camT[12, m]
+        )
         du = camT[0, m] * xd + camT[1, m] * yd + camT[2, m] - U[m]
         dv = camT[3, m] * yd + camT[4, m] - V[m]
         e = du * du + dv * dv

@@ -22,7 +22,7 @@ import numba
 import numpy as np
 import scipy.fft
 
-from tracker._checks import describe
+from checks.arrays import describe
 from tracker._rtblob_options import AUTO_DIRECT_MAX_SIDE, RTBlobOptions
 
 __all__ = ["RTBlobDetector", "disk_template", "image_problem", "likelihood_reference"]

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker._checks import describe
+from checks.arrays import describe
 
 __all__ = ["AUTO_DIRECT_MAX_SIDE", "COLOUR_SPACES", "CORRELATION_METHODS", "RTBlobOptions", "SUBPIXEL_METHODS"]
 

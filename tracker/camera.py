@@ -7,7 +7,8 @@ distortion maps them to distorted normalised coordinates and ``K`` to pixels. Pi
 centre of the top-left pixel.
 
 Distortion coefficients follow OpenCV's order ``k1, k2, p1, p2[, k3[, k4, k5, k6]]``:
-``plumb_bob`` has 5, ``rational_polynomial`` has 8, ``none`` has 0.
+``plumb_bob`` has 5, ``rational_polynomial`` has 8, ``none`` has 0; the model itself is
+:mod:`tracker.distortion`.
 """
 
 from __future__ import annotations
@@ -16,9 +17,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tracker._checks import check_array, check_finite, check_rotation, describe
+from checks.arrays import check_array, check_finite, check_rotation, describe
+from tracker.distortion import distort, undistort
 
-__all__ = ["Camera", "DISTORTION_MODELS", "distort_normalised", "undistort_normalised"]
+__all__ = ["Camera", "DISTORTION_MODELS"]
 
 #: Distortion model name -> number of coefficients (OpenCV order).
 DISTORTION_MODELS = {"none": 0, "plumb_bob": 5, "rational_polynomial": 8}
@@ -28,65 +30,6 @@ def _pad8(coeffs: np.ndarray) -> np.ndarray:
     out = np.zeros(8)
     out[: len(coeffs)] = coeffs
     return out
-
-
-def distort_normalised(xn: np.ndarray, dist8: np.ndarray) -> np.ndarray:
-    """Apply OpenCV distortion to normalised coordinates.
-
-    xn : (N, 2) undistorted normalised coordinates
-    dist8 : (8,) ``k1, k2, p1, p2, k3, k4, k5, k6`` (zeros where unused)
-    returns (N, 2) distorted normalised coordinates
-    """
-    k1, k2, p1, p2, k3, k4, k5, k6 = dist8
-    x, y = xn[:, 0], xn[:, 1]
-    r2 = x * x + y * y
-    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-    xy2 = 2 * x * y
-    xd = x * radial + p1 * xy2 + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + p2 * xy2
-    return np.stack([xd, yd], axis=-1)
-
-
-def _distortion_jacobian(xn: np.ndarray, dist8: np.ndarray) -> np.ndarray:
-    """(N, 2, 2) derivative of :func:`distort_normalised` with respect to ``xn``."""
-    k1, k2, p1, p2, k3, k4, k5, k6 = dist8
-    x, y = xn[:, 0], xn[:, 1]
-    r2 = x * x + y * y
-    num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
-    dnum = k1 + r2 * (2 * k2 + 3 * k3 * r2)  # d num / d r2
-    dden = k4 + r2 * (2 * k5 + 3 * k6 * r2)
-    radial = num / den
-    drad = (dnum * den - num * dden) / (den * den)  # d radial / d r2
-    J = np.empty((len(xn), 2, 2))
-    J[:, 0, 0] = radial + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
-    J[:, 0, 1] = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-    J[:, 1, 0] = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-    J[:, 1, 1] = radial + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
-    return J
-
-
-def undistort_normalised(xd: np.ndarray, dist8: np.ndarray, iterations: int = 20) -> np.ndarray:
-    """Invert :func:`distort_normalised` by Newton's method (robust where OpenCV's
-    fixed-point iteration stalls near the image corners of strongly distorted lenses).
-
-    xd : (N, 2) distorted normalised coordinates
-    returns (N, 2) undistorted normalised coordinates
-    """
-    x = xd.copy()
-    if not dist8.any():
-        return x
-    for _ in range(iterations):
-        r = distort_normalised(x, dist8) - xd
-        J = _distortion_jacobian(x, dist8)
-        det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
-        dx = (J[:, 1, 1] * r[:, 0] - J[:, 0, 1] * r[:, 1]) / det
-        dy = (J[:, 0, 0] * r[:, 1] - J[:, 1, 0] * r[:, 0]) / det
-        x[:, 0] -= dx
-        x[:, 1] -= dy
-        if np.nanmax(np.abs(r), initial=0.0) < 1e-12:
-            break
-    return x
 
 
 @dataclass(frozen=True, eq=False)
@@ -176,7 +119,7 @@ class Camera:
     def normalised_to_pixels(self, xn) -> np.ndarray:
         """(N, 2) undistorted normalised coordinates -> (N, 2) distorted pixels."""
         xn = _points(xn, "xn", 2)
-        xd = distort_normalised(xn, self.dist8)
+        xd = distort(xn, self.dist8)
         K = self.K
         return np.stack(
             [K[0, 0] * xd[:, 0] + K[0, 1] * xd[:, 1] + K[0, 2], K[1, 1] * xd[:, 1] + K[1, 2]], axis=-1
@@ -208,7 +151,7 @@ class Camera:
         K = self.K
         yd = (uv[:, 1] - K[1, 2]) / K[1, 1]
         xd = (uv[:, 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
-        xn = undistort_normalised(np.stack([xd, yd], axis=-1), self.dist8)
+        xn = undistort(np.stack([xd, yd], axis=-1), self.dist8)
         return xn[0] if single else xn
 
     def rays_world(self, uv) -> np.ndarray:

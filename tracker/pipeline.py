@@ -12,7 +12,7 @@ Kinds (``TRACKER_KINDS``):
   (``TrackerOptions.max_size_ratio``: a position whose blobs are too wide for a ball at its depth
   is dropped and the estimate redone), then the support hand-over (``TrackerOptions.handover_max_age_s``:
   an estimate left with too few cameras is moved by those cameras' offset from the last confirmed
-  positions, ``tracker._pipeline_handover``).
+  positions, ``tracker.handover``).
 * ``rt2-paper``: the paper's system: Algorithm 1 as published (argmax, one candidate) on the full
   frame, Algorithm 2 as published (``method="paper"``), no ROI.
 * ``rtblob``: the RTBlob baseline (:class:`RTBlobTracker`), with the same fault handling.
@@ -34,7 +34,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from tracker._checks import describe
+from checks.arrays import describe
 from tracker._pipeline_options import (
     DEFAULT_MODEL,
     KINDS,
@@ -47,9 +47,9 @@ from tracker._pipeline_options import (
     load_model,
     with_overrides,
 )
-from tracker._pipeline_handover import SupportHandover
+from tracker.handover import SupportHandover
 from tracker._pipeline_roi import MotionPredictor
-from tracker._size_test import SizeTest
+from tracker.size_test import SizeTest
 from tracker._rtblob_detect import image_problem
 from tracker.detection import BallDetector, DetectorOptions
 from tracker.observation import BallObservation, FrameSet, Status
@@ -57,7 +57,7 @@ from tracker.rig import Rig
 from tracker.robust import RobustOptions, RobustTriangulator
 from tracker.rtblob import RTBlobOptions, RTBlobTracker
 
-__all__ = ["DEFAULT_MODEL", "TRACKER_KINDS", "PipelineInfo", "Tracker", "TrackerOptions", "TrackerStats", "load_model", "make_tracker"]
+__all__ = ["DEFAULT_MODEL", "KINDS", "TRACKER_KINDS", "PipelineInfo", "Tracker", "TrackerOptions", "TrackerStats", "load_model", "make_tracker"]
 
 
 class Tracker:
@@ -297,7 +297,7 @@ class Tracker:
 
     def _hand_over(self, t_s: float, X: np.ndarray, info, uv_px: np.ndarray, ok: bool, notes: list) -> np.ndarray:
         """An estimate from fewer cameras than the last confirmed ones, moved by those cameras' offset
-        from them (step 9, :mod:`tracker._pipeline_handover`); unchanged otherwise."""
+        from them (step 9, :mod:`tracker.handover`); unchanged otherwise."""
         X, d = self._handover.apply(t_s, X, uv_px, ok)
         if d is not None:
             self.stats.handovers += 1

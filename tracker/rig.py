@@ -26,9 +26,9 @@ from typing import Iterable, Iterator
 import numpy as np
 import yaml
 
-from tracker._checks import check_array, describe
+from checks.arrays import check_array, describe
 from tracker.camera import DISTORTION_MODELS, Camera
-from tracker.files import MAX_CONFIG_BYTES, NoAliasSafeLoader, load_yaml_checked, parse_yaml_checked, read_text_capped
+from checks.files import MAX_CONFIG_BYTES, NoAliasSafeLoader, load_yaml_checked, parse_yaml_checked, read_text_capped
 
 __all__ = ["Rig"]
 

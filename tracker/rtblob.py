@@ -26,14 +26,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker._checks import describe
-from tracker._rtblob_detect import RTBlobDetector, image_problem
-from tracker._rtblob_options import RTBlobOptions
+from checks.arrays import describe
+from tracker._rtblob_detect import RTBlobDetector, image_problem, likelihood_reference
+from tracker._rtblob_options import CORRELATION_METHODS, RTBlobOptions
 from tracker._rtblob_pairs import pair_covariances, triangulate_fixed_pairs
 from tracker.observation import BallObservation, FrameSet, Status
 from tracker.rig import Rig
 
-__all__ = ["RTBlobDetector", "RTBlobInfo", "RTBlobOptions", "RTBlobTracker"]
+#: ``CORRELATION_METHODS``: the template-correlation choices of ``RTBlobOptions.correlation``;
+#: ``likelihood_reference(image, options)``: the float64 colour likelihood the detector's lookup
+#: table is tested and benchmarked against
+__all__ = ["CORRELATION_METHODS", "RTBlobDetector", "RTBlobInfo", "RTBlobOptions", "RTBlobTracker", "likelihood_reference"]
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker._checks import check_finite
+from checks.arrays import check_finite
+from tracker.distortion import distort_jacobian
 
 __all__ = [
     "camera_pairs",
@@ -116,25 +117,6 @@ def _camera_arrays(rig) -> dict:
     return {"K": s["K"], "dist8": s["dist8"], "R": s["R"], "t": s["t"]}
 
 
-def _distort(xn: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """xn (..., n, 2), d (n, 8) -> distorted (..., n, 2) and its Jacobian (..., n, 2, 2)."""
-    k1, k2, p1, p2, k3, k4, k5, k6 = (d[:, i] for i in range(8))
-    x, y = xn[..., 0], xn[..., 1]
-    r2 = x * x + y * y
-    num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
-    rad = num / den
-    drad = ((k1 + r2 * (2 * k2 + 3 * k3 * r2)) * den - num * (k4 + r2 * (2 * k5 + 3 * k6 * r2))) / (den * den)
-    xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    J = np.empty(xn.shape + (2,))
-    J[..., 0, 0] = rad + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
-    J[..., 0, 1] = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-    J[..., 1, 0] = J[..., 0, 1]
-    J[..., 1, 1] = rad + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
-    return np.stack([xd, yd], axis=-1), J
-
-
 def _project(X_world: np.ndarray, cams: dict, jacobian: bool = False):
     """X_world (M, 3) -> uv (M, n, 2) distorted pixels (NaN at/behind a camera), depth (M, n),
     and optionally J (M, n, 2, 3) = d uv / d X_world."""
@@ -144,7 +126,7 @@ def _project(X_world: np.ndarray, cams: dict, jacobian: bool = False):
     with np.errstate(divide="ignore", invalid="ignore"):
         iz = np.where(z > 0, 1.0 / z, np.nan)
     xn = Xc[..., :2] * iz[..., None]
-    xd, Jd = _distort(xn, cams["dist8"])
+    xd, Jd = distort_jacobian(xn, cams["dist8"], jacobian=jacobian)
     fx, s, cx, fy, cy = K[:, 0, 0], K[:, 0, 1], K[:, 0, 2], K[:, 1, 1], K[:, 1, 2]
     uv = np.stack([fx * xd[..., 0] + s * xd[..., 1] + cx, fy * xd[..., 1] + cy], axis=-1)
     if not jacobian:

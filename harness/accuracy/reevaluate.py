@@ -30,8 +30,8 @@ import numpy as np
 
 from harness.accuracy.config import AccuracyConfig
 from harness.accuracy.evaluate import TrackRecord, evaluate
-from harness.accuracy.trackers import DETECTION_SUFFIX, build_trackers, estimator_for, handover_for, size_test_for
-from tracker import FrameSet, Status
+from harness.accuracy.trackers import DETECTION_SUFFIX, build_trackers
+from tracker import CandidateEstimator, FrameSet, Status
 from tracker.detection import BallSegmentationModel
 
 __all__ = ["SOURCES", "Reevaluation", "reevaluate_accuracy"]
@@ -116,8 +116,7 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
         else:
             for k in wanted:
                 if k in DETECTION_SUFFIX:
-                    est = estimator_for(k, rig, config.eps_px)
-                    runners[k] = (est, size_test_for(k, rig), handover_for(k, est))
+                    runners[k] = CandidateEstimator(rig, k, eps_px=config.eps_px)
                     how[k] = "estimator, size test and support hand-over re-run on the logged detections"
                 else:
                     how[k] = "logged observations scored as recorded (no estimator to re-run without images)"
@@ -192,7 +191,7 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
             for kind, tr in runners.items():
                 records[kind].put(k, tr.process(fs))
         elif src == "detections":
-            for kind, (est, size_test, handover) in runners.items():
+            for kind, est in runners.items():
                 uv = np.full((len(names), k_per.get(kind, 1), 2), np.nan)
                 areas = np.full(uv.shape[:2], np.nan)
                 have_areas = True
@@ -202,19 +201,11 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
                         have_areas = False
                     else:
                         areas[i, : len(area)] = area
-                X, info = est.estimate(uv)
-                if X is not None and have_areas:
-                    X, info, _, _ = size_test.apply(est, uv, areas, X, info)
-                elif not have_areas and size_test.max_ratio is not None:
+                if not have_areas and est.size_test.max_ratio is not None:
                     records["_no_areas"] = True
-                if handover is not None:  # as the live tracker (its history spans segments: the warm-up saw the same frames)
-                    t_k = logged[kind].t_s if kind in logged else t_cam
-                    handover.step(t_k)
-                    if X is not None and np.isfinite(t_k):
-                        used = np.full((len(names), 2), np.nan)
-                        sel = np.flatnonzero(info.candidate_index >= 0)
-                        used[sel] = uv[sel, info.candidate_index[sel]]
-                        X, _ = handover.apply(t_k, X, used, info.status is Status.OK)
+                # the hand-over's history spans segments, as the live tracker's (the warm-up saw the same frames)
+                t_k = logged[kind].t_s if kind in logged else t_cam
+                X, info = est.estimate(t_k, uv, areas if have_areas else None)
                 r = records[kind]
                 if X is not None:
                     r.position_m[k] = X

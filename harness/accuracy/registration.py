@@ -6,8 +6,8 @@ accuracy experiment finds the transform from the run itself: FK ball positions i
 run only; the errors are then measured on the rest.
 
 The fit is Umeyama's least-squares rigid transform without scale (S. Umeyama, "Least-squares estimation
-of transformation parameters between two point patterns", IEEE TPAMI 13(4), 1991; the rotation by
-``scipy.spatial.transform.Rotation.align_vectors``, i.e. Kabsch), made robust by a trimmed re-fit: fit
+of transformation parameters between two point patterns", IEEE TPAMI 13(4), 1991; the Kabsch fit of
+``tracker.calibration.poses.rigid_fit``, shared with the calibration), made robust by a trimmed re-fit: fit
 on all pairs, keep the pairs whose residual is within ``max(k * median, floor_m)``, fit again, until the
 kept set no longer changes (at most ``max_iterations``). A wrong tracker position in the registration
 part thus cannot pull the transform.
@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+
+from tracker.calibration.poses import rigid_fit
 
 __all__ = ["RegistrationInfo", "RegistrationOptions", "fit_rigid", "register_rigid", "registration_std", "transform_difference"]
 
@@ -82,15 +84,13 @@ def fit_rigid(X_src, X_dst) -> np.ndarray:
     A, B = _points(X_src, "X_src"), _points(X_dst, "X_dst")
     if A.shape != B.shape or len(A) < 3:
         raise ValueError(f"X_src and X_dst must be (n, 3) with the same n >= 3, got shapes {A.shape} and {B.shape}")
-    ca, cb = A.mean(axis=0), B.mean(axis=0)
-    s = np.linalg.svd(A - ca, compute_uv=False)
+    s = np.linalg.svd(A - A.mean(axis=0), compute_uv=False)
     if s[1] <= 1e-9 * max(s[0], 1e-300):
         raise ValueError("X_src points are (nearly) collinear: the rotation about their line is undetermined")
-    # Umeyama 1991 Eq. (39)-(41) without scale: R from the SVD of the cross-covariance (Kabsch), t = cb - R ca
-    rot, _ = Rotation.align_vectors(B - cb, A - ca)
+    R, t, _ = rigid_fit(A, B)  # Kabsch / Umeyama without scale (tracker.calibration.poses)
     T = np.eye(4)
-    T[:3, :3] = rot.as_matrix()
-    T[:3, 3] = cb - T[:3, :3] @ ca
+    T[:3, :3] = R
+    T[:3, 3] = t
     return T
 
 

@@ -6,23 +6,19 @@
   reference_rgb=...)`` from :func:`harness.accuracy.calibration.calibrate_rtblob` (``rtblob_setup=
   "calibrated"``, the default) or ``RTBlobOptions()`` (``"default"``).
 
-Re-evaluation from logged detections re-runs only the estimator and the 3D size test:
-:func:`estimator_for` builds the same ``RobustTriangulator`` the rt2 trackers use, :func:`size_test_for`
-the same :class:`tracker._size_test.SizeTest`.
+Re-evaluation from logged detections re-runs only what follows detection: the estimator, the 3D size
+test and the support hand-over, as :class:`tracker.CandidateEstimator` (tracker's public entry for it).
 """
 
 from __future__ import annotations
 
-from tracker import RobustOptions, RobustTriangulator, RTBlobOptions, TrackerOptions, make_tracker
-from tracker._pipeline_handover import SupportHandover
-from tracker._size_test import SizeTest
-from tracker.pipeline import load_model
+from tracker import RTBlobOptions, make_tracker
+from tracker.pipeline import KINDS, load_model
 
-__all__ = ["DETECTION_SUFFIX", "DETECTOR_METHOD", "ESTIMATOR_METHOD", "build_trackers", "detections_camera", "estimator_for", "handover_for", "rtblob_options", "size_test_for"]
+__all__ = ["DETECTION_SUFFIX", "DETECTOR_METHOD", "build_trackers", "detections_camera", "rtblob_options"]
 
-#: detector and estimator method of each rt2 kind (as tracker.pipeline uses them)
-DETECTOR_METHOD = {"rt2": "ours", "rt2-paper": "paper"}
-ESTIMATOR_METHOD = {"rt2": "ours", "rt2-paper": "paper"}
+#: detector method of each rt2 kind (tracker.pipeline.KINDS, the one table of kinds)
+DETECTOR_METHOD = {kind: det for kind, (det, _, _) in KINDS.items() if det is not None}
 #: the logged detections of each rt2 kind go to camera name + suffix (``/camera/cam0.rt2-paper/detections``)
 DETECTION_SUFFIX = {"rt2": "", "rt2-paper": ".rt2-paper"}
 
@@ -58,27 +54,3 @@ def build_trackers(config, rig, model=None, rtblob_calibration: dict | None = No
                 model = load_model(config.model_path())
             out[kind] = make_tracker(kind, rig, model=model, eps_px=config.eps_px)
     return out
-
-
-def estimator_for(kind: str, rig, eps_px=None) -> RobustTriangulator:
-    """The robust estimator tracker ``kind`` ("rt2" or "rt2-paper") runs, for re-evaluation from detections."""
-    if kind not in ESTIMATOR_METHOD:
-        raise ValueError(f"tracker {kind!r} has no robust estimator to re-run; valid: {sorted(ESTIMATOR_METHOD)}")
-    options = RobustOptions() if eps_px is None else RobustOptions(eps_px=float(eps_px))
-    return RobustTriangulator(rig, options, method=ESTIMATOR_METHOD[kind])
-
-
-def handover_for(kind: str, estimator) -> SupportHandover | None:
-    """The support hand-over tracker ``kind`` applies (the Tracker default: on for "rt2", off for "rt2-paper")."""
-    if kind not in ESTIMATOR_METHOD:
-        raise ValueError(f"tracker {kind!r} has no support hand-over; valid: {sorted(ESTIMATOR_METHOD)}")
-    age = TrackerOptions().handover_max_age_s
-    return SupportHandover(estimator, len(estimator.rig), max_age_s=age) if kind == "rt2" and age is not None else None
-
-
-def size_test_for(kind: str, rig) -> SizeTest:
-    """The 3D size test tracker ``kind`` applies (the Tracker defaults: on for "rt2", measuring only for "rt2-paper")."""
-    if kind not in ESTIMATOR_METHOD:
-        raise ValueError(f"tracker {kind!r} has no size test; valid: {sorted(ESTIMATOR_METHOD)}")
-    opt = TrackerOptions()
-    return SizeTest(rig, opt.max_size_ratio if kind == "rt2" else None, opt.ball_radius_m)

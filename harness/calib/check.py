@@ -19,6 +19,7 @@ import numpy as np
 
 from harness.calib.compare import compare_to_truth
 from harness.calib.rendered import board_background, random_board_poses, render_board_view
+from policies.ball_model import TableGeometry
 from tracker import Camera, Rig
 from tracker.calibration.board import BoardSpec, detect_charuco
 from tracker.calibration.extrinsics import WandOptions, apply_world, calibrate_wand, order_wand_points, triangulate_views
@@ -27,8 +28,8 @@ from tracker.calibration.intrinsics import IntrinsicsOptions, calibrate_intrinsi
 __all__ = ["CheckConfig", "TABLE_CORNERS_M", "WAND_OFFSETS_M", "render_wand_detections", "run_check"]
 
 WAND_OFFSETS_M = np.array([0.0, 0.13, 0.39])
-#: the table top's four corners, lab frame (harness/lab.py geometry)
-TABLE_CORNERS_M = np.array([[sx * 1.37, sy * 0.7625, 0.76] for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+#: the table top's four corners, lab frame (the lab's TableGeometry)
+TABLE_CORNERS_M = TableGeometry().corners_m()
 BOARD = BoardSpec(9, 7, 0.03, 0.022, "DICT_4X4_50")
 
 

@@ -19,7 +19,7 @@ from harness.calib.exports import add_export_arguments, save_calibration
 from harness.calib.inputs import load_intrinsics, read_detection_csvs
 from tracker import Camera, Rig
 from tracker.calibration.extrinsics import WandOptions, apply_world, calibrate_wand, order_wand_points, triangulate_views
-from tracker.files import load_yaml_checked
+from checks.files import load_yaml_checked
 
 __all__ = ["add_arguments", "parse_wand", "read_world_points", "run", "wand_uv_from_log"]
 

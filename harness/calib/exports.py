@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from tracker import Camera, Rig
-from tracker.files import MAX_CONFIG_BYTES, read_text_capped
+from checks.files import MAX_CONFIG_BYTES, read_text_capped
 
 __all__ = ["add_export_arguments", "read_anipose_toml", "save_calibration", "write_anipose_toml", "write_exports", "write_opencv_files"]
 

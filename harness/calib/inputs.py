@@ -13,7 +13,7 @@ import numpy as np
 
 from tracker import Rig
 from tracker.calibration.board import BoardSpec, board_from_dict
-from tracker.files import MAX_CONFIG_BYTES, MAX_DATA_BYTES, parse_yaml_checked, read_bytes_capped, read_text_capped
+from checks.files import MAX_CONFIG_BYTES, MAX_DATA_BYTES, parse_yaml_checked, read_bytes_capped, read_text_capped
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "iter_frames", "load_board", "load_intrinsics", "read_detection_csvs"]
 

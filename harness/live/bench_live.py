@@ -158,10 +158,10 @@ def run(args) -> int:
                "source": list(args.source), "rig": args.rig, "rate_hz": args.rate_hz, "tracker": args.tracker,
                "duration_s": args.duration, "warmup_s": args.warmup, "prerender_s": args.prerender,
                "goals": GOALS, "goals_met": goals, "modes": rows}
-        from harness.live.service import _json_safe
+        from harness.logs.codecs import to_json_value
 
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(_json_safe(doc), indent=1) + "\n")
+        Path(args.json).write_text(json.dumps(to_json_value(doc, "live bench", lenient=True), indent=1) + "\n")
         print(f"wrote {args.json}")
     return 0
 

@@ -210,7 +210,7 @@ def _print_summary(s: dict) -> None:
 
 
 def run(args) -> int:
-    from harness.live.service import _json_safe
+    from harness.logs.codecs import to_json_value
 
     stop = threading.Event()
     got = {}
@@ -255,6 +255,6 @@ def run(args) -> int:
         print(f"rt2 track: error: the session log {args.log} failed ({log_error}); tracking and publishing went on", file=sys.stderr)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(_json_safe(summary), indent=1) + "\n")
+        Path(args.json).write_text(json.dumps(to_json_value(summary, "track summary", lenient=True), indent=1) + "\n")
         print(f"wrote {args.json}")
     return 1 if log_error else 0

@@ -24,27 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tracker import FrameSet, Status
+from tracker import CandidateEstimator, FrameSet, Status
 
 __all__ = ["reevaluate_track", "run_reevaluate"]
 
 
-def _handover(handover, t_s: float, X, info, uv: np.ndarray):
-    """rt2's support hand-over on one re-run estimate, as ``tracker.Tracker`` applies it: confirmed
-    estimates become references, estimates from fewer cameras are moved by the references' offset."""
-    handover.step(t_s)
-    if X is None or not np.isfinite(t_s):
-        return X
-    used = np.full((uv.shape[0], 2), np.nan)
-    sel = np.flatnonzero(info.candidate_index >= 0)
-    used[sel] = uv[sel, info.candidate_index[sel]]
-    return handover.apply(t_s, X, used, info.status is Status.OK)[0]
-
-
 def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
     """Figures of a re-run on a ``track`` log (a :class:`~harness.logs.SessionLogReader`)."""
-    from harness.accuracy.trackers import estimator_for, handover_for, size_test_for
-
     where = str(reader.path)
     session = reader.metadata("session")
     kind = session.get("tracker")
@@ -64,7 +50,7 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
     if not reader.finished_cleanly:
         notes.append("the log was not finished cleanly: re-evaluating the frame sets recovered")
     k_per = int(session.get("candidates_per_camera") or 1)
-    tracker = est = size_test = handover = None
+    tracker = est = None
     tmp = tempfile.TemporaryDirectory()
     try:
         if source == "images":
@@ -77,8 +63,7 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
             tracker = Tracker(rig, kind, model=model, **({} if eps_px is None else {"eps_px": float(eps_px)}))
             topics = [f"/tracker/{kind}/ball", "/camera/*/image"]
         elif source == "detections":
-            est, size_test = estimator_for(kind, rig, eps_px), size_test_for(kind, rig)
-            handover = handover_for(kind, est)
+            est = CandidateEstimator(rig, kind, eps_px=eps_px)
             topics = [f"/tracker/{kind}/ball", "/camera/*/detections"]
         else:
             topics = [f"/tracker/{kind}/ball"]
@@ -108,11 +93,7 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
                         have_areas = False
                     else:
                         areas[i, : len(area)] = area[:k_per]
-                X, info = est.estimate(uv)
-                if X is not None and have_areas:
-                    X, info, _, _ = size_test.apply(est, uv, areas, X, info)
-                if handover is not None:  # the support hand-over, as the live tracker applied it
-                    X = _handover(handover, obs.t_s, X, info, uv)
+                X, info = est.estimate(obs.t_s, uv, areas if have_areas else None)  # as the live tracker
                 status, pos = info.status, X
             else:
                 status, pos = obs.status, obs.position_m

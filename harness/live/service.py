@@ -16,7 +16,6 @@ with the assembler's note, the tracker goes on with the others, and the figures 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import sys
 import threading
@@ -28,6 +27,7 @@ import numpy as np
 from harness.live.frames import AssembledFrameSet
 from harness.live.publish import rich_message, tennicam_message
 from harness.live.stats import LiveStats
+from harness.logs.codecs import to_json_value
 from tracker import FrameSet
 
 __all__ = ["ServiceOptions", "TrackingService"]
@@ -209,12 +209,12 @@ class TrackingService:
         self._finished = True
         if source is not None and hasattr(source, "stats") and callable(source.stats):
             try:
-                self._assembly = _json_safe(source.stats())
+                self._assembly = to_json_value(source.stats(), "assembly figures", lenient=True)
             except Exception as exc:  # figures only: never lose the log over them
                 self._assembly = {"error": f"{type(exc).__name__}: {exc}"}
         if self.log is not None:
             try:
-                self.log.close(figures=_json_safe(self.summary()), error=error or self.log_error)
+                self.log.close(figures=to_json_value(self.summary(), "live summary", lenient=True), error=error or self.log_error)
             except Exception as exc:  # reported in the summary (``log.error``); the run's figures stand
                 what = f"closing it: {type(exc).__name__}: {exc}"
                 self.log_error = what if self.log_error is None else f"{self.log_error}; {what}"
@@ -237,21 +237,3 @@ def _assembly_status(source) -> str:
 def _time_ns(t_s: float) -> int:
     """The tennicam ``time``: the frame set's capture time (host CLOCK_MONOTONIC seconds) in ns."""
     return int(round(float(t_s) * 1e9)) if math.isfinite(t_s) else 0
-
-
-def _json_safe(value):
-    """Replace NaN/inf by None and numpy scalars by Python ones (the log's figures are strict JSON)."""
-    if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, np.bool_):
-        return bool(value)
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        v = float(value)
-        return v if math.isfinite(v) else None
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return _json_safe(dataclasses.asdict(value))
-    return value

@@ -58,7 +58,7 @@ class LiveLog:
         self._detections = tracker.kind != "rtblob"
         writer.attach_rig(rig)
         if self._detections:
-            from tracker._pipeline_options import DEFAULT_MODEL
+            from tracker.pipeline import DEFAULT_MODEL
 
             writer.attach("model.npz", Path(model_path or DEFAULT_MODEL).read_bytes(), "application/x-npz")
         writer.write_scene_static(0.0, rig)

@@ -9,6 +9,8 @@ and read back as NaN where an array was expected.
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 from dataclasses import dataclass
 
@@ -159,17 +161,28 @@ def _none_to_nan(value) -> np.ndarray:
     return np.array(value, dtype=float)  # None -> nan under dtype=float
 
 
-def to_json_value(value, where: str):
-    """Convert numpy values, tuples and nested containers to plain JSON values (non-finite -> None)."""
+def to_json_value(value, where: str, *, lenient: bool = False):
+    """Convert numpy values, tuples, dataclasses and nested containers to plain JSON values
+    (non-finite -> None).
+
+    Strict by default (what a log stores): a non-string key or a value of another type raises
+    :class:`LogError` naming ``where``. ``lenient=True`` is for figures that must never cost the
+    caller its log or summary (a camera source's own counters): keys become strings and values of
+    other types pass through unchanged.
+    """
     if isinstance(value, dict):
         out = {}
         for k, v in value.items():
             if not isinstance(k, str):
-                raise LogError(f"{where}: keys must be strings, got {k!r}")
-            out[k] = to_json_value(v, f"{where}.{k}")
+                if not lenient:
+                    raise LogError(f"{where}: keys must be strings, got {k!r}")
+                k = str(k)
+            out[k] = to_json_value(v, f"{where}.{k}", lenient=lenient)
         return out
     if isinstance(value, (list, tuple)):
-        return [to_json_value(v, f"{where}[{i}]") for i, v in enumerate(value)]
+        return [to_json_value(v, f"{where}[{i}]", lenient=lenient) for i, v in enumerate(value)]
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return to_json_value(dataclasses.asdict(value), where, lenient=lenient)
     if isinstance(value, np.ndarray):
         if value.dtype.kind in "fc":
             return _nan_to_none(value)
@@ -188,6 +201,8 @@ def to_json_value(value, where: str):
         return value
     if hasattr(value, "value") and isinstance(value.value, str):  # enums such as Status
         return value.value
+    if lenient:
+        return value
     raise LogError(f"{where}: cannot store a value of type {type(value).__name__} in a log")
 
 

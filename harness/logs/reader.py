@@ -161,7 +161,7 @@ class SessionLogReader:
 
     def rig(self):
         """The ``tracker.Rig`` attached as ``rig.yaml``."""
-        from tracker.files import MAX_CONFIG_BYTES, parse_yaml_checked
+        from checks.files import MAX_CONFIG_BYTES, parse_yaml_checked
         from tracker.rig import Rig
 
         source = f"{self.path}: attachment rig.yaml"

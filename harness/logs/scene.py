@@ -14,12 +14,12 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from harness.logs.codecs import timestamp
 from harness.logs.topics import WORLD_FRAME
+from policies.ball_model import TableGeometry
 
 __all__ = ["TABLE", "scene_static", "scene_arm", "scene_balls", "camera_calibration", "tracker_color"]
 
-#: table-tennis table in the lab world frame (ITTF sizes), metres
-TABLE = {"top_z_m": 0.76, "half_length_m": 1.37, "half_width_m": 0.7625, "thickness_m": 0.03,
-         "net_height_m": 0.1525, "net_half_width_m": 0.915}
+#: table-tennis table and net in the lab world frame (their one definition: TableGeometry's defaults)
+TABLE = TableGeometry()
 _PALETTE = [(0.90, 0.30, 0.10), (0.10, 0.60, 0.95), (0.20, 0.80, 0.30), (0.85, 0.20, 0.80), (0.95, 0.80, 0.10)]
 
 
@@ -82,13 +82,14 @@ def scene_static(log_time_ns: int, rig=None, *, frustum_depth_m: float = 0.4) ->
     t = TABLE
     up = SceneUpdate()
     e = _entity(up, log_time_ns, "table")
-    _cube(e, (0.0, 0.0, t["top_z_m"] - t["thickness_m"] / 2), (2 * t["half_length_m"], 2 * t["half_width_m"], t["thickness_m"]),
+    centre_xy = ((t.x_min_m + t.x_max_m) / 2, (t.y_min_m + t.y_max_m) / 2)
+    _cube(e, (*centre_xy, t.surface_z_m - t.thickness_m / 2), (t.x_max_m - t.x_min_m, t.y_max_m - t.y_min_m, t.thickness_m),
           (0.05, 0.15, 0.45))
-    L, W, z = t["half_length_m"], t["half_width_m"], t["top_z_m"] + 1e-3
-    edges = [(-L, -W), (L, -W), (L, -W), (L, W), (L, W), (-L, W), (-L, W), (-L, -W), (-L, 0.0), (L, 0.0)]
+    x0, x1, y0, y1, z = t.x_min_m, t.x_max_m, t.y_min_m, t.y_max_m, t.surface_z_m + 1e-3
+    edges = [(x0, y0), (x1, y0), (x1, y0), (x1, y1), (x1, y1), (x0, y1), (x0, y1), (x0, y0), (x0, centre_xy[1]), (x1, centre_xy[1])]
     _lines(e, [(x, y, z) for x, y in edges], (1.0, 1.0, 1.0), 2.0)
     net = _entity(up, log_time_ns, "net")
-    _cube(net, (0.0, 0.0, t["top_z_m"] + t["net_height_m"] / 2), (0.005, 2 * t["net_half_width_m"], t["net_height_m"]),
+    _cube(net, (0.0, 0.0, t.surface_z_m + t.net_height_m / 2), (0.005, 2 * t.net_half_span_m, t.net_height_m),
           (0.95, 0.95, 0.95), 0.6)
     for cam in (rig or ()):
         ce = _entity(up, log_time_ns, f"camera/{cam.name}")

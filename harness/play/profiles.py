@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tracker.files import MAX_CONFIG_BYTES, read_text_capped
+from checks.files import MAX_CONFIG_BYTES, read_text_capped
 
 __all__ = ["PAPER_PROFILES", "PROFILES", "PROFILE_SETS", "TrackerProfile", "load_profiles", "profile_for"]
 

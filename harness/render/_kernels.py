@@ -26,6 +26,7 @@ from harness.render.primitives import (
     NEAR_M,
     SHININESS,
 )
+from tracker.distortion import distort_point
 
 assert SHININESS == 32, "the kernel computes ndh ** SHININESS by five squarings"
 
@@ -35,12 +36,7 @@ __all__ = ["draw_numba"]
 
 @njit(cache=True, error_model="numpy")
 def _project(K, d8, x, y, z):
-    xn, yn = x / z, y / z
-    r2 = xn * xn + yn * yn
-    radial = (1 + r2 * (d8[0] + r2 * (d8[1] + r2 * d8[4]))) / (1 + r2 * (d8[5] + r2 * (d8[6] + r2 * d8[7])))
-    xy2 = 2 * xn * yn
-    xd = xn * radial + d8[2] * xy2 + d8[3] * (r2 + 2 * xn * xn)
-    yd = yn * radial + d8[2] * (r2 + 2 * yn * yn) + d8[3] * xy2
+    xd, yd = distort_point(x / z, y / z, d8[0], d8[1], d8[2], d8[3], d8[4], d8[5], d8[6], d8[7])
     return K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]
 
 

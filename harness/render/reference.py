@@ -17,14 +17,14 @@ from harness.render.primitives import (
     SHININESS,
     blur_samples,
 )
-from tracker.camera import distort_normalised
+from tracker.distortion import distort
 
 __all__ = ["draw_numpy"]
 
 
 def _project(K, d8, P):
     """(m, 3) camera-frame points -> (m, 2) distorted pixels."""
-    xd = distort_normalised(P[:, :2] / P[:, 2:3], d8)
+    xd = distort(P[:, :2] / P[:, 2:3], d8)
     return np.stack([K[0, 0] * xd[:, 0] + K[0, 1] * xd[:, 1] + K[0, 2], K[1, 1] * xd[:, 1] + K[1, 2]], axis=1)
 
 

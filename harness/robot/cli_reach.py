@@ -43,7 +43,7 @@ def reachability(kin: WamKinematics, region_m, n_per_axis=(5, 7, 5), *, normal: 
     for i, p in enumerate(tqdm(pts, desc="IK", disable=not progress, file=sys.stderr, leave=False)):
         n = {"opponent": np.asarray(OPPONENT_TARGET_M) - p, "x": np.array([1.0, 0, 0]), "none": None}[normal]
         _, info = kin.ik(p, "racket", normal_world=n, options=options, rng=rng)
-        ok[i], pos_err[i], ang_err[i] = info["success"], info["pos_err_m"], info["angle_err_rad"]
+        ok[i], pos_err[i], ang_err[i] = info.success, info.pos_err_m, info.angle_err_rad
     return {"points_m": pts, "success": ok, "pos_err_m": pos_err, "angle_err_rad": ang_err}
 
 

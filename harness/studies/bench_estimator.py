@@ -84,7 +84,8 @@ def bench(cameras=CAMERAS, *, repeats: int = 2000, naive_budget_s: float = 3.0, 
     """Rows {cameras, method, median_ms, calls} for paper, ours and naive at every camera count."""
     from tqdm import tqdm
 
-    from harness.sim_rigs import load_sim_rig, simulate_observations
+    from harness.sim_rigs import load_sim_rig
+    from tracker.synthetic import simulate_observations
     from tracker import RobustTriangulator
 
     if repeats < 5:

@@ -19,8 +19,7 @@ import time
 import cv2
 import numpy as np
 
-from tracker._rtblob_detect import likelihood_reference
-from tracker._rtblob_options import CORRELATION_METHODS
+from tracker.rtblob import CORRELATION_METHODS, likelihood_reference
 from tracker.camera import Camera
 from tracker.detection.synthetic import draw_disk
 from tracker.observation import FrameSet

@@ -43,9 +43,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 from tqdm import tqdm
 
+from checks.files import load_yaml_checked
 from policies.ball_model import DEFAULT_PARAMS_PATH, BallParams, TableGeometry, simulate
 from policies.filters import FILTERS, make_filter
 from tracker.observation import BallObservation, Status
@@ -119,7 +119,7 @@ def real_flights(folder: Path | None = None, plane_x_m: float = 2.4, which: str 
     if spin_prior == "launcher" and which != "held-out":
         raise ValueError("--spin-prior launcher needs --real-flights held-out: the prior is learned from the "
                          "other (fit) flights")
-    doc = yaml.safe_load(DEFAULT_PARAMS_PATH.read_text())
+    doc = load_yaml_checked(DEFAULT_PARAMS_PATH, "ball parameter file")
     fit = doc.get("fit", {})
     z = float(fit.get("data_frame_table_surface_z_m", 0.744))
     table = data_table(z)

@@ -289,7 +289,7 @@ def whole_flight_spin(f: Flight, params: BallParams, table: TableGeometry, optio
     predictor could at best know of the spin. Diagnostic only -- it uses the samples to be predicted."""
     whole = replace(options, spin_prior_std_rad_s=KNOWN_SPIN_PRIOR_STD_RAD_S, max_nfev=max(options.max_nfev, 100))
     _, info = fit_initial_state(f.t_s, f.X, params, table, whole)
-    return info["state_t0"][6:9]
+    return info.state_t0[6:9]
 
 
 def prediction_errors(flights: list[Flight], params: BallParams, table: TableGeometry, method: str,

@@ -2,7 +2,7 @@
 
 1. Draw ``--demos`` training and ``--held-out`` test requests (hitting point in x -1.6..-1.1,
    y -0.7..0.7, z 0.8..1.4 m, lab world; hitting time, racket normal and velocity, see
-   ``policies._promp_demos.HitDistribution``); the teacher (``policies.teacher``) demonstrates each,
+   ``policies.promp_demos.HitDistribution``); the teacher (``policies.teacher``) demonstrates each,
    redrawing the requests the WAM cannot meet (counted and reported).
 2. Learn the ProMP by MAP-EM (NIW / IW priors) and by ML-EM, on all training demos and on the first
    ``--few``; report each one's held-out log-likelihood (nats per demonstration and per joint sample).
@@ -113,7 +113,7 @@ def _conditioning(promp, test, kin, hit_phase):
 
 
 def run(args) -> int:
-    from policies._promp_demos import HitDistribution, collect_demonstrations
+    from policies.promp_demos import HitDistribution, collect_demonstrations
     from policies.promp import NIWPrior
     from policies.teacher import ScriptedTeacher, TeacherOptions
     from robot_models import WamKinematics

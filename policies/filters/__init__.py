@@ -24,6 +24,7 @@ from collections.abc import Mapping
 
 from policies.ball_model import BallParams, TableGeometry
 from policies.filters._base import BallFilter, BallTrajectoryPrediction, FilterState, FilterUpdate
+from policies.filters._ransac import RansacInfo
 from policies.filters.ransac_kalman import RansacKalmanFilter, RansacKalmanOptions
 from policies.filters.raw import RawFilter, RawOptions
 
@@ -33,6 +34,7 @@ __all__ = [
     "BallTrajectoryPrediction",
     "FilterState",
     "FilterUpdate",
+    "RansacInfo",
     "RansacKalmanFilter",
     "RansacKalmanOptions",
     "RawFilter",

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["QuadraticTrack", "ransac_quadratic"]
+__all__ = ["QuadraticTrack", "RansacInfo", "ransac_quadratic"]
 
 
 @dataclass(frozen=True)
@@ -46,13 +46,27 @@ def _lstsq(tau: np.ndarray, X: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(V, X, rcond=None)[0]
 
 
+@dataclass(frozen=True)
+class RansacInfo:
+    """What :func:`ransac_quadratic` found besides the track.
+
+    inliers : (N,) bool, the observations within the threshold of the refined track; n_inliers : their
+    count; rms_m : their RMS distance from it, metres (NaN without inliers); iterations : candidate
+    triples drawn
+    """
+
+    inliers: np.ndarray
+    n_inliers: int
+    rms_m: float
+    iterations: int
+
+
 def ransac_quadratic(t_s: np.ndarray, X: np.ndarray, *, inlier_threshold_m: float, min_inliers: int,
-                     iterations: int, rng: np.random.Generator) -> tuple[QuadraticTrack | None, dict]:
+                     iterations: int, rng: np.random.Generator) -> tuple[QuadraticTrack | None, RansacInfo]:
     """Consensus quadratic track of observations.
 
     t_s : (N,) strictly increasing times, s;  X : (N, 3) positions, m (trusted: checked by the caller)
-    Returns ``(track | None, info)``; ``info``: ``inliers`` (N,) bool, ``n_inliers``, ``rms_m`` over
-    the inliers, ``iterations``.
+    Returns ``(track | None, RansacInfo)``.
     """
     n = len(t_s)
     t_ref = float(t_s[0])
@@ -86,7 +100,7 @@ def ransac_quadratic(t_s: np.ndarray, X: np.ndarray, *, inlier_threshold_m: floa
         inliers = np.sum((Vall @ c - X) ** 2, axis=1) < thr2
     k = int(inliers.sum())
     rms = float(np.sqrt(np.mean(np.sum((Vall[inliers] @ c - X[inliers]) ** 2, axis=1)))) if k else float("nan")
-    info = {"inliers": inliers, "n_inliers": k, "rms_m": rms, "iterations": int(iterations)}
+    info = RansacInfo(inliers, k, rms, int(iterations))
     if k < max(min_inliers, 3):
         return None, info
     coef_t = c / np.array([1.0, scale, scale**2])[:, None]  # back to seconds

@@ -36,7 +36,7 @@ from policies.filters._base import (
     check_query_times,
     check_spin_prior,
 )
-from policies.filters._ransac import ransac_quadratic
+from policies.filters._ransac import RansacInfo, ransac_quadratic
 from tracker.observation import BallObservation
 
 __all__ = ["GATES", "RansacKalmanFilter", "RansacKalmanOptions"]
@@ -160,7 +160,7 @@ class RansacKalmanFilter:
         self._n_used = 0
         self.counters = {"accepted": 0, "rejected": 0, "pending": 0, "invalid": 0, "no_position": 0, "initialised": 0,
                          "reinitialised": 0, "ransac_failed": 0}
-        self.last_ransac: dict | None = None
+        self.last_ransac: RansacInfo | None = None
 
     def update(self, obs: BallObservation) -> FilterUpdate:
         o = self.options
@@ -183,7 +183,7 @@ class RansacKalmanFilter:
                                     pending=True)
             ok, inlier = self._initialise("initialised")
             if not ok:
-                return FilterUpdate(False, f"no RANSAC consensus yet ({self.last_ransac['n_inliers']}/"
+                return FilterUpdate(False, f"no RANSAC consensus yet ({self.last_ransac.n_inliers}/"
                                            f"{o.init_samples} inliers){note}", pending=True)
             return FilterUpdate(inlier, ("initialised by RANSAC" if inlier else "rejected by RANSAC at initialisation")
                                 + note)
@@ -267,7 +267,7 @@ class RansacKalmanFilter:
         if track is None:
             self.counters["ransac_failed"] += 1
             return False, False
-        inl = [m for m, keep in zip(ms, info["inliers"]) if keep]
+        inl = [m for m, keep in zip(ms, info.inliers) if keep]
         # 2. prior at the first inlier: its position, the quadratic's velocity, the unexplained
         # acceleration of the spin prior (zero without one)
         first = inl[0]
@@ -290,4 +290,4 @@ class RansacKalmanFilter:
         # the Kalman state is at the last inlier; bring it to the newest observation's time
         if self._t < ms[-1].t_s:
             self._propagate_to(ms[-1].t_s)
-        return True, bool(info["inliers"][-1])
+        return True, bool(info.inliers[-1])

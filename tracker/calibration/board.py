@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from tracker._checks import describe
+from checks.arrays import describe
 
 __all__ = ["BoardSpec", "CharucoCorners", "board_from_dict", "detect_charuco"]
 

@@ -19,7 +19,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 
 from tracker.calibration.poses import R_to_rvec, rvec_to_R
-from tracker.camera import distort_normalised
+from tracker.distortion import distort
 
 __all__ = ["BoardModel", "BundleOptions", "BundleResult", "PointModel", "WandModel", "bundle_adjust", "project_cameras"]
 
@@ -127,7 +127,7 @@ def project_cameras(K, dist8, R, t, X, cam_idx) -> np.ndarray:
     out = np.empty_like(xn)
     for c in np.unique(cam_idx):
         m = cam_idx == c
-        xd = distort_normalised(xn[m], dist8[c])
+        xd = distort(xn[m], dist8[c])
         k = K[c]
         out[m, 0] = k[0, 0] * xd[:, 0] + k[0, 1] * xd[:, 1] + k[0, 2]
         out[m, 1] = k[1, 1] * xd[:, 1] + k[1, 2]

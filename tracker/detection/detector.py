@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tracker._checks import describe
+from checks.arrays import describe
 from tracker.detection.blobs import find_blobs
 from tracker.detection.model import BallSegmentationModel, check_image, logit, sigmoid
 

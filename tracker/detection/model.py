@@ -30,8 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tracker._checks import describe
-from tracker.files import load_npz_checked
+from checks.arrays import describe
+from checks.files import load_npz_checked
 
 __all__ = ["BallSegmentationModel", "INPUT_TRANSFORMS", "KERNEL_SIZE", "MODEL_FORMAT", "MODEL_VERSION", "check_image", "logit", "sigmoid", "transform_lut"]
 

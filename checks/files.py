@@ -9,8 +9,9 @@ Every loader reads through these functions, which
 * refuse npz members that would decompress beyond ``max_bytes`` or hold pickled objects;
 * raise ``ValueError`` naming the file (and what was wrong) in one line, never a deep traceback.
 
-``robot_models`` may import nothing of ours, so ``robot_models/config.py`` keeps a minimal copy of
-:func:`load_yaml_checked` (docs/architecture.md).
+The lowest layer of rt2 (``checks/`` imports nothing else of ours), so every package reads its files
+through these functions: rigs, detector models, ProMPs, ball parameters, play profiles and the robot
+configuration (docs/architecture.md).
 """
 
 from __future__ import annotations
