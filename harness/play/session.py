@@ -32,7 +32,7 @@ from harness.physics import BallWorld, EventKind, RacketState, WorldOptions, cla
 from harness.robot import SimulatedWam, SimWamOptions
 from policies.hitting import HittingPolicy, PolicyStatus
 
-__all__ = ["BallRecord", "BallResult", "PlaySession", "SessionOptions", "ball_over", "ball_result", "world_summary"]
+__all__ = ["BallRecord", "BallResult", "PlaySession", "SessionOptions", "ball_over", "ball_result", "lerp_racket", "world_summary"]
 
 
 @dataclass(frozen=True)
@@ -164,7 +164,7 @@ class PlaySession:
             capture = t_contact is None and policy.status not in (PolicyStatus.COMMITTED, PolicyStatus.DONE)
             for sub in range(n_sub):
                 f0, f1 = sub / n_sub, (sub + 1) / n_sub
-                ra, rb = _lerp_racket(racket_prev, racket_next, f0), _lerp_racket(racket_prev, racket_next, f1)
+                ra, rb = lerp_racket(racket_prev, racket_next, f0), lerp_racket(racket_prev, racket_next, f1)
                 s0, ta = world.state.copy(), world.t_s
                 events = world.step(ra, rb)
                 s1 = world.state
@@ -254,7 +254,8 @@ def ball_result(ball: int, serve, policy, world: dict, n_frames: int, n_position
         spin_kind=str(serve.spin_kind), plan_failures=dict(policy.reason_counts))
 
 
-def _lerp_racket(a: RacketState, b: RacketState, f: float) -> RacketState:
+def lerp_racket(a: RacketState, b: RacketState, f: float) -> RacketState:
+    """The racket a fraction ``f`` of the way from ``a`` to ``b`` (within one control tick)."""
     if f <= 0.0:
         return a
     if f >= 1.0:

@@ -115,6 +115,7 @@ class SimBridge:
         self._last_contact_ns: int | None = None
         self._stop = False
         self._ticks = 0  # control ticks run (the robot time of the latest is _ticks * dt_ns)
+        self.wam_origin_ns = 0  # robot time of the simulator's time 0 (a subclass may start a new simulator later)
         # simulation truth for --publish-truth: the zero offsets, and robot clock minus host monotonic clock
         self._bias = np.asarray(wam.bias_rad, float).tolist()
         self._true_offset_ns = options.clock_skew_ns - self.epoch_ns
@@ -160,10 +161,14 @@ class SimBridge:
             return
         samples = self.wam.step(int(n))
         self._ticks += int(n)
+        self._publish_states(samples)
+
+    def _publish_states(self, samples) -> None:
+        """One ``state`` per sample of ``self.wam`` (stamped ``wam_origin_ns`` + the simulator's own time)."""
         truth = samples.q_true if self.options.publish_truth else None
-        for i in range(n):
+        for i in range(len(samples)):
             self.seq += 1
-            t_ns = int(round(samples.t_s[i] * 1e9))
+            t_ns = self.wam_origin_ns + int(round(samples.t_s[i] * 1e9))
             sim = None if truth is None else {"q_true": truth[i].tolist(), "bias_rad": self._bias,
                                               "offset_ns": self._true_offset_ns}
             self._pub.send(protocol.encode("state", seq=self.seq, t_ns=t_ns, q=samples.q[i].tolist(),
@@ -213,7 +218,7 @@ class SimBridge:
             self._reply(ident, "ok", id=rid, t_ns=self.robot_ns())
 
     def _apply_trajectory(self, msg: dict) -> None:
-        t_s = np.asarray(msg["t_ns"], dtype=np.int64) * 1e-9
+        t_s = (np.asarray(msg["t_ns"], dtype=np.int64) - self.wam_origin_ns) * 1e-9
         t, Q, Qd = check_joint_trajectory(self.kin, t_s, msg["q"], msg["qdot"], now_s=self.wam.t_s)
         self.wam.command_trajectory(t, Q, Qd)
         self.cmd_id, self.mode = int(msg["id"]), "track"
