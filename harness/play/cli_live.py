@@ -44,7 +44,7 @@ def run_live(args, config, open_log) -> int:
     log, path = open_log(args, config) if not args.no_log else (None, None)
     stop_signal: list[int] = []
     old = {sig: signal.signal(sig, lambda s, _f: stop_signal.append(s)) for sig in (signal.SIGINT, signal.SIGTERM)}
-    run, error = LiveRun(), None
+    run, error, connected = LiveRun(), None, []
 
     def on_ball(i, result, record, serve):
         if log is not None:
@@ -55,6 +55,7 @@ def run_live(args, config, open_log) -> int:
     def run_policy(robot, tracker, world):
         nonlocal run
         with WamClient(robot, client_name="rt2 play --live", timeout_s=1.0, request_timeout_s=1.0) as wam:
+            connected.append(robot)
             if log is not None:
                 log.write_metadata("link", {"address": robot, "bridge_id": wam.bridge_id, "tracker_stream": tracker,
                                             "world_stream": world, "clock": wam.clock.estimate().to_dict()})
@@ -72,6 +73,10 @@ def run_live(args, config, open_log) -> int:
         else:
             run_policy(args.robot, args.tracker_stream, args.world_stream)
     except LinkLostError as exc:
+        if not connected:  # no robot there: a bad address, not a lost link
+            if log is not None:
+                log.close(error=str(exc))
+            raise ValueError(f"no robot link: {exc}") from None
         run = getattr(exc, "run", run)
         error = f"robot link lost: {exc}"
     except BaseException as exc:

@@ -97,7 +97,7 @@ class WorldOptions:
     seed: int = 0
     truth_bind: str = "tcp://127.0.0.1:*"
     world_bind: str = "tcp://127.0.0.1:*"
-    start_delay_s: float = 1.0
+    start_delay_s: float = 3.0
     gap_s: float = 0.6
     announce_s: float = 0.3
     session: SessionOptions = field(default_factory=SessionOptions)

@@ -1,0 +1,92 @@
+"""``rt2 play --live``: the policy process over the tracker stream and the robot link (docs/play.md, "Live").
+
+Real processes and sockets on 127.0.0.1: the world+robot bridge (``rt2 robot serve --sim --world play``),
+the synthetic tracker (``rt2 play observe``) and the policy (``rt2 play --live``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from harness.cli import main
+from harness.robot.link.spawn import ROOT, ReadyProcess, SimBridgeProcess
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--robot", "nonsense", "--tracker-stream", "tcp://127.0.0.1:7661", "--world-stream", "tcp://127.0.0.1:7663"],
+     "--robot must be an endpoint"),
+    (["--robot", "tcp://127.0.0.1:7650"], "missing --tracker-stream, --world-stream"),
+    (["--robot", "tcp://127.0.0.1:7650", "--tracker-stream", "tcp://127.0.0.1:99999", "--world-stream",
+      "tcp://127.0.0.1:7663"], "--tracker-stream must be an endpoint"),
+    (["--source", "vision"], "--live supports --source synthetic"),
+])
+def test_bad_live_arguments_are_one_line_exit_2(extra, needle, capsys, tmp_path):
+    rc = main(["play", "--live", "--balls", "1", "--out", str(tmp_path), *extra])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert needle in err and len(err.splitlines()) == 1
+
+
+def test_no_robot_at_the_address_is_one_line_exit_2(capsys, tmp_path):
+    rc = main(["play", "--live", "--balls", "1", "--out", str(tmp_path), "--no-log", "--robot", "tcp://127.0.0.1:9",
+               "--tracker-stream", "tcp://127.0.0.1:10", "--world-stream", "tcp://127.0.0.1:11"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "did not answer" in err and len(err.splitlines()) == 1
+
+
+def _services(balls: int, seed: int):
+    bridge = SimBridgeProcess("--world", "play", "--balls", str(balls), "--seed", str(seed), "--batch", "4",
+                              timeout_s=60 + 6 * balls)
+    tracker = ReadyProcess(["play", "observe", "--truth", bridge.ready["truth"], "--world-stream", bridge.ready["world"],
+                            "--seed", str(seed), "--publish", "tcp://127.0.0.1:0", "--ready-json"], what="observe")
+    return bridge, tracker
+
+
+def test_link_loss_mid_session_is_a_clear_error_and_the_log_is_closed(tmp_path):
+    from harness.logs import SessionLogReader
+
+    bridge, tracker = _services(3, 0)
+    try:
+        cmd = [sys.executable, "-m", "harness.cli", "play", "--live", "--balls", "3", "--seed", "0", "--quiet",
+               "--out", str(tmp_path), "--robot", bridge.address, "--tracker-stream", tracker.ready["rt2"],
+               "--world-stream", bridge.ready["world"]]
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        time.sleep(8.0)  # connected, playing (or about to)
+        bridge.kill()
+        out, err = proc.communicate(timeout=60)
+    finally:
+        tracker.stop()
+        bridge.stop()
+    assert proc.returncode == 1, (out, err)
+    assert "robot link lost" in out and "no joint state from the robot" in out
+    log = tmp_path / "play_live_rt2_raw_synthetic_s0.mcap"
+    with SessionLogReader(log) as r:  # finished cleanly: the reader opens it and the end record has the reason
+        end = r.summary().session_end or {}
+    assert "robot link lost" in json.dumps(end)
+
+
+@pytest.mark.slow
+def test_live_success_rate_agrees_with_the_in_process_run(tmp_path):
+    """Same seed, same serves and robots: live and in-process success counts differ by at most
+    max(2 balls, 2 binomial std) -- timing (planning takes real time live, none in process) changes single balls."""
+    n, seed = 10, 0
+    live_json, proc_json = tmp_path / "live.json", tmp_path / "proc.json"
+    assert main(["play", "--live", "--balls", str(n), "--seed", str(seed), "--no-log", "--quiet",
+                 "--json", str(live_json), "--out", str(tmp_path)]) == 0
+    assert main(["play", "--balls", str(n), "--seed", str(seed), "--no-log", "--no-figure", "--quiet",
+                 "--json", str(proc_json), "--out", str(tmp_path)]) == 0
+    live, inproc = json.loads(live_json.read_text())[0], json.loads(proc_json.read_text())[0]
+    assert live["balls"] == n and live["live"] is True
+    p = inproc["success_rate"]
+    tol = max(2.0, 2.0 * math.sqrt(n * p * (1 - p)))
+    assert abs(live["successes"] - inproc["successes"]) <= tol, (live, inproc)
+    for stage in ("exposure_to_obs_ms", "obs_to_command_ms", "command_to_robot_ms"):
+        assert live["latency_ms"][stage]["n"] > 0
