@@ -125,7 +125,7 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
     pending: dict[int, dict] = {}  # announced balls
     observations: collections.deque = collections.deque()  # (arrival ns, message) not yet delivered
     cur = None  # the ball being played
-    done_balls = 0
+    done_balls = next_ball = 0
     last_event = time.monotonic()
     plan_times: collections.deque = collections.deque(maxlen=5)
     dt = 1.0 / wam.control_rate_hz
@@ -138,7 +138,7 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
             while world_sub.poll(0):
                 doc = json.loads(world_sub.recv())
                 last_event = time.monotonic()
-                if doc["type"] == "ball" and int(doc["ball"]) < balls:
+                if doc["type"] == "ball" and next_ball <= int(doc["ball"]) < balls:  # (repeated until the serve)
                     pending[int(doc["ball"])] = doc
                 elif doc["type"] == "outcome" and cur is not None and int(doc["ball"]) == cur["index"]:
                     result = ball_result(cur["index"], cur["serve"], policy, doc["world"], cur["n_frames"],
@@ -159,6 +159,7 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
                 doc = pending[i]
                 if wam.t_s * 1e9 > doc["t_serve_robot_ns"]:  # the first state of the ball's robot
                     del pending[i]
+                    next_ball = i + 1
                     bwam.t0_s = doc["t_serve_robot_ns"] * 1e-9
                     bwam.sent.clear()
                     filt.reset()

@@ -25,6 +25,7 @@ import msgpack
 import numpy as np
 import zmq
 
+from harness.lab import coverage
 from harness.live.frames import AssembledFrameSet
 from harness.live.publish import Publisher, rich_message, tennicam_message
 from harness.play.profiles import TrackerProfile
@@ -68,6 +69,7 @@ class ObservationService:
         self.publisher = Publisher(tennicam_addr, publish_addr)
         self.address = self.publisher.addresses["rt2"]
         self._queue: list = []  # (due ns, num, rich, tennicam)
+        self._captures: list = []  # (capture ns, frame index, ball position, velocity, q) not yet observed
         self._num = 0
         self._ball = None  # the ball being observed: dict
         self.finished = False
@@ -83,6 +85,9 @@ class ObservationService:
     def _on_world(self, doc: dict) -> None:
         kind = doc.get("type")
         if kind == "ball":
+            if self._ball is not None and self._ball["index"] == int(doc["ball"]):
+                return  # the world repeats an announcement until the serve
+            self._observe_captures()  # the previous ball's last frame sets, before its noise stream is replaced
             ss_source, ss_phase = ball_observation_seeds(self.seed, int(doc["ball"]))
             self.source.reset(ss_source)
             period_ns = 1e9 / self.profile.rate_hz
@@ -116,10 +121,19 @@ class ObservationService:
                 break
             w = (t_cap - t0) / (t_ns - t0)
             pos, vel = x0 + w * (x1 - x0), (x1 - x0) / ((t_ns - t0) * 1e-9)
-            obs = self.source.observe(b["k"], t_cap * 1e-9, pos, vel, q0 + w * (q - q0))
-            self._enqueue(int(round(t_cap)), b["k"], obs)
+            self._captures.append((int(round(t_cap)), b["k"], pos, vel, q0 + w * (q - q0)))
             b["k"] += 1
         b["prev"] = (t_ns, x1, q)
+
+    def _observe_captures(self) -> None:
+        """The observations of the frame sets captured since the last call: one coverage count for all of them
+        (the expensive part), then the source's draws in capture order."""
+        if not self._captures:
+            return
+        seen = coverage(self.rig, np.array([c[2] for c in self._captures])).n_seeing
+        for (t_cap_ns, k, pos, vel, q), n in zip(self._captures, seen):
+            self._enqueue(t_cap_ns, k, self.source.observe(k, t_cap_ns * 1e-9, pos, vel, q, n_seeing=int(n)))
+        self._captures.clear()
 
     def _enqueue(self, t_cap_ns: int, k: int, obs) -> None:
         n = len(self.rig)
@@ -155,6 +169,7 @@ class ObservationService:
             if self._truth in events:
                 while self._truth.poll(0):
                     self._on_truth(self._truth.recv())
+                self._observe_captures()
                 last_msg = time.monotonic()
             if idle_timeout_s is not None and time.monotonic() - last_msg > idle_timeout_s:
                 break
