@@ -90,3 +90,45 @@ def test_live_success_rate_agrees_with_the_in_process_run(tmp_path):
     assert abs(live["successes"] - inproc["successes"]) <= tol, (live, inproc)
     for stage in ("exposure_to_obs_ms", "obs_to_command_ms", "command_to_robot_ms"):
         assert live["latency_ms"][stage]["n"] > 0
+
+
+def test_the_tracker_process_draws_the_in_process_observations():
+    """Frame k of ball i: same capture time (serve + phase + k / rate) and the same noise, miss or outlier
+    as the in-process synthetic source of the same seed (the truth here flies straight, so interpolating
+    between 2 ms truth samples is exact)."""
+    import numpy as np
+
+    from harness.play.observe import ObservationService, ball_observation_seeds
+    from harness.play.profiles import PROFILES
+    from harness.play.sources import SyntheticSource
+    from harness.play.world import encode_truth
+
+    prof = PROFILES["rt2"]
+    svc = ObservationService("tcp://127.0.0.1:9", "tcp://127.0.0.1:9", prof, seed=3, publish_addr="tcp://127.0.0.1:0")
+    try:
+        t0, x0, v = 10**12, np.array([1.8, 0.05, 1.0]), np.array([-4.5, 0.0, 0.0])
+        svc._on_world({"type": "ball", "ball": 2, "t_serve_ns": t0, "serve": {"state": [*x0, *v, 0, 0, 0]}})
+        q = np.zeros(7)
+        for n in range(1, 200):
+            t = t0 + n * 2_000_000
+            svc._on_truth(encode_truth(t, q, [x0 + v * (t - t0) * 1e-9], n))
+            if n % 7 == 0:
+                svc._observe_captures()
+        svc._observe_captures()
+        live = [item[2] for item in sorted(svc._queue)]
+    finally:
+        svc.close()
+    ss_source, ss_phase = ball_observation_seeds(3, 2)
+    src = SyntheticSource(svc.rig, prof)
+    src.reset(ss_source)
+    phase = float(np.random.default_rng(ss_phase).uniform(0.0, 1.0 / prof.rate_hz))
+    assert len(live) == int((199 * 0.002 - phase) * prof.rate_hz) + 1
+    for k, msg in enumerate(live):
+        t_cap = t0 * 1e-9 + phase + k / prof.rate_hz
+        ref = src.observe(k, t_cap, x0 + v * (t_cap - t0 * 1e-9), v, q)
+        assert abs(msg["t_s"] - t_cap) < 2e-9
+        assert msg["status"] == str(ref.status)
+        if ref.position_m is None:
+            assert msg["position_m"] is None
+        else:
+            np.testing.assert_allclose(msg["position_m"], ref.position_m, atol=1e-9)
