@@ -16,7 +16,7 @@ __all__ = ["run_live"]
 def _budget_lines(budget: dict) -> list[str]:
     names = {"exposure_to_obs_ms": "camera exposure -> observation at the policy",
              "obs_to_command_ms": "observation -> command sent",
-             "command_to_robot_ms": "command sent -> robot tracking it",
+             "command_to_robot_ms": "command sent -> robot state under it here",
              "plan_step_ms": "(a planning step of the policy)"}
     out = ["latency budget (ms)            p50     p95     max      n"]
     for key, label in names.items():

@@ -20,8 +20,8 @@ robot through :class:`harness.robot.link.WamClient` in real time. Per ball:
 
 Latency budget (:func:`latency_budget`), per run: exposure -> observation at the policy (capture time to
 arrival in this process), observation -> command (arrival of the newest observation the plan used to the
-trajectory request's send), command -> robot (send to the robot stamp of the first state tracking the new
-trajectory, through the clock estimate).
+trajectory request's send), command -> robot (send to the arrival here of the first robot state tracking
+the new trajectory: the bridge's reaction plus the state's way back).
 
 :func:`play_live_local` is the one-command form: it starts the world+robot bridge (``rt2 robot serve
 --sim --world play``) and the tracker (``rt2 play observe``) as child processes and stops them at the end,
@@ -126,6 +126,7 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
     observations: collections.deque = collections.deque()  # (arrival ns, message) not yet delivered
     cur = None  # the ball being played
     done_balls = next_ball = 0
+    ended: dict[int, dict] = {}  # ball -> the world's summary, until the ball's result is made
     last_event = time.monotonic()
     plan_times: collections.deque = collections.deque(maxlen=5)
     dt = 1.0 / wam.control_rate_hz
@@ -140,18 +141,23 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
                 last_event = time.monotonic()
                 if doc["type"] == "ball" and next_ball <= int(doc["ball"]) < balls:  # (repeated until the serve)
                     pending[int(doc["ball"])] = doc
-                elif doc["type"] == "outcome" and cur is not None and int(doc["ball"]) == cur["index"]:
-                    result = ball_result(cur["index"], cur["serve"], policy, doc["world"], cur["n_frames"],
-                                         cur["n_positions"], cur["n_accepted"])
-                    run.results.append(result)
-                    _finish_latencies(run, bwam, wam, est, cur)
-                    if on_ball is not None:
-                        on_ball(cur["index"], result, cur["record"], cur["serve"])
-                    cur, done_balls = None, done_balls + 1
+                elif doc["type"] == "outcome":
+                    ended[int(doc["ball"])] = doc["world"]
                 elif doc["type"] == "end":
                     done_balls = balls if cur is None else done_balls
             while obs_sub.poll(0):
                 observations.append((time.monotonic_ns(), json.loads(obs_sub.recv())))
+            if cur is not None and cur["index"] in ended:  # the world has judged the ball in play
+                if not cur["started_in_time"]:
+                    policy.reason = "the policy process started this ball after its end (the process was busy)"
+                result = ball_result(cur["index"], cur["serve"], policy, ended.pop(cur["index"]), cur["n_frames"],
+                                     cur["n_positions"], cur["n_accepted"])
+                run.results.append(result)
+                _finish_latencies(run, bwam, cur)
+                if on_ball is not None:
+                    on_ball(cur["index"], result, cur["record"], cur["serve"])
+                cur, done_balls = None, done_balls + 1
+                continue
             if time.monotonic() - last_event > idle_timeout_s:
                 raise ValueError(f"no serve or outcome from the world at {world_addr} for {idle_timeout_s:g} s")
             if cur is None and pending:
@@ -169,7 +175,9 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
                                             speed_mps=sv["speed_mps"], spin_kind=sv["spin_kind"])
                     cur = {"index": i, "serve": serve, "t_serve_host_ns": int(doc["t_serve_ns"]),
                            "t_serve_robot_ns": int(doc["t_serve_robot_ns"]), "n_frames": 0, "n_positions": 0,
-                           "n_accepted": 0, "record": BallRecord(), "last_obs_ns": None, "cmd_obs": []}
+                           "n_accepted": 0, "record": BallRecord(), "last_obs_ns": None, "cmd_obs": [],
+                           "started_in_time": i not in ended}
+                    continue  # (its outcome may be known already: a process busy for seconds)
             if cur is None:
                 continue
             rec = cur["record"]
@@ -231,13 +239,13 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
     return run
 
 
-def _finish_latencies(run: LiveRun, bwam: BallClockWam, wam, est, cur: dict) -> None:
+def _finish_latencies(run: LiveRun, bwam: BallClockWam, cur: dict) -> None:
     for t_send, t_obs in cur["cmd_obs"]:
         run.obs_to_command_ms.append((t_send - t_obs) / 1e6)
     for t_send, cmd_id in bwam.sent:
-        t_robot = wam.command_started.get(cmd_id)
-        if t_robot is not None:
-            run.command_to_robot_ms.append((float(est.to_harness_ns(t_robot)) - t_send) / 1e6)
+        t_rx = bwam.wam.command_started.get(cmd_id)
+        if t_rx is not None:
+            run.command_to_robot_ms.append((t_rx - t_send) / 1e6)
 
 
 def play_live_local(*, balls: int, seed: int, profile, run_policy, batch: int = 4, observe_args=()):

@@ -97,7 +97,7 @@ class WamClient:
         self.clock = RoundTripClock()
         self.last_request_id = 0  #: the id of the latest request sent
         self.last_command_id: int | None = None  #: the id of the latest trajectory the robot accepted
-        self.command_started: dict[int, int] = {}  #: trajectory id -> robot stamp (ns) of the first state tracking it
+        self.command_started: dict[int, int] = {}  #: trajectory id -> arrival (harness clock ns) of the first state tracking it
         welcome = self._request("hello", float(connect_timeout_s), client=str(client_name))
         self.robot_info = welcome
         if tuple(welcome["joint_names"]) != tuple(kinematics.joint_names):
@@ -218,7 +218,7 @@ class WamClient:
                             self._latest["t_ns"])
                 return
             if msg["cmd_id"] >= 0 and msg["cmd_id"] not in self.command_started:
-                self.command_started[msg["cmd_id"]] = msg["t_ns"]
+                self.command_started[msg["cmd_id"]] = rx_ns
             self._latest = msg
             self._last_state_mono = time.monotonic()
             self._buffer.append(msg)
