@@ -17,7 +17,8 @@ def _budget_lines(budget: dict) -> list[str]:
     names = {"exposure_to_obs_ms": "camera exposure -> observation at the policy",
              "obs_to_command_ms": "observation -> command sent",
              "command_to_robot_ms": "command sent -> robot state under it here",
-             "plan_step_ms": "(a planning step of the policy)"}
+             "plan_step_ms": "(a planning step of the policy)",
+             "world_lag_ms": "(simulated lab behind real time, per ball)"}
     out = ["latency budget (ms)            p50     p95     max      n"]
     for key, label in names.items():
         b = budget[key]

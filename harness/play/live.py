@@ -74,6 +74,7 @@ class LiveRun:
     obs_to_command_ms: list = field(default_factory=list)
     command_to_robot_ms: list = field(default_factory=list)
     plan_step_ms: list = field(default_factory=list)
+    world_lag_ms: list = field(default_factory=list)  #: per ball, the world+robot simulation's largest lag behind its clock
     refused: int = 0
     error: str | None = None
 
@@ -81,7 +82,7 @@ class LiveRun:
 def latency_budget(run: LiveRun) -> dict:
     """p50 / p95 / max (ms) and count of each stage of the latency budget."""
     out = {}
-    for name in ("exposure_to_obs_ms", "obs_to_command_ms", "command_to_robot_ms", "plan_step_ms"):
+    for name in ("exposure_to_obs_ms", "obs_to_command_ms", "command_to_robot_ms", "plan_step_ms", "world_lag_ms"):
         v = np.asarray(getattr(run, name), float)
         out[name] = {"n": int(v.size)} if v.size == 0 else {
             "n": int(v.size), "p50": float(np.percentile(v, 50)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
@@ -126,6 +127,7 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
     observations: collections.deque = collections.deque()  # (arrival ns, message) not yet delivered
     cur = None  # the ball being played
     done_balls = next_ball = 0
+    world_ended = False
     ended: dict[int, dict] = {}  # ball -> the world's summary, until the ball's result is made
     last_event = time.monotonic()
     plan_times: collections.deque = collections.deque(maxlen=5)
@@ -143,8 +145,9 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
                     pending[int(doc["ball"])] = doc
                 elif doc["type"] == "outcome":
                     ended[int(doc["ball"])] = doc["world"]
+                    run.world_lag_ms.append(float(doc.get("lag_ms", 0.0)))
                 elif doc["type"] == "end":
-                    done_balls = balls if cur is None else done_balls
+                    world_ended = True
             while obs_sub.poll(0):
                 observations.append((time.monotonic_ns(), json.loads(obs_sub.recv())))
             if cur is not None and cur["index"] in ended:  # the world has judged the ball in play
@@ -158,6 +161,8 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
                     on_ball(cur["index"], result, cur["record"], cur["serve"])
                 cur, done_balls = None, done_balls + 1
                 continue
+            if world_ended and cur is None and not pending:
+                break  # the world has served every ball (those the policy never saw are missing from the results)
             if time.monotonic() - last_event > idle_timeout_s:
                 raise ValueError(f"no serve or outcome from the world at {world_addr} for {idle_timeout_s:g} s")
             if cur is None and pending:

@@ -19,8 +19,8 @@ Two more PUB sockets besides the robot link:
   -- the lab truth stream's message (docs/play.md, "Live"), what a simulated tracker renders or samples;
 * **world** (``world_endpoint``): JSON events, ``{"v": 1, "type": "ball", "ball": i, "balls": N,
   "t_serve_ns": host ns, "t_serve_robot_ns": robot ns, "serve": {...}}`` announced ``announce_s`` before
-  the serve; ``{"v": 1, "type": "outcome", "ball": i, "t_ns": host ns, "world": world_summary}`` when the
-  ball's session ends; ``{"v": 1, "type": "end", "balls": N}`` after the last one (repeated every second,
+  the serve; ``{"v": 1, "type": "outcome", "ball": i, "t_ns": host ns, "world": world_summary, "lag_ms": the
+  simulation's largest lag behind the robot clock during the ball}`` when the ball's session ends; ``{"v": 1, "type": "end", "balls": N}`` after the last one (repeated every second,
   so a late subscriber still learns it).
 
 The first serve waits for a commanding client (its first ``trajectory``, ``hold`` or ``heartbeat``) plus
@@ -170,6 +170,8 @@ class WorldBridge(SimBridge):
     # -- the control loop -------------------------------------------------------------------------
     def _run_ticks(self) -> None:
         target = self.robot_ns() // self.dt_ns
+        if self._ball is not None:  # how far the simulation is behind the robot clock (a machine short of CPU)
+            self._ball["lag_ms"] = max(self._ball["lag_ms"], (target - self._ticks) * self.dt_ns / 1e6)
         self._schedule()
         while self._ticks < target:
             if self._serve_tick is not None and self._ticks >= self._serve_tick:
@@ -226,7 +228,7 @@ class WorldBridge(SimBridge):
         world.reset(serve.state)
         st = self.wam.true_state()
         self._ball = {"index": i, "world": world, "racket": self._racket(st.q, st.qdot),
-                      "closest": np.inf, "t_contact": None, "since_fk": 0}
+                      "closest": np.inf, "t_contact": None, "since_fk": 0, "lag_ms": 0.0}
         self._next_ball = i + 1
 
     def _world_ticks(self, samples) -> None:
@@ -269,7 +271,7 @@ class WorldBridge(SimBridge):
                     summary = world_summary(world, self.world_options.session.world.table, b["closest"])
                     self.outcomes.append({"ball": b["index"], **summary})
                     self._send_event({"type": "outcome", "ball": b["index"], "t_ns": self._host_ns(t_robot),
-                                      "world": summary})
+                                      "world": summary, "lag_ms": b["lag_ms"]})
                     log.info("ball %d: %s", b["index"], summary["outcome"] or "no racket contact")
                     self._ball = b = None
                     self._earliest_tick = self._ticks - len(samples) + k + 1 + int(
