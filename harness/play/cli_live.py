@@ -12,6 +12,8 @@ import signal
 
 __all__ = ["run_live"]
 
+LAG_WARN_MS = 50.0  #: a simulated lab further behind real time than this is reported under the table
+
 
 def _budget_lines(budget: dict) -> list[str]:
     names = {"exposure_to_obs_ms": "camera exposure -> observation at the policy",
@@ -105,6 +107,10 @@ def run_live(args, config, open_log) -> int:
         _print([row], args)
         for line in _budget_lines(row["latency_ms"]):
             print(line)
+        lag = row["latency_ms"]["world_lag_ms"]
+        if lag["n"] and lag["max"] > LAG_WARN_MS:
+            print(f"note: the simulated lab fell up to {lag['max'] / 1e3:.2f} s behind real time (the machine is short of "
+                  f"CPU): the balls were played late and these figures say more about the machine than the policy")
     if args.json and row is not None:
         atomic_write_json(args.json, [row], "--json")
     if path is not None:
