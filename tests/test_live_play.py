@@ -132,3 +132,63 @@ def test_the_tracker_process_draws_the_in_process_observations():
             assert msg["position_m"] is None
         else:
             np.testing.assert_allclose(msg["position_m"], ref.position_m, atol=1e-9)
+
+
+def test_the_world_bridge_plays_the_in_process_ball_world():
+    """The world+robot bridge on a stepped clock (no sockets in use): ball 1 of seed 5, the arm at rest, gives
+    the world summary of the in-process loop (1 ms steps, racket from the true joints of the ball's robot)."""
+    import numpy as np
+
+    from harness.physics import BallWorld, EventKind, RacketState
+    from harness.play.session import SessionOptions, ball_over, lerp_racket, world_summary
+    from harness.play.world import WorldBridge, WorldOptions, ball_robot_seed, draw_serve
+    from harness.robot.link.bridge_sim import BridgeOptions
+    from harness.robot.sim_wam import SimulatedWam, SimWamOptions
+    from policies.ball_model import BallParams
+    from robot_models import WamKinematics
+
+    kin = WamKinematics.default()
+    wo = WorldOptions(balls=2, seed=5, start_delay_s=0.0, gap_s=0.0, announce_s=0.0)
+    bridge = WorldBridge(kin, wo, BridgeOptions(bind="tcp://127.0.0.1:*"))
+    clock = [0]
+    bridge.robot_ns = lambda: clock[0]
+    bridge._last_contact_ns = 0
+    try:
+        while len(bridge.outcomes) < 2 and clock[0] < 20e9:
+            clock[0] += 8 * bridge.dt_ns
+            bridge._run_ticks()
+    finally:
+        bridge.close()
+    live = bridge.outcomes[1]
+
+    fid = kin.frame_id("racket")
+
+    def racket(q, qd):
+        T, J = kin.fk_and_jacobian(q, fid)
+        return RacketState.from_pose(T, J[:3] @ qd)
+
+    so = SessionOptions()
+    wam = SimulatedWam(kin, SimWamOptions(), seed=ball_robot_seed(5, 1))
+    world = BallWorld(BallParams.load(), so.world)
+    world.reset(draw_serve(5, 1).state)
+    st = wam.true_state()
+    prev, closest, t_contact, t = racket(st.q, st.qdot), np.inf, None, 0.0
+    while True:
+        s = wam.step(1)
+        nxt = racket(s.q_true[-1], s.qdot_true[-1])
+        for f0, f1 in ((0.0, 0.5), (0.5, 1.0)):
+            rb = lerp_racket(prev, nxt, f1)
+            ev = world.step(lerp_racket(prev, nxt, f0), rb)
+            closest = min(closest, float(np.linalg.norm(world.state[:3] - rb.center_m)))
+            if t_contact is None and any(e.kind == EventKind.RACKET for e in ev):
+                t_contact = world.t_s
+            if world.done:
+                break
+        prev, t = nxt, t + wam.dt_s
+        if ball_over(world, t, t_contact, so):
+            break
+    ref = world_summary(world, so.world.table, closest)
+    assert live["ball"] == 1
+    assert live["outcome"] == ref["outcome"] and live["contact_t_s"] == ref["contact_t_s"]
+    assert live["landing_xy_m"] == ref["landing_xy_m"]
+    assert abs(live["closest_approach_m"] - ref["closest_approach_m"]) < 1e-9
