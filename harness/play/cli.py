@@ -25,14 +25,15 @@ from harness.executor import Executor, add_sweep_arguments, options_from_args
 from harness.play.experiment import DEFAULT_PROMP, PlayConfig, run_configuration, summarise
 from harness.play.profiles import PROFILE_SETS, PROFILES, load_profiles, profile_for
 
-MODES = ("play", "compare", "profile")
+MODES = ("play", "compare", "profile", "observe")
 FILTER_NAMES = ("raw", "ransac_kalman")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mode", nargs="?", default="play", choices=MODES,
                         help="play (one configuration, default), compare (trackers x filters), profile (measure "
-                             "the synthetic source's numbers from the vision source)")
+                             "the synthetic source's numbers from the vision source), observe (the synthetic tracker "
+                             "of --live as a process: truth stream in, rt2 stream out)")
     parser.add_argument("--tracker", default="rt2", help=f"tracker of `rt2 play`: {', '.join(PROFILES)} (default rt2)")
     parser.add_argument("--filter", default="raw", help=f"ball filter of `rt2 play`: {', '.join(FILTER_NAMES)} (default raw)")
     parser.add_argument("--trackers", nargs="+", default=["rt2", "rtblob"], help="trackers of `compare` (default rt2 rtblob)")
@@ -62,6 +63,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="vision source: log the images of every N-th frame set (default 0: none)")
     parser.add_argument("--no-figure", action="store_true", help="draw no figure")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    live = parser.add_argument_group("live play (rt2 play --live; docs/play.md, 'Live')")
+    live.add_argument("--live", action="store_true", help="play in real time: the policy in this process over the "
+                      "tracker stream and the robot link; without --robot it starts the simulated world+robot and the "
+                      "synthetic tracker as child processes")
+    live.add_argument("--robot", default=None, help="--live: the robot link's command endpoint (tcp://HOST:PORT)")
+    live.add_argument("--tracker-stream", default=None, help="--live: the tracker's rt2 stream (tcp://HOST:PORT)")
+    live.add_argument("--world-stream", default=None, help="--live / observe: the world's serve and outcome events "
+                      "(tcp://HOST:PORT, the world bridge's ready line)")
+    live.add_argument("--plan-lead-ms", type=float, default=None, help="--live: plan this far ahead of the robot "
+                      "clock (default: the longest of the last 5 planning steps, at most 200 ms)")
+    live.add_argument("--truth", default=None, help="observe: the world's lab truth stream (tcp://HOST:PORT)")
+    live.add_argument("--publish", default="tcp://127.0.0.1:7661", help="observe: rt2 stream endpoint (default "
+                      "tcp://127.0.0.1:7661, as rt2 track)")
+    live.add_argument("--publish-tennicam", default=None, help="observe: also the tennicam stream here")
+    live.add_argument("--ready-json", action="store_true", help="observe: print a JSON ready line with the endpoints")
 
 
 def _check(args) -> None:
@@ -84,6 +100,39 @@ def _check(args) -> None:
         raise ValueError(f"unknown --scene {args.scene!r}; valid: {sorted(SCENES)}")
     if args.log_images and args.source != "vision":
         raise ValueError("--log-images needs --source vision (the synthetic source makes no images)")
+    if args.live or args.mode == "observe":
+        if args.mode not in ("play", "observe"):
+            raise ValueError(f"--live plays one configuration: `rt2 play --live`, not `rt2 play {args.mode} --live`")
+        if args.source != "synthetic":
+            raise ValueError("--live supports --source synthetic (the rendered-camera tracker over the truth stream, "
+                             "rt2 track --source sim, is not wired to the live world yet)")
+        if args.plan_lead_ms is not None and not 0 <= args.plan_lead_ms <= 500:
+            raise ValueError(f"--plan-lead-ms must be in [0, 500], got {args.plan_lead_ms}")
+        from harness.live.publish import parse_address
+
+        given = {"--robot": args.robot, "--tracker-stream": args.tracker_stream, "--world-stream": args.world_stream}
+        if args.mode == "observe":
+            given = {"--truth": args.truth, "--world-stream": args.world_stream}
+            missing = [k for k, v in given.items() if v is None]
+            if missing:
+                raise ValueError(f"rt2 play observe needs {' and '.join(missing)}")
+            parse_address(args.publish, default_port=7661)
+        elif any(v is not None for v in given.values()):
+            missing = [k for k, v in given.items() if v is None]
+            if missing:
+                raise ValueError(f"--live with a robot address needs {', '.join(given)}; missing {', '.join(missing)}")
+        for k, v in given.items():
+            if v is not None:
+                _check_endpoint(k, v)
+
+
+def _check_endpoint(option: str, value: str) -> None:
+    """``tcp://HOST:PORT`` with a port 1..65535, else a one-line ValueError naming the option."""
+    import re
+
+    m = re.match(r"^tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):([0-9]{1,5})$", value.strip())
+    if m is None or not 1 <= int(m.group(2)) <= 65535:
+        raise ValueError(f"{option} must be an endpoint like tcp://127.0.0.1:7650, got {value!r}")
 
 
 def _configs(args, profiles) -> list[PlayConfig]:
@@ -100,8 +149,9 @@ def _open_log(args, config: PlayConfig):
     from harness.logs import SessionLogWriter
 
     args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / f"play_{config.tracker}_{config.filter}_{config.source}_s{args.seed}.mcap"
-    meta = {"kind": "play", "seed": args.seed, "ball_slot_s": 10.0,
+    live = "_live" if getattr(args, "live", False) else ""
+    path = args.out / f"play{live}_{config.tracker}_{config.filter}_{config.source}_s{args.seed}.mcap"
+    meta = {"kind": "play", "seed": args.seed, "ball_slot_s": 10.0, "live": bool(live),
             "config": {"tracker": config.tracker, "filter": config.filter, "source": config.source, "scene": config.scene,
                        "profiles": args.profiles,
                        "balls": args.balls, "profile": config.resolved_profile().__dict__, "promp": config.promp_path}}
@@ -122,6 +172,12 @@ def run(args) -> int:
         from harness.play.measure import run_profile
 
         return run_profile(args, profiles)
+    if args.mode == "observe":
+        return _run_observe(args, profiles)
+    if args.live:
+        from harness.play.cli_live import run_live
+
+        return run_live(args, _configs(args, profiles)[0], _open_log)
     from policies.promp import ProMP
     from robot_models import WamKinematics
 
@@ -178,6 +234,31 @@ def run(args) -> int:
     for p in logs:
         print(f"session log: {p}")
     return stopped[0].exit_code if stopped else 0
+
+
+def _run_observe(args, profiles) -> int:
+    import json
+    import signal
+
+    from harness.play.observe import ObservationService
+
+    prof = profile_for(args.tracker, profiles).with_timing(args.rate_hz, None if args.latency_ms is None else args.latency_ms / 1e3)
+    service = ObservationService(args.truth, args.world_stream, prof, seed=args.seed, publish_addr=args.publish,
+                                 tennicam_addr=args.publish_tennicam)
+    stopping = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stopping.append(1))
+    ready = {"rt2": service.address, "tennicam": service.publisher.addresses.get("tennicam"), "tracker": prof.tracker,
+             "rate_hz": prof.rate_hz, "latency_ms": prof.latency_s * 1e3, "seed": args.seed}
+    print(json.dumps(ready) if args.ready_json else f"rt2 play observe: publishing {prof.tracker} observations on "
+          f"{service.address} (Ctrl-C to stop)", flush=True)
+    try:
+        stats = service.run(stop=lambda: bool(stopping))
+    finally:
+        service.close()
+    if not args.ready_json:
+        print(f"published {stats['published']} observations of {stats['balls']} balls")
+    return 0
 
 
 def _title(args) -> str:

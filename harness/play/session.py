@@ -32,7 +32,7 @@ from harness.physics import BallWorld, EventKind, RacketState, WorldOptions, cla
 from harness.robot import SimulatedWam, SimWamOptions
 from policies.hitting import HittingPolicy, PolicyStatus
 
-__all__ = ["BallRecord", "BallResult", "PlaySession", "SessionOptions"]
+__all__ = ["BallRecord", "BallResult", "PlaySession", "SessionOptions", "ball_over", "ball_result", "lerp_racket", "world_summary"]
 
 
 @dataclass(frozen=True)
@@ -164,7 +164,7 @@ class PlaySession:
             capture = t_contact is None and policy.status not in (PolicyStatus.COMMITTED, PolicyStatus.DONE)
             for sub in range(n_sub):
                 f0, f1 = sub / n_sub, (sub + 1) / n_sub
-                ra, rb = _lerp_racket(racket_prev, racket_next, f0), _lerp_racket(racket_prev, racket_next, f1)
+                ra, rb = lerp_racket(racket_prev, racket_next, f0), lerp_racket(racket_prev, racket_next, f1)
                 s0, ta = world.state.copy(), world.t_s
                 events = world.step(ra, rb)
                 s1 = world.state
@@ -197,42 +197,65 @@ class PlaySession:
                 rec.q_command.append(samples.q_ref[-1].copy())
             racket_prev, q_prev = racket_next, q_true
             t += dt
-            if world.done:
-                break
-            if t_contact is not None:
-                if classify_return(world.events, o.world.table) != "in_flight" or t > t_contact + o.after_hit_s:
-                    break
-            elif t > o.max_flight_s or world.state[0] < o.past_robot_x_m:
+            if ball_over(world, t, t_contact, o):
                 break
         return self._result(ball, serve, world, policy, t_contact, closest, n_frames, n_positions, n_accepted), rec
 
     def _result(self, ball, serve, world, policy, t_contact, closest, n_frames, n_positions, n_accepted) -> BallResult:
-        plan = policy.plan
-        if not policy.attempted:
-            counts = {k: v for k, v in policy.reason_counts.items() if k != "no ball prediction yet"}
-            reason = "; ".join(f"{k} ({v}x)" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
-            outcome, reason = "no_attempt", reason or policy.reason or "no movement started"
-        elif t_contact is None:
-            outcome, reason = "no_hit", f"the racket missed the ball (closest approach {closest * 100:.1f} cm)"
-        else:
-            outcome, reason = classify_return(world.events, self.options.world.table), ""
-        contact = next((e for e in world.events if e.kind == EventKind.RACKET), None)
-        landing = None
-        if contact is not None:
-            after = [e for e in world.events if e.t_s > contact.t_s and e.kind in (EventKind.TABLE, EventKind.FLOOR)]
-            landing = [float(v) for v in after[0].position_m[:2]] if after else None
-        return BallResult(
-            ball=int(ball), outcome=str(outcome), success=outcome == "landed_in", attempted=bool(policy.attempted),
-            reason=reason, n_frames=n_frames, n_positions=n_positions, n_accepted=n_accepted, n_plans=len(policy.plans),
-            t_hit_planned_s=None if plan is None else float(plan.t_hit_s),
-            hit_point_planned_m=None if plan is None else [float(v) for v in plan.ball_position_m],
-            contact_t_s=None if contact is None else float(contact.t_s),
-            contact_m=None if contact is None else [float(v) for v in contact.position_m],
-            landing_xy_m=landing, closest_approach_m=float(closest), serve_speed_mps=float(serve.speed_mps),
-            spin_kind=str(serve.spin_kind), plan_failures=dict(policy.reason_counts))
+        return ball_result(ball, serve, policy, world_summary(world, self.options.world.table, closest),
+                           n_frames, n_positions, n_accepted)
 
 
-def _lerp_racket(a: RacketState, b: RacketState, f: float) -> RacketState:
+def ball_over(world: BallWorld, t_s: float, t_contact_s: float | None, options: SessionOptions) -> bool:
+    """Whether the ball's session ends at ball time ``t_s``: the world is done; hit, its return is
+    classified or ``after_hit_s`` passed; unhit, ``max_flight_s`` passed or it is beyond ``past_robot_x_m``."""
+    if world.done:
+        return True
+    if t_contact_s is not None:
+        return classify_return(world.events, options.world.table) != "in_flight" or t_s > t_contact_s + options.after_hit_s
+    return t_s > options.max_flight_s or world.state[0] < options.past_robot_x_m
+
+
+def world_summary(world: BallWorld, table, closest_m: float) -> dict:
+    """What the ball world knows of one ball (JSON-ready): ``contact_t_s`` / ``contact_m`` of the first racket
+    contact (None: no contact), ``outcome`` (``classify_return`` of the events, None without a contact),
+    ``landing_xy_m`` (the first table or floor bounce after the contact), ``closest_approach_m``."""
+    contact = next((e for e in world.events if e.kind == EventKind.RACKET), None)
+    landing = None
+    if contact is not None:
+        after = [e for e in world.events if e.t_s > contact.t_s and e.kind in (EventKind.TABLE, EventKind.FLOOR)]
+        landing = [float(v) for v in after[0].position_m[:2]] if after else None
+    return {"outcome": None if contact is None else str(classify_return(world.events, table)),
+            "contact_t_s": None if contact is None else float(contact.t_s),
+            "contact_m": None if contact is None else [float(v) for v in contact.position_m],
+            "landing_xy_m": landing, "closest_approach_m": float(closest_m)}
+
+
+def ball_result(ball: int, serve, policy, world: dict, n_frames: int, n_positions: int, n_accepted: int) -> BallResult:
+    """The :class:`BallResult` of one ball from the policy (attempted, plans, reasons) and the world's
+    :func:`world_summary` (in process, or as the live world process reports it). serve : needs
+    ``speed_mps`` and ``spin_kind``."""
+    plan = policy.plan
+    if not policy.attempted:
+        counts = {k: v for k, v in policy.reason_counts.items() if k != "no ball prediction yet"}
+        reason = "; ".join(f"{k} ({v}x)" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
+        outcome, reason = "no_attempt", reason or policy.reason or "no movement started"
+    elif world["contact_t_s"] is None:
+        outcome, reason = "no_hit", f"the racket missed the ball (closest approach {world['closest_approach_m'] * 100:.1f} cm)"
+    else:
+        outcome, reason = world["outcome"], ""
+    return BallResult(
+        ball=int(ball), outcome=str(outcome), success=outcome == "landed_in", attempted=bool(policy.attempted),
+        reason=reason, n_frames=n_frames, n_positions=n_positions, n_accepted=n_accepted, n_plans=len(policy.plans),
+        t_hit_planned_s=None if plan is None else float(plan.t_hit_s),
+        hit_point_planned_m=None if plan is None else [float(v) for v in plan.ball_position_m],
+        contact_t_s=world["contact_t_s"], contact_m=world["contact_m"], landing_xy_m=world["landing_xy_m"],
+        closest_approach_m=float(world["closest_approach_m"]), serve_speed_mps=float(serve.speed_mps),
+        spin_kind=str(serve.spin_kind), plan_failures=dict(policy.reason_counts))
+
+
+def lerp_racket(a: RacketState, b: RacketState, f: float) -> RacketState:
+    """The racket a fraction ``f`` of the way from ``a`` to ``b`` (within one control tick)."""
     if f <= 0.0:
         return a
     if f >= 1.0:

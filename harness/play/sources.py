@@ -41,12 +41,15 @@ class SyntheticSource:
         """A new ball: the noise stream of this ball comes from ``seed`` (int or SeedSequence)."""
         self.rng = np.random.default_rng(seed)
 
-    def observe(self, frame_index: int, t_s: float, ball_m, ball_velocity_mps, q_true) -> BallObservation:
+    def observe(self, frame_index: int, t_s: float, ball_m, ball_velocity_mps, q_true, *,
+                n_seeing: int | None = None) -> BallObservation:
+        """n_seeing : the cameras that see the ball, if the caller has counted them (``harness.lab.coverage`` of
+        many positions at once); None: counted here."""
         p, rng = self.profile, self.rng
         u = rng.random(4)  # always 4 draws per frame: the stream does not depend on the outcome
         noise = rng.standard_normal(3)
         direction = rng.standard_normal(3)
-        seen = int(coverage(self.rig, np.asarray(ball_m, float)[None]).n_seeing[0])
+        seen = int(coverage(self.rig, np.asarray(ball_m, float)[None]).n_seeing[0]) if n_seeing is None else int(n_seeing)
         common = dict(t_s=float(t_s), latency_s=p.latency_s, tracker=p.tracker, uv_px=None)
         if seen < p.min_cameras:
             return BallObservation(position_m=None, covariance_m2=None, support=0, inliers=np.zeros(self.n_cams, bool),

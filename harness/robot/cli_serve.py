@@ -30,7 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--state-bind", default=None,
                         help="state stream endpoint (PUB); default: the command port + 1")
     parser.add_argument("--rate", type=float, default=None, help="control rate, Hz (default: the robot YAML's, 500)")
-    parser.add_argument("--seed", type=int, default=0, help="seeds the simulated WAM's zero offsets and encoder noise")
+    parser.add_argument("--seed", type=int, default=0, help="seeds the simulated WAM's zero offsets and encoder noise "
+                        "(--world play: the session's seed, serves and per-ball robots as `rt2 play --seed`)")
     parser.add_argument("--config", default=None, help="robot YAML (default data/robot/wam.yaml)")
     parser.add_argument("--watchdog", type=float, default=0.3, help="hold after this many seconds without a "
                         "command or heartbeat (default 0.3, as wam_node)")
@@ -41,6 +42,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch", type=int, default=1, metavar="N",
                         help="run and publish the ticks N at a time (default 1: every state as its tick comes; on a busy "
                              "machine N > 1 uses less CPU at N - 1 ticks of extra delay; the stamps stay the ticks')")
+    parser.add_argument("--world", default=None, choices=("play",),
+                        help="also run a world next to the robot: play = the ball world of `rt2 play --live` (launcher "
+                             "serves, 1 ms physics, racket contact from the true joints, outcomes; docs/play.md, 'Live')")
+    parser.add_argument("--balls", type=int, default=10, help="--world play: balls to serve (default 10)")
+    parser.add_argument("--truth-bind", default="tcp://127.0.0.1:*", help="--world play: lab truth stream endpoint "
+                        "(default a free port)")
+    parser.add_argument("--world-bind", default="tcp://127.0.0.1:*", help="--world play: serve/outcome event stream "
+                        "endpoint (default a free port)")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     parser.add_argument("--ready-json", action="store_true", help="print the ready line as JSON")
 
@@ -59,12 +68,23 @@ def run(args) -> int:
     options = BridgeOptions(bind=args.bind, state_bind=args.state_bind, watchdog_s=args.watchdog,
                             clock_skew_ns=int(round(args.clock_skew_ms * 1e6)), publish_truth=args.publish_truth,
                             batch_ticks=args.batch)
-    bridge = SimBridge(SimulatedWam(kin, sim_opts, seed=args.seed), options)
+    if args.world == "play":
+        from harness.play.world import WorldBridge, WorldOptions
+
+        # the in-process session's simulated WAM (SimWamOptions()) so that live and in-process runs agree
+        play_sim = SimWamOptions() if args.rate is None else SimWamOptions(control_rate_hz=args.rate)
+        bridge = WorldBridge(kin, WorldOptions(balls=args.balls, seed=args.seed, truth_bind=args.truth_bind,
+                                               world_bind=args.world_bind, sim=play_sim), options)
+        sim_opts = play_sim
+    else:
+        bridge = SimBridge(SimulatedWam(kin, sim_opts, seed=args.seed), options)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: bridge.stop())
     ready = {"command": bridge.command_endpoint, "state": bridge.state_endpoint, "pid": os.getpid(),
              "rate_hz": sim_opts.control_rate_hz, "watchdog_s": options.watchdog_s, "bridge_id": bridge.bridge_id,
              "epoch_monotonic_ns": bridge.epoch_ns, "clock_skew_ns": options.clock_skew_ns}
+    if args.world:
+        ready.update(truth=bridge.truth_endpoint, world=bridge.world_endpoint, balls=args.balls, seed=args.seed)
     if args.ready_json:
         print(json.dumps(ready), flush=True)
     else:

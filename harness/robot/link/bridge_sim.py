@@ -85,6 +85,7 @@ class SimBridge(BridgeCore):
         _warm_up(wam)
         self.epoch_ns = time.monotonic_ns()
         self._ticks = 0  # control ticks run (the robot time of the latest is _ticks * dt_ns)
+        self.wam_origin_ns = 0  # robot time of the simulator's time 0 (a subclass may start a new simulator later)
         # simulation truth for --publish-truth: the zero offsets, and robot clock minus host monotonic clock
         self._bias = np.asarray(wam.bias_rad, float).tolist()
         self._true_offset_ns = options.clock_skew_ns - self.epoch_ns
@@ -119,11 +120,15 @@ class SimBridge(BridgeCore):
             return
         samples = self.wam.step(int(n))
         self._ticks += int(n)
+        self._publish_states(samples)
+
+    def _publish_states(self, samples) -> None:
+        """One ``state`` per sample of ``self.wam`` (stamped ``wam_origin_ns`` + the simulator's own time)."""
         truth = samples.q_true if self.options.publish_truth else None
-        for i in range(n):
+        for i in range(len(samples)):
             sim = None if truth is None else {"q_true": truth[i].tolist(), "bias_rad": self._bias,
                                               "offset_ns": self._true_offset_ns}
-            self.publish_state(int(round(samples.t_s[i] * 1e9)), samples.q[i].tolist(), samples.qdot[i].tolist(),
+            self.publish_state(self.wam_origin_ns + int(round(samples.t_s[i] * 1e9)), samples.q[i].tolist(), samples.qdot[i].tolist(),
                                None, sim)
 
     # -- BridgeCore ---------------------------------------------------------------------------------
@@ -134,7 +139,7 @@ class SimBridge(BridgeCore):
                 "q_max": np.asarray(k.q_max, float).tolist(), "qdot_max": np.asarray(k.qdot_max, float).tolist()}
 
     def apply_trajectory(self, msg: dict) -> None:
-        t_s = np.asarray(msg["t_ns"], dtype=np.int64) * 1e-9
+        t_s = (np.asarray(msg["t_ns"], dtype=np.int64) - self.wam_origin_ns) * 1e-9
         t, Q, Qd = check_joint_trajectory(self.kin, t_s, msg["q"], msg["qdot"], now_s=self.wam.t_s)
         self.wam.command_trajectory(t, Q, Qd)
         self.cmd_id, self.mode = int(msg["id"]), "track"

@@ -95,6 +95,9 @@ class WamClient:
         self.dropped = 0  #: malformed stream messages dropped
         self.events: list[dict] = []  #: robot events (watchdog_hold, rejected, ...), as received
         self.clock = RoundTripClock()
+        self.last_request_id = 0  #: the id of the latest request sent
+        self.last_command_id: int | None = None  #: the id of the latest trajectory the robot accepted
+        self.command_started: dict[int, int] = {}  #: trajectory id -> arrival (harness clock ns) of the first state tracking it
         welcome = self._request("hello", float(connect_timeout_s), client=str(client_name))
         self.robot_info = welcome
         if tuple(welcome["joint_names"]) != tuple(kinematics.joint_names):
@@ -141,6 +144,7 @@ class WamClient:
         """Send one request and wait for its reply; ``error`` replies raise ValueError."""
         self._check()
         rid = next(self._ids)
+        self.last_request_id = rid
         self._req.send(protocol.encode(msg_type, id=rid, **fields))
         deadline = time.monotonic() + (self.request_timeout_s if timeout_s is None else timeout_s)
         while True:
@@ -213,6 +217,8 @@ class WamClient:
                 log.warning("dropped a state at robot time %d ns, not after the previous %d ns", msg["t_ns"],
                             self._latest["t_ns"])
                 return
+            if msg["cmd_id"] >= 0 and msg["cmd_id"] not in self.command_started:
+                self.command_started[msg["cmd_id"]] = rx_ns
             self._latest = msg
             self._last_state_mono = time.monotonic()
             self._buffer.append(msg)
@@ -290,6 +296,7 @@ class WamClient:
         t, Q, Qd = check_joint_trajectory(self.kinematics, t_s, q, qdot, now_s=self.t_s)
         t_ns = np.round(t * 1e9).astype(np.int64)
         self._request("trajectory", t_ns=t_ns.tolist(), q=Q.tolist(), qdot=None if Qd is None else Qd.tolist())
+        self.last_command_id = self.last_request_id
 
     def hold(self) -> None:
         """Hold the present position (the robot's ``hold`` request)."""

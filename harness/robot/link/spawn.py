@@ -1,6 +1,7 @@
-"""Start ``rt2 robot serve --sim`` as a separate process on free ports and wait for its ready line.
+"""Start ``rt2 robot serve --sim`` (or another ``rt2`` service) as a separate process on free ports and wait
+for its ready line.
 
-Used by ``rt2 accuracy --robot sim`` (the one-command local run) and by the robot-link tests.
+Used by ``rt2 accuracy --robot sim`` and ``rt2 play --live`` (the one-command local runs) and by the tests.
 """
 
 from __future__ import annotations
@@ -14,21 +15,20 @@ import sys
 import tempfile
 from pathlib import Path
 
-__all__ = ["SimBridgeProcess"]
+__all__ = ["ReadyProcess", "SimBridgeProcess"]
 
 ROOT = Path(__file__).resolve().parents[3]
 
 
-class SimBridgeProcess:
-    """A running simulated-WAM bridge process; ``ready`` is its ready line (endpoints, pid, clock epoch),
-    ``address`` its command endpoint. ``extra``: more ``rt2 robot serve`` options (``--seed 3`` ...)."""
+class ReadyProcess:
+    """A child process (``python -m harness.cli ARGS...``) that prints one JSON ready line on stdout when it
+    serves; ``ready`` is that line, ``what`` names the child in errors. Its stderr goes to a temporary file
+    (:meth:`log_text`)."""
 
-    def __init__(self, *extra: str, bind: str = "tcp://127.0.0.1:*", state_bind: str | None = None,
-                 timeout_s: float = 60.0):
-        cmd = [sys.executable, "-m", "harness.cli", "robot", "serve", "--sim", "--bind", bind, "--ready-json", *extra]
-        if state_bind:
-            cmd += ["--state-bind", state_bind]
-        self._log = tempfile.TemporaryFile(mode="w+")  # the bridge's log; a pipe nobody reads could fill and block it
+    def __init__(self, args, *, what: str, timeout_s: float = 60.0):
+        cmd = [sys.executable, "-m", "harness.cli", *args]
+        self.what = what
+        self._log = tempfile.TemporaryFile(mode="w+")  # the child's log; a pipe nobody reads could fill and block it
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=self._log, text=True,
                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout_s)
@@ -36,9 +36,9 @@ class SimBridgeProcess:
         if not line:
             self.proc.kill()
             self.proc.wait()
-            raise ValueError(f"the simulated robot bridge did not start: {self.log_text()[-2000:]}")
+            raise ValueError(f"{what} did not start: {self.log_text()[-2000:]}")
         self.ready = json.loads(line)
-        self.address = self.ready["command"]
+
 
     def kill(self) -> None:
         """SIGKILL (a crash, for tests of link loss)."""
@@ -61,8 +61,21 @@ class SimBridgeProcess:
         self._log.seek(0)
         return self._log.read()
 
-    def __enter__(self) -> "SimBridgeProcess":
+    def __enter__(self):
         return self
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+class SimBridgeProcess(ReadyProcess):
+    """A running simulated-WAM bridge process; ``ready`` is its ready line (endpoints, pid, clock epoch),
+    ``address`` its command endpoint. ``extra``: more ``rt2 robot serve`` options (``--seed 3`` ...)."""
+
+    def __init__(self, *extra: str, bind: str = "tcp://127.0.0.1:*", state_bind: str | None = None,
+                 timeout_s: float = 60.0):
+        args = ["robot", "serve", "--sim", "--bind", bind, "--ready-json", *extra]
+        if state_bind:
+            args += ["--state-bind", state_bind]
+        super().__init__(args, what="the simulated robot bridge", timeout_s=timeout_s)
+        self.address = self.ready["command"]
