@@ -127,7 +127,7 @@ class Tracker:
                 f"({self._estimator.options.max_candidates_per_camera}); raise the latter or lower the former"
             )
         self._motion = MotionPredictor(rig, options.max_gap_s)
-        self._size = SizeTest(rig, options.max_size_ratio if kind == "rt2" else None, options.ball_radius_m)
+        self._size = SizeTest(rig, options.max_size_ratio if kind == "rt2" else None, options.ball_radius_m, options.blob_edge_px)
         self._handover = None
         if kind == "rt2" and options.handover_max_age_s is not None:
             self._handover = SupportHandover(self._estimator, len(rig), max_age_s=options.handover_max_age_s)

@@ -81,4 +81,4 @@ def size_test_for(kind: str, rig) -> SizeTest:
     if kind not in ESTIMATOR_METHOD:
         raise ValueError(f"tracker {kind!r} has no size test; valid: {sorted(ESTIMATOR_METHOD)}")
     opt = TrackerOptions()
-    return SizeTest(rig, opt.max_size_ratio if kind == "rt2" else None, opt.ball_radius_m)
+    return SizeTest(rig, opt.max_size_ratio if kind == "rt2" else None, opt.ball_radius_m, opt.blob_edge_px)
