@@ -54,9 +54,9 @@ class TrackerOptions:
         1.27 on rendered lab frame sets). None = off
     ball_radius_m : the ball's radius for the size test, metres (0.02 = a 40 mm ball)
     blob_edge_px : the detector's edge loss for the size test, pixels: a ball's blob is this much
-        narrower than the ball (its rim stays under ``T_l``), nearly whatever its size; measured for the
-        shipped model on rendered frame sets (blob width = 0.98 ball width - 2.8 px; docs/pipeline.md,
-        step 8). 0 = compare the raw blob width
+        narrower than the ball (its rim stays under ``T_l``), nearly whatever its size. None = the
+        model's ``edge_loss_px`` (the shipped model: 2.8, measured on rendered frame sets as blob width =
+        0.98 ball width - 2.8 px; docs/pipeline.md, step 8); 0 = compare the raw blob width
     handover_max_age_s : the support hand-over (``rt2`` only): an estimate from fewer cameras than the
         last confirmed ones (the ball behind the arm in some cameras) is moved by the median offset
         between the confirmed positions of the last 50 ms and those cameras' own estimate then, while
@@ -72,7 +72,7 @@ class TrackerOptions:
     eps_px: float | None = None
     max_size_ratio: float | None = 1.3
     ball_radius_m: float = 0.02
-    blob_edge_px: float = 2.8
+    blob_edge_px: float | None = None
     handover_max_age_s: float | None = 0.25
 
     def __post_init__(self):
@@ -97,8 +97,8 @@ class TrackerOptions:
         if h is not None and (isinstance(h, bool) or not isinstance(h, (int, float, np.floating, np.integer)) or not (math.isfinite(h) and h > 0)):
             raise ValueError(f"TrackerOptions.handover_max_age_s must be a positive number of seconds or None (off), got {h!r}")
         b = self.blob_edge_px
-        if isinstance(b, bool) or not isinstance(b, (int, float, np.floating, np.integer)) or not (math.isfinite(b) and b >= 0):
-            raise ValueError(f"TrackerOptions.blob_edge_px must be a number of pixels >= 0, got {b!r}")
+        if b is not None and (isinstance(b, bool) or not isinstance(b, (int, float, np.floating, np.integer)) or not (math.isfinite(b) and b >= 0)):
+            raise ValueError(f"TrackerOptions.blob_edge_px must be a number of pixels >= 0 or None (the model's), got {b!r}")
         r = self.ball_radius_m
         if isinstance(r, bool) or not isinstance(r, (int, float, np.floating, np.integer)) or not (math.isfinite(r) and 0 < r < 1):
             raise ValueError(f"TrackerOptions.ball_radius_m must be a radius in metres in (0, 1), got {r!r}")

@@ -114,10 +114,11 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
                 spare = build_trackers(config.with_(trackers=tuple(wanted)), rig, model, session.get("rtblob_calibration"))
             how = {k: "re-run on the logged images" for k in wanted}
         else:
+            edge = _model_from_log(reader, Path(tmp)).edge_loss_px if any(k in DETECTION_SUFFIX for k in wanted) else 0.0
             for k in wanted:
                 if k in DETECTION_SUFFIX:
                     est = estimator_for(k, rig, config.eps_px)
-                    runners[k] = (est, size_test_for(k, rig), handover_for(k, est))
+                    runners[k] = (est, size_test_for(k, rig, edge), handover_for(k, est))
                     how[k] = "estimator, size test and support hand-over re-run on the logged detections"
                 else:
                     how[k] = "logged observations scored as recorded (no estimator to re-run without images)"

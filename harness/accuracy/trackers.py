@@ -76,9 +76,10 @@ def handover_for(kind: str, estimator) -> SupportHandover | None:
     return SupportHandover(estimator, len(estimator.rig), max_age_s=age) if kind == "rt2" and age is not None else None
 
 
-def size_test_for(kind: str, rig) -> SizeTest:
-    """The 3D size test tracker ``kind`` applies (the Tracker defaults: on for "rt2", measuring only for "rt2-paper")."""
+def size_test_for(kind: str, rig, edge_px: float = 0.0) -> SizeTest:
+    """The 3D size test tracker ``kind`` applies (the Tracker defaults: on for "rt2", measuring only for "rt2-paper");
+    ``edge_px``: the detector's edge loss, the recorded model's ``edge_loss_px`` (:func:`edge_loss_of`)."""
     if kind not in ESTIMATOR_METHOD:
         raise ValueError(f"tracker {kind!r} has no size test; valid: {sorted(ESTIMATOR_METHOD)}")
     opt = TrackerOptions()
-    return SizeTest(rig, opt.max_size_ratio if kind == "rt2" else None, opt.ball_radius_m, opt.blob_edge_px)
+    return SizeTest(rig, opt.max_size_ratio if kind == "rt2" else None, opt.ball_radius_m, edge_px)

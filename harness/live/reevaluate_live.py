@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tracker import FrameSet, Status
+from tracker import BallSegmentationModel, FrameSet, Status
 
 __all__ = ["reevaluate_track", "run_reevaluate"]
 
@@ -77,7 +77,9 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
             tracker = Tracker(rig, kind, model=model, **({} if eps_px is None else {"eps_px": float(eps_px)}))
             topics = [f"/tracker/{kind}/ball", "/camera/*/image"]
         elif source == "detections":
-            est, size_test = estimator_for(kind, rig, eps_px), size_test_for(kind, rig)
+            model = Path(tmp.name) / "model.npz"
+            model.write_bytes(reader.attachment("model.npz"))
+            est, size_test = estimator_for(kind, rig, eps_px), size_test_for(kind, rig, BallSegmentationModel.load(model).edge_loss_px)
             handover = handover_for(kind, est)
             topics = [f"/tracker/{kind}/ball", "/camera/*/detections"]
         else:
