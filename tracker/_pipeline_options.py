@@ -50,8 +50,8 @@ class TrackerOptions:
         ``ball_radius_m`` would look at that depth is an orange object several cameras agree on, not
         the ball; its candidates are dropped and the estimate is redone (until one passes or none is
         left; windows then fall back to the full frame, like any unconfirmed estimate). Blob width =
-        ``sqrt(4 area / pi) + blob_edge_px``; on true balls the ratio is ~1 (median 0.98, 99.9 % under
-        1.27 on rendered lab frame sets). None = off
+        ``sqrt(4 area / pi) + blob_edge_px``; on true balls the ratio is ~1 (median 0.98, at most 1.28
+        over 3 x 1500 rendered lab4_vga frame sets). None = off
     ball_radius_m : the ball's radius for the size test, metres (0.02 = a 40 mm ball)
     blob_edge_px : the detector's edge loss for the size test, pixels: a ball's blob is this much
         narrower than the ball (its rim stays under ``T_l``), nearly whatever its size. None = the
@@ -155,8 +155,9 @@ class PipelineInfo:
     used_roi : (n_cams,) bool, the camera's candidates come from the window search (not the full frame)
     retried : a full-frame retry happened
     estimate : the estimator's :class:`EstimateInfo` (rt2 kinds) or :class:`RTBlobInfo` (rtblob)
-    size_ratio : (rt2 kinds) median over the position's cameras of blob width (plus
-        ``TrackerOptions.blob_edge_px``) / the width a ball would have at that depth (NaN without a position; rtblob: NaN)
+    size_ratio : (rt2 kinds) median over the position's cameras of blob width (plus the edge loss,
+        ``TrackerOptions.blob_edge_px``) / the width a ball would have at that depth (NaN without a
+        position; rtblob: NaN)
     areas_px : (n_cams, k) blob area of each candidate, pixels, NaN-padded (rtblob: None)
     """
 

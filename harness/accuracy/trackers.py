@@ -78,7 +78,7 @@ def handover_for(kind: str, estimator) -> SupportHandover | None:
 
 def size_test_for(kind: str, rig, edge_px: float = 0.0) -> SizeTest:
     """The 3D size test tracker ``kind`` applies (the Tracker defaults: on for "rt2", measuring only for "rt2-paper");
-    ``edge_px``: the detector's edge loss, the recorded model's ``edge_loss_px`` (:func:`edge_loss_of`)."""
+    ``edge_px``: the detector's edge loss, pixels (the ``edge_loss_px`` of the model the log recorded)."""
     if kind not in ESTIMATOR_METHOD:
         raise ValueError(f"tracker {kind!r} has no size test; valid: {sorted(ESTIMATOR_METHOD)}")
     opt = TrackerOptions()
