@@ -234,3 +234,20 @@ def test_shipped_model_is_for_orange_balls():
     from tests.conftest import DATA
 
     assert BallSegmentationModel.load(DATA / "models" / "ball_seg_default.npz").ball_colour == "orange"
+
+
+def test_edge_loss_roundtrip_and_older_files(tmp_path):
+    import dataclasses
+
+    model = dataclasses.replace(_random_model(np.random.default_rng(7), "RGB", "log"), edge_loss_px=2.5)
+    assert BallSegmentationModel.load(model.save(tmp_path / "m.npz")).edge_loss_px == 2.5
+    # a file written before the field existed: no edge loss (the size test compares raw blob widths)
+    older = _write_fields(tmp_path / "old.npz", **{k: v for k, v in _fields(model).items() if k != "edge_loss_px"})
+    assert BallSegmentationModel.load(older).edge_loss_px == 0.0
+    for value in (-1.0, float("nan")):
+        bad = _write_fields(tmp_path / "bad.npz", **{**_fields(model), "edge_loss_px": np.array(value)})
+        with pytest.raises(ValueError, match=r"bad\.npz.*edge_loss_px"):
+            BallSegmentationModel.load(bad)
+    from tests.conftest import DATA
+
+    assert BallSegmentationModel.load(DATA / "models" / "ball_seg_default.npz").edge_loss_px == 2.8  # measured, docs/pipeline.md step 8

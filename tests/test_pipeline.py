@@ -243,7 +243,7 @@ def test_size_test_rejects_an_orange_object_too_wide_for_a_ball(rig, model):
     fs = _drawn_frameset(rig, rig.project(X)[:, None], 0.0, diameter_px=1.8 * _ball_px(rig, X))
     o, info = Tracker(rig, model=model, roi=False).process_with_info(fs)
     assert o.position_m is None and o.status is not Status.OK
-    assert len(o.notes) == 1 and "times as wide as a ball at that depth (max_size_ratio 1.2)" in o.notes[0]
+    assert len(o.notes) == 1 and "times as wide as a ball at that depth (max_size_ratio 1.3)" in o.notes[0]
     assert np.isnan(info.size_ratio) and np.isfinite(info.uv_candidates_px[:, 0]).all()  # the candidates stay reported
     off = Tracker(rig, model=model, roi=False, max_size_ratio=None)
     o_off, info_off = off.process_with_info(fs)
@@ -283,6 +283,45 @@ def test_size_rejection_in_the_windows_falls_back_to_the_full_frame(rig, model):
     # the full frames hold the disk again: it is rejected a second time before the ball is taken
     assert trk.stats.size_rejections == 2 and len(o.notes) == 3 and "times as wide as a ball" in o.notes[2]
     assert np.isfinite(info.uv_candidates_px[:, :2, 0]).all()  # the disk and the ball stay reported
+
+
+def _blob_area_px(width_px):
+    """The area of a disk-shaped blob ``width_px`` wide."""
+    return np.pi / 4.0 * np.asarray(width_px, float) ** 2
+
+
+def test_size_test_counts_the_edge_loss_so_a_ball_sized_sphere_is_rejected(rig):
+    # Synthetic candidates: every camera sees the ball at X_ball and, 0.6 m away, an orange sphere of
+    # 30 mm radius (1.5 times the ball's), each blob EDGE px narrower than its object (the detector's
+    # edge loss, TrackerOptions.blob_edge_px). On raw blob widths (the size test before the edge loss)
+    # the far, 7-10 px sphere measures 1.1-1.2 times a ball and passes; with the edge loss it measures
+    # 1.5 and is rejected, and the ball (1.0) is kept.
+    from tracker.size_test import SizeTest
+    from tracker.pipeline import load_model
+
+    edge = load_model(None).edge_loss_px  # the shipped model's: 2.8 px
+    assert edge > 2.0 and TrackerOptions().blob_edge_px is None  # the Tracker takes the model's
+    X_ball, X_sphere = X0_M, np.array([0.5, 0.3, 0.79])
+    w_ball, w_sphere = _ball_px(rig, X_ball), 1.5 * _ball_px(rig, X_sphere)
+    assert (w_sphere < 16).all()  # far enough for the raw widths to hide the sphere's size
+    uv = np.stack([rig.project(X_sphere), rig.project(X_ball)], axis=1)  # (n_cams, 2, 2): sphere first
+    areas = np.stack([_blob_area_px(w_sphere - edge), _blob_area_px(w_ball - edge)], axis=1)
+    est = RobustTriangulator(rig, RobustOptions())
+    X, info = est.estimate(uv[:, :1])
+    assert np.linalg.norm(X - X_sphere) < 1e-3
+    before = SizeTest(rig, 1.2, 0.02, edge_px=0.0)
+    assert 1.0 < before.ratio(X, info.candidate_index, areas) < 1.2  # the former test lets it through
+    now = SizeTest(rig, TrackerOptions().max_size_ratio, 0.02, edge_px=edge)
+    assert now.ratio(X, info.candidate_index, areas) == pytest.approx(1.5, abs=0.02)
+    X0, info0 = est.estimate(uv)
+    notes = []
+    X1, info1, ratio, rejected = now.apply(est, uv, areas, X0, info0, notes)
+    assert np.linalg.norm(X1 - X_ball) < 1e-3 and info1.status is Status.OK and info1.support == len(rig)
+    assert ratio == pytest.approx(1.0, abs=0.02) and rejected == (np.linalg.norm(X0 - X_sphere) < 1e-3)
+    assert np.isfinite(uv).all()  # the caller's candidates are never changed
+    # the sphere alone: rejected, nothing left
+    X2, info2, ratio2, rejected2 = now.apply(est, uv[:, :1], areas[:, :1], X, info, notes)
+    assert X2 is None and rejected2 == 1 and np.isnan(ratio2) and "1.50 times as wide as a ball" in notes[-1]
 
 
 def test_logged_candidates_and_areas_reproduce_the_size_test(rig, model):
@@ -454,6 +493,9 @@ def test_bad_construction_raises(rig, model):
     for bad in (0, -1.2, float("nan"), True, "1.2"):
         with pytest.raises(ValueError, match="TrackerOptions.max_size_ratio must be a positive number or None"):
             TrackerOptions(max_size_ratio=bad)
+    for bad in (-0.5, float("nan"), True, "2"):
+        with pytest.raises(ValueError, match="TrackerOptions.blob_edge_px must be a number of pixels >= 0 or None"):
+            TrackerOptions(blob_edge_px=bad)
     for bad in (0, 1.5, float("inf"), None):
         with pytest.raises(ValueError, match="TrackerOptions.ball_radius_m must be a radius in metres"):
             TrackerOptions(ball_radius_m=bad)

@@ -50,9 +50,13 @@ class TrackerOptions:
         ``ball_radius_m`` would look at that depth is an orange object several cameras agree on, not
         the ball; its candidates are dropped and the estimate is redone (until one passes or none is
         left; windows then fall back to the full frame, like any unconfirmed estimate). Blob width =
-        ``sqrt(4 area / pi)``; on true balls the ratio stays below 1 (pixels under ``T_l`` at the
-        edge are not counted). None = off
+        ``sqrt(4 area / pi) + blob_edge_px``; on true balls the ratio is ~1 (median 0.98, at most 1.28
+        over 3 x 1500 rendered lab4_vga frame sets). None = off
     ball_radius_m : the ball's radius for the size test, metres (0.02 = a 40 mm ball)
+    blob_edge_px : the detector's edge loss for the size test, pixels: a ball's blob is this much
+        narrower than the ball (its rim stays under ``T_l``), nearly whatever its size. None = the
+        model's ``edge_loss_px`` (the shipped model: 2.8, measured on rendered frame sets as blob width =
+        0.98 ball width - 2.8 px; docs/pipeline.md, step 8); 0 = compare the raw blob width
     handover_max_age_s : the support hand-over (``rt2`` only): an estimate from fewer cameras than the
         last confirmed ones (the ball behind the arm in some cameras) is moved by the median offset
         between the confirmed positions of the last 50 ms and those cameras' own estimate then, while
@@ -66,8 +70,9 @@ class TrackerOptions:
     workers: int = 1
     threads_for_roi: bool = False
     eps_px: float | None = None
-    max_size_ratio: float | None = 1.2
+    max_size_ratio: float | None = 1.3
     ball_radius_m: float = 0.02
+    blob_edge_px: float | None = None
     handover_max_age_s: float | None = 0.25
 
     def __post_init__(self):
@@ -91,6 +96,9 @@ class TrackerOptions:
         h = self.handover_max_age_s
         if h is not None and (isinstance(h, bool) or not isinstance(h, (int, float, np.floating, np.integer)) or not (math.isfinite(h) and h > 0)):
             raise ValueError(f"TrackerOptions.handover_max_age_s must be a positive number of seconds or None (off), got {h!r}")
+        b = self.blob_edge_px
+        if b is not None and (isinstance(b, bool) or not isinstance(b, (int, float, np.floating, np.integer)) or not (math.isfinite(b) and b >= 0)):
+            raise ValueError(f"TrackerOptions.blob_edge_px must be a number of pixels >= 0 or None (the model's), got {b!r}")
         r = self.ball_radius_m
         if isinstance(r, bool) or not isinstance(r, (int, float, np.floating, np.integer)) or not (math.isfinite(r) and 0 < r < 1):
             raise ValueError(f"TrackerOptions.ball_radius_m must be a radius in metres in (0, 1), got {r!r}")
@@ -147,8 +155,9 @@ class PipelineInfo:
     used_roi : (n_cams,) bool, the camera's candidates come from the window search (not the full frame)
     retried : a full-frame retry happened
     estimate : the estimator's :class:`EstimateInfo` (rt2 kinds) or :class:`RTBlobInfo` (rtblob)
-    size_ratio : (rt2 kinds) median over the position's cameras of blob width / the width a ball would
-        have at that depth (NaN without a position; rtblob: NaN)
+    size_ratio : (rt2 kinds) median over the position's cameras of blob width (plus the edge loss,
+        ``TrackerOptions.blob_edge_px``) / the width a ball would have at that depth (NaN without a
+        position; rtblob: NaN)
     areas_px : (n_cams, k) blob area of each candidate, pixels, NaN-padded (rtblob: None)
     """
 

@@ -1,7 +1,7 @@
 """The rt2 pipeline after detection, from candidates and their blob areas: what re-evaluation from a
 session log's detections runs to reproduce a tracker's positions without its images.
 
-    est = CandidateEstimator(rig, "rt2")                 # or "rt2-paper"; eps_px= as Tracker
+    est = CandidateEstimator(rig, "rt2", edge_px=model.edge_loss_px)   # or "rt2-paper"; eps_px= as Tracker
     X, info = est.estimate(t_s, uv_px, areas_px)         # per frame set, in time order
 
 Per frame set: the robust estimate (:class:`~tracker.robust.RobustTriangulator` with the kind's
@@ -34,20 +34,21 @@ class CandidateEstimator:
     """Estimator, size test and hand-over of tracker ``kind`` on ``rig``.
 
     kind : one of :data:`ESTIMATOR_KINDS` ("rt2", "rt2-paper"); eps_px : the estimator's
-        consistency threshold, pixels (None: ``RobustOptions.eps_px``)
+        consistency threshold, pixels (None: ``RobustOptions.eps_px``); edge_px : the detector's edge loss
+        for the size test, pixels (the ``edge_loss_px`` of the model that made the candidates)
     Attributes ``estimator``, ``size_test`` and ``handover`` (None unless ``rt2``) are the parts. A new
     recording takes a new CandidateEstimator; within one, a time that does not increase forgets the
     hand-over's history.
     """
 
-    def __init__(self, rig, kind: str = "rt2", *, eps_px: float | None = None):
+    def __init__(self, rig, kind: str = "rt2", *, eps_px: float | None = None, edge_px: float = 0.0):
         if kind not in ESTIMATOR_KINDS:
             raise ValueError(f"tracker {kind!r} has no robust estimator to re-run; valid: {sorted(ESTIMATOR_KINDS)}")
         self.kind = kind
         options = RobustOptions() if eps_px is None else RobustOptions(eps_px=float(eps_px))
         self.estimator = RobustTriangulator(rig, options, method=KINDS[kind][1])
         defaults = TrackerOptions()
-        self.size_test = SizeTest(rig, defaults.max_size_ratio if kind == "rt2" else None, defaults.ball_radius_m)
+        self.size_test = SizeTest(rig, defaults.max_size_ratio if kind == "rt2" else None, defaults.ball_radius_m, edge_px)
         age = defaults.handover_max_age_s
         self.handover = (SupportHandover(self.estimator, len(rig), max_age_s=age)
                          if kind == "rt2" and age is not None else None)

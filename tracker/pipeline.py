@@ -118,7 +118,8 @@ class Tracker:
         if rtblob_options is not None:
             raise ValueError(f"rtblob_options apply to kind 'rtblob' only, got kind {kind!r}")
         self.options = options
-        self._detector = BallDetector(load_model(model), detector_options_for(kind, det_method, detector_options))
+        model = load_model(model)
+        self._detector = BallDetector(model, detector_options_for(kind, det_method, detector_options))
         self._estimator = RobustTriangulator(rig, estimator_options_for(estimator_options, options.eps_px), method=est_method)
         k = self._detector.options.k
         if k > self._estimator.options.max_candidates_per_camera:
@@ -127,7 +128,8 @@ class Tracker:
                 f"({self._estimator.options.max_candidates_per_camera}); raise the latter or lower the former"
             )
         self._motion = MotionPredictor(rig, options.max_gap_s)
-        self._size = SizeTest(rig, options.max_size_ratio if kind == "rt2" else None, options.ball_radius_m)
+        self._size = SizeTest(rig, options.max_size_ratio if kind == "rt2" else None, options.ball_radius_m,
+                              model.edge_loss_px if options.blob_edge_px is None else options.blob_edge_px)
         self._handover = None
         if kind == "rt2" and options.handover_max_age_s is not None:
             self._handover = SupportHandover(self._estimator, len(rig), max_age_s=options.handover_max_age_s)

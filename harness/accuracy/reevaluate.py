@@ -114,9 +114,10 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
                 spare = build_trackers(config.with_(trackers=tuple(wanted)), rig, model, session.get("rtblob_calibration"))
             how = {k: "re-run on the logged images" for k in wanted}
         else:
+            edge = _model_from_log(reader, Path(tmp)).edge_loss_px if any(k in DETECTION_SUFFIX for k in wanted) else 0.0
             for k in wanted:
                 if k in DETECTION_SUFFIX:
-                    runners[k] = CandidateEstimator(rig, k, eps_px=config.eps_px)
+                    runners[k] = CandidateEstimator(rig, k, eps_px=config.eps_px, edge_px=edge)
                     how[k] = "estimator, size test and support hand-over re-run on the logged detections"
                 else:
                     how[k] = "logged observations scored as recorded (no estimator to re-run without images)"

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tracker import CandidateEstimator, FrameSet, Status
+from tracker import BallSegmentationModel, CandidateEstimator, FrameSet, Status
 
 __all__ = ["reevaluate_track", "run_reevaluate"]
 
@@ -63,7 +63,9 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
             tracker = Tracker(rig, kind, model=model, **({} if eps_px is None else {"eps_px": float(eps_px)}))
             topics = [f"/tracker/{kind}/ball", "/camera/*/image"]
         elif source == "detections":
-            est = CandidateEstimator(rig, kind, eps_px=eps_px)
+            model = Path(tmp.name) / "model.npz"
+            model.write_bytes(reader.attachment("model.npz"))
+            est = CandidateEstimator(rig, kind, eps_px=eps_px, edge_px=BallSegmentationModel.load(model).edge_loss_px)
             topics = [f"/tracker/{kind}/ball", "/camera/*/detections"]
         else:
             topics = [f"/tracker/{kind}/ball"]

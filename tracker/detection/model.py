@@ -96,6 +96,10 @@ class BallSegmentationModel:
     description : provenance (training command, data)
     ball_colour : the balls the model was trained to find: "orange", "white" or "any" (unknown, or
         both); evaluations score balls of this colour by default
+    edge_loss_px : how much narrower than the ball its blob at ``t_low`` is, pixels (the rim stays under
+        ``t_low``; nearly the same at every ball size): the pipeline's 3D size test adds it to every
+        blob's width (``TrackerOptions.blob_edge_px``). Measured on rendered frame sets for the shipped
+        model (2.8); 0 for files written before the field existed and for the hand-made model
     """
 
     kernel: np.ndarray
@@ -110,6 +114,7 @@ class BallSegmentationModel:
     area_range_px: np.ndarray = field(default_factory=lambda: np.array([3.0, 3000.0]))
     description: str = ""
     ball_colour: str = "any"
+    edge_loss_px: float = 0.0
     # Derived at construction: the kernel for T(uint8 RGB channels) with the scaling folded in.
     _kernels_rgb: tuple = field(init=False, repr=False, compare=False)
     _bias_eff: float = field(init=False, repr=False, compare=False)
@@ -149,6 +154,10 @@ class BallSegmentationModel:
         log_offset = float(self.log_offset_dn)
         if not (math.isfinite(log_offset) and log_offset > 0):
             raise ValueError(f"{where}: log_offset_dn must be a positive number, got {self.log_offset_dn!r}")
+        edge = self.edge_loss_px
+        if isinstance(edge, bool) or not isinstance(edge, (int, float, np.floating, np.integer)) or not (math.isfinite(edge) and edge >= 0):
+            raise ValueError(f"{where}: edge_loss_px must be a number of pixels >= 0, got {edge!r}")
+        object.__setattr__(self, "edge_loss_px", float(edge))
         area = np.asarray(self.area_range_px, dtype=np.float64).reshape(-1)
         if area.shape != (2,) or not np.isfinite(area).all() or not 1 <= area[0] <= area[1]:
             raise ValueError(f"{where}: area_range_px must be [min, max] with 1 <= min <= max, got {self.area_range_px!r}")
@@ -255,6 +264,7 @@ class BallSegmentationModel:
             area_range_px=self.area_range_px,
             description=np.array(self.description),
             ball_colour=np.array(self.ball_colour),
+            edge_loss_px=np.array(self.edge_loss_px),
         )
         return path
 
@@ -290,6 +300,7 @@ class BallSegmentationModel:
                 description=_scalar(data, "description", str, src) if "description" in data else "",
                 # optional: files written before the field existed say nothing of their balls' colour
                 ball_colour=_scalar(data, "ball_colour", str, src) if "ball_colour" in data else "any",
+                edge_loss_px=_scalar(data, "edge_loss_px", float, src) if "edge_loss_px" in data else 0.0,
             )
         except ValueError as exc:
             raise ValueError(f"{src}: {exc}") from None
