@@ -48,9 +48,10 @@ class BridgeOptions:
     clock_skew_ns: int = 0  #: added to the robot clock (tests of the clock-offset estimate)
     publish_truth: bool = False  #: add the simulator's truth to every state (``sim``: q_true, bias_rad, offset_ns)
     batch_ticks: int = 1  #: wake every this many ticks (1: each state as its tick comes; N: less CPU, N-1 ticks later)
+    truth_bind: str | None = None  #: also publish the lab truth stream here (harness.live.sources.lab_truth)
 
     def __post_init__(self):
-        for name in ("bind",) + (("state_bind",) if self.state_bind is not None else ()):
+        for name in ("bind",) + tuple(n for n in ("state_bind", "truth_bind") if getattr(self, n) is not None):
             value = getattr(self, name)
             if not isinstance(value, str) or not value.startswith(("tcp://", "ipc://", "inproc://")):
                 raise ValueError(f"BridgeOptions.{name} must be a ZeroMQ endpoint like tcp://127.0.0.1:7650, got {value!r}")
@@ -104,6 +105,16 @@ class SimBridge:
         except zmq.ZMQError as exc:
             self.close()
             raise ValueError(f"cannot bind the robot link at {options.bind} / {options.resolved_state_bind()}: {exc}") from None
+        self._truth_pub = None
+        if options.truth_bind is not None:
+            from harness.live.sources.lab_truth import TruthPublisher, TruthError
+
+            try:
+                self._truth_pub = TruthPublisher(options.truth_bind, context=self._ctx)
+            except TruthError:
+                self.close()
+                raise
+        self.truth_endpoint = None if self._truth_pub is None else self._truth_pub.address
         self.command_endpoint = self._router.getsockopt_string(zmq.LAST_ENDPOINT)
         self.state_endpoint = self._pub.getsockopt_string(zmq.LAST_ENDPOINT)
         _warm_up(wam)
@@ -152,6 +163,8 @@ class SimBridge:
     def close(self) -> None:
         for sock in (self._router, self._pub):
             sock.close(linger=0)
+        if getattr(self, "_truth_pub", None) is not None:
+            self._truth_pub.close()
 
     def _run_ticks(self) -> None:
         target = self.robot_ns() // self.dt_ns
@@ -164,6 +177,8 @@ class SimBridge:
         for i in range(n):
             self.seq += 1
             t_ns = int(round(samples.t_s[i] * 1e9))
+            if self._truth_pub is not None:  # the lab truth stream: true joints on the host clock
+                self._truth_pub.publish(t_ns - self._true_offset_ns, samples.q_true[i])
             sim = None if truth is None else {"q_true": truth[i].tolist(), "bias_rad": self._bias,
                                               "offset_ns": self._true_offset_ns}
             self._pub.send(protocol.encode("state", seq=self.seq, t_ns=t_ns, q=samples.q[i].tolist(),
