@@ -52,9 +52,9 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --truth-stream: accuracy (default: the accuracy experiment's lab, the ball on the arm), "
                              "accuracy-clean, accuracy-harsh, or play (the arm and the stream's free balls)")
     parser.add_argument("--max-behind", type=float, default=0.1, metavar="S",
-                        help="with --truth-stream: a frame whose exposure is more than S seconds past when its turn to render "
-                             "comes is skipped (default 0.1: stay near real time); large (e.g. 300) renders every frame, "
-                             "however far behind (the accuracy experiment's cameras)")
+                        help="with --truth-stream: when a frame's exposure is more than S seconds past as its turn to render "
+                             "comes, the cameras skip to the present (default 0.1: stay near real time); a larger S renders "
+                             "every frame until they are S behind (the accuracy experiment's cameras)")
     parser.add_argument("--sim-rig", default=None, metavar="RIG",
                         help="sim only: the rig the simulated cameras render with (default: --rig); e.g. the true lab when "
                              "--rig is an estimated calibration")

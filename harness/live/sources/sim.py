@@ -64,8 +64,9 @@ class SimOptions:
         (which may wait for the lab's truth at it, e.g. :class:`~.lab_truth.LabTruthScene`), and stamped
         with the exposure time as its device stamp while it arrives later -- a camera with hardware
         timestamps on the host clock (assemble with ``clock="device"``)
-    max_behind_s : "host" clock: a frame set whose exposure is further than this in the past when its turn
-        comes is skipped (counted in ``skipped``), so a slow renderer stays near real time
+    max_behind_s : "host" clock: when frame set k's exposure is further than this in the past as its turn
+        comes, the renderer skips to the present (counted in ``skipped``): a renderer slower than real time
+        falls behind by up to this much, renders every frame meanwhile, then catches up at once
     """
 
     rate_hz: float = 200.0
@@ -244,8 +245,8 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
         k = 0
         while n_total is None or k < n_total:
             now = time.monotonic()
-            if now - (origin + k * period) > options.max_behind_s:  # too far behind: skip to a recent exposure
-                k_next = int(np.ceil((now - options.max_behind_s - origin) / period))
+            if now - (origin + k * period) > options.max_behind_s:  # too far behind: skip to the present
+                k_next = int(np.ceil((now - origin) / period))
                 feed.skipped += k_next - k
                 k = k_next
                 if n_total is not None and k >= n_total:
