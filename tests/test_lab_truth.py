@@ -97,3 +97,64 @@ def test_scene_provider_puts_the_ball_on_the_true_end_effector():
     assert np.allclose(scene.balls[0].velocity_mps, 0.0) and scene.frame_index == 4
     with pytest.raises(ValueError, match="unknown lab truth scene 'nope'"):
         LabTruthScene("tcp://127.0.0.1:9", "nope")
+
+
+def test_the_simulated_bridge_publishes_its_true_joints_on_the_host_clock():
+    """`rt2 robot serve --sim --truth-stream` (its own process, robot clock skewed by 5 ms): the lab truth at a host
+    time equals the true joints the robot reports in its states (--publish-truth) at robot time host + offset."""
+    from harness.robot.link import WamClient
+    from harness.robot.link.spawn import SimBridgeProcess
+
+    with SimBridgeProcess("--publish-truth", "--clock-skew-ms", "5", "--truth-stream", "tcp://127.0.0.1:*") as bridge:
+        with TruthSubscriber(bridge.ready["truth"]) as sub, WamClient(bridge.address) as wam:
+            sub.wait_first(20.0)
+            q_cmd = wam.read_state().q + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.2])
+            t0 = wam.t_s + 0.1
+            wam.command_trajectory([t0, t0 + 0.4], np.stack([wam.read_state().q, q_cmd]))  # something that moves
+            wam.advance_to(t0 + 0.3)
+            t_robot, q_true = wam.take_sim_truth()
+            offset_ns = wam.sim_info()["offset_ns"]
+        assert offset_ns == bridge.ready["clock_skew_ns"] - bridge.ready["epoch_monotonic_ns"]
+        # robot samples in the moving stretch, mapped to the host clock: the truth stream says the same joints
+        pick = np.flatnonzero((t_robot > t0 + 0.05) & (t_robot < t0 + 0.25))[::10]
+        assert pick.size >= 5
+        assert q_true[pick[-1], 6] - q_true[pick[0], 6] > 0.01  # it moved
+        for i in pick:
+            t_host_ns = int(round(t_robot[i] * 1e9)) - offset_ns
+            assert np.allclose(sub.at(t_host_ns, wait_s=1.0).q, q_true[i], atol=1e-9)
+
+
+def test_sim_cameras_on_the_host_clock_stamp_the_exposure_and_arrive_later():
+    """SimOptions(clock="host"): frame set k is exposed at origin + k / rate on the host clock, rendered from
+    provider(t_exposure, k) only once that instant has passed, stamped with it, and arrives after it."""
+    from harness.live.sources.sim import SimOptions, open_sim
+    from harness.render import Scene
+    from harness.rigs import resolve_rig
+
+    asked = []
+
+    def provider(t_host_s, k):
+        asked.append((t_host_s, k, time.monotonic()))
+        return Scene()
+
+    sources, feed = open_sim(resolve_rig("lab4_vga"), SimOptions(rate_hz=50.0, clock="host", duration_s=0.2,
+                                                                 max_behind_s=60.0), scene_provider=provider)
+    try:
+        for s in sources:
+            s.start()
+        frames = []
+        while not sources[0].exhausted and len(frames) < 10:
+            f = sources[0].read(5.0)
+            if f is not None:
+                frames.append(f)
+    finally:
+        for s in sources:
+            s.close()
+    assert [f.frame_id for f in frames] == list(range(10))
+    t_dev = np.array([f.t_device_s for f in frames])
+    assert np.allclose(np.diff(t_dev), 0.02, atol=1e-9)  # the exposure grid
+    assert all(f.t_host_s >= f.t_device_s for f in frames)  # arrives after its exposure
+    assert all(called >= t for t, _, called in asked)  # never rendered before its exposure instant
+    assert np.allclose([t for t, _, _ in asked[:10]], t_dev)
+    with pytest.raises(ValueError, match="clock must be 'scene' or 'host'"):
+        SimOptions(clock="camera")
