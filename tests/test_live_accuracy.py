@@ -12,6 +12,7 @@ not that of frame k.
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -34,6 +35,16 @@ def test_a_silent_tracker_stream_is_named(tmp_path, capsys):
                  "--stream-timeout", "0.3", "--trackers", "rt2", "--out", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "sent nothing in 0.3 s" in err[0]
+
+
+def test_a_tracker_process_that_stopped_is_reported_at_once(tmp_path):
+    config = AccuracyConfig(seed=SEED, n_frames=40, rate_hz=100.0, trackers=("rt2",))
+    t0 = time.monotonic()
+    with pytest.raises(ValueError, match=r"rt2 track stopped \(exit code 2\): no camera delivered"):
+        run_live_accuracy(config, tmp_path / "out", robot="tcp://127.0.0.1:9", tracker_stream="tcp://127.0.0.1:9",
+                          stream_timeout_s=600.0,
+                          tracker_alive=lambda: "rt2 track stopped (exit code 2): no camera delivered a frame")
+    assert time.monotonic() - t0 < 60  # not the 600 s stream timeout
 
 
 @pytest.mark.parametrize("argv, match", [

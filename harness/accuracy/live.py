@@ -88,8 +88,10 @@ def _candidates(m: dict, n_cams: int, k: int):
 class _Stream:
     """SUB to rt2's stream; ``get(timeout_s)`` -> (message, receipt time) or None."""
 
-    def __init__(self, address: str):
+    def __init__(self, address: str, alive=None):
         import zmq
+
+        self._alive = alive  # None, or a callable: None while the publisher lives, else why it is gone
 
         if not isinstance(address, str) or not address.startswith(("tcp://", "ipc://")):
             raise ValueError(f"--tracker-stream must be rt2's stream address like tcp://127.0.0.1:7661, got {address!r}")
@@ -100,11 +102,24 @@ class _Stream:
         self._sock.setsockopt(zmq.SUBSCRIBE, b"")
         self._sock.connect(address)
 
+    def _poll(self, timeout_s: float) -> bool:
+        """Wait for a message; in slices, so that a publisher process that died is reported at once."""
+        t_end = time.monotonic() + timeout_s
+        while True:
+            left = t_end - time.monotonic()
+            if self._sock.poll(max(0, int(min(left, 0.5) * 1000))):
+                return True
+            gone = None if self._alive is None else self._alive()
+            if gone:
+                raise ValueError(gone)
+            if left <= 0.5:
+                return False
+
     def latest(self, timeout_s: float):
         """The newest message waiting (older ones are dropped unparsed), or None after ``timeout_s``."""
         import zmq
 
-        if not self._sock.poll(int(timeout_s * 1000)):
+        if not self._poll(timeout_s):
             return None
         raw = self._sock.recv()
         while True:
@@ -115,7 +130,7 @@ class _Stream:
         return self._parse(raw, time.monotonic())
 
     def get(self, timeout_s: float):
-        if not self._sock.poll(int(timeout_s * 1000)):
+        if not self._poll(timeout_s):
             return None
         return self._parse(self._sock.recv(), time.monotonic())
 
@@ -199,7 +214,8 @@ def _wait_first(stream: _Stream, timeout_s: float):
 
 
 def run_live_accuracy(config: AccuracyConfig, out_dir, *, robot: str, tracker_stream: str, log: bool = True,
-                      stream_timeout_s: float = 10.0, lead_s: float = 0.5, link_timeout_s: float = 1.0, status=print):
+                      stream_timeout_s: float = 10.0, lead_s: float = 0.5, link_timeout_s: float = 1.0, status=print,
+                      tracker_alive=None):
     """Run the experiment on live streams (module docstring); returns an :class:`~harness.accuracy.experiment.AccuracyResult`.
 
     robot : the bridge's command address; tracker_stream : rt2's stream of ``rt2 track`` (its tracker must be
@@ -208,6 +224,8 @@ def run_live_accuracy(config: AccuracyConfig, out_dir, *, robot: str, tracker_st
     link_timeout_s : robot states silent this long = link lost (1 s: this process also parses the tracker
         stream, and a loaded machine can hold a thread back for a few hundred ms; the robot's own watchdog
         still holds it 0.3 s after the last heartbeat)
+    tracker_alive : None, or a callable returning None while the tracker's process runs, else why it stopped
+        (the one-command form: an exited ``rt2 track`` is reported at once, not after the stream timeout)
     """
     from harness.accuracy.experiment import AccuracyResult, _against_truth, write_outputs
     from harness.robot.link.client import LinkLostError, WamClient
@@ -224,7 +242,7 @@ def run_live_accuracy(config: AccuracyConfig, out_dir, *, robot: str, tracker_st
     kin = WamKinematics.from_config(load_robot_config())
     n, period = config.n_frames, 1.0 / config.rate_hz
     plan = plan_motion(kin, n, config.rate_hz, seed=config.seed, options=config.motion)
-    stream = _Stream(tracker_stream)
+    stream = _Stream(tracker_stream, tracker_alive)
     try:
         m0, _ = _wait_first(stream, stream_timeout_s)
         if m0["tracker"] != kind:
@@ -471,5 +489,11 @@ def run_live_local(config: AccuracyConfig, out_dir, *, log: bool = True, status=
                           "--tracker", config.trackers[0], "--max-behind", f"{max_behind_s:g}", "--status-period", "0",
                           timeout_s=start_timeout_s) as track:
             status(f"bridge {bridge.address} (truth {bridge.ready['truth']}), rt2 track stream {track.streams['rt2']}")
+            def track_alive():
+                if track.proc.poll() is None:
+                    return None
+                said = [ln for ln in track.log_text().strip().splitlines() if "error" in ln] or ["(no error printed)"]
+                return f"rt2 track stopped (exit code {track.proc.returncode}): {said[-1]}"
+
             return run_live_accuracy(config, out, robot=bridge.address, tracker_stream=track.streams["rt2"], log=log,
-                                     stream_timeout_s=start_timeout_s, status=status)
+                                     stream_timeout_s=start_timeout_s, status=status, tracker_alive=track_alive)
