@@ -114,3 +114,34 @@ def test_live_figures_match_the_in_process_run(tmp_path, in_process, skew_ms):
         r = reevaluate_accuracy(log, source="detections")
         assert log.metadata("live")["robot_clock_estimate"]["uncertainty_ms"] >= 0
     assert r.rows[0]["median_cm"] == pytest.approx(live.rows[0]["median_cm"], abs=0.01)
+
+
+@pytest.mark.slow
+def test_sigint_stops_the_child_processes(tmp_path):
+    """`rt2 accuracy --live` alone: SIGINT once both children run -> exit 130, the bridge and rt2 track gone."""
+    import os
+    import re
+    import select
+    import signal
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "harness.cli", "accuracy", "--live", "--frames", "40", "--rate-hz", "100",
+                             "--trackers", "rt2", "--out", str(tmp_path / "out")], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    pids, seen = [], ""
+    t_end = time.monotonic() + 600
+    while not pids and time.monotonic() < t_end and proc.poll() is None:
+        if select.select([proc.stdout], [], [], 1.0)[0]:
+            line = proc.stdout.readline()
+            seen += line
+            if line.startswith("bridge "):
+                pids = [int(p) for p in re.findall(r"pid (\d+)", line)]
+    assert len(pids) == 2, seen
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=60) == 130
+    for pid in pids:
+        with pytest.raises(ProcessLookupError):
+            for _ in range(50):  # stopped by the parent on its way out (reaped: no such process)
+                os.kill(pid, 0)
+                time.sleep(0.1)

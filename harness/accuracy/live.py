@@ -488,7 +488,8 @@ def run_live_local(config: AccuracyConfig, out_dir, *, log: bool = True, status=
                           "--sim-rig", str(config.rig), "--rate-hz", f"{config.rate_hz:g}", "--seed", str(config.seed),
                           "--tracker", config.trackers[0], "--max-behind", f"{max_behind_s:g}", "--status-period", "0",
                           timeout_s=start_timeout_s) as track:
-            status(f"bridge {bridge.address} (truth {bridge.ready['truth']}), rt2 track stream {track.streams['rt2']}")
+            status(f"bridge {bridge.address} (truth {bridge.ready['truth']}, pid {bridge.ready['pid']}), rt2 track stream "
+                   f"{track.streams['rt2']} (pid {track.ready['pid']})")
             def track_alive():
                 if track.proc.poll() is None:
                     return None

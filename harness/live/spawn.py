@@ -36,11 +36,15 @@ class TrackProcess:
                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
         deadline = time.monotonic() + timeout_s
         line = ""
-        while time.monotonic() < deadline and self.proc.poll() is None:
-            ready, _, _ = select.select([self.proc.stdout], [], [], 0.5)
-            if ready:
-                line = self.proc.stdout.readline()
-                break
+        try:
+            while time.monotonic() < deadline and self.proc.poll() is None:
+                ready, _, _ = select.select([self.proc.stdout], [], [], 0.5)
+                if ready:
+                    line = self.proc.stdout.readline()
+                    break
+        except BaseException:  # SIGINT while it starts: never leave it running
+            self.stop()
+            raise
         if not line.startswith("{"):
             self.stop()
             raise ValueError(f"rt2 track did not start within {timeout_s:.0f} s: "
