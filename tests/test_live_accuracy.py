@@ -1,4 +1,4 @@
-"""The accuracy experiment on live streams (harness/accuracy/live.py): three processes -- the simulated bridge with
+"""The accuracy experiment on live streams (harness/accuracy/live.py, live_stream.py): three processes -- the simulated bridge with
 its lab truth stream, `rt2 track --source sim --truth-stream`, and the experiment -- against the in-process run of
 the same seed.
 
@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from harness.accuracy import AccuracyConfig
-from harness.accuracy.live import StreamSilent, observation_from_message, run_live_accuracy
+from harness.accuracy.live import run_live_accuracy
+from harness.accuracy.live_stream import StreamSilent, observation_from_message
 from harness.cli import main
 
 SEED = 4

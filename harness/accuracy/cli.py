@@ -155,7 +155,8 @@ def events_line(events: dict) -> str:
 
 def _run_live(args, config) -> int:
     """``rt2 accuracy --live``: the three-process run (harness.accuracy.live)."""
-    from harness.accuracy.live import format_budget, run_live_accuracy, run_live_local
+    from harness.accuracy.live import run_live_accuracy, run_live_local
+    from harness.accuracy.live_stream import format_budget
     from harness.outputs import atomic_write_json
 
     if not args.live:
