@@ -101,7 +101,7 @@ def test_the_tracker_process_draws_the_in_process_observations():
     from harness.play.observe import ObservationService, ball_observation_seeds
     from harness.play.profiles import PROFILES
     from harness.play.sources import SyntheticSource
-    from harness.play.world import encode_truth
+    from harness.live.sources.lab_truth import encode_truth
 
     prof = PROFILES["rt2"]
     svc = ObservationService("tcp://127.0.0.1:9", "tcp://127.0.0.1:9", prof, seed=3, publish_addr="tcp://127.0.0.1:0")

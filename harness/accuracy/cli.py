@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -44,6 +45,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="run the robot over the robot link (docs/robot_link.md): a bridge serving its simulation truth "
                              "(rt2 robot serve --sim --publish-truth) at ADDR, or 'sim' to start one for this run; "
                              "default: the simulated WAM in this process")
+    lv = parser.add_argument_group("live: robot, cameras + tracker and the experiment as separate processes (docs/accuracy.md, 'Live')")
+    lv.add_argument("--live", action="store_true",
+                    help="score the observations of rt2 track's stream against the robot's reported joints; alone (or with "
+                         "--robot sim) it starts the simulated bridge and rt2 track --source sim itself")
+    lv.add_argument("--tracker-stream", default=None, metavar="ADDR",
+                    help="with --live and --robot ADDR: rt2 track's rt2 stream (e.g. tcp://127.0.0.1:7661)")
+    lv.add_argument("--stream-timeout", type=float, default=None, metavar="S",
+                    help="with --live: a stream silent this long is an error (default 10 s; 900 s when the processes are "
+                         "started here, whose first frames wait for the renderer to compile)")
     r = parser.add_argument_group("realism (docs/accuracy.md); on by default")
     r.add_argument("--ideal", action="store_true",
                    help="switch every realism effect off: trackers get the exact rig, camera and robot clocks agree")
@@ -143,12 +153,57 @@ def events_line(events: dict) -> str:
             f"{100 * r['share_of_time']:.0f} % ({r['episodes']})")
 
 
+def _run_live(args, config) -> int:
+    """``rt2 accuracy --live``: the three-process run (harness.accuracy.live)."""
+    from harness.accuracy.live import run_live_accuracy, run_live_local
+    from harness.accuracy.live_stream import format_budget
+    from harness.outputs import atomic_write_json
+
+    if not args.live:
+        raise ValueError("--tracker-stream goes with --live")
+    local = args.robot in (None, "sim")
+    if local != (args.tracker_stream is None):
+        raise ValueError("--live takes both --robot ADDR and --tracker-stream ADDR (processes you started), or neither "
+                         "(it starts the simulated bridge and rt2 track itself)")
+    if args.stream_timeout is not None and not (math.isfinite(args.stream_timeout) and 0 < args.stream_timeout <= 3600):
+        raise ValueError(f"--stream-timeout must be in (0, 3600] s, got {args.stream_timeout}")
+    status = lambda line: print(line, flush=True)  # noqa: E731
+    if local:
+        res = run_live_local(config, args.out, log=not args.no_log, status=status,
+                             **({"start_timeout_s": args.stream_timeout} if args.stream_timeout else {}))
+    else:
+        res = run_live_accuracy(config, args.out, robot=args.robot, tracker_stream=args.tracker_stream,
+                                log=not args.no_log, stream_timeout_s=args.stream_timeout or 10.0, status=status)
+    m, live = res.motion_info, res.motion_info["live"]
+    c = live["robot_clock_estimate"]
+    cams = "; ".join(f"{k} {'n/a' if v is None else format(v['offset_ms'], '+.1f') + ' ms (spread ' + format(v['spread_ms'], '.1f') + ')'}"
+                     for k, v in live["camera_clock_offsets"].items())
+    header = (f"rt2 accuracy --live: seed {config.seed}, {config.n_frames} frame sets at {config.rate_hz:g} Hz, rig {config.rig}, "
+              f"{live['frames_received']} received from {live['tracker_stream']}, {res.timing['wall_s']:.0f} s\n"
+              f"robot {live['robot']}: clock offset {c['offset_ms']:+.3f} ms, uncertainty {c['uncertainty_ms']:.3f} ms"
+              + (f", off the simulation's truth by {m['robot_clock_error_ms']:+.3f} ms" if "robot_clock_error_ms" in m else "")
+              + f"\ncameras' stamps vs arrival (offset + smallest transfer latency): {cams}\n"
+              f"ground truth (FK of reported joints at the capture times) vs true ball: median "
+              f"{m['gt_vs_true_mm']['median']:.1f} mm, max {m['gt_vs_true_mm']['max']:.1f} mm\n"
+              + realism_line(res.config, res.calibration_error, m).replace(
+                  "clocks synchronised", "camera clock: the cameras' own exposure stamps on the host clock")
+              + f"\n{events_line(res.scene_events)}")
+    print(format_report(res.figures, res.rows, header=header))
+    print(format_budget(live["latency_budget"]))
+    if args.json:
+        atomic_write_json(args.json, res.rows, "--json")
+    print("\nwrote: " + ", ".join(str(p) for p in res.paths.values()))
+    return 0
+
+
 def run(args) -> int:
     from harness.accuracy.experiment import run_accuracy
     from harness.outputs import atomic_write_json, check_output_file
 
     config = config_from_args(args)
     check_output_file(args.json, "--json")  # before the run, not after
+    if args.live or args.tracker_stream is not None:
+        return _run_live(args, config)
     motion_source = None
     if args.robot is not None:
         from harness.robot.link.accuracy_motion import link_motion_source

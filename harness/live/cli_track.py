@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import sys
 import threading
@@ -43,6 +44,20 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sim only: render S seconds of the scene up front and loop them, so rendering takes no CPU "
                              "while tracking (benchmarks; memory 3.7 MB per frame set of 4 VGA cameras)")
     parser.add_argument("--tracker", default="rt2", choices=_TRACKERS, help="tracker kind (default rt2)")
+    parser.add_argument("--truth-stream", default=None, metavar="ADDR",
+                        help="sim only: render the lab from a lab truth stream (e.g. rt2 robot serve --sim --truth-stream ADDR): "
+                             "each frame is exposed on the host clock, rendered once the truth at that instant has arrived, "
+                             "and stamped with its exposure time (docs/live.md, 'Lab truth')")
+    parser.add_argument("--scene", default="accuracy", metavar="SCENE",
+                        help="with --truth-stream: accuracy (default: the accuracy experiment's lab, the ball on the arm), "
+                             "accuracy-clean, accuracy-harsh, or play (the arm and the stream's free balls)")
+    parser.add_argument("--max-behind", type=float, default=0.1, metavar="S",
+                        help="with --truth-stream: when a frame's exposure is more than S seconds past as its turn to render "
+                             "comes, the cameras skip to the present (default 0.1: stay near real time); a larger S renders "
+                             "every frame until they are S behind (the accuracy experiment's cameras)")
+    parser.add_argument("--sim-rig", default=None, metavar="RIG",
+                        help="sim only: the rig the simulated cameras render with (default: --rig); e.g. the true lab when "
+                             "--rig is an estimated calibration")
     parser.add_argument("--queue-s", type=float, default=0.25, metavar="S",
                         help="frames and frame sets buffered before anything is dropped, in seconds of the frame rate "
                              "(default 0.25: a hiccup of the machine that long costs latency, not frame sets)")
@@ -62,6 +77,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: until Ctrl-C or the source ends)")
     parser.add_argument("--json", metavar="STATS", help="write the end-of-run figures to this JSON file")
     parser.add_argument("--status-period", type=float, default=1.0, metavar="S", help="seconds between status lines (0 = none)")
+    parser.add_argument("--ready-json", action="store_true",
+                        help="print the start line as JSON (the bound stream addresses; for scripts and tests)")
     add_log_arguments(parser)
     parser.set_defaults(log_images="20")
     for action in parser._actions:  # the shared option, with this command's default
@@ -119,11 +136,33 @@ def open_frames(args, rig):
     if not (math.isfinite(queue_s) and 0 < queue_s <= 10):
         raise ValueError(f"--queue-s must be in (0, 10] seconds, got {queue_s}")
     n_queue = max(8, math.ceil(queue_s * args.rate_hz))
-    sources = open_sources(spec, rig, rate_hz=args.rate_hz, seed=args.seed, queue_len=n_queue, **extra)
+    render_rig, clock, provider = rig, "host", None
+    if spec.kind != "sim" and (getattr(args, "truth_stream", None) or getattr(args, "sim_rig", None)):
+        raise ValueError(f"--truth-stream and --sim-rig apply to the sim source only, got --source {' '.join(args.source)}")
+    if getattr(args, "sim_rig", None):
+        from harness.rigs import resolve_rig
+
+        render_rig = resolve_rig(args.sim_rig)
+        if render_rig.names != rig.names:
+            raise ValueError(f"--sim-rig {args.sim_rig!r} has cameras {list(render_rig.names)}, --rig {args.rig!r} has "
+                             f"{list(rig.names)}: they must be the same cameras")
+    if getattr(args, "truth_stream", None):
+        from harness.live.sources.lab_truth import LabTruthScene
+
+        if "prerender_s" in extra:
+            raise ValueError("--prerender cannot go with --truth-stream (the lab is rendered as the truth arrives)")
+        provider = LabTruthScene(args.truth_stream, args.scene, seed=args.seed)
+        if not (math.isfinite(args.max_behind) and 0 < args.max_behind <= 3600):
+            raise ValueError(f"--max-behind must be in (0, 3600] seconds, got {args.max_behind}")
+        extra["clock"], clock = "host", "device"  # exposure stamped on the host clock: take it as it is
+        extra["max_behind_s"] = float(args.max_behind)
+    sources = open_sources(spec, render_rig, rate_hz=args.rate_hz, seed=args.seed, queue_len=n_queue,
+                           scene_provider=provider, **extra)
     try:
         if len(sources) != len(rig):
             raise ValueError(f"--source {' '.join(args.source)} gives {len(sources)} camera(s) but rig {args.rig!r} has {len(rig)}")
-        assembler = FrameSetAssembler(sources, AssemblyOptions(rate_hz=args.rate_hz, queue_len=n_queue, output_len=n_queue))
+        assembler = FrameSetAssembler(sources, AssemblyOptions(rate_hz=args.rate_hz, queue_len=n_queue, output_len=n_queue,
+                                                               clock=clock))
     except BaseException:
         for s in sources:
             s.close()
@@ -226,8 +265,12 @@ def run(args) -> int:
         where.append(f"live view on ws://{args.foxglove_host}:{service.view.port}")
     if service.log is not None:
         where.append(f"log {service.log.path}")
-    print(f"rt2 track: {args.tracker} on {' '.join(args.source)} ({len(service.rig)} cameras, rig {args.rig}): "
-          + ("; ".join(where) or "nothing published"), flush=True)
+    if getattr(args, "ready_json", False):
+        print(json.dumps({"streams": dict(service.publisher.addresses if service.publisher else {}),
+                          "tracker": args.tracker, "rig": str(args.rig), "pid": os.getpid()}), flush=True)
+    else:
+        print(f"rt2 track: {args.tracker} on {' '.join(args.source)} ({len(service.rig)} cameras, rig {args.rig}): "
+              + ("; ".join(where) or "nothing published"), flush=True)
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         assembler.start()

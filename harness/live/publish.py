@@ -86,12 +86,26 @@ def _stamps(values) -> list:
     return [_num(v) for v in np.asarray(values, float).ravel().tolist()]
 
 
-def rich_message(num: int, afs, obs, *, t_first_host_s: float, camera_names, t_publish_s: float | None = None) -> dict:
+def _candidates(info) -> list | None:
+    """Per camera ``[[u, v, score, area_px], ...]``: every candidate the estimator saw (None without them)."""
+    uv = getattr(info, "uv_candidates_px", None)
+    if uv is None:
+        return None
+    uv = np.asarray(uv, float)
+    rows = np.concatenate([uv, np.asarray(info.scores, float)[..., None], np.asarray(info.areas_px, float)[..., None]],
+                          axis=-1)
+    have = np.isfinite(uv[..., 0])
+    return [rows[i][have[i]].tolist() for i in range(rows.shape[0])]
+
+
+def rich_message(num: int, afs, obs, *, t_first_host_s: float, camera_names, t_publish_s: float | None = None,
+                 info=None) -> dict:
     """rt2's own message for one frame set (every field documented in docs/live.md).
 
     afs : the :class:`~harness.live.frames.AssembledFrameSet`; obs : its ``tracker.BallObservation``;
     t_first_host_s / t_publish_s : ``time.monotonic()`` seconds of the first frame's arrival and of
     the publication (None: :meth:`Publisher.publish` stamps it, and ``latency_s``, just before the send)
+    info : the tracker's ``TrackInfo`` (``candidates``: what the estimator saw; None: not sent)
     """
     pos = None if obs.position_m is None else [float(v) for v in obs.position_m]
     cov = None if obs.covariance_m2 is None else np.asarray(obs.covariance_m2, float).tolist()
@@ -116,6 +130,7 @@ def rich_message(num: int, afs, obs, *, t_first_host_s: float, camera_names, t_p
         "tracker_latency_s": float(obs.latency_s),
         "latency_s": None if t_publish_s is None else float(t_publish_s - t_first_host_s),
         "notes": [str(n) for n in (*afs.notes, *obs.notes)],
+        "candidates": None if info is None else _candidates(info),
     }
 
 

@@ -117,7 +117,7 @@ class TrackingService:
         t_done = time.monotonic()
         if self.publisher is not None:  # a message only for a stream that is on (``--publish-rt2 none``)
             on = self.publisher.addresses
-            rich = (rich_message(num, afs, obs, t_first_host_s=t_first, camera_names=self._names)  # stamped at the send
+            rich = (rich_message(num, afs, obs, t_first_host_s=t_first, camera_names=self._names, info=info)  # stamped at the send
                     if "rt2" in on else None)
             tennicam = (tennicam_message(num, _time_ns(afs.frameset.t_s), time.monotonic() - t_first, obs.position_m)
                         if "tennicam" in on else None)

@@ -21,12 +21,12 @@ import heapq
 import json
 import time
 
-import msgpack
 import numpy as np
 import zmq
 
 from harness.lab import coverage
 from harness.live.frames import AssembledFrameSet
+from harness.live.sources.lab_truth import decode_truth
 from harness.live.publish import Publisher, rich_message, tennicam_message
 from harness.play.profiles import TrackerProfile
 from harness.play.sources import SyntheticSource
@@ -105,14 +105,14 @@ class ObservationService:
         b = self._ball
         if b is None or not b["live"]:
             return
-        msg = msgpack.unpackb(frame, raw=False)
-        t_ns, q = int(msg["t_ns"]), np.asarray(msg["q"], float)
+        sample = decode_truth(frame)
+        t_ns, q = sample.t_ns, sample.q
         if t_ns <= b["prev"][0]:
             return
-        if not msg["balls"]:
+        if not len(sample.balls):
             b["live"] = False  # the world has ended this ball
             return
-        x1 = np.asarray(msg["balls"][0], float)
+        x1 = sample.balls[0]
         t0, x0, q0 = b["prev"]
         q0 = q if q0 is None else q0
         while True:

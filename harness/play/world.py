@@ -34,28 +34,21 @@ import logging
 import time
 from dataclasses import dataclass, field
 
-import msgpack
 import numpy as np
 import zmq
 
+from harness.live.sources.lab_truth import TruthError, TruthPublisher
 from harness.physics import BallWorld, EventKind, RacketState
 from harness.play.session import SessionOptions, ball_over, lerp_racket, world_summary
 from harness.robot.link.bridge_sim import BridgeOptions, SimBridge
 from harness.robot.sim_wam import SimulatedWam, SimWamOptions
 
-__all__ = ["WorldBridge", "WorldOptions", "ball_robot_seed", "encode_truth"]
+__all__ = ["WorldBridge", "WorldOptions", "ball_robot_seed"]
 
 log = logging.getLogger("rt2.play.world")
-TRUTH_VERSION = 1
 _MAX_CHUNK_TICKS = 8
 _FAR_M = 0.8  #: beyond this from the racket no contact within the next ticks is possible
 _FK_EVERY = 10  #: ticks between racket poses while the ball is far
-
-
-def encode_truth(t_ns: int, q, balls, seq: int) -> bytes:
-    """One lab truth message (msgpack): host CLOCK_MONOTONIC ns, (7,) true joints, (m, 3) free balls, count."""
-    return msgpack.packb({"v": TRUTH_VERSION, "t_ns": int(t_ns), "q": [float(v) for v in q],
-                          "balls": [[float(v) for v in b] for b in balls], "seq": int(seq)}, use_bin_type=True)
 
 
 def ball_robot_seed(seed: int, ball: int) -> int:
@@ -128,19 +121,21 @@ class WorldBridge(SimBridge):
         super().__init__(SimulatedWam(kinematics, world.sim, seed=ball_robot_seed(world.seed, 0)), options,
                          context=context)
         _warm_up_world(self.params, world.session, kinematics)
-        self._truth = self._ctx.socket(zmq.PUB)
+        try:
+            self._world_truth = TruthPublisher(world.truth_bind, context=self._ctx)
+        except TruthError as exc:
+            self.close()
+            raise ValueError(str(exc)) from None
         self._world_pub = self._ctx.socket(zmq.PUB)
-        for sock, addr in ((self._truth, world.truth_bind), (self._world_pub, world.world_bind)):
-            sock.setsockopt(zmq.LINGER, 0)
-            try:
-                sock.bind(addr)
-            except zmq.ZMQError as exc:
-                self.close()
-                raise ValueError(f"cannot bind the world's streams at {addr}: {exc}") from None
-        self.truth_endpoint = self._truth.getsockopt_string(zmq.LAST_ENDPOINT)
+        self._world_pub.setsockopt(zmq.LINGER, 0)
+        try:
+            self._world_pub.bind(world.world_bind)
+        except zmq.ZMQError as exc:
+            self.close()
+            raise ValueError(f"cannot bind the world's event stream at {world.world_bind}: {exc}") from None
+        self.truth_endpoint = self._world_truth.address
         self.world_endpoint = self._world_pub.getsockopt_string(zmq.LAST_ENDPOINT)
         self._fid = kinematics.frame_id("racket")
-        self._truth_seq = 0
         self._next_ball = 0
         self._serve_tick: int | None = None  # the announced ball leaves the launcher at this tick
         self._earliest_tick: int | None = None  # no serve before this tick (start delay, gap after a ball)
@@ -151,10 +146,10 @@ class WorldBridge(SimBridge):
 
     def close(self) -> None:
         super().close()
-        for name in ("_truth", "_world_pub"):
-            sock = getattr(self, name, None)
-            if sock is not None:
-                sock.close(linger=0)
+        if getattr(self, "_world_truth", None) is not None:
+            self._world_truth.close()
+        if getattr(self, "_world_pub", None) is not None:
+            self._world_pub.close(linger=0)
 
     # -- clocks -----------------------------------------------------------------------------------
     def _host_ns(self, robot_ns: int) -> int:
@@ -277,7 +272,6 @@ class WorldBridge(SimBridge):
                     self._earliest_tick = self._ticks - len(samples) + k + 1 + int(
                         round(self.world_options.gap_s * 1e9 / self.dt_ns))
                     balls = []
-            self._truth_seq += 1
-            self._truth.send(encode_truth(self._host_ns(t_robot), samples.q_true[k], balls, self._truth_seq))
+            self._world_truth.publish(self._host_ns(t_robot), samples.q_true[k], balls)
 
 

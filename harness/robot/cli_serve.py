@@ -39,6 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="add this to the robot clock (to test the clock-offset estimate)")
     parser.add_argument("--publish-truth", action="store_true",
                         help="add the simulator's true joint angles to every state (simulated scenes need them)")
+    parser.add_argument("--truth-stream", default=None, metavar="ADDR",
+                        help="also publish the lab truth stream (true joints on the host clock, for simulated cameras: "
+                             "rt2 track --source sim --truth-stream ADDR) on this PUB endpoint, e.g. tcp://127.0.0.1:7652; "
+                             "with --world play it also carries the balls (default there: a free port)")
     parser.add_argument("--batch", type=int, default=1, metavar="N",
                         help="run and publish the ticks N at a time (default 1: every state as its tick comes; on a busy "
                              "machine N > 1 uses less CPU at N - 1 ticks of extra delay; the stamps stay the ticks')")
@@ -46,8 +50,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also run a world next to the robot: play = the ball world of `rt2 play --live` (launcher "
                              "serves, 1 ms physics, racket contact from the true joints, outcomes; docs/play.md, 'Live')")
     parser.add_argument("--balls", type=int, default=10, help="--world play: balls to serve (default 10)")
-    parser.add_argument("--truth-bind", default="tcp://127.0.0.1:*", help="--world play: lab truth stream endpoint "
-                        "(default a free port)")
     parser.add_argument("--world-bind", default="tcp://127.0.0.1:*", help="--world play: serve/outcome event stream "
                         "endpoint (default a free port)")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
@@ -67,13 +69,14 @@ def run(args) -> int:
         raise ValueError(f"--duration must be > 0 s, got {args.duration!r}")
     options = BridgeOptions(bind=args.bind, state_bind=args.state_bind, watchdog_s=args.watchdog,
                             clock_skew_ns=int(round(args.clock_skew_ms * 1e6)), publish_truth=args.publish_truth,
-                            batch_ticks=args.batch)
+                            batch_ticks=args.batch,
+                            truth_bind=None if args.world else args.truth_stream)
     if args.world == "play":
         from harness.play.world import WorldBridge, WorldOptions
 
         # the in-process session's simulated WAM (SimWamOptions()) so that live and in-process runs agree
         play_sim = SimWamOptions() if args.rate is None else SimWamOptions(control_rate_hz=args.rate)
-        bridge = WorldBridge(kin, WorldOptions(balls=args.balls, seed=args.seed, truth_bind=args.truth_bind,
+        bridge = WorldBridge(kin, WorldOptions(balls=args.balls, seed=args.seed, truth_bind=args.truth_stream or "tcp://127.0.0.1:*",
                                                world_bind=args.world_bind, sim=play_sim), options)
         sim_opts = play_sim
     else:
@@ -82,13 +85,15 @@ def run(args) -> int:
         signal.signal(sig, lambda *_: bridge.stop())
     ready = {"command": bridge.command_endpoint, "state": bridge.state_endpoint, "pid": os.getpid(),
              "rate_hz": sim_opts.control_rate_hz, "watchdog_s": options.watchdog_s, "bridge_id": bridge.bridge_id,
-             "epoch_monotonic_ns": bridge.epoch_ns, "clock_skew_ns": options.clock_skew_ns}
+             "epoch_monotonic_ns": bridge.epoch_ns, "clock_skew_ns": options.clock_skew_ns,
+             "truth": bridge.truth_endpoint}
     if args.world:
-        ready.update(truth=bridge.truth_endpoint, world=bridge.world_endpoint, balls=args.balls, seed=args.seed)
+        ready.update(world=bridge.world_endpoint, balls=args.balls, seed=args.seed)
     if args.ready_json:
         print(json.dumps(ready), flush=True)
     else:
         print(f"serving the simulated WAM at {sim_opts.control_rate_hz:g} Hz: commands {bridge.command_endpoint}, "
-              f"states {bridge.state_endpoint}, watchdog {options.watchdog_s:g} s (Ctrl-C to stop)", flush=True)
+              f"states {bridge.state_endpoint}, "
+              + (f"lab truth {bridge.truth_endpoint}, " if bridge.truth_endpoint else "") + f"watchdog {options.watchdog_s:g} s (Ctrl-C to stop)", flush=True)
     bridge.serve(args.duration)
     return 0

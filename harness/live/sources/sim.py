@@ -21,11 +21,18 @@ The default scene is seeded launcher ball flights (:class:`LauncherFlights`); an
 Scene time ``t_s`` is host time ``feed.origin_s + t_s`` (``sources[i].feed``); a provider that
 follows live state should run with ``render_ahead=1``, so that what it returns is drawn at most about
 a period before the frame is stamped.
+
+``clock="host"`` is for a lab driven by other processes (the simulated WAM behind its bridge): frame set
+k is *exposed* at host time ``origin + k / rate_hz``, rendered after that instant from
+``scene_provider(t_host_s, k)`` (:class:`~.lab_truth.LabTruthScene` waits for the lab truth stream's
+sample at that instant), and stamped with the exposure time on the host clock as its device stamp; it
+arrives later by the wait and the render time, as a frame from a camera with hardware timestamps does.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -51,6 +58,15 @@ class SimOptions:
     exposure : the cameras' exposure (constant)
     render_process : render in a child process (another core, never holding the tracker's interpreter
         lock; the scene provider must be picklable; ~1 s per VGA camera to start) instead of a thread
+    clock : "scene" (frame set k shows scene time k / rate_hz, rendered ahead, device stamp k / rate_hz) or
+        "host": frame set k is exposed at host time ``origin + k / rate_hz`` (CLOCK_MONOTONIC, ``origin`` when
+        the feed starts), rendered only once that instant has passed by ``scene_provider(t_host_s, k)``
+        (which may wait for the lab's truth at it, e.g. :class:`~.lab_truth.LabTruthScene`), and stamped
+        with the exposure time as its device stamp while it arrives later -- a camera with hardware
+        timestamps on the host clock (assemble with ``clock="device"``)
+    max_behind_s : "host" clock: when frame set k's exposure is further than this in the past as its turn
+        comes, the renderer skips to the present (counted in ``skipped``): a renderer slower than real time
+        falls behind by up to this much, renders every frame meanwhile, then catches up at once
     """
 
     rate_hz: float = 200.0
@@ -62,8 +78,17 @@ class SimOptions:
     queue_len: int = 8
     exposure: Exposure = Exposure(exposure_s=0.002, gain=1.0, light_level=1.0)
     render_process: bool = False
+    clock: str = "scene"
+    max_behind_s: float = 0.1
 
     def __post_init__(self):
+        if self.clock not in ("scene", "host"):
+            raise ValueError(f"SimOptions.clock must be 'scene' or 'host', got {self.clock!r}")
+        if self.clock == "host" and (self.prerender_s is not None or self.render_process):
+            raise ValueError("SimOptions.clock='host' renders each frame after its exposure: it cannot go with "
+                             "prerender_s or render_process")
+        if not (np.isfinite(self.max_behind_s) and self.max_behind_s > 0):
+            raise ValueError(f"SimOptions.max_behind_s must be > 0 s, got {self.max_behind_s!r}")
         if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
             raise ValueError(f"SimOptions.rate_hz must be > 0, got {self.rate_hz!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
@@ -138,6 +163,9 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
     provider = scene_provider
     if provider is None:
         provider = LauncherFlights(options.seed, exposure=options.exposure)
+        if options.clock == "host":
+            flights, period_s = provider, 1.0 / options.rate_hz
+            provider = lambda t_host_s, k: flights(k * period_s)  # noqa: E731 - scene time of frame set k
     if not callable(provider):
         raise ValueError(f"scene_provider must be a callable t_s -> Scene, got {type(provider).__name__}")
     n = len(rig.cameras)
@@ -206,10 +234,44 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
             t = k_done * period
             yield FeedItem((k_done,) * n, t, (t,) * n, images)
 
-    feed = PacedFeed("sim", range(n), rig.names, produce_in_process if process is not None else produce,
+    def produce_on_host_clock():
+        """Frame set k: wait for its exposure instant, render what the provider says is there, stamp it."""
+        warm = getattr(provider, "warm_up_scene", None)
+        if warm is not None:  # compile the renderer's kernels for this scene before the clock starts
+            renderer.render(warm())
+        if hasattr(provider, "open"):  # e.g. LabTruthScene: connect and wait for the first truth sample first
+            provider.open()
+        origin = time.monotonic() + 2 * period
+        k = 0
+        while n_total is None or k < n_total:
+            now = time.monotonic()
+            if now - (origin + k * period) > options.max_behind_s:  # too far behind: skip to the present
+                k_next = int(np.ceil((now - origin) / period))
+                feed.skipped += k_next - k
+                k = k_next
+                if n_total is not None and k >= n_total:
+                    break
+            t_exp = origin + k * period
+            if t_exp > now and feed._stop.wait(t_exp - now):
+                return
+            scene = provider(t_exp, k)
+            if not isinstance(scene, Scene):
+                raise ValueError(f"scene_provider({t_exp:.4f}, {k}) returned {type(scene).__name__}, not a Scene")
+            images = tuple(renderer.render(dataclasses.replace(scene, frame_index=k)))
+            yield FeedItem((k,) * n, k * period, (t_exp,) * n, images)
+            k += 1
+
+    if options.clock == "host":
+        producer = produce_on_host_clock
+    else:
+        producer = produce_in_process if process is not None else produce
+    feed = PacedFeed("sim", range(n), rig.names, producer,
                      speed=options.speed, queue_len=options.queue_len,
-                     prefetch=0 if clip is not None or process is not None else options.render_ahead,
-                     late_tolerance_s=period, slide=False)
+                     prefetch=0 if clip is not None or process is not None or options.clock == "host"
+                     else options.render_ahead,
+                     late_tolerance_s=period if options.clock == "scene" else options.max_behind_s, slide=False)
     if process is not None:
         feed.add_closer(process.close)
+    if hasattr(provider, "close"):  # e.g. a LabTruthScene's subscriber
+        feed.add_closer(provider.close)
     return feed.views(), feed

@@ -42,9 +42,10 @@ class BridgeOptions:
     clock_skew_ns: int = 0  #: added to the robot clock (tests of the clock-offset estimate)
     publish_truth: bool = False  #: add the simulator's truth to every state (``sim``: q_true, bias_rad, offset_ns)
     batch_ticks: int = 1  #: wake every this many ticks (1: each state as its tick comes; N: less CPU, N-1 ticks later)
+    truth_bind: str | None = None  #: also publish the lab truth stream here (harness.live.sources.lab_truth)
 
     def __post_init__(self):
-        for name in ("bind",) + (("state_bind",) if self.state_bind is not None else ()):
+        for name in ("bind",) + tuple(n for n in ("state_bind", "truth_bind") if getattr(self, n) is not None):
             check_endpoint(f"BridgeOptions.{name}", getattr(self, name))
         if not 0.01 <= float(self.watchdog_s) <= 10:
             raise ValueError(f"BridgeOptions.watchdog_s must be in [0.01, 10] s, got {self.watchdog_s!r}")
@@ -82,6 +83,16 @@ class SimBridge(BridgeCore):
         self.wam, self.options = wam, options
         self.kin = wam.kinematics
         self.dt_ns = int(round(1e9 / wam.control_rate_hz))
+        self._truth_pub = None
+        if options.truth_bind is not None:
+            from harness.live.sources.lab_truth import TruthError, TruthPublisher
+
+            try:
+                self._truth_pub = TruthPublisher(options.truth_bind, context=self._ctx)
+            except TruthError:
+                self.close()
+                raise
+        self.truth_endpoint = None if self._truth_pub is None else self._truth_pub.address
         _warm_up(wam)
         self.epoch_ns = time.monotonic_ns()
         self._ticks = 0  # control ticks run (the robot time of the latest is _ticks * dt_ns)
@@ -113,6 +124,11 @@ class SimBridge(BridgeCore):
             self.event("stopping", "bridge shutting down")
             self.close()
 
+    def close(self) -> None:
+        super().close()
+        if getattr(self, "_truth_pub", None) is not None:
+            self._truth_pub.close()
+
     def _run_ticks(self) -> None:
         target = self.robot_ns() // self.dt_ns
         n = target - self._ticks
@@ -126,10 +142,12 @@ class SimBridge(BridgeCore):
         """One ``state`` per sample of ``self.wam`` (stamped ``wam_origin_ns`` + the simulator's own time)."""
         truth = samples.q_true if self.options.publish_truth else None
         for i in range(len(samples)):
+            t_ns = self.wam_origin_ns + int(round(samples.t_s[i] * 1e9))
+            if self._truth_pub is not None:  # the lab truth stream: true joints on the host clock
+                self._truth_pub.publish(t_ns - self._true_offset_ns, samples.q_true[i])
             sim = None if truth is None else {"q_true": truth[i].tolist(), "bias_rad": self._bias,
                                               "offset_ns": self._true_offset_ns}
-            self.publish_state(self.wam_origin_ns + int(round(samples.t_s[i] * 1e9)), samples.q[i].tolist(), samples.qdot[i].tolist(),
-                               None, sim)
+            self.publish_state(t_ns, samples.q[i].tolist(), samples.qdot[i].tolist(), None, sim)
 
     # -- BridgeCore ---------------------------------------------------------------------------------
     def welcome_fields(self) -> dict:

@@ -183,6 +183,10 @@ class WamClient:
                 if sub.poll(5):
                     while sub.poll(0):
                         self._receive(sub.recv())
+                        now = time.monotonic()  # a backlog of states never holds the heartbeat back
+                        if self.heartbeat_s is not None and now >= next_hb:
+                            hb.send(protocol.encode("heartbeat", id=next(hb_ids)))
+                            next_hb = now + self.heartbeat_s
                 elif self._latest is not None and time.monotonic() - self._last_state_mono > self.timeout_s:
                     # (before the first state the constructor waits up to connect_timeout_s)
                     with self._lock:

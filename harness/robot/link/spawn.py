@@ -31,8 +31,13 @@ class ReadyProcess:
         self._log = tempfile.TemporaryFile(mode="w+")  # the child's log; a pipe nobody reads could fill and block it
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=self._log, text=True,
                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        ready, _, _ = select.select([self.proc.stdout], [], [], timeout_s)
-        line = self.proc.stdout.readline() if ready else ""
+        try:
+            ready, _, _ = select.select([self.proc.stdout], [], [], timeout_s)
+            line = self.proc.stdout.readline() if ready else ""
+        except BaseException:  # SIGINT while it starts: never leave it running
+            self.proc.kill()
+            self.proc.wait()
+            raise
         if not line:
             self.proc.kill()
             self.proc.wait()
