@@ -118,8 +118,8 @@ class TrackerStats:
     full_frame_retries : frame sets re-searched on full frames after the windows gave no OK estimate
     size_rejections : positions rejected by the 3D size test (``TrackerOptions.max_size_ratio``)
     handovers : positions moved by the support hand-over (``TrackerOptions.handover_max_age_s``)
-    lead_changes : frame sets whose reported ball is another hypothesis than the last one reported
-        (``TrackerOptions.hypotheses``)
+    lead_changes : frame sets whose reported ball changed from a hypothesis still kept to another one
+        in play (``TrackerOptions.hypotheses``; the motion prediction restarts on it)
     withheld : frame sets with several ball hypotheses, none in play yet: no position reported
     hypothesis_full_frames : full-frame searches asked for by the hypotheses (no ball in play)
     missing_frames : camera images that were None (no frame delivered)

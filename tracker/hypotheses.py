@@ -120,6 +120,7 @@ class BallHypotheses:
         self._in_play.fill(False)
         self._other.fill(False)
         self.lead = -1  #: slot of the reported hypothesis, -1 = none
+        self.switched = False  #: the last update moved the lead to a ball in play from another kept one
         self._last_full_s = -math.inf
         self._withhold_since_s = math.nan
 
@@ -165,6 +166,7 @@ class BallHypotheses:
         Returns the row of ``X_m`` to report, or -1: nothing to report (a choice withheld, or n = 0).
         """
         o = self.options
+        self.switched = False
         self._drop_old(t_s)
         n = len(X_m)
         if n == 0:
@@ -179,6 +181,7 @@ class BallHypotheses:
             else:
                 cand = np.flatnonzero(seen_in_play)
                 row = int(cand[np.argmax(self._count[slots[cand]])])
+                self.switched = self.lead >= 0
             self._other[slots] = True  # the others seen now are known other balls
             self._other[slots[row]] = False
         elif self.lead in slots:  # (b)

@@ -319,7 +319,8 @@ class Tracker:
 
     def _choose_ball(self, t_s: float, X, info, size_ratio: float, usable: list, used_roi: np.ndarray, notes: list):
         """Step 10 (:mod:`tracker.hypotheses`): the positions of this frame set (on a full-frame search
-        every consistent set, best first, each through the size test; else the one the windows hold)
+        every consistent set, best first, each through the size test, the second and later ones only
+        with ``Status.OK``; else the one the windows hold)
         join the hypotheses, and the one of the ball in play is reported. Returns
         ``(X, info, size_ratio, withheld)``; ``withheld``: several balls, none in play yet (X None)."""
         hyp = self._hyp
@@ -334,20 +335,19 @@ class Tracker:
                 uv[cams, sets[-1][1].candidate_index[cams]] = np.nan  # the next best set: without these candidates
                 X2, info2 = self._estimator.estimate(uv)
                 X2, info2, ratio2, _ = self._size.apply(self._estimator, uv, self._areas, X2, info2)
-                if X2 is None:
+                if info2.status is not Status.OK:  # two rays nearly always meet: a second ball needs min_support cameras
                     break
                 sets.append((X2, info2, ratio2))
-        before = hyp.lead
         row = hyp.update(t_s, np.array([s[0] for s in sets]).reshape(-1, 3))
         if row < 0:
             if sets:
                 self.stats.withheld += 1
                 notes.append(f"{len(sets)} ball position(s), none in play (moving across the table) nor the ball reported before; no position reported")
             return None, info, math.nan, bool(sets)
-        if hyp.lead != before and before >= 0:
+        if hyp.switched:
             self.stats.lead_changes += 1
             self._forget_motion(hypotheses=False)  # the prediction and the hand-over belonged to the other ball
-            notes.append(f"reported ball changed to one in play among {len(sets)} positions")
+            notes.append(f"reported ball changed to one in play (set {row + 1} of {len(sets)} positions)")
         elif row > 0:
             notes.append(f"reported the ball in play, set {row + 1} of {len(sets)} positions")
         return (*sets[row], False)
