@@ -10,9 +10,10 @@ Kinds (``TRACKER_KINDS``):
   searched first in a window around the predicted ball pixel (ROI, ``tracker._pipeline_roi``),
   then :class:`RobustTriangulator` ``method="ours"`` (Algorithm 2 extended), then the 3D size test
   (``TrackerOptions.max_size_ratio``: a position whose blobs are too wide for a ball at its depth
-  is dropped and the estimate redone), then the support hand-over (``TrackerOptions.handover_max_age_s``:
-  an estimate left with too few cameras is moved by those cameras' offset from the last confirmed
-  positions, ``tracker._pipeline_handover``).
+  is dropped and the estimate redone), the ball hypotheses (``TrackerOptions.hypotheses``: several
+  balls in view are tracked in 3D and the one in play is reported, ``tracker.hypotheses``), then the
+  support hand-over (``TrackerOptions.handover_max_age_s``: an estimate left with too few cameras is
+  moved by those cameras' offset from the last confirmed positions, ``tracker._pipeline_handover``).
 * ``rt2-paper``: the paper's system: Algorithm 1 as published (argmax, one candidate) on the full
   frame, Algorithm 2 as published (``method="paper"``), no ROI.
 * ``rtblob``: the RTBlob baseline (:class:`RTBlobTracker`), with the same fault handling.
@@ -20,8 +21,8 @@ Kinds (``TRACKER_KINDS``):
 Per frame set (rt2 kinds): validate the frame set (``ValueError`` for a wrong type or camera count),
 flag cameras without a usable frame, predict the ball's pixels, one detector call per camera
 (optionally on a thread pool), the robust estimate, and, when a window search did not confirm the
-ball, a second full-frame search of the cameras that used a window; then the size test and the
-support hand-over (``rt2``).
+ball, a second full-frame search of the cameras that used a window; then the size test, the ball
+hypotheses and the support hand-over (``rt2``).
 See docs/pipeline.md.
 """
 
@@ -318,11 +319,11 @@ class Tracker:
         return X
 
     def _choose_ball(self, t_s: float, X, info, size_ratio: float, usable: list, used_roi: np.ndarray, notes: list):
-        """Step 10 (:mod:`tracker.hypotheses`): the positions of this frame set (on a full-frame search
-        every consistent set, best first, each through the size test, the second and later ones only
-        with ``Status.OK``; else the one the windows hold)
-        join the hypotheses, and the one of the ball in play is reported. Returns
-        ``(X, info, size_ratio, withheld)``; ``withheld``: several balls, none in play yet (X None)."""
+        """Step 10 (:mod:`tracker.hypotheses`): the positions of this frame set join the hypotheses and
+        the ball in play is reported. Positions: on a full-frame search every consistent set, best
+        first, each through the size test (the second and later ones only with ``Status.OK``); else
+        the one set the windows hold. Returns ``(X, info, size_ratio, withheld)``; ``withheld``:
+        positions exist but none is reported (X None)."""
         hyp = self._hyp
         full = not used_roi[usable].any()
         if full:
