@@ -14,6 +14,7 @@ import numpy as np
 
 from checks.arrays import describe
 from tracker.detection import BallSegmentationModel, DetectorOptions
+from tracker.hypotheses import HypothesisOptions
 from tracker.robust import RobustOptions
 
 __all__ = ["DEFAULT_MODEL", "KINDS", "TRACKER_KINDS", "PipelineInfo", "TrackerOptions", "TrackerStats", "detector_options_for", "estimator_options_for", "load_model", "with_overrides"]
@@ -62,6 +63,11 @@ class TrackerOptions:
         between the confirmed positions of the last 50 ms and those cameras' own estimate then, while
         the newest confirmed position is at most this old (seconds); it removes the calibration error
         of a smaller camera set (:mod:`tracker.handover`, docs/pipeline.md). None = off
+    hypotheses : several balls in view (``rt2`` only): :class:`HypothesisOptions` of the 3D hypotheses
+        kept across frame sets; the ball reported is the one in play (moving across the table), other
+        balls are kept as known objects, and the full frame is searched while no ball is in play
+        (:mod:`tracker.hypotheses`, docs/pipeline.md step 10). None = off (one track: the estimator's
+        best set)
     """
 
     roi: bool | None = None
@@ -74,6 +80,7 @@ class TrackerOptions:
     ball_radius_m: float = 0.02
     blob_edge_px: float | None = None
     handover_max_age_s: float | None = 0.25
+    hypotheses: HypothesisOptions | None = HypothesisOptions()
 
     def __post_init__(self):
         if self.roi is not None and not isinstance(self.roi, (bool, np.bool_)):
@@ -102,6 +109,8 @@ class TrackerOptions:
         r = self.ball_radius_m
         if isinstance(r, bool) or not isinstance(r, (int, float, np.floating, np.integer)) or not (math.isfinite(r) and 0 < r < 1):
             raise ValueError(f"TrackerOptions.ball_radius_m must be a radius in metres in (0, 1), got {r!r}")
+        if self.hypotheses is not None and not isinstance(self.hypotheses, HypothesisOptions):
+            raise ValueError(f"TrackerOptions.hypotheses must be a HypothesisOptions or None (off), got {describe(self.hypotheses)}")
 
 
 @dataclass
@@ -117,6 +126,10 @@ class TrackerStats:
     full_frame_retries : frame sets re-searched on full frames after the windows gave no OK estimate
     size_rejections : positions rejected by the 3D size test (``TrackerOptions.max_size_ratio``)
     handovers : positions moved by the support hand-over (``TrackerOptions.handover_max_age_s``)
+    lead_changes : frame sets whose reported ball changed from a hypothesis still kept to another one
+        in play (``TrackerOptions.hypotheses``; the motion prediction restarts on it)
+    withheld : frame sets with several ball hypotheses, none in play yet: no position reported
+    hypothesis_full_frames : full-frame searches asked for by the hypotheses (no ball in play)
     missing_frames : camera images that were None (no frame delivered)
     bad_frames : camera images of the wrong size, dtype or channels (skipped)
     non_monotonic : frame sets whose time did not increase or was not finite (motion prediction reset)
@@ -132,6 +145,9 @@ class TrackerStats:
     full_frame_retries: int = 0
     size_rejections: int = 0
     handovers: int = 0
+    lead_changes: int = 0
+    withheld: int = 0
+    hypothesis_full_frames: int = 0
     missing_frames: int = 0
     bad_frames: int = 0
     non_monotonic: int = 0
@@ -159,6 +175,9 @@ class PipelineInfo:
         ``TrackerOptions.blob_edge_px``) / the width a ball would have at that depth (NaN without a
         position; rtblob: NaN)
     areas_px : (n_cams, k) blob area of each candidate, pixels, NaN-padded (rtblob: None)
+    hypotheses_m : (n_hypotheses, 3) newest position of each ball hypothesis kept after this frame set,
+        world frame, metres (``rt2`` with ``TrackerOptions.hypotheses``; else None)
+    hypotheses_in_play : (n_hypotheses,) bool, which of them are in play (else None)
     """
 
     uv_candidates_px: np.ndarray
@@ -169,6 +188,8 @@ class PipelineInfo:
     estimate: object
     size_ratio: float = math.nan
     areas_px: np.ndarray | None = None
+    hypotheses_m: np.ndarray | None = None
+    hypotheses_in_play: np.ndarray | None = None
 
 
 def with_overrides(options, overrides: dict) -> TrackerOptions:

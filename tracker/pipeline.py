@@ -10,9 +10,10 @@ Kinds (``TRACKER_KINDS``):
   searched first in a window around the predicted ball pixel (ROI, ``tracker._pipeline_roi``),
   then :class:`RobustTriangulator` ``method="ours"`` (Algorithm 2 extended), then the 3D size test
   (``TrackerOptions.max_size_ratio``: a position whose blobs are too wide for a ball at its depth
-  is dropped and the estimate redone), then the support hand-over (``TrackerOptions.handover_max_age_s``:
-  an estimate left with too few cameras is moved by those cameras' offset from the last confirmed
-  positions, ``tracker.handover``).
+  is dropped and the estimate redone), the ball hypotheses (``TrackerOptions.hypotheses``: several
+  balls in view are tracked in 3D and the one in play is reported, ``tracker.hypotheses``), then the
+  support hand-over (``TrackerOptions.handover_max_age_s``: an estimate left with too few cameras is
+  moved by those cameras' offset from the last confirmed positions, ``tracker.handover``).
 * ``rt2-paper``: the paper's system: Algorithm 1 as published (argmax, one candidate) on the full
   frame, Algorithm 2 as published (``method="paper"``), no ROI.
 * ``rtblob``: the RTBlob baseline (:class:`RTBlobTracker`), with the same fault handling.
@@ -20,8 +21,8 @@ Kinds (``TRACKER_KINDS``):
 Per frame set (rt2 kinds): validate the frame set (``ValueError`` for a wrong type or camera count),
 flag cameras without a usable frame, predict the ball's pixels, one detector call per camera
 (optionally on a thread pool), the robust estimate, and, when a window search did not confirm the
-ball, a second full-frame search of the cameras that used a window; then the size test and the
-support hand-over (``rt2``).
+ball, a second full-frame search of the cameras that used a window; then the size test, the ball
+hypotheses and the support hand-over (``rt2``).
 See docs/pipeline.md.
 """
 
@@ -50,6 +51,7 @@ from tracker._pipeline_options import (
 from tracker.handover import SupportHandover
 from tracker._pipeline_roi import MotionPredictor
 from tracker.size_test import SizeTest
+from tracker.hypotheses import BallHypotheses
 from tracker._rtblob_detect import image_problem
 from tracker.detection import BallDetector, DetectorOptions
 from tracker.observation import BallObservation, FrameSet, Status
@@ -133,6 +135,7 @@ class Tracker:
         self._handover = None
         if kind == "rt2" and options.handover_max_age_s is not None:
             self._handover = SupportHandover(self._estimator, len(rig), max_age_s=options.handover_max_age_s)
+        self._hyp = BallHypotheses(options.hypotheses) if kind == "rt2" and options.hypotheses is not None else None
         n = self.n_cams
         self._uv = np.full((n, k, 2), np.nan)  # the estimator's input, reused every frame set
         self._scores = np.full((n, k), np.nan)
@@ -154,10 +157,12 @@ class Tracker:
         if clear_stats:
             self.stats = TrackerStats()
 
-    def _forget_motion(self) -> None:
+    def _forget_motion(self, *, hypotheses: bool = True) -> None:
         self._motion.reset()
         if self._handover is not None:
             self._handover.reset()
+        if hypotheses and self._hyp is not None:
+            self._hyp.reset()
 
     def close(self) -> None:
         """Stop the worker threads (``workers > 1``); the tracker refuses frame sets afterwards."""
@@ -242,6 +247,10 @@ class Tracker:
         n = self.n_cams
         self._images = images
         roi_px = self._motion.predict_pixels(t_s) if self.roi else None
+        hyp = self._hyp
+        if roi_px is not None and hyp is not None and hyp.wants_full_frame(t_s):
+            roi_px = None  # no ball in play: look at everything now and then (step 10)
+            self.stats.hypothesis_full_frames += 1
         if roi_px is None:
             roi_px = np.full((n, 2), np.nan)
         else:
@@ -270,10 +279,13 @@ class Tracker:
                 used_roi[redo] = False
                 self._detect(redo, roi_px, used_roi)
                 X, info, size_ratio = self._estimate(notes)
-        ok = info.status is Status.OK
+        withheld = False
+        if hyp is not None and math.isfinite(t_s):
+            X, info, size_ratio, withheld = self._choose_ball(t_s, X, info, size_ratio, usable, used_roi, notes)
+        ok = info.status is Status.OK and not withheld
         cand = info.candidate_index
         uv_px = np.full((n, 2), np.nan)
-        sel = np.flatnonzero(cand >= 0)
+        sel = np.flatnonzero(cand >= 0) if not withheld else np.zeros(0, np.int64)
         uv_px[sel] = self._uv[sel, cand[sel]]
         if X is not None and self._handover is not None and math.isfinite(t_s):
             X = self._hand_over(t_s, X, info, uv_px, ok, notes)
@@ -281,15 +293,16 @@ class Tracker:
             self._motion.update(t_s, X)  # only confirmed estimates feed the prediction
         self.stats.positions += X is not None
         self.stats.ok += ok
-        pinfo = PipelineInfo(self._uv.copy(), self._scores.copy(), roi_px, used_roi, retried, info, size_ratio, self._areas.copy())
+        pinfo = PipelineInfo(self._uv.copy(), self._scores.copy(), roi_px, used_roi, retried, info, size_ratio, self._areas.copy(),
+                             *((hyp.positions(), hyp.in_play()) if hyp is not None else (None, None)))
         self._images = None  # do not keep the frames alive
         obs = BallObservation(
             t_s=t_s,
             position_m=X,
-            covariance_m2=info.covariance_m2,
-            support=info.support,
-            inliers=info.inliers,
-            status=info.status,
+            covariance_m2=None if withheld else info.covariance_m2,
+            support=0 if withheld else info.support,
+            inliers=np.zeros(n, bool) if withheld else info.inliers,
+            status=Status.NO_CONSENSUS if withheld else info.status,
             latency_s=time.perf_counter() - t0,  # entry to return
             tracker=self.kind,
             uv_px=uv_px,
@@ -306,6 +319,41 @@ class Tracker:
             notes.append(f"{info.support}-camera estimate moved {1e3 * float(np.linalg.norm(d)):.1f} mm by the offset of those cameras "
                          "from the last confirmed positions (support hand-over)")
         return X
+
+    def _choose_ball(self, t_s: float, X, info, size_ratio: float, usable: list, used_roi: np.ndarray, notes: list):
+        """Step 10 (:mod:`tracker.hypotheses`): the positions of this frame set join the hypotheses and
+        the ball in play is reported. Positions: on a full-frame search every consistent set, best
+        first, each through the size test (the second and later ones only with ``Status.OK``); else
+        the one set the windows hold. Returns ``(X, info, size_ratio, withheld)``; ``withheld``:
+        positions exist but none is reported (X None)."""
+        hyp = self._hyp
+        full = not used_roi[usable].any()
+        if full:
+            hyp.searched_full_frame(t_s)
+        sets = [] if X is None else [(X, info, size_ratio)]
+        if full and X is not None:
+            uv = self._uv.copy()
+            while len(sets) < hyp.options.max_hypotheses:
+                cams = np.flatnonzero(sets[-1][1].candidate_index >= 0)
+                uv[cams, sets[-1][1].candidate_index[cams]] = np.nan  # the next best set: without these candidates
+                X2, info2 = self._estimator.estimate(uv)
+                X2, info2, ratio2, _ = self._size.apply(self._estimator, uv, self._areas, X2, info2)
+                if info2.status is not Status.OK:  # two rays nearly always meet: a second ball needs min_support cameras
+                    break
+                sets.append((X2, info2, ratio2))
+        row = hyp.update(t_s, np.array([s[0] for s in sets]).reshape(-1, 3))
+        if row < 0:
+            if sets:
+                self.stats.withheld += 1
+                notes.append(f"{len(sets)} ball position(s), none in play (moving across the table) nor the ball reported before; no position reported")
+            return None, info, math.nan, bool(sets)
+        if hyp.switched:
+            self.stats.lead_changes += 1
+            self._forget_motion(hypotheses=False)  # the prediction and the hand-over belonged to the other ball
+            notes.append(f"reported ball changed to one in play (set {row + 1} of {len(sets)} positions)")
+        elif row > 0:
+            notes.append(f"reported the ball in play, set {row + 1} of {len(sets)} positions")
+        return (*sets[row], False)
 
     def _estimate(self, notes: list):
         """The robust estimate of the current candidates, then the 3D size test (the candidates it drops

@@ -21,8 +21,8 @@ table, the distractor objects, the exposure) from its seed, as the accuracy expe
   floor. No orange thing but the served ball: a lab that ran the colour-based RTBlob for years (the
   paper's) kept orange objects out of the cameras' view;
 * ``second_ball`` -- the default, but the person holds an ORANGE ball during the whole flight: a second
-  real ball, consistent across the cameras. Neither tracker is built for it (both report one ball);
-  it shows what either does then (docs/play.md);
+  real ball, consistent across the cameras. RT2 keeps both as 3D hypotheses and reports the one in
+  play (docs/pipeline.md step 10); RTBlob's per-camera argmax mixes them (docs/play.md);
 * ``harsh`` -- shirts including orange, an orange cup and a near-orange juggling ball on the table, a
   white and an orange box on the floor (the play scene before 2026-11-22): a colour tracker picks an
   orange object in nearly every frame;
