@@ -1,7 +1,7 @@
 """The table-tennis ball: flight with drag and Magnus lift, table bounce, and trajectory prediction.
 
 A pure model shared by the hitting policy (which predicts where the ball will be) and the
-simulated world in ``harness.physics`` (which moves it). Equations (docs/ball_physics.md):
+simulated world in ``harness.sim.physics`` (which moves it). Equations (docs/ball_physics.md):
 
 (1) flight   ``dv/dt = -g z - k_d(S) |v| v + k_m (w x v)``, ``k_d(S) = rho (C_D + C_DS S) A / (2 m)``,
              spin parameter ``S = r |w| / |v|``, ``k_m = rho C_L A r / (2 m)``, ``A = pi r^2`` -- the

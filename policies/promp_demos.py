@@ -39,7 +39,7 @@ class HitDistribution:
     """
 
     # Where and how the hitting policy (policies/hitting.py, docs/play.md) hits served balls: the launcher's
-    # balls (harness/launcher.py) pass x -1.1..-1.5 m within |y| < 0.25 m at z 0.95-1.3 m; the return rule
+    # balls (harness/sim/launcher.py) pass x -1.1..-1.5 m within |y| < 0.25 m at z 0.95-1.3 m; the return rule
     # asks for racket normals and velocities pitched 5-35 deg up at 1.0-1.8 m/s; fast strokes (0.4-0.6 s
     # from rest to the hit) so that a movement started on the first predictions arrives in time.
     x_m: tuple = (-1.45, -1.1)

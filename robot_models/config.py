@@ -12,7 +12,7 @@ File format (``data/robot/wam.yaml``, documented in docs/robot.md)::
       qddot_max_rad_s2: [7 values]             # acceleration limits
     q_home_rad: [7 values]                     # rest posture: IK null-space target, simulator start
     render: {link_radii_m: [8 values]}         # capsule radius per segment of Kinematics.link_points
-    simulator: {...}                           # options of harness.robot.SimulatedWam (read there)
+    simulator: {...}                           # options of harness.sim.robot.SimulatedWam (read there)
 
 Every field but ``format``/``version`` has a default (the values below). Lengths metres, angles
 radians, roll-pitch-yaw as in URDF: ``R = Rz(yaw) Ry(pitch) Rx(roll)``.
@@ -59,7 +59,7 @@ class RobotConfig:
     q_home_rad: tuple = (-0.1, 0.4, -0.26, 2.32, 0.87, 0.88, 2.07)
     #: capsule radii for base->link_1, link_1->link_2, ..., link_7->flange (estimates of the WAM's covers)
     link_radii_m: tuple = (0.10, 0.10, 0.10, 0.055, 0.05, 0.045, 0.04, 0.04)
-    #: raw ``simulator`` mapping, validated by harness.robot.SimWamOptions
+    #: raw ``simulator`` mapping, validated by harness.sim.robot.SimWamOptions
     simulator: dict = field(default_factory=dict, hash=False, compare=False)
     description: str = ""
 

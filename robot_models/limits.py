@@ -4,7 +4,7 @@
 :class:`robot_models.WamKinematics` has, read from the same robot configuration (the URDF's
 ``<limit lower upper>`` and ``limits.qdot_max_rad_s`` of ``data/robot/wam.yaml``), but needs only numpy,
 PyYAML and the standard library's XML parser -- no Pinocchio. ``check_joint_trajectory`` accepts
-either. The robot link's bridge for ROS ``wam_node`` (``harness.robot.link.bridge_ros``), which runs
+either. The robot link's bridge for ROS ``wam_node`` (``harness.link.bridge_ros``), which runs
 under a system Python with Debian's ROS packages, uses it.
 """
 

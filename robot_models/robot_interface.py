@@ -1,8 +1,8 @@
 """The WAM interface that policies and experiments talk to, and the joint-trajectory types it uses.
 
 It lives in ``robot_models`` (which imports nothing else of rt2) so that ``policies`` can type its robot
-argument. Contract of :class:`WamInterface` (implemented in process by :class:`harness.robot.SimulatedWam`
-and over the network by :class:`harness.robot.link.WamClient`, docs/robot_link.md; a real robot
+argument. Contract of :class:`WamInterface` (implemented in process by :class:`harness.sim.robot.SimulatedWam`
+and over the network by :class:`harness.link.WamClient`, docs/robot_link.md; a real robot
 backend implements the same members):
 
 * **Units and frames.** Joint angles rad, velocities rad/s, times s. Joint order is the URDF's

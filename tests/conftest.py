@@ -38,7 +38,7 @@ def synthetic_ball_coco(tmp_path_factory):
     import cv2
     import numpy as np
 
-    from harness.coco import LabelledImage, write_coco
+    from harness.experiments.detector.coco import LabelledImage, write_coco
     from tracker.detection.synthetic import synthetic_scene
 
     made = {}
@@ -66,8 +66,8 @@ def synthetic_ball_coco(tmp_path_factory):
 def accuracy_session(tmp_path_factory):
     """A tiny accuracy run (48 frame sets at 50 Hz, two 24-frame segments, faults injected, every image
     logged as PNG, flushed every 0.05 s) with the hand-made colour model; returns ``(result, out_dir)``.
-    Shared by tests/test_accuracy_run.py and tests/test_reevaluate.py (harness.accuracy)."""
-    from harness.accuracy import AccuracyConfig, run_accuracy
+    Shared by tests/harness/experiments/test_accuracy_run.py and tests/harness/experiments/test_reevaluate.py (harness.experiments.accuracy)."""
+    from harness.experiments.accuracy import AccuracyConfig, run_accuracy
     from tracker.detection.synthetic import hand_made_model
 
     out = tmp_path_factory.mktemp("accuracy_session")

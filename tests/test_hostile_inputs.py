@@ -21,8 +21,8 @@ import pytest
 import yaml
 
 from harness.cli import main as rt2_main
-from harness.coco import read_coco
-from harness.play.profiles import load_profiles
+from harness.experiments.detector.coco import read_coco
+from harness.experiments.play.profiles import load_profiles
 from policies.ball_model import BallParams
 from policies.promp import ProMP
 from robot_models.config import load_robot_config
@@ -30,7 +30,7 @@ from tracker import Rig
 from checks.arrays import describe
 from tracker.detection.model import BallSegmentationModel
 from checks.files import MAX_CONFIG_BYTES, load_npz_checked, load_yaml_checked, read_bytes_capped
-from tests.test_rig import OPENCV_TEMPLATE
+from tests.tracker.test_rig import OPENCV_TEMPLATE
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_MODEL = ROOT / "data" / "models" / "ball_seg_default.npz"
@@ -272,8 +272,8 @@ def test_yaml_dump_of_our_rig_has_no_aliases(tmp_path):
 def test_validation_split_without_balls_is_refused_before_training(tmp_path):
     import cv2
 
-    from harness.coco import LabelledImage
-    from harness.train_detector import TrainOptions, split_groups, train
+    from harness.experiments.detector.coco import LabelledImage
+    from harness.experiments.detector.train import TrainOptions, split_groups, train
 
     labelled = []
     for i, has_ball in enumerate([True, True, False]):
@@ -292,18 +292,18 @@ def test_validation_split_without_balls_is_refused_before_training(tmp_path):
 # -- output paths ------------------------------------------------------------------------------------
 def _no_work(monkeypatch):
     """Make every command's real work fail loudly: an output error must come before it."""
-    import harness.accuracy.experiment as acc
-    import harness.reevaluate as ree
-    import harness.studies.bench_estimator as bes
-    import harness.studies.eval_filters as evf
-    import harness.studies.fit_flight as ff
-    import harness.play.cli as playexp
-    import harness.studies.eval_framesets as evfs
+    import harness.experiments.accuracy.experiment as acc
+    import harness.cli.reevaluate as ree
+    import harness.experiments.studies.bench_estimator as bes
+    import harness.experiments.studies.eval_filters as evf
+    import harness.experiments.studies.fit_flight as ff
+    import harness.cli.play as playexp
+    import harness.experiments.studies.eval_framesets as evfs
     import policies.promp_demos as demos
-    import harness.studies.eval_detector as evd
-    import harness.studies.sim_dataset as sds
-    import harness.studies.table1 as t1
-    import harness.train_detector as trd
+    import harness.experiments.studies.eval_detector as evd
+    import harness.experiments.studies.sim_dataset as sds
+    import harness.experiments.studies.table1 as t1
+    import harness.experiments.detector.train as trd
 
     def boom(*a, **k):
         raise AssertionError("the work started before the outputs were checked")
@@ -390,7 +390,7 @@ def test_output_in_a_place_nobody_may_write_fails_before_the_work(command, tmp_p
 
 @pytest.mark.parametrize("command", ["accuracy --out", "sim table1 --json", "train --out", "eval detector --json"])
 def test_full_disk_is_refused_before_the_work(command, tmp_path, capsys, monkeypatch, synthetic_ball_coco):
-    import harness.outputs as outputs
+    import harness.common.outputs as outputs
 
     argv = _commands(tmp_path, synthetic_ball_coco)[command]
     _no_work(monkeypatch)
@@ -435,7 +435,7 @@ def test_disk_full_while_writing_the_json_is_one_line_and_leaves_nothing(tmp_pat
 def test_atomic_write_keeps_the_old_file_when_the_new_one_cannot_be_written(tmp_path):
     path = tmp_path / "rows.json"
     path.write_text('["old"]\n')
-    script = ("import sys; from harness.outputs import atomic_write_json\n"
+    script = ("import sys; from harness.common.outputs import atomic_write_json\n"
               f"atomic_write_json({str(path)!r}, ['x' * 5000])\n")
     import signal
 
@@ -453,7 +453,7 @@ def test_disk_full_while_rendering_a_data_set_leaves_the_folder_as_it_was(tmp_pa
     third) removes it, and --out keeps only what it held before."""
     import cv2
 
-    import harness.studies.sim_dataset as sds
+    import harness.experiments.studies.sim_dataset as sds
 
     d = Rig.load(ROOT / "data" / "rigs" / "lab4_vga.yaml").to_dict()
     for cam in d["cameras"]:  # the lab rig at 160x120: quick to render

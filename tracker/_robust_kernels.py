@@ -12,7 +12,7 @@ All numba code of the estimator lives in this one file on purpose: numba's on-di
 imported from other files (numba issue #1833), so a split would serve stale machine code. The one
 exception is the lens model, :mod:`tracker.distortion` (one definition for every kernel): after
 editing it, delete the ``__pycache__/*.nbi``/``*.nbc`` files of the kernels (``make clean-numba``);
-``tests/test_robust.py`` compares these kernels with the numpy twin, which uses the edited model,
+``tests/tracker/test_robust.py`` compares these kernels with the numpy twin, which uses the edited model,
 so stale machine code fails the tests rather than going unnoticed.
 
 Packed camera row (``cam[m]``, 25 floats, see :func:`pack_cameras`): fx, skew, cx, fy, cy,

@@ -14,7 +14,7 @@ Coefficients are always the 8 of ``rational_polynomial`` in OpenCV's order
 * :func:`distort_point` / :func:`distort_point_jacobian` / :func:`undistort_point`: numba twins for
   one point, inlined into the compiled kernels (robust estimator, ROI prediction, renderer).
 
-``tests/test_camera.py`` checks that the twins agree and that both match ``cv2.projectPoints``.
+``tests/tracker/test_camera.py`` checks that the twins agree and that both match ``cv2.projectPoints``.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ step 8). Without the edge loss (``edge_px=0``) the ratio of a true ball falls wi
 looks ball-sized; with it a ball's ratio is ~1 at every distance.
 
 Kept apart from :mod:`tracker.pipeline` so that re-evaluation from logged detections
-(``harness.accuracy.reevaluate``) applies exactly the same test.
+(``harness.experiments.accuracy.reevaluate``) applies exactly the same test.
 """
 
 from __future__ import annotations

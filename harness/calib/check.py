@@ -66,7 +66,7 @@ def wand_poses(workspace_m, n_frames, rng) -> np.ndarray:
 
 def render_wand_detections(truth: Rig, balls_m: np.ndarray, seed: int) -> np.ndarray:
     """Render each frame set of the wand and detect its balls -> (n_cams, F, 3, 2) labelled pixels (NaN: not 3 found)."""
-    from harness.render import Ball, Capsule, Renderer, RenderOptions, Scene
+    from harness.sim.render import Ball, Capsule, Renderer, RenderOptions, Scene
     from tracker import BallDetector, DetectorOptions
     from tracker.detection.synthetic import hand_made_model
 
@@ -86,7 +86,7 @@ def render_wand_detections(truth: Rig, balls_m: np.ndarray, seed: int) -> np.nda
 
 
 def run_check(cfg: CheckConfig) -> dict:
-    from harness.rigs import resolve_rig
+    from harness.sim.rigs import resolve_rig
 
     truth = resolve_rig(cfg.rig)
     rng = np.random.default_rng(cfg.seed)

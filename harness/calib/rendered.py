@@ -1,7 +1,7 @@
 """Rendered calibration data with exact truth: ChArUco board views per camera, wand waves through the lab.
 
-Board views: the lab rendered by the synthetic cameras (``harness.render``, noise off), the board
-drawn over it as a textured plane (``harness.render.textured``), then Gaussian read noise
+Board views: the lab rendered by the synthetic cameras (``harness.sim.render``, noise off), the board
+drawn over it as a textured plane (``harness.sim.render.textured``), then Gaussian read noise
 (``noise_dn``, seeded). Poses are spread over the image (a 3 x 3 grid of targets, cycled),
 0.4-0.8 of the image width wide, tilted up to ``max_tilt_deg``; boards may leave the image in part.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.render.textured import board_plane, draw_textured_plane
+from harness.sim.render.textured import board_plane, draw_textured_plane
 from tracker import Camera
 from tracker.calibration.board import BoardSpec
 from tracker.calibration.poses import rvec_to_R
@@ -59,7 +59,7 @@ def random_board_poses(camera: Camera, spec: BoardSpec, n_views: int, rng: np.ra
 
 def board_background(rig, name: str) -> np.ndarray:
     """The empty lab seen by camera ``name`` without sensor noise (RGB uint8)."""
-    from harness.render import RenderOptions, Renderer, Scene
+    from harness.sim.render import RenderOptions, Renderer, Scene
 
     renderer = Renderer(rig.subset([name]), RenderOptions(noise_dn=0.0), seed=0)
     return renderer.render(Scene())[0]

@@ -22,7 +22,7 @@ explain (Magnus lift of the unknown spin, drag errors), a random walk. docs/filt
      spin part at the old velocity for that at the new one.
 
 A numba kernel (:func:`propagate_nb`) and its plain numpy reference (:func:`propagate_np`), which
-agree to rounding (tests/test_filters_kalman.py). Private; inputs are trusted.
+agree to rounding (tests/policies/test_filters_kalman.py). Private; inputs are trusted.
 Coefficients ``c`` (23,): ``[g, k_drag, e, mu, alpha, z_contact, x_min, x_max, y_min, y_max,
 q_acc, q_jerk, bounce_frac, bounce_floor_mps, accel_prior_var, max_step_s, w0x, w0y, w0z, k_magnus,
 k_drag_spin r, spin_saturation r, radius]`` (:func:`coefficients`).

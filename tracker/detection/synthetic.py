@@ -1,6 +1,6 @@
 """Small synthetic ball images with exact ground truth, for tests, benchmarks and quick training checks.
 
-Not a renderer of the lab (that is ``harness.render``): a textured background, anti-aliased
+Not a renderer of the lab (that is ``harness.sim.render``): a textured background, anti-aliased
 coloured disks whose coverage-weighted centre is known exactly, and colour distractors
 (skin-coloured ellipses, white bars) that a colour filter can confuse with the ball.
 """

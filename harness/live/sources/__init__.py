@@ -110,7 +110,7 @@ def open_sources(spec, rig, *, rate_hz: float = 200.0, seed: int = 0, speed: flo
     rate_hz : frame rate (sim: scene rate; video without timestamps: playback rate; opencv, pylon:
         requested camera rate; pylon software trigger: trigger rate)
     seed : sim's scene and noise; speed : sim / replay / video pacing (1.0 real time, None as fast as
-        possible); scene_provider : sim only, ``t_s -> harness.render.Scene``
+        possible); scene_provider : sim only, ``t_s -> harness.sim.render.Scene``
     backend_options : passed to the backend (e.g. sim: ``prerender_s``, ``duration_s``; pylon:
         ``trigger``, ``emulator_images``; genicam: ``cti``)
 

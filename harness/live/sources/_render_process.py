@@ -3,7 +3,7 @@ holds the tracker's interpreter lock.
 
 The child is a fresh interpreter (``python -m harness.live.sources._render_process``: nothing of the
 parent's threads, locks or ``__main__`` is inherited, so it works from any script). It builds its
-own :class:`harness.render.Renderer` for the rig, then renders the frame sets it is asked for into a
+own :class:`harness.sim.render.Renderer` for the rig, then renders the frame sets it is asked for into a
 ring of ``slots`` frame sets in shared memory and answers with the slot; the parent copies the
 images out and gives the slot back. Requests are served in order; messages are pickles over the
 child's stdin / stdout. The scene provider is pickled into the child, so it must be picklable
@@ -49,7 +49,7 @@ def _serve(inp, out) -> None:
 
     try:
         rig_dict, render_options, seed, provider, shm_name, shapes, slots = pickle.load(inp)
-        from harness.render import Renderer, Scene
+        from harness.sim.render import Renderer, Scene
         from tracker import Rig
 
         shm = shared_memory.SharedMemory(name=shm_name)

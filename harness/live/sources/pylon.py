@@ -18,7 +18,7 @@ on GigE cameras, 1 GHz on USB3) or None where the camera reports 0, as the emula
 
 The pylon camera emulator (``PYLON_CAMEMU=4`` in the environment: four devices) can stream your own
 images: ``emulator_images=[dir0, dir1, ...]`` sets ``ImageFileMode = On`` and ``ImageFilename`` per
-camera (tests/test_live_pylon.py drives rendered frames through it to a 3D position).
+camera (tests/harness/live/test_live_pylon.py drives rendered frames through it to a 3D position).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """``sim``: the simulated lab seen as live cameras.
 
-The renderer (:mod:`harness.render`, docs/renderer.md) draws frame set k of the scene at
+The renderer (:mod:`harness.sim.render`, docs/renderer.md) draws frame set k of the scene at
 ``t = k / rate_hz`` (``scene_provider(t) -> Scene``); a background thread renders up to
 ``render_ahead`` frame sets ahead of the clock and the :class:`~._feed.PacedFeed` emits them at the
 rate with host stamps. The device stamp is the scene time ``k / rate_hz`` (a camera clock starting at
@@ -39,7 +39,7 @@ from typing import Callable
 import numpy as np
 
 from harness.live.sources._feed import FeedItem, PacedFeed
-from harness.render import Ball, Exposure, Renderer, RenderOptions, Scene
+from harness.sim.render import Ball, Exposure, Renderer, RenderOptions, Scene
 
 __all__ = ["LauncherFlights", "SimOptions", "open_sim"]
 
@@ -104,7 +104,7 @@ class SimOptions:
 class LauncherFlights:
     """Seeded launcher serves one after another: ``flights(t_s) -> Scene`` with the ball at ``t_s``.
 
-    Each serve (:class:`harness.launcher.BallLauncher`) flies until it reaches the floor or
+    Each serve (:class:`harness.sim.launcher.BallLauncher`) flies until it reaches the floor or
     ``max_flight_s``; then the lab is empty for ``gap_s`` before the next serve. ``n_serves`` serves
     (~0.3 s each to draw) are drawn up front and repeat in a cycle, so nothing slow happens while
     the clock runs; the scene at a time depends only on the seed.
@@ -112,8 +112,8 @@ class LauncherFlights:
 
     def __init__(self, seed: int, *, n_serves: int = 8, gap_s: float = 0.3, max_flight_s: float = 1.5,
                  exposure: Exposure = SimOptions.exposure):
-        from harness.launcher import BallLauncher  # heavy (scipy): only when the default scene is used
-        from harness.physics import BallWorld
+        from harness.sim.launcher import BallLauncher  # heavy (scipy): only when the default scene is used
+        from harness.sim.physics import BallWorld
 
         self._launcher = BallLauncher(seed=seed)
         self._world_cls = BallWorld

@@ -1,0 +1,112 @@
+"""The ``rt2`` command line.
+
+Each command lives in its own module exposing ``add_arguments(parser)`` and ``run(args) -> int``.
+Modules are imported only when their command runs, so ``rt2 --help`` stays fast and inference
+commands never import torch. Bad input (``ValueError``, missing files) ends with a one-line
+message naming the problem and exit code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+__all__ = ["COMMANDS", "main"]
+
+#: command words -> (module, one-line help). Groups ("sim", "bench", ...) come from the prefixes.
+COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
+    ("demo",): ("harness.cli.demo", "the main job: a quick accuracy experiment (ball on the WAM, 3 trackers), printed as a table"),
+    ("accuracy",): ("harness.cli.accuracy", "accuracy experiment (paper Sec. 3.2): ball on the simulated WAM, kinematics as ground truth, RT2 vs RTBlob"),
+    ("reevaluate",): ("harness.cli.reevaluate", "re-run a tracker on a recorded session log (images or detections) and recompute its figures"),
+    ("sim", "table1"): ("harness.experiments.studies.table1", "simulation study of the robust estimator (paper Table 1)"),
+    ("sim", "dataset"): ("harness.experiments.studies.sim_dataset", "render a labelled synthetic ball data set (PNG + COCO annotations.json)"),
+    ("bench", "renderer"): ("harness.experiments.studies.bench_renderer", "frames/s of the synthetic camera renderer on one core, per scene type"),
+    ("bench", "estimator"): ("harness.experiments.studies.bench_estimator", "run time of the robust estimator vs cameras (paper Table 2)"),
+    ("train",): ("harness.experiments.detector.train", "train the 5x5 ball segmentation model from COCO box labels"),
+    ("eval", "detector"): ("harness.experiments.studies.eval_detector", "ball detector recall, outlier rate and centre error on labelled images"),
+    ("eval", "framesets"): ("harness.experiments.studies.eval_framesets", "trackers on random rendered frame sets: 3D recall and wrong positions (what the cameras together make of detector outliers)"),
+    ("eval", "filters"): ("harness.experiments.studies.eval_filters", "ball filters raw vs ransac_kalman: prediction error on real/simulated flights, clean and with outliers"),
+    ("bench", "detector"): ("harness.experiments.studies.bench_detector", "ms per VGA frame of the ball detector, full frame and ROI, vs torch"),
+    ("bench", "rtblob"): ("harness.experiments.studies.bench_rtblob", "ms per VGA frame of the RTBlob baseline (colour likelihood + disk FFT + max)"),
+    ("bench", "pipeline"): ("harness.experiments.studies.bench_pipeline", "frame sets/s and latency (p50/p99) of the whole tracker, 4 VGA cameras, full frame and ROI"),
+    ("log", "info"): ("harness.cli.log_info", "topics, counts, duration and provenance of a session log; recovery of unfinished logs"),
+    ("bench", "log"): ("harness.experiments.studies.bench_log", "session-log write/read throughput, 4 VGA cameras at 200 Hz, per image format"),
+    ("sim", "reach"): ("harness.cli.sim_reach", "WAM racket reachability over the hitting region (IK on a grid)"),
+    ("sim", "wam"): ("harness.cli.sim_wam", "simulated WAM on a seeded ball-mount trajectory: tracking and reported-vs-true ball error"),
+    ("bench", "robot"): ("harness.cli.bench_robot", "run time of batched FK, Jacobian, IK and simulated WAM ticks (numba vs numpy)"),
+    ("sim", "fit-flight"): ("harness.experiments.studies.fit_flight", "fit the ball flight/bounce model to 88 real launcher flights; held-out prediction error"),
+    ("learn", "promp"): ("harness.experiments.studies.learn_promp", "learn the WAM hitting ProMP from the scripted teacher (MAP vs ML, held-out fit)"),
+    ("play",): ("harness.cli.play", "playing sessions: served balls, tracker, filter, ProMP hitting policy, simulated WAM; success rates (`rt2 play compare`)"),
+    ("track",): ("harness.cli.track", "the tracker as a real-time service: cameras -> tracker -> tennicam-compatible ZeroMQ stream, live view, session log"),
+    ("bench", "live"): ("harness.cli.bench_live", "end-to-end latency (frame arrival -> message at a subscriber in another process) and sustained rate of rt2 track"),
+    ("calib", "intrinsics"): ("harness.cli.calib_intrinsics", "one camera's K and distortion from ChArUco images or a video (per-view errors, coverage, std devs)"),
+    ("calib", "wand"): ("harness.cli.calib_wand", "all cameras' poses by bundle adjustment of a wand (known ball spacings) or a ball moved through the volume"),
+    ("calib", "board"): ("harness.cli.calib_board", "all cameras' poses by bundle adjustment of a ChArUco board seen by several cameras at once"),
+    ("calib", "check"): ("harness.cli.calib_check", "calibrate a rig from rendered ChArUco views and a waved wand, and compare with its true geometry"),
+    ("calib", "loop"): ("harness.cli.calib_loop", "the accuracy experiment with a self-made calibration vs the true rig (figures within 20 %)"),
+    ("calib", "robot"): ("harness.cli.calib_robot", "robot base to world transform from a session log (ball on the end effector, joint states)"),
+    ("robot", "serve"): ("harness.cli.robot_serve", "serve the simulated WAM in real time behind the robot link (ZeroMQ; docs/robot_link.md)"),
+    ("robot", "check"): ("harness.cli.robot_check", "measure a robot link: state rate, gaps, delivery delay, clock offset, round trips, command to motion"),
+    ("robot", "record"): ("harness.cli.robot_record", "record a robot's joint states over the link to a session log, in segments across link losses"),
+}
+
+GROUP_HELP = {
+    "sim": "simulation studies and synthetic data",
+    "bench": "speed benchmarks (medians, ratios against a baseline run in the same process)",
+    "eval": "evaluate a component on held-out data",
+    "log": "inspect session logs",
+    "learn": "learn movement primitives from demonstrations",
+    "calib": "calibrate cameras (intrinsics, extrinsics) and the robot's base into the camera frame",
+    "robot": "the WAM over the network: the robot link (docs/robot_link.md)",
+}
+
+
+def _build_parser(argv: list[str]) -> tuple[argparse.ArgumentParser, dict]:
+    parser = argparse.ArgumentParser(prog="rt2", description="Reliable real-time multi-camera ball tracking.")
+    top = parser.add_subparsers(dest="_cmd0", metavar="COMMAND", required=True)
+    groups: dict[str, argparse._SubParsersAction] = {}
+    leaves: dict[tuple[str, ...], argparse.ArgumentParser] = {}
+    for words, (module, help_text) in COMMANDS.items():
+        if len(words) == 1:
+            leaves[words] = top.add_parser(words[0], help=help_text, description=help_text)
+            continue
+        group = words[0]
+        if group not in groups:
+            gp = top.add_parser(group, help=GROUP_HELP.get(group, ""))
+            groups[group] = gp.add_subparsers(dest="_cmd1", metavar="SUBCOMMAND", required=True)
+        leaves[words] = groups[group].add_parser(words[1], help=help_text, description=help_text)
+    # Import and configure only the command being run.
+    for words, sub in leaves.items():
+        if list(words) == argv[: len(words)]:
+            mod = importlib.import_module(COMMANDS[words][0])
+            mod.add_arguments(sub)
+            sub.set_defaults(_run=mod.run)
+    return parser, leaves
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser, _ = _build_parser(argv)
+    args = parser.parse_args(argv)
+    cmd = " ".join(w for w in (getattr(args, "_cmd0", None), getattr(args, "_cmd1", None)) if w)
+    try:
+        return int(args._run(args) or 0)
+    except BrokenPipeError:  # output piped into `head` & co.: stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except (ValueError, FileNotFoundError, PermissionError, IsADirectoryError) as exc:
+        print(f"rt2 {cmd}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a full disk, a file-size limit, an I/O error while writing: one line, not a traceback
+        where = f" ({exc.filename})" if exc.filename else ""
+        print(f"rt2 {cmd}: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"rt2 {cmd}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

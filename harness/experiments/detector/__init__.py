@@ -1,0 +1,1 @@
+"""The ball detector's data: COCO labels, training (``rt2 train``)."""

@@ -1,0 +1,501 @@
+"""``rt2 train``: fit the single-convolution ball segmentation model to box labels (paper section 2.1).
+
+A 5x5 convolution + sigmoid on one pixel is logistic regression on that pixel's 5x5x3 patch, so
+training samples patches, not whole images (details and measurements: docs/detector.md):
+
+1. Targets from boxes (:func:`pixel_targets`): pixels within ``core_fraction`` of the radius of the
+   disk inscribed in a box are *ball*; the rest of the box and a ``ring_px`` ring are *ignored*; all
+   other pixels are *background*. ``--ball-colour`` keeps the boxes of one ball colour only
+   (:func:`select_ball_colour`); the other balls become background.
+2. Samples per training image: up to ``max_positives_per_image`` ball pixels and
+   ``random_negatives_per_image`` background pixels. After every epoch, **hard negatives**: the
+   pixels of the wrong candidates our detector reports with the current filter and thresholds.
+3. Loss: class-balanced binary cross-entropy (ball 1/2, background 1/2 split between random and
+   hard negatives) plus a small L2 penalty; full-batch L-BFGS in torch on the CPU.
+4. Validation: a held-out split of the frame sets (``f000123_cam2.png`` and ``f000123_cam0.png`` go
+   to the same side). After each epoch :func:`choose_thresholds` picks ``T_h``, ``T_l`` and the blob
+   area range maximising ``recall - outlier_rate`` of our detector; the best epoch is kept, and its
+   thresholds go into the weights file as the recommended defaults. Progress: tqdm on stderr, one
+   line of validation figures per epoch (ours and the paper's Algorithm 1).
+
+Everything random is seeded by ``TrainOptions.seed``: the same data and seed give the same weights.
+torch is imported inside :func:`train` only; the result is a plain ``.npz`` read by
+``tracker.BallSegmentationModel`` (no torch at inference).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from tracker import BallDetector, BallSegmentationModel, DetectorOptions
+from tracker.detection.blobs import find_blobs
+from tracker.detection.model import BALL_COLOURS, INPUT_TRANSFORMS, logit, transform_lut
+
+__all__ = [
+    "BALL_COLOURS",
+    "TrainOptions",
+    "add_arguments",
+    "ball_colour",
+    "choose_thresholds",
+    "load_image",
+    "pixel_targets",
+    "run",
+    "select_ball_colour",
+    "split_groups",
+    "train",
+]
+
+#: candidate thresholds searched on the validation split: T_h every 0.25 in logit from 0.5 to 0.999
+T_HIGH_GRID = tuple(float(round(1.0 / (1.0 + math.exp(-x)), 6)) for x in np.arange(0.0, 7.01, 0.25))
+T_LOW_GRID = (0.02, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5)
+COLOUR_SATURATION_CUT = 0.4
+
+
+@dataclass(frozen=True)
+class TrainOptions:
+    """Options of :func:`train`.
+
+    epochs : rounds of (hard-negative mining, L-BFGS fit, validation); the best epoch is kept
+    val_fraction : share of the frame-set groups held out for validation and threshold choice
+    input_transform, log_offset_dn : the model's per-channel input transform (see ``BallSegmentationModel``)
+    random_negatives_per_image, hard_negatives_per_image, max_positives_per_image : samples per image
+    hard_weight : share of the background half of the loss given to the mined hard negatives
+    ring_px : width of the ignored ring around each inscribed ball disk, px
+    core_fraction : ball pixels are those within this fraction of the inscribed disk's radius
+    l2 : weight of the L2 penalty on the (standardised) kernel
+    lbfgs_iters : L-BFGS iterations per epoch
+    min_diameter_px : recall on validation counts balls at least this wide
+    ball_colour : train for balls of this colour only ("any", "orange", "white"); the others are background
+    seed : seeds the split, the sampling and torch
+    """
+
+    epochs: int = 6
+    val_fraction: float = 0.2
+    input_transform: str = "log"
+    log_offset_dn: float = 8.0
+    random_negatives_per_image: int = 300
+    hard_negatives_per_image: int = 40
+    max_positives_per_image: int = 300
+    hard_weight: float = 0.5
+    ring_px: float = 1.5
+    core_fraction: float = 0.6
+    l2: float = 1e-4
+    lbfgs_iters: int = 40
+    min_diameter_px: float = 6.0
+    ball_colour: str = "any"
+    seed: int = 0
+
+    def __post_init__(self):
+        if not 0.0 < self.val_fraction < 1.0:
+            raise ValueError(f"TrainOptions.val_fraction must be in (0, 1), got {self.val_fraction!r}")
+        for name in ("epochs", "random_negatives_per_image", "max_positives_per_image", "lbfgs_iters"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"TrainOptions.{name} must be >= 1, got {getattr(self, name)!r}")
+        if self.hard_negatives_per_image < 0 or self.ring_px < 0 or self.l2 < 0:
+            raise ValueError("TrainOptions: hard_negatives_per_image, ring_px and l2 must be >= 0")
+        if not 0.0 < self.core_fraction <= 1.0:
+            raise ValueError(f"TrainOptions.core_fraction must be in (0, 1], got {self.core_fraction!r}")
+        if not 0.0 <= self.hard_weight < 1.0:
+            raise ValueError(f"TrainOptions.hard_weight must be in [0, 1), got {self.hard_weight!r}")
+        if self.ball_colour not in BALL_COLOURS:
+            raise ValueError(f"TrainOptions.ball_colour must be one of {BALL_COLOURS}, got {self.ball_colour!r}")
+        if self.input_transform not in INPUT_TRANSFORMS:
+            raise ValueError(f"TrainOptions.input_transform must be one of {INPUT_TRANSFORMS}, got {self.input_transform!r}")
+
+
+# -- data ------------------------------------------------------------------------------------------
+def load_image(labelled) -> np.ndarray:
+    """Read a labelled image as (H, W, 3) uint8 RGB, checking it against the label's width and height."""
+    path = str(labelled.path)
+    image = cv2.imread(path, cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"{path}: cannot read the image (missing, or not an image format OpenCV reads)")
+    if image.shape[:2] != (labelled.height, labelled.width):
+        raise ValueError(
+            f"{path}: image is {image.shape[1]}x{image.shape[0]} but its COCO entry says width={labelled.width}, height={labelled.height}"
+        )
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def pixel_targets(labelled, ring_px: float = 1.5, core_fraction: float = 1.0) -> np.ndarray:
+    """(H, W) int8 targets: 1 ball, -1 ignored, 0 background.
+
+    Ball: pixels whose centre lies within ``core_fraction * r - 0.5`` of the centre of the disk
+    inscribed in a box (radius ``r``); ignored: the rest of the box and a ``ring_px`` ring around it.
+    """
+    h, w = labelled.height, labelled.width
+    target = np.zeros((h, w), np.int8)
+    for x, y, bw, bh in labelled.boxes_xywh:
+        x0, y0 = max(int(math.floor(x - ring_px)), 0), max(int(math.floor(y - ring_px)), 0)
+        x1, y1 = min(int(math.ceil(x + bw + ring_px)), w), min(int(math.ceil(y + bh + ring_px)), h)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        # pixel (c, r) spans [c, c + 1] in COCO coordinates: its centre is (c + 0.5, r + 0.5)
+        cols = np.arange(x0, x1) + 0.5
+        rows = np.arange(y0, y1) + 0.5
+        cu, cv, r = x + bw / 2, y + bh / 2, min(bw, bh) / 2
+        d = np.hypot(cols[None, :] - cu, rows[:, None] - cv)
+        sub = target[y0:y1, x0:x1]
+        sub[sub == 0] = -1  # box + ring: ignored unless another ball claims it
+        sub[d <= core_fraction * r - 0.5] = 1  # pixels essentially inside the (core of the) inscribed disk
+    return target
+
+
+def ball_colour(image: np.ndarray, box_xywh) -> str:
+    """"orange" (a saturated ball) or "white", from the mean colour of the box's inscribed-disk core.
+
+    The saturation ``(max - min) / max`` of that mean is above 0.65 for orange balls and below 0.15 for
+    white ones in our renderer's data (shading, blur and exposure included); the cut is at ``COLOUR_SATURATION_CUT``.
+    """
+    h, w = image.shape[:2]
+    x, y, bw, bh = (float(v) for v in box_xywh)
+    r = 0.6 * min(bw, bh) / 2
+    cols, rows = np.arange(w) + 0.5, np.arange(h) + 0.5
+    c0, c1 = max(int(x), 0), min(int(math.ceil(x + bw)), w)
+    r0, r1 = max(int(y), 0), min(int(math.ceil(y + bh)), h)
+    d = np.hypot(cols[None, c0:c1] - (x + bw / 2), rows[r0:r1, None] - (y + bh / 2))
+    px = image[r0:r1, c0:c1][d <= max(r, 0.75)].astype(np.float64)
+    if len(px) == 0:
+        return "white"
+    m = px.mean(axis=0)
+    return "orange" if (m.max() - m.min()) / max(m.max(), 1.0) > COLOUR_SATURATION_CUT else "white"
+
+
+def select_ball_colour(labelled, colour: str, *, progress: bool = False):
+    """Keep only the boxes of balls of ``colour`` ("any", "orange" or "white", see :func:`ball_colour`).
+
+    Balls of the other colour lose their boxes: for training they become background (an orange-ball
+    model must not fire on white balls), for evaluation detections on them count as outliers.
+    """
+    from tqdm import tqdm
+
+    if colour not in BALL_COLOURS:
+        raise ValueError(f"ball colour must be one of {BALL_COLOURS}, got {colour!r}")
+    if colour == "any":
+        return list(labelled)
+    out = []
+    for li in tqdm(labelled, desc=f"selecting {colour} balls", unit="img", disable=not progress, leave=False):
+        if li.n_balls == 0:
+            out.append(li)
+            continue
+        image = load_image(li)
+        keep = np.array([ball_colour(image, box) == colour for box in li.boxes_xywh])
+        out.append(dataclasses.replace(li, boxes_xywh=li.boxes_xywh[keep], centers_px=li.centers_px[keep]))
+    return out
+
+
+def split_groups(labelled, val_fraction: float, rng: np.random.Generator):
+    """Split images into (train, val) lists, keeping the cameras of one frame set together."""
+    groups: dict[str, list] = {}
+    for li in labelled:
+        key = str(Path(li.path).parent / re.sub(r"_cam\d+$", "", Path(li.path).stem))
+        groups.setdefault(key, []).append(li)
+    keys = sorted(groups)
+    if len(keys) < 2:
+        raise ValueError(f"need images from at least 2 frame sets to hold out a validation split, got {len(keys)}")
+    n_val = min(max(1, int(round(val_fraction * len(keys)))), len(keys) - 1)
+    order = rng.permutation(len(keys))
+    val_keys = {keys[i] for i in order[:n_val]}
+    train = [li for k in keys if k not in val_keys for li in groups[k]]
+    val = [li for k in keys if k in val_keys for li in groups[k]]
+    return train, val
+
+
+def _patches(padded: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(n, 75) uint8 patches ``P[i, j, c] = image[row + i - 2, col + j - 2, c]`` (padded by 2, REFLECT_101)."""
+    di = np.arange(5)
+    return padded[rows[:, None, None] + di[None, :, None], cols[:, None, None] + di[None, None, :]].reshape(len(rows), 75)
+
+
+def _pad(image):
+    return cv2.copyMakeBorder(image, 2, 2, 2, 2, cv2.BORDER_REFLECT_101)
+
+
+def _sample_image(image, target, opts: TrainOptions, rng):
+    pos_r, pos_c = np.nonzero(target == 1)
+    if len(pos_r) > opts.max_positives_per_image:
+        keep = rng.choice(len(pos_r), opts.max_positives_per_image, replace=False)
+        pos_r, pos_c = pos_r[keep], pos_c[keep]
+    neg = np.flatnonzero(target.reshape(-1) == 0)
+    neg = rng.choice(neg, min(opts.random_negatives_per_image, len(neg)), replace=False)
+    padded = _pad(image)
+    w = image.shape[1]
+    return _patches(padded, pos_r, pos_c), _patches(padded, neg // w, neg % w)
+
+
+def _hard_negatives(model: BallSegmentationModel, image, target, n: int, t_high: float, t_low: float, blob_kw: dict) -> np.ndarray:
+    """Patches of the wrong candidates our detector would report now (shape test passed), best pixels first.
+
+    Ball and ignored pixels are masked out; each of up to 4 candidate blobs gives up to ``n // 4``
+    of its highest-logit pixels. Large same-coloured regions that the shape test rejects anyway are
+    not mined: the filter cannot tell their inside from a ball's, and needs not.
+    """
+    lg = model.logits(image)
+    lg[target != 0] = -np.inf  # ball and ignored pixels are not negatives
+    blobs = find_blobs(lg, logit(t_high), logit(t_low), max_blobs=4, **blob_kw)
+    per_blob = max(n // 4, 1)
+    rows, cols = [], []
+    for x0, y0, x1, y1 in blobs.boxes:
+        sub = lg[y0 : y1 + 1, x0 : x1 + 1]
+        flat = np.flatnonzero(sub.reshape(-1) > logit(t_low))
+        take = flat[np.argsort(-sub.reshape(-1)[flat], kind="stable")[:per_blob]]
+        rows.append(y0 + take // sub.shape[1])
+        cols.append(x0 + take % sub.shape[1])
+    if not rows:
+        return np.zeros((0, 75), np.uint8)
+    return _patches(_pad(image), np.concatenate(rows), np.concatenate(cols))
+
+
+# -- fitting ---------------------------------------------------------------------------------------
+def _to_model(w, b, norm, opts: TrainOptions, t_high=0.5, t_low=0.2, area_range_px=(3.0, 3000.0), description=""):
+    scale, offset = norm
+    return BallSegmentationModel(
+        kernel=np.asarray(w, np.float64).reshape(5, 5, 3),
+        bias=float(b),
+        colour_order="RGB",
+        input_scale=scale,
+        input_offset=offset,
+        input_transform=opts.input_transform,
+        log_offset_dn=opts.log_offset_dn,
+        t_high=t_high,
+        t_low=t_low,
+        area_range_px=area_range_px,
+        description=description,
+        ball_colour=opts.ball_colour,
+    )
+
+
+def _fit(torch, w, b, sets, opts: TrainOptions) -> float:
+    """Class-balanced BCE + L2 by full-batch L-BFGS, in place on ``w`` (75,) and ``b`` (1,).
+
+    sets : (features, label, weight) triples; the weights of the ball and background sets sum to 1/2 each
+    """
+    bce = torch.nn.functional.binary_cross_entropy_with_logits
+    opt = torch.optim.LBFGS([w, b], lr=1.0, max_iter=opts.lbfgs_iters, line_search_fn="strong_wolfe")
+    terms = [(torch.from_numpy(x), torch.full((len(x),), float(y), dtype=torch.float64), wt) for x, y, wt in sets if len(x) and wt > 0]
+
+    def loss_fn():
+        return sum(wt * bce(x @ w + b, y) for x, y, wt in terms) + opts.l2 * (w * w).sum()
+
+    def closure():
+        opt.zero_grad()
+        loss = loss_fn()
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    with torch.no_grad():
+        return float(loss_fn())
+
+
+def _area_range(labelled) -> tuple[float, float]:
+    """Loose blob-area limits from the labelled balls: a quarter of the smallest disk to twice the largest box."""
+    boxes = np.concatenate([li.boxes_xywh for li in labelled])
+    d_min = float(np.minimum(boxes[:, 2], boxes[:, 3]).min())
+    return max(2.0, 0.25 * math.pi / 4 * d_min**2), max(8.0, 2.0 * math.pi / 4 * float((boxes[:, 2] * boxes[:, 3]).max()))
+
+
+def _ball_blob_areas(val_logits, truth, t_low: float, loose_area, opts: TrainOptions) -> np.ndarray:
+    """Areas of the blobs (at ``T_l``, peak above ``T_l``) that sit on a labelled ball of at least min_diameter_px."""
+    areas = []
+    tl = logit(t_low)
+    for lg, c, d in zip(val_logits, *truth):
+        if len(c) == 0:
+            continue
+        b = find_blobs(lg, tl + 1e-3, tl, max_blobs=4, max_seeds=16, min_area_px=loose_area[0], max_area_px=loose_area[1])
+        if len(b):
+            near = np.linalg.norm(b.centers_px[:, None] - c[None], axis=2) <= d[None]
+            areas += list(b.areas_px[near[:, d >= opts.min_diameter_px].any(axis=1)])
+    return np.asarray(areas, float)
+
+
+def _top1_per_threshold(val_logits, t_low: float, t_high_min: float, blob_kw: dict):
+    """Per image (peak logit, centre) of the paper's argmax blob and of ours' first accepted blob at ``T_l``.
+
+    Candidates come best first and a higher ``T_h`` only cuts the sequence of grown blobs earlier, so
+    the result at any ``T_h >= t_high_min`` is these with ``peak >= logit(T_h)`` kept.
+    """
+    tl, th = logit(t_low), logit(t_high_min)
+    paper, ours = [], []
+    for lg in val_logits:
+        b = find_blobs(lg, th, tl, max_blobs=1, max_seeds=1)
+        paper.append((b.peak_logits[0], b.centers_px[0]) if len(b) else (-np.inf, None))
+        b = find_blobs(lg, th, tl, max_blobs=1, **blob_kw)
+        ours.append((b.peak_logits[0], b.centers_px[0]) if len(b) else (-np.inf, None))
+    return paper, ours
+
+
+def choose_thresholds(val_logits, truth, loose_area, opts: TrainOptions):
+    """Pick (T_h, T_l) and the blob-area range on validation images for our detector's best candidate.
+
+    For each ``T_l`` of ``T_LOW_GRID`` the area range is [half the 1st, 1.5 x the 99th percentile] of
+    the ball blobs' areas (within ``loose_area``); then ``T_h`` (> ``T_l``, from ``T_HIGH_GRID``) and
+    ``T_l`` maximise ``recall - outlier_rate`` (misses and wrong reports cost the same), ties going
+    to the lower median centre error. Returns ``(t_high, t_low, area_range_px, ours_scores, paper_scores)``.
+    """
+    from harness.experiments.studies.eval_detector import score_detections
+
+    opt = DetectorOptions()
+
+    def score(method, results, th):
+        uv = [c[None] if c is not None and peak >= logit(th) else np.zeros((0, 2)) for peak, c in results]
+        return score_detections(method, *truth, uv, min_diameter_px=opts.min_diameter_px)
+
+    best = None
+    for tl in T_LOW_GRID:
+        areas = _ball_blob_areas(val_logits, truth, tl, loose_area, opts)
+        area = (max(2.0, 0.5 * np.percentile(areas, 1)), 1.5 * np.percentile(areas, 99)) if len(areas) >= 5 else loose_area
+        blob_kw = dict(max_seeds=opt.max_seeds, min_area_px=area[0], max_area_px=area[1], min_fill_ratio=opt.min_fill_ratio, max_aspect=opt.max_aspect)
+        ths = [th for th in T_HIGH_GRID if th > tl]
+        paper, ours = _top1_per_threshold(val_logits, tl, min(ths), blob_kw)
+        for th in ths:
+            s = score("ours", ours, th)
+            key = (np.nan_to_num(s.recall) - s.outlier_rate, -np.nan_to_num(s.median_center_error_px, nan=np.inf))
+            if best is None or key > best[0]:
+                best = (key, th, tl, area, s, paper)
+    _, t_high, t_low, area, s_ours, paper = best
+    return t_high, t_low, area, s_ours, score("paper", paper, t_high)
+
+
+def _features(patches, lut, norm) -> np.ndarray:
+    scale, offset = norm
+    return lut[patches] * np.tile(scale, 25) + np.tile(offset, 25)
+
+
+def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = True, log=print, description: str = ""):
+    """Fit a :class:`BallSegmentationModel` to labelled images; returns ``(model, info)``.
+
+    labelled : list of ``harness.experiments.detector.coco.LabelledImage`` (boxes of balls; images without boxes = background)
+    info : dict with the split sizes, per-epoch history, the chosen epoch and thresholds and the
+        validation scores there (ours and paper)
+    """
+    import torch  # training only
+    from tqdm import tqdm
+
+    from harness.experiments.studies.eval_detector import truth_of
+
+    torch.manual_seed(opts.seed)
+    rng = np.random.default_rng(opts.seed)
+    labelled = select_ball_colour(labelled, opts.ball_colour, progress=progress)
+    train_set, val_set = split_groups(labelled, opts.val_fraction, rng)
+    if not any(li.n_balls for li in train_set):
+        raise ValueError(f"no ball boxes among the {len(train_set)} training images: nothing to learn")
+    if not any(li.n_balls for li in val_set):
+        raise ValueError(f"no ball boxes among the {len(val_set)} validation images (val_fraction {opts.val_fraction:g}, "
+                         f"seed {opts.seed}): the thresholds and the recall cannot be measured; label more images "
+                         "with balls, raise the validation fraction or change the seed")
+    lut = transform_lut(opts.input_transform, opts.log_offset_dn).astype(np.float64)
+
+    pos, neg = [], []
+    for li in tqdm(train_set, desc="sampling", unit="img", disable=not progress, leave=False):
+        p, n = _sample_image(load_image(li), pixel_targets(li, opts.ring_px, opts.core_fraction), opts, rng)
+        pos.append(p)
+        neg.append(n)
+    pos, neg = np.concatenate(pos), np.concatenate(neg)
+    # Standardise each transformed channel (the two classes' means and spreads averaged, like the loss).
+    tp, tn = lut[pos.reshape(-1, 3)], lut[neg.reshape(-1, 3)]
+    mean = 0.5 * (tp.mean(0) + tn.mean(0))
+    std = np.sqrt(0.5 * (tp.var(0) + tn.var(0))) + 1e-3
+    norm = (1.0 / std, -mean / std)
+    xp, xn = _features(pos, lut, norm), _features(neg, lut, norm)
+    xh = np.zeros((0, 75))
+    loose_area = _area_range([li for li in train_set if li.n_balls])
+
+    val_images = [load_image(li) for li in val_set]
+    truth = ([truth_of(li)[0] for li in val_set], [truth_of(li)[1] for li in val_set])
+
+    w = torch.zeros(75, dtype=torch.float64, requires_grad=True)
+    b = torch.zeros(1, dtype=torch.float64, requires_grad=True)
+    history, best = [], None
+    t_high, t_low, area = 0.5, 0.2, loose_area
+    bar = tqdm(range(opts.epochs), desc="train", unit="epoch", disable=not progress)
+    for epoch in bar:
+        if epoch > 0 and opts.hard_negatives_per_image > 0:  # mine our detector's current mistakes
+            current = _to_model(w.detach().numpy(), b.item(), norm, opts)
+            opt = DetectorOptions()
+            kw = dict(max_seeds=opt.max_seeds, min_area_px=area[0], max_area_px=area[1], min_fill_ratio=opt.min_fill_ratio, max_aspect=opt.max_aspect)
+            hard = [
+                _hard_negatives(current, load_image(li), pixel_targets(li, opts.ring_px, opts.core_fraction), opts.hard_negatives_per_image, t_high, t_low, kw)
+                for li in train_set
+            ]
+            xh = np.concatenate([xh, _features(np.concatenate(hard), lut, norm)])
+        h = opts.hard_weight if len(xh) else 0.0
+        loss = _fit(torch, w, b, [(xp, 1, 0.5), (xn, 0, 0.5 * (1 - h)), (xh, 0, 0.5 * h)], opts)
+        current = _to_model(w.detach().numpy(), b.item(), norm, opts)
+        t_high, t_low, area, s_ours, s_paper = choose_thresholds([current.logits(im) for im in val_images], truth, loose_area, opts)
+        j = np.nan_to_num(s_ours.recall) - s_ours.outlier_rate
+        history.append(dict(epoch=epoch + 1, loss=loss, n_hard=len(xh), t_high=t_high, t_low=t_low, area_range_px=area, ours=s_ours, paper=s_paper))
+        if best is None or j > best[0]:
+            best = (j, epoch, w.detach().numpy().copy(), b.item(), t_high, t_low, area, s_ours, s_paper)
+        bar.set_postfix(loss=f"{loss:.4f}", recall=f"{s_ours.recall:.3f}", outliers=f"{s_ours.outlier_rate:.3f}")
+        line = (
+            f"epoch {epoch + 1}/{opts.epochs}: loss {loss:.4f}  hard negatives {len(xh)}  val at T_h={t_high:g}, T_l={t_low:g}: "
+            f"ours recall {100 * s_ours.recall:.2f}% outliers {100 * s_ours.outlier_rate:.2f}% median {s_ours.median_center_error_px:.3f} px | "
+            f"paper recall {100 * s_paper.recall:.2f}% outliers {100 * s_paper.outlier_rate:.2f}%"
+        )
+        if progress:
+            tqdm.write(line)
+        else:
+            log(line)
+
+    _, epoch, w_best, b_best, t_high, t_low, area, s_ours, s_paper = best
+    summary = (
+        f"best epoch {epoch + 1}; val at T_h={t_high:g}, T_l={t_low:g}, area {area[0]:.0f}-{area[1]:.0f} px: ours recall {100 * s_ours.recall:.2f}%, "
+        f"outliers {100 * s_ours.outlier_rate:.2f}%, median {s_ours.median_center_error_px:.3f} px; "
+        f"paper recall {100 * s_paper.recall:.2f}%, outliers {100 * s_paper.outlier_rate:.2f}%"
+    )
+    log(summary)
+    desc = f"{description}; " if description else ""
+    desc += f"{opts.ball_colour} balls, {opts.input_transform} input, {len(train_set)} train / {len(val_set)} val images, seed {opts.seed}; {summary}"
+    model = _to_model(w_best, b_best, norm, opts, t_high, t_low, area, desc)
+    info = dict(n_train=len(train_set), n_val=len(val_set), n_pos=len(xp), n_neg=len(xn), n_hard=len(xh), history=history,
+                best_epoch=epoch + 1, t_high=t_high, t_low=t_low, area_range_px=area, val_ours=s_ours, val_paper=s_paper)
+    return model, info
+
+
+# -- command line ----------------------------------------------------------------------------------
+def add_arguments(parser) -> None:
+    parser.add_argument("--data", nargs="+", required=True, help="COCO sets: folders holding annotations.json, or COCO JSON files")
+    parser.add_argument("--out", required=True, help="weights file to write (.npz)")
+    parser.add_argument("--epochs", type=int, default=TrainOptions.epochs)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--val-fraction", type=float, default=TrainOptions.val_fraction)
+    parser.add_argument("--input-transform", choices=INPUT_TRANSFORMS, default=TrainOptions.input_transform,
+                        help="per-channel input transform: 'log' (default; exposure-invariant colour) or 'linear' (the paper's raw RGB)")
+    parser.add_argument("--core-fraction", type=float, default=TrainOptions.core_fraction,
+                        help="ball pixels are those within this fraction of the box's inscribed radius (default 0.6)")
+    parser.add_argument("--ball-colour", choices=BALL_COLOURS, default="any",
+                        help="learn balls of this colour only; the others become background (default: any)")
+    parser.add_argument("--max-images", type=int, default=None, help="use only the first N images (quick runs)")
+
+
+def run(args) -> int:
+    import shlex
+    import sys
+
+    from harness.experiments.detector.coco import read_coco
+
+    from harness.common.outputs import atomic_path, check_output_file
+
+    out = Path(args.out)
+    if out.suffix != ".npz":
+        raise ValueError(f"--out must end in .npz, got {args.out!r}")
+    check_output_file(out, "--out")  # before the training, not after
+    labelled = [li for path in args.data for li in read_coco(path)]
+    if args.max_images is not None:
+        labelled = labelled[: args.max_images]
+    opts = TrainOptions(epochs=args.epochs, seed=args.seed, val_fraction=args.val_fraction, input_transform=args.input_transform,
+                        ball_colour=args.ball_colour, core_fraction=args.core_fraction)
+    cmd = "rt2 " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else "rt2 train"
+    model, info = train(labelled, opts, description=f"trained by `{cmd}`")
+    with atomic_path(out, "--out") as tmp:  # never a half-written model
+        model.save(tmp)
+    print(f"wrote {out}: T_h={model.t_high:g}, T_l={model.t_low:g} ({info['n_train']} train / {info['n_val']} val images)")
+    return 0

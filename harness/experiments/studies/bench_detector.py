@@ -1,0 +1,158 @@
+"""``rt2 bench detector``: milliseconds per VGA frame of the ball detector on one core.
+
+Rows (all in one process, one thread each, same image, same weights):
+
+* ``full / cv2`` — the production path: ``BallDetector.detect`` on the whole frame (three
+  ``cv2.filter2D`` calls for the logits, Algorithm 1 with top-K candidates, numba flood fill).
+* ``roi / cv2`` — the same in a window of side ``2 * roi_half_size_px`` around a predicted pixel.
+* ``full / torch``, ``roi / torch`` — the same model as ``torch.nn.Conv2d`` (reflect padding) +
+  sigmoid + argmax in torch (Algorithm 1 line 1 only, no flood fill), from the same uint8 image.
+
+Breakdown rows (printed, not in ``--json``) split the cv2 path into its logits and Algorithm 1.
+Timings are medians over ``--repeats`` rounds after a warm-up; each round calls every row once
+(round-robin), so the ratio torch / cv2 comes from the same run under the same load.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["add_arguments", "bench", "run"]
+
+VGA_HW = (480, 640)
+
+
+def _median_ms(fns: dict, repeats: int, warmup: int = 20) -> dict:
+    """Median milliseconds of each function, timed round-robin (one call of each per round), so load
+    changes on a shared machine hit every row alike and the ratios stay fair."""
+    for fn in fns.values():
+        for _ in range(warmup):
+            fn()
+    times = {k: np.empty(repeats) for k in fns}
+    for i in range(repeats):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k][i] = time.perf_counter() - t0
+    return {k: float(np.median(t) * 1e3) for k, t in times.items()}
+
+
+def _bench_image(data, seed: int):
+    """A VGA frame with a ball: the first labelled image with a ball in ``data``, else a lab4_vga frame
+    rendered from a seeded random scene (ball, person, robot, distractors) whose orange ball camera 0 sees."""
+    if data:
+        from harness.experiments.detector.coco import read_coco
+        from harness.experiments.detector.train import load_image
+
+        for li in read_coco(data):
+            if li.n_balls:
+                return load_image(li), li.centers_px[0], str(li.path)
+        raise ValueError(f"--data {data}: no image with a ball box")
+    from harness.sim.render.renderer import Renderer
+    from harness.sim.render.scenes import SceneOptions, random_scene
+    from tracker import Rig
+
+    rig = Rig.load(Path(__file__).resolve().parents[3] / "data" / "rigs" / "lab4_vga.yaml")
+    renderer = Renderer(rig, seed=seed)
+    options = SceneOptions(p_no_ball=0.0, p_white=0.0)
+    for i in range(100):
+        scene = random_scene(np.random.default_rng([seed, i]), options=options, frame_index=i)
+        images, truths = renderer.render_labelled(scene)
+        if truths[0][0].visible and truths[0][0].diameter_px >= 8:
+            return images[0], truths[0][0].center_px, f"rendered lab4_vga cam0 frame (seed {seed}, scene {i})"
+    raise ValueError(f"no rendered scene of seed {seed} shows the ball to camera 0")  # pragma: no cover
+
+
+def _torch_path(model, torch):
+    """``(image, window) -> flat argmax`` with the model as a torch Conv2d + sigmoid + argmax."""
+    conv = torch.nn.Conv2d(3, 1, 5, padding=2, padding_mode="reflect", bias=True)
+    with torch.no_grad():
+        conv.weight.copy_(torch.from_numpy(model.kernel_rgb_uint8.transpose(2, 0, 1)[None].copy()))
+        conv.bias.fill_(model.bias_uint8)
+    conv.eval()
+
+    def detect(image, window=None):
+        if window is not None:
+            x0, y0, x1, y1 = window
+            image = image[max(y0 - 2, 0) : y1 + 2, max(x0 - 2, 0) : x1 + 2]
+        with torch.no_grad():
+            x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float()
+            p = torch.sigmoid(conv(x))
+            return int(torch.argmax(p))
+
+    return detect
+
+
+def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: int = 32):
+    """Return (rows for --json, breakdown rows): dicts with mode, backend, median_ms."""
+    import cv2
+    import torch  # the comparison baseline only; the detector never imports it
+
+    from tracker import BallDetector, DetectorOptions
+    from tracker.detection.blobs import find_blobs
+
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+    det = BallDetector(model, DetectorOptions(roi_half_size_px=roi_half_size_px))
+    if len(det.detect(image, roi_center_px)) == 0 or not det.detect(image, roi_center_px).used_roi:
+        raise ValueError("the benchmark frame's ball is not found in its window: the model does not fit this image")
+    cu, cv = (int(round(v)) for v in roi_center_px)
+    h, w = image.shape[:2]
+    window = (max(cu - roi_half_size_px, 0), max(cv - roi_half_size_px, 0), min(cu + roi_half_size_px, w), min(cv + roi_half_size_px, h))
+    tdet = _torch_path(model, torch)
+    lg = model.logits(image)
+    th, tl = det._th_logit, det._tl_logit
+    full = _median_ms(
+        {
+            ("full", "cv2"): lambda: det.detect(image),
+            ("full", "torch"): lambda: tdet(image),
+            ("full", "cv2: logits only (3 x filter2D)"): lambda: model.logits(image),
+            ("full", "cv2: Algorithm 1 top-K on given logits"): lambda: find_blobs(lg, th, tl, **det._blob_kw),
+        },
+        repeats,
+    )
+    roi = _median_ms({("roi", "cv2"): lambda: det.detect(image, roi_center_px), ("roi", "torch"): lambda: tdet(image, window)}, repeats * 10)
+    timed = {**full, **roi}
+    main = [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")]
+    rows = [dict(mode=m, backend=b, median_ms=timed[m, b]) for m, b in main]
+    breakdown = [dict(mode=m, backend=b, median_ms=t) for (m, b), t in timed.items() if (m, b) not in main]
+    return rows, breakdown
+
+
+def add_arguments(parser) -> None:
+    from harness.experiments.studies.eval_detector import DEFAULT_MODEL
+
+    parser.add_argument("--model", default=str(DEFAULT_MODEL), help="weights file (.npz; default: the shipped model)")
+    parser.add_argument("--data", default=None, help="COCO set to take the frame from (default: a rendered lab4_vga frame)")
+    parser.add_argument("--repeats", type=int, default=300, help="timed runs per full-frame row (ROI rows: 10x)")
+    parser.add_argument("--roi-half-size-px", type=int, default=32, help="half side of the ROI window (default 32: 64x64)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the rendered scene")
+    parser.add_argument("--json", default=None, help="also write the rows as JSON to this path")
+
+
+def run(args) -> int:
+    from tracker import BallSegmentationModel
+    from harness.common.outputs import atomic_write_json, check_output_file
+
+    check_output_file(args.json, "--json")  # before the benchmark, not after
+
+    if args.repeats < 1:
+        raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
+    model = BallSegmentationModel.load(args.model)
+    image, center, what = _bench_image(args.data, args.seed)
+    rows, breakdown = bench(model, image, center, repeats=args.repeats, roi_half_size_px=args.roi_half_size_px)
+    side = 2 * args.roi_half_size_px
+    print(f"ball detector, one thread, {image.shape[1]}x{image.shape[0]} frame ({what}); ROI {side}x{side}; medians of {args.repeats} (ROI: {10 * args.repeats}) runs")
+    print(f"{'mode':<5} {'backend':<40} {'median ms':>10}")
+    for r in rows + breakdown:
+        print(f"{r['mode']:<5} {r['backend']:<40} {r['median_ms']:10.3f}")
+    by = {(r["mode"], r["backend"]): r["median_ms"] for r in rows}
+    for mode in ("full", "roi"):
+        print(f"{mode}: torch / cv2 = {by[(mode, 'torch')] / by[(mode, 'cv2')]:.2f}x")
+    print("goals: full frame <= 2 ms, ROI <= 0.2 ms (cv2 path)")
+    if args.json:
+        atomic_write_json(args.json, rows, "--json")
+    return 0

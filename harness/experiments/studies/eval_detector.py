@@ -1,0 +1,259 @@
+"""``rt2 eval detector``: recall, outlier rate and centre error of the ball detector on labelled images.
+
+Definitions (per image, truth = the labelled balls, radius = half the ball's diameter in px; the
+diameter is the shorter side of its COCO box, which motion blur does not stretch):
+
+* a *detection* is an **inlier** if it lies within two radii (one diameter) of some labelled ball,
+  else an **outlier** (every detection in an image without a labelled ball is an outlier);
+* a ball of at least ``min_diameter_px`` is **recalled** if some detection is within two radii;
+  its **centre error** is the distance from its exact centre to the nearest such detection.
+
+``recall`` = recalled / balls of at least ``min_diameter_px``; ``outlier_rate`` = outliers / all
+detections reported; centre errors are over recalled balls (median and 95th percentile, px).
+
+Methods: ``paper`` = Algorithm 1 (argmax + flood fill, one detection); ``ours`` = the first
+candidate of the top-K detector (shape test applied); ``topk`` = all its K candidates, so a ball
+counts as recalled if any candidate hits it and *every* extra candidate that is not on the ball
+counts as an outlier (these are what the robust estimator has to reject).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["DEFAULT_MODEL", "EVAL_METHODS", "DetectorScores", "add_arguments", "evaluate", "run", "score_detections"]
+
+DEFAULT_MODEL = Path(__file__).resolve().parents[3] / "data" / "models" / "ball_seg_default.npz"
+EVAL_METHODS = ("paper", "ours", "topk")
+GOALS = {"recall": 0.99, "outlier_rate": 0.01, "median_center_error_px": 0.5}
+
+
+@dataclass(frozen=True)
+class DetectorScores:
+    """Detection quality of one method on one labelled set (see the module docstring)."""
+
+    method: str
+    recall: float
+    outlier_rate: float
+    median_center_error_px: float
+    p95_center_error_px: float
+    n_images: int = 0
+    n_balls: int = 0  #: balls of at least min_diameter_px
+    n_detections: int = 0
+    n_outliers: int = 0
+    n_outliers_with_ball: int = 0  #: outliers in images that show a labelled ball
+    n_images_without_ball: int = 0
+    n_false_alarm_images: int = 0  #: images without a labelled ball but with a detection
+
+    def as_json(self) -> dict:
+        keys = ("method", "recall", "outlier_rate", "median_center_error_px", "p95_center_error_px")
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items() if k in keys}
+
+
+def score_detections(method: str, truth_centers, truth_diameters, detections, *, min_diameter_px: float = 6.0) -> DetectorScores:
+    """Score detections against labels, image by image.
+
+    truth_centers : per image an (g, 2) array of exact ball centres, rt2 pixels
+    truth_diameters : per image a (g,) array of ball diameters, px
+    detections : per image an (k, 2) array of detected centres (k may be 0)
+    """
+    if not (len(truth_centers) == len(truth_diameters) == len(detections)):
+        raise ValueError(
+            f"need one entry per image, got {len(truth_centers)} truth centres, {len(truth_diameters)} diameters, {len(detections)} detections"
+        )
+    n_balls = n_hit = n_det = n_out = n_out_ball = n_empty = n_alarm = 0
+    errors = []
+    for c, d, uv in zip(truth_centers, truth_diameters, detections):
+        c = np.asarray(c, float).reshape(-1, 2)
+        d = np.asarray(d, float).reshape(-1)
+        uv = np.asarray(uv, float).reshape(-1, 2)
+        uv = uv[np.isfinite(uv).all(axis=1)]
+        n_det += len(uv)
+        if len(c) == 0:
+            n_out += len(uv)
+            n_empty += 1
+            n_alarm += len(uv) > 0
+            continue
+        dist = np.linalg.norm(uv[:, None, :] - c[None, :, :], axis=2)  # (k, g)
+        near = dist <= d[None, :]  # within two radii
+        n_out += int(np.sum(~near.any(axis=1)))
+        n_out_ball += int(np.sum(~near.any(axis=1)))
+        big = d >= min_diameter_px
+        n_balls += int(big.sum())
+        for j in np.flatnonzero(big):
+            if near[:, j].any():
+                n_hit += 1
+                errors.append(float(dist[near[:, j], j].min()))
+    errors = np.asarray(errors)
+    return DetectorScores(
+        method=method,
+        recall=n_hit / n_balls if n_balls else float("nan"),
+        outlier_rate=n_out / n_det if n_det else 0.0,
+        median_center_error_px=float(np.median(errors)) if len(errors) else float("nan"),
+        p95_center_error_px=float(np.percentile(errors, 95)) if len(errors) else float("nan"),
+        n_images=len(detections),
+        n_balls=n_balls,
+        n_detections=n_det,
+        n_outliers=n_out,
+        n_outliers_with_ball=n_out_ball,
+        n_images_without_ball=n_empty,
+        n_false_alarm_images=n_alarm,
+    )
+
+
+def truth_of(labelled) -> tuple[np.ndarray, np.ndarray]:
+    """(g, 2) exact centres and (g,) diameters (shorter box side) of a ``LabelledImage``."""
+    return labelled.centers_px, np.minimum(labelled.boxes_xywh[:, 2], labelled.boxes_xywh[:, 3])
+
+
+def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None, progress=True):
+    """Run each method on every labelled image; returns a list of :class:`DetectorScores`.
+
+    model : ``BallSegmentationModel``; labelled : list of ``harness.experiments.detector.coco.LabelledImage``
+    t_high, t_low : Algorithm 1's thresholds as probabilities (None = the model's recommended ones)
+    """
+    from tqdm import tqdm
+
+    from harness.experiments.detector.train import load_image
+    from tracker import BallDetector, DetectorOptions
+
+    for m in methods:
+        if m not in EVAL_METHODS:
+            raise ValueError(f"unknown method {m!r}; valid: {EVAL_METHODS}")
+    paper = BallDetector(model, DetectorOptions(method="paper", t_high=t_high, t_low=t_low))
+    ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low))
+    found = {m: [] for m in methods}
+    centers, diameters = [], []
+    for li in tqdm(labelled, desc="eval detector", unit="img", disable=not progress, leave=False):
+        image = load_image(li)
+        c, d = truth_of(li)
+        centers.append(c)
+        diameters.append(d)
+        if "paper" in methods:
+            found["paper"].append(paper.detect(image).uv_px)
+        if "ours" in methods or "topk" in methods:
+            uv = ours.detect(image).uv_px
+            if "ours" in methods:
+                found["ours"].append(uv[:1])
+            if "topk" in methods:
+                found["topk"].append(uv)
+    return [score_detections(m, centers, diameters, found[m], min_diameter_px=min_diameter_px) for m in methods]
+
+
+def format_table(scores) -> str:
+    """The figures as a text table; the last two columns split the outliers by where they happen."""
+    head = (
+        f"{'method':<7} {'recall':>8} {'outliers':>9} {'median px':>10} {'p95 px':>8} {'balls':>6} {'dets':>6} {'images':>7}"
+        f" {'outliers in ball images':>24} {'false alarms in no-ball images':>31}"
+    )
+    lines = [head, "-" * len(head)]
+    for s in scores:
+        alarms = f"{s.n_false_alarm_images}/{s.n_images_without_ball}"
+        lines.append(
+            f"{s.method:<7} {100 * s.recall:7.2f}% {100 * s.outlier_rate:8.2f}% {s.median_center_error_px:10.3f} "
+            f"{s.p95_center_error_px:8.3f} {s.n_balls:6d} {s.n_detections:6d} {s.n_images:7d} {s.n_outliers_with_ball:24d} {alarms:>31}"
+        )
+    return "\n".join(lines)
+
+
+def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80)) -> Path:
+    """Write the paper's probability-image figure: per row an image crop around a ball, the
+    probability image ``B`` (black 0, white 1) and the crop with our detection's box (green; the
+    paper method's in red where it differs). Uses the first ``n`` images with a ball >= 8 px.
+    """
+    import cv2
+
+    from harness.experiments.detector.train import load_image
+    from tracker import BallDetector, DetectorOptions
+
+    ours = BallDetector(model, DetectorOptions(max_candidates=1))
+    paper = BallDetector(model, DetectorOptions(method="paper"))
+    hh, hw = half_hw
+    rows = []
+    for li in labelled:
+        if len(rows) == n:
+            break
+        big = np.flatnonzero(np.minimum(li.boxes_xywh[:, 2], li.boxes_xywh[:, 3]) >= 8)
+        if not len(big):
+            continue
+        image = load_image(li)
+        u, v = np.rint(li.centers_px[big[0]]).astype(int)
+        pad = cv2.copyMakeBorder(image, hh, hh, hw, hw, cv2.BORDER_CONSTANT)
+        crop = pad[v : v + 2 * hh, u : u + 2 * hw].copy()
+        prob = cv2.copyMakeBorder((255 * model.probability(image)).astype(np.uint8), hh, hh, hw, hw, cv2.BORDER_CONSTANT)
+        prob = cv2.cvtColor(prob[v : v + 2 * hh, u : u + 2 * hw], cv2.COLOR_GRAY2RGB)
+        boxed = crop.copy()
+        for det, colour in ((paper.detect(image), (255, 0, 0)), (ours.detect(image), (0, 255, 0))):
+            for x, y, w, h in det.boxes_xywh[:1].astype(int):
+                x0, y0 = x - u + hw, y - v + hh
+                cv2.rectangle(boxed, (x0 - 1, y0 - 1), (x0 + w, y0 + h), colour, 1)
+        rows.append(np.hstack([crop, prob, boxed]))
+    if not rows:
+        raise ValueError("no labelled ball of at least 8 px to draw")
+    fig = cv2.resize(np.vstack(rows), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+    from harness.common.outputs import atomic_path
+
+    path = Path(path)
+    with atomic_path(path, "--figure") as tmp:  # never a half-written figure
+        if not cv2.imwrite(str(tmp), cv2.cvtColor(fig, cv2.COLOR_RGB2BGR)):
+            raise ValueError(f"cannot write the figure to {str(path)!r} (use .png; or the disk is full)")
+    return path
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--data", nargs="+", required=True, help="held-out COCO sets: folders with annotations.json, or JSON files")
+    parser.add_argument("--model", default=str(DEFAULT_MODEL), help="weights file (.npz; default: the shipped model)")
+    parser.add_argument("--json", default=None, help="also write the figures as JSON to this path")
+    parser.add_argument("--max-candidates", type=int, default=4, help="K of the top-K detector (default 4)")
+    parser.add_argument("--min-diameter-px", type=float, default=6.0, help="recall is over balls at least this wide (default 6)")
+    parser.add_argument("--ball-colour", choices=("model", "any", "orange", "white"), default="model",
+                        help="score only balls of this colour; detections on the others count as outliers "
+                             "(default: the colour the model was trained for; 'any' scores every ball)")
+    parser.add_argument("--t-high", type=float, default=None, help="Algorithm 1's T_h, a probability (default: the model's recommended one)")
+    parser.add_argument("--t-low", type=float, default=None, help="Algorithm 1's T_l, a probability (default: the model's recommended one)")
+    parser.add_argument("--max-images", type=int, default=None, help="evaluate only the first N images")
+    parser.add_argument("--figure", default=None, help="also draw the probability-image figure (image, B, detection) to this PNG")
+
+
+def run(args) -> int:
+    from harness.experiments.detector.coco import read_coco
+    from harness.experiments.detector.train import select_ball_colour
+    from tracker import BallSegmentationModel
+
+    from harness.common.outputs import atomic_write_json, check_output_file
+
+    check_output_file(args.json, "--json")  # before the evaluation, not after
+    check_output_file(args.figure, "--figure")
+    model = BallSegmentationModel.load(args.model)
+    labelled = [li for path in args.data for li in read_coco(path)]
+    if args.max_images is not None:
+        labelled = labelled[: args.max_images]
+    if not labelled:
+        raise ValueError(f"--data {args.data}: no images")
+    colour = model.ball_colour if args.ball_colour == "model" else args.ball_colour
+    labelled = select_ball_colour(labelled, colour, progress=True)
+    for name in ("t_high", "t_low"):
+        v = getattr(args, name)
+        if v is not None and not 0.0 < v < 1.0:
+            raise ValueError(f"--{name.replace('_', '-')} must be a probability in (0, 1), got {v}")
+    t_high = model.t_high if args.t_high is None else args.t_high
+    t_low = model.t_low if args.t_low is None else args.t_low
+    if not t_low < t_high:
+        raise ValueError(f"need T_l < T_h, got T_l={t_low:g} and T_h={t_high:g} (--t-low/--t-high and the model's defaults combined)")
+    scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low)
+    print(
+        f"model {args.model}: T_h={t_high:g}, T_l={t_low:g}; {len(labelled)} images; "
+        f"{colour} balls >= {args.min_diameter_px:g} px"
+        + (f" (the model's own colour; --ball-colour any scores every ball)" if args.ball_colour == "model" and colour != "any" else "")
+    )
+    print(format_table(scores))
+    goals = f"goals: recall >= {100 * GOALS['recall']:.0f}%, outliers <= {100 * GOALS['outlier_rate']:.0f}%, median error <= {GOALS['median_center_error_px']} px"
+    print(goals + " (topk's outlier rate counts every extra candidate; the robust estimator rejects them)")
+    if args.json:
+        atomic_write_json(args.json, [s.as_json() for s in scores], "--json")
+    if args.figure:
+        print(f"wrote {probability_figure(model, labelled, args.figure)}")
+    return 0

@@ -1,0 +1,198 @@
+"""Worker processes under crashes and signals: each test runs a small real sweep with 2 workers in a
+subprocess, signals the main process alone once some tasks have finished, and checks that the run stops
+within 2 s, that the worker processes are gone within a few seconds (a /proc scan, no psutil), and that
+the finished part is written and marked partial."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the /proc scan needs Linux")
+
+ROOT = Path(__file__).resolve().parents[3]
+STOP_WITHIN_S = 2.0
+ORPHANS_GONE_WITHIN_S = 5.0
+
+
+def cli(*argv) -> list[str]:
+    """The command line of ``rt2 ARGV``."""
+    return [sys.executable, "-m", "harness.cli", *argv]
+
+
+class Run:
+    """A subprocess (``cmd``) with stderr collected by a thread (tqdm progress lands there)."""
+
+    def __init__(self, cmd):
+        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.err = b""
+        self._t = threading.Thread(target=self._read, daemon=True)
+        self._t.start()
+
+    def _read(self):
+        for chunk in iter(lambda: self.proc.stderr.read1(4096), b""):
+            self.err += chunk
+
+    def wait_progress(self, pattern: str, at_least: int, timeout_s: float = 240.0) -> None:
+        """Until the progress bar shows ``pattern``'s first group >= at_least."""
+        t_end = time.monotonic() + timeout_s
+        while time.monotonic() < t_end:
+            done = [int(m) for m in re.findall(pattern, self.err.decode(errors="replace"))]
+            if done and max(done) >= at_least:
+                return
+            if self.proc.poll() is not None:
+                pytest.fail(f"the run ended before the signal (code {self.proc.returncode}): {self.err.decode()[-2000:]}")
+            time.sleep(0.05)
+        self.proc.kill()
+        pytest.fail(f"no progress {pattern} >= {at_least} within {timeout_s} s: {self.err.decode()[-2000:]}")
+
+    def signal_and_wait(self, signum) -> tuple[int, float, str]:
+        """Send ``signum`` to the main process alone; (exit code, seconds until it exited, stdout)."""
+        t0 = time.monotonic()
+        os.kill(self.proc.pid, signum)
+        try:
+            out, _ = self.proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            pytest.fail(f"the run did not stop within 30 s of {signal.Signals(signum).name}")
+        return self.proc.returncode, time.monotonic() - t0, out.decode()
+
+
+def stop(run: Run, signum) -> str:
+    """Signal the main process alone; check it exits with 128 + signal within 2 s and leaves no worker; its stdout."""
+    workers = children(run.proc.pid)
+    assert len(workers) >= 2, "the sweep should be running on worker processes"
+    code, dt, out = run.signal_and_wait(signum)
+    assert code == 128 + signum, run.err.decode()[-2000:]
+    assert dt < STOP_WITHIN_S
+    assert_gone(workers)
+    return out
+
+
+def children(pid: int) -> list[int]:
+    """Live processes whose parent is ``pid`` (from /proc/*/stat)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                stat = (d / "stat").read_text()
+            except OSError:
+                continue
+            fields = stat[stat.rindex(")") + 2:].split()  # state, ppid, ...
+            if int(fields[1]) == pid and fields[0] != "Z":
+                out.append(int(d.name))
+    return out
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (ProcessLookupError, FileNotFoundError):
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"  # a zombie nobody reaped has stopped running
+
+
+def assert_gone(pids, within_s: float = ORPHANS_GONE_WITHIN_S) -> None:
+    t_end = time.monotonic() + within_s
+    while time.monotonic() < t_end and any(alive(p) for p in pids):
+        time.sleep(0.05)
+    left = [p for p in pids if alive(p)]
+    for p in left:  # do not leave them behind for the next test
+        os.kill(p, signal.SIGKILL)
+    assert not left, f"worker processes {left} still running {within_s} s after the main process stopped"
+
+
+def _play(tmp_path, balls=60):
+    return cli("play", "--tracker", "rt2", "--filter", "raw", "--balls", str(balls), "--seed", "0", "--workers", "2",
+            "--out", str(tmp_path), "--no-figure", "--json", str(tmp_path / "play.json"))
+
+
+def _table1(tmp_path):
+    return cli("sim", "table1", "--trials", "4000", "--cameras", "4", "8", "15", "30", "--workers", "2", "--seed", "0",
+            "--json", str(tmp_path / "table1.json"))
+
+
+# -- SIGTERM ---------------------------------------------------------------------------------------------
+def test_sigterm_play_stops_fast_keeps_finished_balls_and_closes_the_log(tmp_path):
+    from harness.logs import SessionLogReader
+
+    run = Run(_play(tmp_path))
+    run.wait_progress(r"(\d+)/60", 1)
+    out = stop(run, signal.SIGTERM)
+    assert "PARTIAL (interrupted by SIGTERM)" in out
+    (row,) = json.loads((tmp_path / "play.json").read_text())
+    assert row["partial"] is True and 1 <= row["balls"] < 60
+    log = SessionLogReader(row["log"])  # closed cleanly: the summary says why it ended early
+    end = log.summary().session_end
+    assert "SIGTERM" in end["error"] and "partial" in end["error"]
+
+
+# -- SIGINT to the main process alone ----------------------------------------------------------------------
+def test_sigint_table1_stops_fast_and_writes_the_finished_chunks(tmp_path):
+    run = Run(_table1(tmp_path))
+    run.wait_progress(r"(\d+)/160", 4)
+    out = stop(run, signal.SIGINT)
+    assert "PARTIAL (interrupted by SIGINT)" in out
+    rows = json.loads((tmp_path / "table1.json").read_text())
+    assert rows and all(r["partial"] is True for r in rows)
+    assert 4 * 500 <= sum(r["trials"] for r in rows if r["method"] == "ours") < 20 * 4000
+
+
+# -- SIGKILL: nothing to clean up, but the workers must not outlive the main process -------------------------
+def test_sigkill_leaves_no_orphan_workers(tmp_path):
+    run = Run(_table1(tmp_path))
+    run.wait_progress(r"(\d+)/160", 2)
+    workers = children(run.proc.pid)
+    assert len(workers) >= 2
+    run.signal_and_wait(signal.SIGKILL)
+    assert_gone(workers)
+
+
+# -- the accuracy experiment: SIGTERM mid-run scores the finished segments -----------------------------------
+ACCURACY = """
+import sys
+from harness.experiments.accuracy import AccuracyConfig, run_accuracy
+config = AccuracyConfig(seed=3, n_frames=144, rate_hz=50.0, segment_frames=24, register_fraction=0.25,
+                        register_layout="first", trackers=("rt2",))
+result = run_accuracy(config, sys.argv[1], workers=2, log_images="none")
+print("PARTIAL" if result.partial else "COMPLETE", result.partial)
+sys.exit(result.partial["exit_code"] if result.partial else 0)
+"""
+
+
+@pytest.mark.slow  # 30 s idle, up to 2 min on a loaded machine: 72 rendered frame sets before the signal
+def test_sigterm_accuracy_scores_the_finished_frames_and_closes_the_log(tmp_path):
+    from harness.logs import SessionLogReader
+
+    run = Run([sys.executable, "-c", ACCURACY, str(tmp_path)])
+    run.wait_progress(r"(\d+)/144", 72)  # >= 2 segments handed on: frames 0-35 register, the rest are scored
+    out = stop(run, signal.SIGTERM)
+    assert out.startswith("PARTIAL")
+    (row,) = json.loads((tmp_path / "accuracy.json").read_text())
+    assert row["partial"] is True and row["tracker"] == "rt2"
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    part = summary["figures"]["partial"]
+    assert part["reason"] == "interrupted by SIGTERM" and 48 <= part["frames_done"] < 144  # whole segments in order
+    assert summary["figures"]["n_scored"] == part["frames_done"] - 36
+    with SessionLogReader(tmp_path / "session.mcap") as log:
+        assert log.finished_cleanly
+        assert "SIGTERM" in log.summary().session_end["partial"]["reason"]
+
+
+# -- a data set is all or nothing: a signal leaves --out as it was ------------------------------------------
+def test_sigterm_sim_dataset_stops_fast_and_leaves_out_as_it_was(tmp_path):
+    out = tmp_path / "set"
+    run = Run(cli("sim", "dataset", "--frames", "200", "--seed", "1", "--workers", "2", "--out", str(out)))
+    run.wait_progress(r"(\d+)/200", 8)
+    stop(run, signal.SIGTERM)
+    assert list(out.iterdir()) == []  # no annotations.json, no image, no staging folder left behind

@@ -1,0 +1,59 @@
+"""rt2 bench detector runs and writes its JSON rows (no timing assertions: speed is the bench's job)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from harness.cli import main
+from tracker.detection.synthetic import hand_made_model
+
+ROWS = {("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")}
+
+
+def test_bench_json_rows_rendered_frame(tmp_path, capsys):
+    out = tmp_path / "bench.json"  # default: the shipped model on a rendered lab4_vga frame
+    assert main(["bench", "detector", "--repeats", "3", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert [(r["mode"], r["backend"]) for r in rows] == [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")]
+    assert all(set(r) == {"mode", "backend", "median_ms"} and 0 < r["median_ms"] < 10_000 for r in rows)
+    text = capsys.readouterr().out
+    assert "rendered lab4_vga cam0 frame (seed 0, scene" in text and "medians of 3 (ROI: 30) runs" in text
+    # the table prints the measured figures the JSON holds, and the ratios are computed from them
+    by = {(r["mode"], r["backend"]): r["median_ms"] for r in rows}
+    for (mode, backend), ms in by.items():
+        assert f"{mode:<5} {backend:<40} {ms:10.3f}" in text
+    for mode in ("full", "roi"):
+        assert f"{mode}: torch / cv2 = {by[mode, 'torch'] / by[mode, 'cv2']:.2f}x" in text
+
+
+def test_bench_times_the_detector_on_a_frame_where_it_finds_the_ball():
+    # The Python API refuses a frame whose ball the model does not find in its window: the figures are
+    # always of a detection that works, never of a detector returning nothing.
+    from harness.experiments.studies.bench_detector import bench
+    from tracker.detection.synthetic import draw_disk
+
+    model = hand_made_model()
+    image = np.full((480, 640, 3), 100, np.uint8)
+    draw_disk(image, (300.0, 200.0), 12.0, (245, 120, 20))
+    rows, breakdown = bench(model, image, (300.0, 200.0), repeats=2)
+    assert [(r["mode"], r["backend"]) for r in rows] == [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")]
+    assert [r["backend"] for r in breakdown] == ["cv2: logits only (3 x filter2D)", "cv2: Algorithm 1 top-K on given logits"]
+    empty = np.full((480, 640, 3), 100, np.uint8)
+    with pytest.raises(ValueError, match="the benchmark frame's ball is not found in its window"):
+        bench(model, empty, (300.0, 200.0), repeats=2)
+
+
+def test_bench_frame_from_a_coco_set(tmp_path, synthetic_ball_coco, capsys):
+    model = hand_made_model().save(tmp_path / "hand.npz")
+    out = tmp_path / "bench.json"
+    assert main(["bench", "detector", "--model", str(model), "--data", str(synthetic_ball_coco(30, 0)), "--repeats", "2", "--json", str(out)]) == 0
+    assert {(r["mode"], r["backend"]) for r in json.loads(out.read_text())} == ROWS
+
+
+def test_bench_bad_input(tmp_path, capsys):
+    model = hand_made_model().save(tmp_path / "hand.npz")
+    assert main(["bench", "detector", "--model", str(model), "--repeats", "0"]) == 2
+    assert "--repeats must be >= 1" in capsys.readouterr().err

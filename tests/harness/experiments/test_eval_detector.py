@@ -1,0 +1,150 @@
+"""rt2 eval detector: the metric definitions on hand-made cases, a run on a synthetic set, JSON, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from harness.cli import main
+from harness.experiments.detector.coco import read_coco
+from harness.experiments.studies.eval_detector import EVAL_METHODS, evaluate, score_detections
+from tracker.detection.synthetic import hand_made_model
+
+JSON_KEYS = {"method", "recall", "outlier_rate", "median_center_error_px", "p95_center_error_px"}
+
+
+# -- the definitions ---------------------------------------------------------------------------------
+def test_inlier_within_two_radii_outlier_beyond():
+    c = [np.array([[50.0, 50.0]])]
+    d = [np.array([8.0])]  # radius 4: two radii = 8 px
+    s = score_detections("x", c, d, [np.array([[57.9, 50.0]])])
+    assert s.recall == 1.0 and s.outlier_rate == 0.0 and s.median_center_error_px == pytest.approx(7.9)
+    s = score_detections("x", c, d, [np.array([[58.1, 50.0]])])
+    assert s.recall == 0.0 and s.outlier_rate == 1.0 and np.isnan(s.median_center_error_px)
+
+
+def test_no_ball_images_and_misses():
+    centers = [np.zeros((0, 2)), np.array([[10.0, 10.0]]), np.array([[30.0, 30.0]]), np.zeros((0, 2))]
+    diams = [np.zeros(0), np.array([10.0]), np.array([10.0]), np.zeros(0)]
+    dets = [np.array([[5.0, 5.0]]), np.array([[10.5, 10.0]]), np.zeros((0, 2)), np.zeros((0, 2))]
+    s = score_detections("x", centers, diams, dets)
+    assert s.n_balls == 2 and s.recall == 0.5
+    assert s.n_detections == 2 and s.n_outliers == 1 and s.outlier_rate == 0.5  # a detection where no ball is
+    assert s.median_center_error_px == pytest.approx(0.5)
+
+
+def test_topk_any_candidate_hits_every_stray_candidate_counts():
+    centers = [np.array([[10.0, 10.0]])]
+    diams = [np.array([10.0])]
+    dets = [np.array([[80.0, 80.0], [10.2, 10.0], [np.nan, np.nan]])]  # NaN padding is not a detection
+    s = score_detections("topk", centers, diams, dets)
+    assert s.recall == 1.0 and s.n_detections == 2 and s.outlier_rate == 0.5
+    assert s.median_center_error_px == pytest.approx(0.2)
+
+
+def test_outlier_breakdown():
+    centers = [np.zeros((0, 2)), np.zeros((0, 2)), np.array([[10.0, 10.0]])]
+    diams = [np.zeros(0), np.zeros(0), np.array([10.0])]
+    dets = [np.array([[5.0, 5.0], [9.0, 9.0]]), np.zeros((0, 2)), np.array([[10.0, 10.0], [50.0, 50.0]])]
+    s = score_detections("x", centers, diams, dets)
+    assert s.n_outliers == 3 and s.n_outliers_with_ball == 1
+    assert s.n_images_without_ball == 2 and s.n_false_alarm_images == 1
+
+
+def test_small_balls_not_in_recall_but_not_outliers():
+    s = score_detections("x", [np.array([[10.0, 10.0]])], [np.array([4.0])], [np.array([[11.0, 10.0]])], min_diameter_px=6)
+    assert s.n_balls == 0 and np.isnan(s.recall) and s.outlier_rate == 0.0
+
+
+# -- accuracy on a synthetic held-out set ------------------------------------------------------------
+def test_evaluate_hand_made_model_on_synthetic_set(synthetic_ball_coco):
+    labelled = read_coco(synthetic_ball_coco(30, 1))
+    scores = evaluate(hand_made_model(), labelled, progress=False)
+    assert [s.method for s in scores] == list(EVAL_METHODS)
+    by = {s.method: s for s in scores}
+    assert by["paper"].n_balls == 24 and by["paper"].n_images == 30
+    for m in EVAL_METHODS:
+        assert by[m].recall >= 0.95 and by[m].median_center_error_px < 0.3
+    assert by["paper"].outlier_rate <= 0.05
+    assert by["topk"].recall >= by["ours"].recall
+    assert by["topk"].n_detections >= by["ours"].n_detections
+
+
+# -- command line, JSON and determinism --------------------------------------------------------------
+def _model_and_data(synthetic_ball_coco, tmp_path):
+    """The hand-made model saved as a file, and a 30-image synthetic COCO set."""
+    return hand_made_model().save(tmp_path / "hand.npz"), str(synthetic_ball_coco(30, 1))
+
+
+def test_cli_json(synthetic_ball_coco, tmp_path, capsys):
+    model, data = _model_and_data(synthetic_ball_coco, tmp_path)
+    out1, out2 = tmp_path / "a.json", tmp_path / "b.json"
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--json", str(out1)]) == 0
+    table = capsys.readouterr().out
+    assert "paper" in table and "topk" in table and "recall" in table
+    rows = json.loads(out1.read_text())
+    assert [r["method"] for r in rows] == ["paper", "ours", "topk"]
+    assert all(set(r) == JSON_KEYS for r in rows)
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--json", str(out2)]) == 0
+    assert out1.read_text() == out2.read_text()  # same data, same figures
+
+
+def test_cli_colour_selection_and_figure(synthetic_ball_coco, tmp_path, capsys):
+    model, data = _model_and_data(synthetic_ball_coco, tmp_path)
+    out, fig = tmp_path / "w.json", tmp_path / "fig.png"
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--figure", str(fig)]) == 0
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--ball-colour", "white", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert all(r["recall"] is None for r in rows)  # no white balls: recall undefined (null), every detection an outlier
+    assert rows[0]["outlier_rate"] == 1.0
+    assert "white balls" in capsys.readouterr().out
+    import cv2
+
+    assert cv2.imread(str(fig)).shape[1] == 2 * 3 * 160  # image | probability | detection, scaled 2x
+
+
+def test_cli_scores_the_models_own_colour_by_default(synthetic_ball_coco, tmp_path, capsys):
+    import dataclasses
+
+    from tracker import BallSegmentationModel
+
+    model, data = _model_and_data(synthetic_ball_coco, tmp_path)
+    white = dataclasses.replace(BallSegmentationModel.load(model), ball_colour="white").save(tmp_path / "white.npz")
+    default, explicit = tmp_path / "d.json", tmp_path / "e.json"
+    assert main(["eval", "detector", "--data", data, "--model", str(white), "--json", str(default)]) == 0
+    out = capsys.readouterr().out
+    assert "white balls" in out and "the model's own colour" in out
+    assert main(["eval", "detector", "--data", data, "--model", str(white), "--ball-colour", "white", "--json", str(explicit)]) == 0
+    assert default.read_text() == explicit.read_text()
+    # a model whose colour is not recorded scores every ball, as before
+    assert BallSegmentationModel.load(model).ball_colour == "any"
+
+
+# -- bad input ---------------------------------------------------------------------------------------
+def test_bad_inputs(tmp_path, capsys, synthetic_ball_coco):
+    with pytest.raises(ValueError, match="one entry per image"):
+        score_detections("x", [np.zeros((0, 2))], [], [])
+    with pytest.raises(ValueError, match="unknown method 'best'"):
+        evaluate(hand_made_model(), [], methods=("best",))
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"xx")
+    assert main(["eval", "detector", "--data", str(synthetic_ball_coco(30, 1)), "--model", str(bad)]) == 2
+    assert "bad.npz" in capsys.readouterr().err
+    model = hand_made_model().save(tmp_path / "hand.npz")
+    assert main(["eval", "detector", "--data", str(tmp_path / "nowhere"), "--model", str(model)]) == 2
+    assert "nowhere" in capsys.readouterr().err
+
+
+def test_cli_thresholds_override_the_model(synthetic_ball_coco, tmp_path, capsys):
+    model, data = _model_and_data(synthetic_ball_coco, tmp_path)
+    base, strict = tmp_path / "base.json", tmp_path / "strict.json"
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--json", str(base)]) == 0
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--t-high", "0.999999", "--json", str(strict)]) == 0
+    assert "T_h=0.999999" in capsys.readouterr().out
+    b, s = json.loads(base.read_text()), json.loads(strict.read_text())
+    assert s[1]["recall"] < b[1]["recall"]  # a T_h no ball reaches loses balls
+    for args, message in ((["--t-high", "1.5"], "--t-high must be a probability in (0, 1), got 1.5"), (["--t-low", "0.99999999"], "need T_l < T_h")):
+        assert main(["eval", "detector", "--data", data, "--model", str(model), *args]) == 2
+        assert message in capsys.readouterr().err

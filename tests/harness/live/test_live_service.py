@@ -1,0 +1,194 @@
+"""The tracking service on rendered frame sets of the simulated lab: one message per frame set on both
+streams, a camera that stops mid-run, the session log and its re-evaluation, and figures."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import numpy as np
+import pytest
+import zmq
+
+from harness.cli import main as rt2
+from harness.live.publish import Publisher
+from harness.live.service import ServiceOptions, TrackingService
+from harness.live.session_log import LiveLog
+from harness.logs import SessionLogReader
+from tests.harness.live._live_frames import assembled, lab_rig, rendered_images
+from tracker import Tracker
+
+
+@pytest.fixture(scope="module")
+def rig():
+    rendered_images()  # render once for the module (a few seconds)
+    return lab_rig()
+
+
+def _collect(addr: str, out: list, ready: threading.Event, stop: threading.Event):
+    ctx = zmq.Context.instance()
+    s = ctx.socket(zmq.SUB)
+    s.connect(addr)
+    s.setsockopt(zmq.SUBSCRIBE, b"")
+    ready.set()
+    while not stop.is_set() or s.poll(200):
+        if s.poll(50):
+            out.append(json.loads(s.recv()))
+    s.close(linger=0)
+
+
+def _wait_joined(pub: Publisher, got: list, timeout_s: float = 10.0):
+    """PUB/SUB joins asynchronously: send probes until the subscriber saw one, then forget them."""
+    import time
+
+    t_end = time.monotonic() + timeout_s
+    while not got and time.monotonic() < t_end:
+        pub.publish({"num": -1, "time": 0, "proc_time": 0.0, "obs": None},
+                    {"num": -1, "t_first_host_s": 0.0, "t_publish_s": None})
+        time.sleep(0.02)
+    time.sleep(0.1)
+    got.clear()
+
+
+def test_every_frame_set_is_published_and_a_stopped_camera_is_reported(rig):
+    tennicam, rich = [], []
+    stop = threading.Event()
+    with Publisher("tcp://127.0.0.1:0", "tcp://127.0.0.1:0") as pub, Tracker(rig, "rt2") as tr:
+        threads = []
+        for addr, out in ((pub.addresses["tennicam"], tennicam), (pub.addresses["rt2"], rich)):
+            ready = threading.Event()
+            th = threading.Thread(target=_collect, args=(addr, out, ready, stop))
+            th.start()
+            ready.wait()
+            threads.append(th)
+            _wait_joined(pub, out)
+        probes = dict(pub.sent)
+        service = TrackingService(rig, tr, publisher=pub, options=ServiceOptions(status_period_s=0))
+        summary = service.run(assembled(240, drop_camera=2, drop_from=120))
+        summary["published"] = {k: v - probes[k] for k, v in summary["published"].items()}
+        stop.set()
+        for th in threads:
+            th.join()
+    tennicam = [m for m in tennicam if m["num"] >= 0]  # the join probes out
+    rich = [m for m in rich if m["num"] >= 0]
+    assert summary["frame_sets"] == 240 and summary["published"] == {"tennicam": 240, "rt2": 240}
+    assert [m["num"] for m in tennicam] == list(range(240))  # nothing lost between rt2 and a reader
+    assert [m["num"] for m in rich] == list(range(240))
+    assert summary["missing_frames"] == {"cam0": 0, "cam1": 0, "cam2": 120, "cam3": 0}
+    # tracking goes on from the other three cameras, and each message says camera 2 is missing
+    after = rich[120:]
+    assert all(m["status"] == "ok" and m["support"] == 3 and not m["inliers"][2] for m in after)
+    assert all(any("camera 2: no frame in time" in n for n in m["notes"]) for m in after)
+    assert all(m["obs"] is not None for m in tennicam[120:])
+    # the tennicam position is rt2's position; time is the capture time in ns on CLOCK_MONOTONIC
+    for t, r in zip(tennicam, rich):
+        assert t["obs"] == r["position_m"]
+        assert t["time"] == round(r["t_s"] * 1e9)
+        assert r["t_first_host_s"] <= r["t_publish_s"] and r["latency_s"] == pytest.approx(r["t_publish_s"] - r["t_first_host_s"])
+        assert (r["t_host_s"][2] is None) == (r["num"] >= 120)  # NaN stamps travel as null
+    assert summary["latency_ms"]["p50"] > 0 and summary["status"] == {"ok": 240}
+
+
+def test_session_log_is_the_experiments_format_and_reevaluates_exactly(rig, tmp_path, capsys):
+    path = tmp_path / "track.mcap"
+    with Tracker(rig, "rt2") as tr:
+        log = LiveLog(path, rig, tr, source="test", seed=0, log_images="all", image_format="png",
+                      max_pending_images=1000)  # offline: PNG is slow, keep every image
+        service = TrackingService(rig, tr, log=log, options=ServiceOptions(status_period_s=0))
+        summary = service.run(assembled(60, drop_camera=1, drop_from=40))
+    with SessionLogReader(path) as r:
+        assert r.finished_cleanly
+        assert r.metadata("session")["kind"] == "track"
+        s = r.summary()
+        counts = {t: st.count for t, st in s.topics.items()}
+        assert counts["/tracker/rt2/ball"] == 60
+        assert counts["/camera/cam0/image"] == 60 and counts["/camera/cam1/image"] == 40
+        assert counts["/camera/cam0/detections"] == 60 and counts["/scene/static"] == 1
+        assert r.figures()["track"]["frame_sets"] == 60
+    assert summary["log"]["dropped"] == {}
+    for source in ("detections", "images"):
+        assert rt2(["reevaluate", str(path), "--from", source, "--json", str(tmp_path / f"{source}.json")]) == 0
+        out = capsys.readouterr().out
+        assert "identical observations (status and position): 60 of 60" in out, out
+        assert json.loads((tmp_path / f"{source}.json").read_text())["identical"] == 60
+    # the same log replayed as live cameras through rt2 track: the run ends by itself with the recording
+    stats = tmp_path / "replay.json"
+    assert rt2(["track", "--source", "replay", str(path), "--publish", "127.0.0.1:0", "--status-period", "0",
+                "--json", str(stats)]) == 0
+    s = json.loads(stats.read_text())
+    assert s["frame_sets"] + s["assembly"]["dropped_framesets"] == 60 and "stopped_by" not in s
+    assert s["missing_frames"]["cam1"] >= 20 and s["missing_frames"]["cam0"] == 0
+
+
+def test_service_stops_on_request_and_closes_its_log(rig, tmp_path):
+    path = tmp_path / "stop.mcap"
+    stop = threading.Event()
+
+    def frames():
+        for k, afs in enumerate(assembled(10_000)):
+            if k == 30:
+                stop.set()
+            yield afs
+
+    with Tracker(rig, "rt2") as tr:
+        log = LiveLog(path, rig, tr, source="test", log_images="none")
+        summary = TrackingService(rig, tr, log=log, options=ServiceOptions(status_period_s=0)).run(frames(), stop=stop)
+    assert summary["frame_sets"] == 30
+    with SessionLogReader(path) as r:
+        assert r.finished_cleanly and r.figures()["track"]["frame_sets"] == 30
+
+
+def test_service_rejects_other_inputs(rig):
+    with Tracker(rig, "rt2") as tr:
+        service = TrackingService(rig, tr)
+        with pytest.raises(ValueError, match="AssembledFrameSet"):
+            service.step("not a frame set")
+        with pytest.raises(ValueError, match="duration_s"):
+            service.run([], duration_s=-1)
+    with pytest.raises(ValueError, match="status_period_s"):
+        ServiceOptions(status_period_s=-1)
+
+
+def test_status_line_and_summary(rig):
+    lines = []
+    with Tracker(rig, "rt2") as tr:
+        service = TrackingService(rig, tr, options=ServiceOptions(status_period_s=0.05), status=lines.append)
+        summary = service.run(assembled(40, pace=True, rate_hz=200))
+    assert lines and "frame sets" in lines[0] and "latency p50" in lines[0] and "cam3:0" in lines[0]
+    assert summary["frame_sets"] == 40 and 10 < summary["rate_hz"] < 300  # paced at 200 Hz; a loaded machine is slower
+    assert set(summary["latency_ms"]) >= {"p50", "p99", "max"}
+
+
+def test_a_failing_log_never_stops_tracking_or_publishing(rig, tmp_path):
+    """The log's file fails mid-run (as a full disk would): the service says so once and goes on."""
+    lines = []
+    with Tracker(rig, "rt2") as tr, Publisher("tcp://127.0.0.1:0", None) as pub:
+        log = LiveLog(tmp_path / "fails.mcap", rig, tr, source="test", log_images="none")
+        service = TrackingService(rig, tr, publisher=pub, log=log, options=ServiceOptions(status_period_s=0),
+                                  status=lines.append)
+
+        def frames():
+            for k, afs in enumerate(assembled(80, pace=True, rate_hz=50)):  # 1.6 s: the writer flushes on its timer
+                if k == 20:
+                    log.bg.writer._file.close()  # the disk goes away under the writer
+                yield afs
+
+        summary = service.run(frames())
+    assert summary["frame_sets"] == 80 and summary["published"]["tennicam"] == 80
+    assert summary["log"]["error"] and "log writer failed" in summary["log"]["error"]
+    assert sum("the session log failed" in ln for ln in lines) == 1
+
+
+def test_a_log_that_fails_only_when_closed_is_reported_not_raised(rig, tmp_path):
+    with Tracker(rig, "rt2") as tr:
+        log = LiveLog(tmp_path / "fails_late.mcap", rig, tr, source="test", log_images="none")
+        service = TrackingService(rig, tr, log=log, options=ServiceOptions(status_period_s=0))
+
+        def frames():
+            for k, afs in enumerate(assembled(30)):
+                if k == 29:
+                    log.bg.writer._file.close()
+                yield afs
+
+        summary = service.run(frames())
+    assert summary["frame_sets"] == 30 and summary["log"]["error"]
