@@ -18,34 +18,16 @@ gives one. docs/live.md, section "Camera sources".
 
 from __future__ import annotations
 
-import importlib
 import math
 from dataclasses import dataclass
 
-from harness.live.frames import SourceError
+from harness.live.sources.drivers import SourceUnavailable, require_driver
 
 __all__ = ["KINDS", "SourceSpec", "SourceUnavailable", "open_sources", "parse_source_spec", "require_driver"]
 
 KINDS = ("sim", "replay", "video", "opencv", "pylon", "genicam")
 _USAGE = ("sim | replay LOG.mcap | video DIR | opencv IDS (e.g. 0,1,2,3) | pylon [SERIALS] | "
           "genicam [PRODUCER.cti] [SERIALS]")
-CAMERAS_EXTRA = "pip install 'rt2[cameras]'"
-
-
-class SourceUnavailable(SourceError, ValueError):
-    """A source cannot be opened: a driver is not installed or a device does not open. The message
-    names the device or the extra to install. Also a ValueError, so the CLI reports it in one line."""
-
-
-def require_driver(module: str, backend: str):
-    """Import ``module`` for ``backend`` or raise :class:`SourceUnavailable` naming the extra to install."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as exc:
-        raise SourceUnavailable(f"the {backend} camera source needs the Python package {module.split('.')[0]!r}, "
-                                f"which is not installed ({exc}): {CAMERAS_EXTRA}") from None
-
-
 @dataclass(frozen=True)
 class SourceSpec:
     """kind : one of :data:`KINDS`; target : LOG / DIR / CTI path or None; devices : camera ids or serials

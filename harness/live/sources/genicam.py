@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.live.frames import Frame, SourceError
-from harness.live.sources import SourceUnavailable, require_driver
+from harness.live.sources.drivers import SourceUnavailable, require_driver
 
 __all__ = ["GenICamCamera", "default_producers", "open_genicam"]
 

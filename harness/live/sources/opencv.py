@@ -14,7 +14,7 @@ from __future__ import annotations
 import time
 
 from harness.live.frames import Frame, SourceError
-from harness.live.sources import SourceUnavailable
+from harness.live.sources.drivers import SourceUnavailable
 
 __all__ = ["OpenCVCamera", "open_opencv"]
 

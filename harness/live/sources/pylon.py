@@ -27,7 +27,7 @@ import threading
 import time
 
 from harness.live.frames import Frame, SourceError
-from harness.live.sources import SourceUnavailable, require_driver
+from harness.live.sources.drivers import SourceUnavailable, require_driver
 
 __all__ = ["TRIGGERS", "PylonCamera", "open_pylon"]
 
