@@ -340,7 +340,7 @@ def choose_thresholds(val_logits, truth, loose_area, opts: TrainOptions):
     ``T_l`` maximise ``recall - outlier_rate`` (misses and wrong reports cost the same), ties going
     to the lower median centre error. Returns ``(t_high, t_low, area_range_px, ours_scores, paper_scores)``.
     """
-    from harness.experiments.studies.eval_detector import score_detections
+    from harness.experiments.detector.scores import score_detections
 
     opt = DetectorOptions()
 
@@ -379,7 +379,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     import torch  # training only
     from tqdm import tqdm
 
-    from harness.experiments.studies.eval_detector import truth_of
+    from harness.experiments.detector.scores import truth_of
 
     torch.manual_seed(opts.seed)
     rng = np.random.default_rng(opts.seed)

@@ -9,7 +9,8 @@ import pytest
 
 from harness.cli import main
 from harness.experiments.detector.coco import read_coco
-from harness.experiments.studies.eval_detector import EVAL_METHODS, evaluate, score_detections
+from harness.experiments.detector.scores import score_detections
+from harness.experiments.studies.eval_detector import EVAL_METHODS, evaluate
 from tracker.detection.synthetic import hand_made_model
 
 JSON_KEYS = {"method", "recall", "outlier_rate", "median_center_error_px", "p95_center_error_px"}

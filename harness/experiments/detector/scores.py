@@ -1,0 +1,90 @@
+"""Scores of ball detections against labelled balls: the definitions of ``rt2 eval detector``
+(:mod:`harness.experiments.studies.eval_detector`, whose docstring states them), shared with
+``rt2 train``'s threshold choice, which scores its validation set the same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = ["DetectorScores", "score_detections", "truth_of"]
+
+
+@dataclass(frozen=True)
+class DetectorScores:
+    """Detection quality of one method on one labelled set (see the module docstring)."""
+
+    method: str
+    recall: float
+    outlier_rate: float
+    median_center_error_px: float
+    p95_center_error_px: float
+    n_images: int = 0
+    n_balls: int = 0  #: balls of at least min_diameter_px
+    n_detections: int = 0
+    n_outliers: int = 0
+    n_outliers_with_ball: int = 0  #: outliers in images that show a labelled ball
+    n_images_without_ball: int = 0
+    n_false_alarm_images: int = 0  #: images without a labelled ball but with a detection
+
+    def as_json(self) -> dict:
+        keys = ("method", "recall", "outlier_rate", "median_center_error_px", "p95_center_error_px")
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items() if k in keys}
+
+
+def score_detections(method: str, truth_centers, truth_diameters, detections, *, min_diameter_px: float = 6.0) -> DetectorScores:
+    """Score detections against labels, image by image.
+
+    truth_centers : per image an (g, 2) array of exact ball centres, rt2 pixels
+    truth_diameters : per image a (g,) array of ball diameters, px
+    detections : per image an (k, 2) array of detected centres (k may be 0)
+    """
+    if not (len(truth_centers) == len(truth_diameters) == len(detections)):
+        raise ValueError(
+            f"need one entry per image, got {len(truth_centers)} truth centres, {len(truth_diameters)} diameters, {len(detections)} detections"
+        )
+    n_balls = n_hit = n_det = n_out = n_out_ball = n_empty = n_alarm = 0
+    errors = []
+    for c, d, uv in zip(truth_centers, truth_diameters, detections):
+        c = np.asarray(c, float).reshape(-1, 2)
+        d = np.asarray(d, float).reshape(-1)
+        uv = np.asarray(uv, float).reshape(-1, 2)
+        uv = uv[np.isfinite(uv).all(axis=1)]
+        n_det += len(uv)
+        if len(c) == 0:
+            n_out += len(uv)
+            n_empty += 1
+            n_alarm += len(uv) > 0
+            continue
+        dist = np.linalg.norm(uv[:, None, :] - c[None, :, :], axis=2)  # (k, g)
+        near = dist <= d[None, :]  # within two radii
+        n_out += int(np.sum(~near.any(axis=1)))
+        n_out_ball += int(np.sum(~near.any(axis=1)))
+        big = d >= min_diameter_px
+        n_balls += int(big.sum())
+        for j in np.flatnonzero(big):
+            if near[:, j].any():
+                n_hit += 1
+                errors.append(float(dist[near[:, j], j].min()))
+    errors = np.asarray(errors)
+    return DetectorScores(
+        method=method,
+        recall=n_hit / n_balls if n_balls else float("nan"),
+        outlier_rate=n_out / n_det if n_det else 0.0,
+        median_center_error_px=float(np.median(errors)) if len(errors) else float("nan"),
+        p95_center_error_px=float(np.percentile(errors, 95)) if len(errors) else float("nan"),
+        n_images=len(detections),
+        n_balls=n_balls,
+        n_detections=n_det,
+        n_outliers=n_out,
+        n_outliers_with_ball=n_out_ball,
+        n_images_without_ball=n_empty,
+        n_false_alarm_images=n_alarm,
+    )
+
+
+def truth_of(labelled) -> tuple[np.ndarray, np.ndarray]:
+    """(g, 2) exact centres and (g,) diameters (shorter box side) of a ``LabelledImage``."""
+    return labelled.centers_px, np.minimum(labelled.boxes_xywh[:, 2], labelled.boxes_xywh[:, 3])
