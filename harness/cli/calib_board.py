@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.cli.calib_intrinsics import detect_views, format_intrinsics, intrinsics_camera
 from harness.calib.compare import compare_rigs
 from harness.calib.exports import add_export_arguments, read_anipose_toml, save_calibration
 from harness.calib.inputs import load_board, load_intrinsics
+from harness.calib.intrinsics import detect_views, intrinsics_camera
+from harness.cli.calib_intrinsics import format_intrinsics
 from tracker import Camera, Rig
 from tracker.calibration.board_rig import calibrate_board_rig
 from tracker.calibration.intrinsics import IntrinsicsOptions, calibrate_intrinsics

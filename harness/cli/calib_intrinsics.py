@@ -8,16 +8,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from harness.calib.exports import add_export_arguments, save_calibration
-from harness.calib.inputs import iter_frames, load_board
-from tracker import Camera, Rig
-from tracker.calibration.board import CharucoCorners, detect_charuco, make_detector
+from harness.calib.inputs import load_board
+from harness.calib.intrinsics import detect_views, intrinsics_camera
+from tracker import Rig
 from tracker.calibration.intrinsics import IntrinsicsOptions, calibrate_intrinsics
 
-__all__ = ["add_arguments", "detect_views", "intrinsics_camera", "run"]
+__all__ = ["add_arguments", "format_intrinsics", "run"]
 
 
 def add_arguments(parser) -> None:
@@ -32,41 +31,6 @@ def add_arguments(parser) -> None:
     parser.add_argument("--mirror", choices=["auto", "no", "yes"], default="auto",
                         help="the board appears mirrored (seen from behind): detect in the flipped image; 'auto' tries both")
     add_export_arguments(parser)
-
-
-def detect_views(source, spec, *, every=1, max_frames=None, mirror="auto"):
-    """ChArUco corners per frame of ``source``; returns (views, image_size (w, h), mirrored, frame names).
-
-    A board seen from behind (printed on a transparent sheet, or shown mirrored) is found only in the
-    left-right flipped image; its corners are detected there and mapped back to the real image
-    (``mirrored`` says so), which keeps every corner at its physical place on the board.
-    """
-    det = make_detector(spec)
-    views, names, size = [], [], None
-    flips = {"no": [False], "yes": [True], "auto": [False, True]}[mirror]
-    scores = {f: 0 for f in flips}
-    for _, name, img in iter_frames(source, every=every, max_frames=max_frames):
-        if size is None:
-            size = (img.shape[1], img.shape[0])
-        elif (img.shape[1], img.shape[0]) != size:
-            raise ValueError(f"{name}: image size {img.shape[1]}x{img.shape[0]} differs from the first image's {size[0]}x{size[1]}")
-        found = {f: detect_charuco(cv2.flip(img, 1) if f else img, spec, det) for f in flips}
-        for f, v in found.items():
-            scores[f] += len(v)
-        views.append(found)
-        names.append(name)
-    if size is None:
-        raise ValueError(f"{source}: no frames")
-    mirrored = max(scores, key=lambda f: (scores[f], not f))
-    out = [v[mirrored] for v in views]
-    if mirrored:  # corners found in the flipped image, put back where they are in the real image
-        out = [CharucoCorners(v.ids, np.column_stack([size[0] - 1 - v.uv[:, 0], v.uv[:, 1]]), v.n_markers) for v in out]
-    return out, size, bool(mirrored), names
-
-
-def intrinsics_camera(name: str, result) -> Camera:
-    return Camera(name=name, K=result.K, distortion=result.distortion, R_world_to_cam=np.eye(3),
-                  t_world_to_cam_m=np.zeros(3), image_size=result.image_size)
 
 
 def run(args) -> int:

@@ -14,10 +14,9 @@ from __future__ import annotations
 import argparse
 import json
 
-
 from harness.common.outputs import check_output_file
-from harness.link.client import LinkLostError
 from harness.link.check import check_link
+from harness.link.client import LinkLostError
 
 __all__ = ["add_arguments", "run"]
 

@@ -12,8 +12,8 @@ import json
 
 import numpy as np
 
-from robot_models import WamKinematics
 from harness.experiments.studies.reach import HITTING_REGION_M, reachability
+from robot_models import WamKinematics
 
 __all__ = ["add_arguments", "run"]
 

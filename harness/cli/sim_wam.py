@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 
-
 from harness.experiments.studies.sim_wam import simulate
 
 __all__ = ["add_arguments", "run"]

@@ -24,7 +24,7 @@ def test_robot_registration_matches_the_accuracy_run(accuracy_session, tmp_path,
 
 
 def test_same_seed_same_uncertainty(accuracy_session):
-    from harness.cli.calib_robot import register_from_log
+    from harness.experiments.accuracy.robot_registration import register_from_log
 
     _, out_dir = accuracy_session
     a = register_from_log(out_dir / "session.mcap", bootstrap=20, seed=3)
