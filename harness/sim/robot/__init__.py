@@ -1,4 +1,4 @@
-"""The robot side of the harness: the simulated WAM, the robot link (``harness.link``) and robot CLI commands.
+"""The simulated WAM (``SimulatedWam``): 500 Hz tracking loop, limits, encoders, zero-offset bias.
 
 The interface contract (``WamInterface``, ``JointState``, ``JointTrajectory``, ``check_joint_trajectory``)
 lives in robot_models/robot_interface.py, where policies can see it; docs/robot.md describes the
