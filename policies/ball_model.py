@@ -211,7 +211,7 @@ class TableGeometry:
 # --------------------------------------------------------------------------- validation
 
 
-def _check_states(state, name: str = "state") -> tuple[np.ndarray, bool]:
+def check_states(state, name: str = "state") -> tuple[np.ndarray, bool]:
     """-> ((n, 9) float array, was_single)."""
     try:
         arr = np.asarray(state, float)
@@ -248,7 +248,7 @@ def make_state(position, velocity, spin=(0.0, 0.0, 0.0)) -> np.ndarray:
     for name, p in zip(("position", "velocity", "spin"), parts):
         if p.shape != (3,):
             raise ValueError(f"{name} must have shape (3,), got shape {p.shape}")
-    return _check_states(np.concatenate(parts))[0][0]
+    return check_states(np.concatenate(parts))[0][0]
 
 
 # --------------------------------------------------------------------------- physics
@@ -256,7 +256,7 @@ def make_state(position, velocity, spin=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 def acceleration(state, params: BallParams | None = None) -> np.ndarray:
     """Linear acceleration of eq. (1): state (9,) or (n, 9) -> (3,) or (n, 3) m/s^2, world frame."""
-    s, single = _check_states(state)
+    s, single = check_states(state)
     params = params or BallParams()
     a = _bi.deriv_np(s, params.coefficients())[:, 3:6]
     return a[0] if single else a
@@ -312,7 +312,7 @@ def simulate(state, t_query, params: BallParams | None = None, table: TableGeome
     ``[t_s, x, y, z, n_bounces]`` of the first table contact (NaN time/position if none).
     ``method``: "numba" (compiled kernel) or "numpy" (vectorised reference; same grid and events).
     """
-    s, single = _check_states(state)
+    s, single = check_states(state)
     t = _check_times(t_query)
     if not np.isfinite(t0_s) or t[0] < t0_s - 1e-12:
         raise ValueError(f"t_query must start at or after t0_s = {t0_s!r}; got t_query[0] = {t[0]!r}")
@@ -332,7 +332,7 @@ def simulate(state, t_query, params: BallParams | None = None, table: TableGeome
 def predict(state, t_query, params: BallParams | None = None, table: TableGeometry | None = None, *,
             t0_s: float = 0.0, dt_s: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
     """Predicted positions (M, 3) and velocities (M, 3) at ``t_query`` (M,) from ``state`` (9,) at ``t0_s``."""
-    s, single = _check_states(state)
+    s, single = check_states(state)
     if not single:
         raise ValueError(f"predict takes one state of shape (9,), got shape {s.shape}; use predict_batch")
     out, _ = simulate(s[0], t_query, params, table, t0_s=t0_s, dt_s=dt_s)
@@ -342,6 +342,6 @@ def predict(state, t_query, params: BallParams | None = None, table: TableGeomet
 def predict_batch(states, t_query, params: BallParams | None = None, table: TableGeometry | None = None, *,
                   t0_s: float = 0.0, dt_s: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
     """Batched :func:`predict`: states (n, 9) -> positions (n, M, 3), velocities (n, M, 3)."""
-    s, _ = _check_states(states, "states")
+    s, _ = check_states(states, "states")
     out, _ = simulate(s, t_query, params, table, t0_s=t0_s, dt_s=dt_s)
     return out[..., 0:3], out[..., 3:6]

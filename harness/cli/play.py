@@ -177,7 +177,7 @@ def run(args) -> int:
     if args.live:
         from harness.cli.play_live import run_live
 
-        return run_live(args, _configs(args, profiles)[0], _open_log)
+        return run_live(args, _configs(args, profiles)[0], _open_log, _print)
     from policies.promp import ProMP
     from robot_models import WamKinematics
 

@@ -31,9 +31,9 @@ def _budget_lines(budget: dict) -> list[str]:
     return out
 
 
-def run_live(args, config, open_log) -> int:
+def run_live(args, config, open_log, print_rows) -> int:
+    """open_log, print_rows : `rt2 play`'s session-log opener and result-table printer (the same as in process)."""
     from harness.common.outputs import atomic_write_json
-    from harness.cli.play import _print
     from harness.experiments.play.experiment import summarise
     from harness.experiments.play.live import LiveRun, latency_budget, play_live, play_live_local
     from harness.experiments.play.log import write_ball
@@ -104,7 +104,7 @@ def run_live(args, config, open_log) -> int:
         if row is not None:
             row["log"] = str(path)
     if row is not None:
-        _print([row], args)
+        print_rows([row], args)
         for line in _budget_lines(row["latency_ms"]):
             print(line)
         lag = row["latency_ms"]["world_lag_ms"]

@@ -147,7 +147,7 @@ def open_frames(args, rig):
             raise ValueError(f"--sim-rig {args.sim_rig!r} has cameras {list(render_rig.names)}, --rig {args.rig!r} has "
                              f"{list(rig.names)}: they must be the same cameras")
     if getattr(args, "truth_stream", None):
-        from harness.sim.lab_truth import LabTruthScene
+        from harness.experiments.accuracy.truth_scene import LabTruthScene
 
         if "prerender_s" in extra:
             raise ValueError("--prerender cannot go with --truth-stream (the lab is rendered as the truth arrives)")

@@ -25,7 +25,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from policies.ball_model import BallParams, TableGeometry, _check_states, simulate, surface_contact
+from policies.ball_model import BallParams, TableGeometry, check_states, simulate, surface_contact
 
 __all__ = ["BallWorld", "ContactEvent", "EventKind", "RacketParams", "RacketState", "WorldOptions", "classify_return"]
 
@@ -140,7 +140,7 @@ class BallWorld:
 
     def reset(self, state, t_s: float = 0.0) -> None:
         """Start a ball from ``state`` (9,) [p, v, w] at ``t_s``."""
-        s, single = _check_states(state)
+        s, single = check_states(state)
         if not single:
             raise ValueError(f"reset takes one state of shape (9,), got shape {s.shape}")
         self.state, self.t_s, self.events, self.done = s[0].copy(), float(t_s), [], False

@@ -24,7 +24,7 @@ a period before the frame is stamped.
 
 ``clock="host"`` is for a lab driven by other processes (the simulated WAM behind its bridge): frame set
 k is *exposed* at host time ``origin + k / rate_hz``, rendered after that instant from
-``scene_provider(t_host_s, k)`` (:class:`~.lab_truth.LabTruthScene` waits for the lab truth stream's
+``scene_provider(t_host_s, k)`` (:class:`harness.experiments.accuracy.truth_scene.LabTruthScene` waits for the lab truth stream's
 sample at that instant), and stamped with the exposure time on the host clock as its device stamp; it
 arrives later by the wait and the render time, as a frame from a camera with hardware timestamps does.
 """
@@ -61,7 +61,7 @@ class SimOptions:
     clock : "scene" (frame set k shows scene time k / rate_hz, rendered ahead, device stamp k / rate_hz) or
         "host": frame set k is exposed at host time ``origin + k / rate_hz`` (CLOCK_MONOTONIC, ``origin`` when
         the feed starts), rendered only once that instant has passed by ``scene_provider(t_host_s, k)``
-        (which may wait for the lab's truth at it, e.g. :class:`~.lab_truth.LabTruthScene`), and stamped
+        (which may wait for the lab's truth at it, e.g. :class:`harness.experiments.accuracy.truth_scene.LabTruthScene`), and stamped
         with the exposure time as its device stamp while it arrives later -- a camera with hardware
         timestamps on the host clock (assemble with ``clock="device"``)
     max_behind_s : "host" clock: when frame set k's exposure is further than this in the past as its turn

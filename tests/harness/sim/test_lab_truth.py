@@ -6,7 +6,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from harness.sim.lab_truth import (LabTruthScene, TruthError, TruthPublisher, TruthSubscriber, decode_truth,
+from harness.experiments.accuracy.truth_scene import LabTruthScene
+from harness.sim.lab_truth import (TruthError, TruthPublisher, TruthSubscriber, decode_truth,
                                             encode_truth)
 
 Q = np.linspace(-0.3, 0.3, 7)
