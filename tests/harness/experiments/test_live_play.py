@@ -16,7 +16,8 @@ import time
 import pytest
 
 from harness.cli import main
-from harness.link.spawn import ROOT, ReadyProcess, SimBridgeProcess
+from harness.common.spawn import ROOT, ReadyProcess
+from harness.link.spawn import SimBridgeProcess
 
 
 @pytest.mark.parametrize("extra, needle", [

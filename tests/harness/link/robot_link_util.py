@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from harness.link.spawn import ROOT, SimBridgeProcess
+from harness.common.spawn import ROOT
+from harness.link.spawn import SimBridgeProcess
 
 __all__ = ["BridgeProcess", "ROOT"]
 
