@@ -29,7 +29,8 @@ is a wrong answer). A ball is *seen* by a camera when the renderer labels it the
 * ``edge_loss_fit``: the detector's edge loss, measured: over the inlier cameras of the right ``OK``
   positions, the least-squares line blob width (``sqrt(4 area / pi)``) = slope x ball width at that
   depth (``2 r f / z``, :meth:`tracker.size_test.SizeTest.widths_px`) - edge loss
-  (:func:`tracker.size_test.fit_edge_loss`; the model's ``edge_loss_px``, docs/pipeline.md step 8).
+  (:func:`tracker.size_test.fit_edge_loss`; the model's ``edge_loss_px``, docs/pipeline.md step 8),
+  one per tracker with blob areas (each over its own right OK positions; the figure is rt2's).
 
 Trackers: ``rt2`` (ours, with the 3D size test at ``--max-size-ratio``), ``rt2-no-size`` (ours without it:
 ``max_size_ratio=None``), ``rt2-no-edge`` (the size test on raw blob widths, ``blob_edge_px=0``, at its
@@ -347,7 +348,7 @@ def run(args) -> int:
         f"rt2's max_size_ratio {args.max_size_ratio:g}"
     )
     print(format_table(scores))
-    edge = format_edge_loss([s for s in scores if s.tracker == "rt2"])
+    edge = format_edge_loss(scores)
     if edge:
         print(edge)
     print(f"goal: wrong OK positions <= {100 * GOALS['wrong_ok_rate']:g} % on every seed (the paper's < 1 % outliers in practice, with margin, where the user reads them)")
