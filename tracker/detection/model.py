@@ -99,7 +99,7 @@ class BallSegmentationModel:
     edge_loss_px : how much narrower than the ball its blob at ``t_low`` is, pixels (the rim stays under
         ``t_low``; nearly the same at every ball size): the pipeline's 3D size test adds it to every
         blob's width (``TrackerOptions.blob_edge_px``). Measured on rendered frame sets for the shipped
-        model (2.8); 0 for files written before the field existed and for the hand-made model
+        model (2.8; ``rt2 eval framesets`` prints the fit, docs/pipeline.md step 8); 0 for files written before the field existed and for the hand-made model
     """
 
     kernel: np.ndarray

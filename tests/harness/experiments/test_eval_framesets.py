@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from harness.experiments.studies.eval_framesets import TRACKERS, FramesetScores, cameras_with_ball, evaluate, format_table, score_frameset, trackable_views
+from harness.experiments.studies.eval_framesets import TRACKERS, FramesetScores, cameras_with_ball, evaluate, format_edge_loss, format_table, score_frameset, trackable_views
 from tracker import TrackerOptions
 
 
@@ -31,6 +31,25 @@ def test_score_frameset_rules():
     empty = FramesetScores("e")
     assert np.isnan(empty.recall) and empty.wrong_rate == 0.0 and empty.as_json()["recall"] is None
     assert "t " in format_table([s])
+
+
+def test_edge_loss_fit_keeps_the_widths_of_right_ok_positions_only():
+    s = FramesetScores("t")
+    ball = np.array([[0.0, 0.0, 1.0]])
+    w = lambda blob, ball_px: (np.array(blob, float), np.array(ball_px, float))  # noqa: E731
+    score_frameset(s, ball, [3], [0.0, 0.0, 1.0], True, tol_m=0.04, widths_px=w([7.0, 9.0], [10.0, 12.0]))  # right, OK: kept
+    score_frameset(s, ball, [2], [0.0, 0.0, 1.0], False, tol_m=0.04, widths_px=w([50.0], [1.0]))  # right, low support: not
+    score_frameset(s, ball, [3], [0.5, 0.0, 1.0], True, tol_m=0.04, widths_px=w([50.0], [1.0]))  # wrong OK: not
+    assert s.edge_loss_fit is not None and s.edge_loss_fit.cameras == 2
+    other = FramesetScores("t")
+    score_frameset(other, ball, [3], [0.0, 0.0, 1.0], True, tol_m=0.04, widths_px=w([5.0], [8.0]))
+    s.merge(other)
+    fit = s.edge_loss_fit  # blob = ball - 3 px exactly
+    assert (fit.cameras, fit.slope, fit.edge_loss_px) == (3, pytest.approx(1.0), pytest.approx(3.0)) and fit.residual_px < 1e-9
+    assert s.as_json()["edge_loss_fit"] == fit.as_json() and "blob_widths_px" not in s.as_json()
+    assert "edge loss fit (t, right OK positions): blob width = 1.00 x ball width - 3.00 px" in format_edge_loss([s])
+    assert FramesetScores("e").edge_loss_fit is None and FramesetScores("e").as_json()["edge_loss_fit"] is None
+    assert format_edge_loss([FramesetScores("e")]) == ""
 
 
 def test_balls_outside_the_workspace_are_not_trackable():
@@ -73,6 +92,10 @@ def test_short_run_is_seeded_and_scores_every_tracker(small_run):
     # the same seed gives the same figures
     again = evaluate(rig, 12, 2, trackers=("rt2", "rt2-no-edge"), progress=False)
     assert again[0].as_json() == scores[0].as_json() and again[1].as_json() == scores[list(TRACKERS).index("rt2-no-edge")].as_json()
+    # the edge loss is measured on ours' right OK positions, the same for the same seed, near the shipped model's
+    fit = scores[0].edge_loss_fit
+    assert fit is not None and fit == again[0].edge_loss_fit and fit.cameras >= 2 * scores[0].found_ok
+    assert 1.0 < fit.edge_loss_px < 5.0
     # ours finds the ball in most trackable frame sets and is never wrong in these
     ours = scores[0]
     assert ours.recall >= 0.8 and ours.wrong == 0 and ours.median_error_cm < 1.0
@@ -89,7 +112,9 @@ def test_cli_writes_json_and_rejects_bad_arguments(tmp_path, capsys):
     assert [r["tracker"] for r in rows] == ["rt2", "rt2-paper"]
     keys = {"tracker", "framesets", "trackable", "recall", "recall_ok", "wrong_rate", "wrong_ok_rate", "median_error_cm", "size_rejections"}
     assert keys <= set(rows[0])
-    assert "wrong OK" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "wrong OK" in printed and "edge loss fit (rt2, right OK positions): blob width = " in printed
+    assert rows[0]["edge_loss_fit"]["cameras"] >= 2
     bad = (
         (["--frames", "0"], "--frames must be >= 1, got 0"),
         (["--seed", "-1"], "--seed must be >= 0, got -1"),
