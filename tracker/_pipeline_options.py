@@ -57,7 +57,7 @@ class TrackerOptions:
     blob_edge_px : the detector's edge loss for the size test, pixels: a ball's blob is this much
         narrower than the ball (its rim stays under ``T_l``), nearly whatever its size. None = the
         model's ``edge_loss_px`` (the shipped model: 2.8, measured on rendered frame sets by
-        ``rt2 eval framesets`` as blob width = 0.98 ball width - 2.77 px; docs/pipeline.md, step 8); 0 = compare the raw blob width
+        ``rt2 eval framesets`` as blob width = 0.98 ball width - 2.80 px; docs/pipeline.md, step 8); 0 = compare the raw blob width
     handover_max_age_s : the support hand-over (``rt2`` only): an estimate from fewer cameras than the
         last confirmed ones (the ball behind the arm in some cameras) is moved by the median offset
         between the confirmed positions of the last 50 ms and those cameras' own estimate then, while

@@ -4,7 +4,7 @@ A position fixes each inlier camera's depth ``z``, so a ball there is ``2 r f / 
 (``r`` the ball's radius, ``f`` the camera's mean focal length). The blob a candidate came from is
 ``sqrt(4 area / pi)`` wide, less the detector's edge loss: the pixels at the rim that stay under
 ``T_l`` make a ball's blob a nearly constant ``edge_px`` narrower than the ball, whatever its size
-(shipped model, rendered lab: blob width = 0.98 ball width - 2.77 px, :func:`fit_edge_loss` as
+(shipped model, rendered lab: blob width = 0.98 ball width - 2.80 px, :func:`fit_edge_loss` as
 ``rt2 eval framesets`` runs it; docs/pipeline.md, step 8). The measured width is thus
 ``sqrt(4 area / pi) + edge_px``; when the median over the inliers of measured width / ball width
 exceeds ``max_ratio``, the cameras agree on an orange object too big to be the ball: its candidates

@@ -34,7 +34,10 @@ is a wrong answer). A ball is *seen* by a camera when the renderer labels it the
 
 Trackers: ``rt2`` (ours, with the 3D size test at ``--max-size-ratio``), ``rt2-no-size`` (ours without it:
 ``max_size_ratio=None``), ``rt2-no-edge`` (the size test on raw blob widths, ``blob_edge_px=0``, at its
-former threshold 1.2: rt2 before 2026-11-25) and ``rt2-paper`` (Algorithms 1 and 2 as published).
+former threshold 1.2: rt2 before 2026-11-25) and ``rt2-paper`` (Algorithms 1 and 2 as published). The rt2
+variants run without the ball hypotheses (``TrackerOptions.hypotheses=None``): they choose among several balls
+by their motion over frame sets, and a frame set scored alone has none (with them, a frame set showing two
+balls would get no position, as the first 50 ms of a live run do); ``rt2 play --scene second_ball`` measures them.
 
 The frame sets run in chunks of ``CHUNK`` on :mod:`harness.common.executor` (``--workers``, ``--ray``); every
 frame set depends only on ``(seed, f)`` and the trackers are reset in between, so the figures do not
@@ -55,10 +58,10 @@ from tracker.size_test import EdgeLossFit, SizeTest, fit_edge_loss
 __all__ = ["TRACKERS", "FramesetScores", "add_arguments", "evaluate", "format_edge_loss", "format_table", "run", "cameras_with_ball", "score_frameset", "trackable_views"]
 
 #: name -> (Tracker kind, Tracker option overrides)
-TRACKERS = {
-    "rt2": ("rt2", {}),
-    "rt2-no-size": ("rt2", {"max_size_ratio": None}),
-    "rt2-no-edge": ("rt2", {"blob_edge_px": 0.0, "max_size_ratio": 1.2}),
+TRACKERS = {  # rt2 without its ball hypotheses: a frame set alone has no motion to tell the ball in play
+    "rt2": ("rt2", {"hypotheses": None}),
+    "rt2-no-size": ("rt2", {"max_size_ratio": None, "hypotheses": None}),
+    "rt2-no-edge": ("rt2", {"blob_edge_px": 0.0, "max_size_ratio": 1.2, "hypotheses": None}),
     "rt2-paper": ("rt2-paper", {}),
 }
 GOALS = {"wrong_ok_rate": 0.005}
