@@ -78,6 +78,14 @@ def test_truth_stream_without_a_scene_builder_is_refused():
         open_service(args, status=None)
 
 
+def test_rt2_track_hands_the_builder_the_lab_truth_scene(capsys):
+    """The command passes the accuracy experiment's LabTruthScene: its own check of --scene answers."""
+    argv = ["track", "--publish", "none", "--truth-stream", "tcp://127.0.0.1:1", "--scene", "nowhere"]
+    assert rt2(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "unknown lab truth scene 'nowhere'" in err, err
+
+
 def test_check_options_names_the_option():
     base = dict(duration=5.0, warmup=1.0, modes="roi,full")
     assert check_options(argparse.Namespace(**base)) == list(MODES)
