@@ -4,21 +4,16 @@ Input: a folder of per-camera 2D detection CSVs (``timestamp;u1;v1;u2;v2;...``, 
 one file per camera in the order of ``--intrinsics``) or an rt2 session log (``.mcap``) whose
 ``/camera/<name>/detections`` hold the wand's balls (labelled here by their order along the wand).
 Writes the rig YAML (camera 0 = world, or the frame of ``--world-points``), a JSON report and the
-optional exports (OpenCV FileStorage, aniposelib calibration.toml).
+optional exports (OpenCV FileStorage, aniposelib calibration.toml). The calibration is
+:func:`harness.calib.wand.calibrate_recording`; this module parses the options and prints.
 """
 
 from __future__ import annotations
 
-
-import cv2
 import numpy as np
 
-from harness.calib.compare import compare_rigs, wand_lengths
 from harness.calib.exports import add_export_arguments, save_calibration
-from harness.calib.inputs import load_intrinsics
-from harness.calib.wand import parse_wand, read_world_points, recording_uv, wand_report
-from tracker import Camera, Rig
-from tracker.calibration.extrinsics import WandOptions, apply_world, calibrate_wand, triangulate_views
+from harness.calib.wand import calibrate_recording
 
 __all__ = ["add_arguments", "format_report", "run"]
 
@@ -41,71 +36,17 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    if (args.wand is None) == (not args.ball):
-        raise ValueError("give either --wand SPACINGS (e.g. 0.13,0.26) or --ball")
-    if args.ball and not args.world_points:
-        raise ValueError("--ball needs --world-points: a single ball carries no length, the scale comes from known points")
-    offsets = np.zeros(1) if args.ball else parse_wand(args.wand)
-    cams = load_intrinsics(args.intrinsics)
-    names = [c.name for c in cams]
-    if len(set(names)) != len(names):
-        raise ValueError(f"camera names repeat in --intrinsics: {names}")
-    if args.every < 1:
-        raise ValueError(f"--every must be >= 1, got {args.every}")
-    ref = Rig(load_intrinsics(args.reference)) if args.reference else None
-    uv = recording_uv(args.recording, cams, offsets)[:, :: args.every]
-    cv2.setRNGSeed(int(args.seed))
+    cal = calibrate_recording(args.recording, args.intrinsics, wand=args.wand, ball=args.ball, world_points=args.world_points,
+                              reference=args.reference, holdout_every=args.holdout_every, every=args.every, seed=args.seed)
+    written = save_calibration(cal.rig, cal.report, args, error=cal.error_px)
     if args.ball:
-        return _run_ball(args, cams, uv[:, :, 0])
-    res = calibrate_wand(cams, uv, offsets, WandOptions(holdout_every=args.holdout_every))
-    R, t = res.R, res.t
-    world = None
-    if args.world_points:
-        Xw, uvw = read_world_points(args.world_points, names)
-        Xc = triangulate_views(cams, R, t, uvw)
-        if np.isnan(Xc).any():
-            bad = [k for k in range(len(Xw)) if np.isnan(Xc[k]).any()]
-            raise ValueError(f"{args.world_points}: points {bad} are clicked in fewer than two cameras")
-        R, t, resid = apply_world(R, t, Xc, Xw)
-        world = {"points": len(Xw), "fit_residual_mm": (resid * 1000).round(2).tolist()}
-    rig = Rig([Camera(name=c.name, K=c.K, distortion=c.distortion, R_world_to_cam=R[i], t_world_to_cam_m=t[i],
-                      image_size=c.image_size) for i, c in enumerate(cams)],
-              description=f"wand calibration from {args.recording} ({len(res.fit_frames)} frame sets)")
-    report = wand_report(res, offsets, rig, world)
-    if ref is not None:
-        report["reference"] = compare_rigs(rig, ref)
-        report["reference"]["holdout_wand"] = wand_lengths(ref, uv[:, res.holdout_frames], offsets)
-    written = save_calibration(rig, report, args, error=float(np.mean([v["rms_px"] for v in res.reproj_px.values()])))
-    print(format_report(report))
-    print("wrote " + ", ".join(written))
-    return 0
-
-
-def _run_ball(args, cams, uv) -> int:
-    from tracker.calibration.ball import apply_similarity, calibrate_ball
-
-    names = [c.name for c in cams]
-    R, t, bres = calibrate_ball(cams, uv)
-    Xw, uvw = read_world_points(args.world_points, names)
-    Xc = triangulate_views(cams, R, t, uvw)
-    if np.isnan(Xc).any():
-        bad = [k for k in range(len(Xw)) if np.isnan(Xc[k]).any()]
-        raise ValueError(f"{args.world_points}: points {bad} are clicked in fewer than two cameras")
-    R, t, scale, resid = apply_similarity(R, t, Xc, Xw)
-    rig = Rig([Camera(name=c.name, K=c.K, distortion=c.distortion, R_world_to_cam=R[i], t_world_to_cam_m=t[i],
-                      image_size=c.image_size) for i, c in enumerate(cams)],
-              description=f"single-ball calibration from {args.recording}, scale and frame from {args.world_points}")
-    reproj = {}
-    for c, n in enumerate(names):
-        e = bres.residual_px[c][bres.inlier[c]]
-        reproj[n] = {"rms_px": float(np.sqrt(np.mean(e ** 2))), "median_px": float(np.median(e)), "observations": int(e.size)}
-    report = {"cameras": names, "mode": "ball", "frames": int(uv.shape[1]), "reprojection_px": reproj,
-              "world": {"points": len(Xw), "scale": scale, "fit_residual_mm": (resid * 1000).round(2).tolist()}}
-    written = save_calibration(rig, report, args, error=float(np.mean([v["rms_px"] for v in reproj.values()])))
-    print(f"{len(names)} cameras from a single ball ({uv.shape[1]} frame sets); scale and world frame from {len(Xw)} points, "
-          f"residual {np.round(resid * 1000, 1).tolist()} mm")
-    for n, r in reproj.items():
-        print(f"  {n:>12s}: rms {r['rms_px']:.2f} px, median {r['median_px']:.2f} px, {r['observations']} obs")
+        rep = cal.report
+        print(f"{len(rep['cameras'])} cameras from a single ball ({rep['frames']} frame sets); scale and world frame from "
+              f"{rep['world']['points']} points, residual {np.round(cal.world_residual_m * 1000, 1).tolist()} mm")
+        for n, r in rep["reprojection_px"].items():
+            print(f"  {n:>12s}: rms {r['rms_px']:.2f} px, median {r['median_px']:.2f} px, {r['observations']} obs")
+    else:
+        print(format_report(cal.report))
     print("wrote " + ", ".join(written))
     return 0
 

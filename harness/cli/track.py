@@ -5,6 +5,7 @@
     rt2 track --source opencv 0 1 2 3 --rig data/rigs/my_lab.yaml --foxglove
 
 Cameras (``--source``) -> frame-set assembly -> :class:`~harness.live.service.TrackingService`
+(built by :func:`harness.live.run.open_service`)
 -> the tennicam-compatible ZeroMQ stream (port 7660), rt2's own stream (the next port), an
 optional Foxglove live view and an optional session log. A status line every second; a summary
 at the end (``--json`` writes it). SIGINT / SIGTERM stop the run and finish the log.
@@ -18,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import signal
 import sys
@@ -26,7 +26,9 @@ import threading
 import time
 from pathlib import Path
 
-__all__ = ["add_arguments", "run", "open_service"]
+from harness.live.run import open_service
+
+__all__ = ["add_arguments", "add_source_arguments", "lab_truth_scene", "run"]
 
 DEFAULT_RIG = "lab4_vga"  # data/rigs/lab4_vga.yaml, found from any working directory
 _TRACKERS = ("rt2", "rt2-paper", "rtblob")
@@ -87,145 +89,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            "4 VGA cameras at 200 Hz takes ~0.85 of a core, rt2 bench log), all, or none")
 
 
-def _addresses(args) -> tuple[str | None, str | None]:
-    from harness.live.publish import TENNICAM_PORT, parse_address
+def lab_truth_scene(address: str, scene: str, *, seed: int):
+    """The sim source's scene provider for ``--truth-stream`` (the accuracy experiment's lab)."""
+    from harness.experiments.accuracy.truth_scene import LabTruthScene
 
-    pub = None if str(args.publish).lower() == "none" else parse_address(args.publish, default_port=TENNICAM_PORT)
-    if args.publish_rt2 is not None and str(args.publish_rt2).lower() == "none":
-        return pub, None
-    if args.publish_rt2 is not None:
-        return pub, parse_address(args.publish_rt2, default_port=TENNICAM_PORT + 1)
-    if pub is None:
-        return None, None
-    host, port = pub.rsplit(":", 1)
-    return pub, (f"{host}:0" if port == "0" else f"{host}:{int(port) + 1}")
-
-
-def check_output_paths(args) -> None:
-    """Refuse, before anything starts, a log that exists (without --log-overwrite) or an output path
-    that is a folder or lies under a file; missing folders are created when the file is written."""
-    for flag, value in (("--log", args.log), ("--json", getattr(args, "json", None))):
-        if not value:
-            continue
-        p = Path(value)
-        if p.is_dir():
-            raise ValueError(f"{flag} {value!r} is a folder; give a file name")
-        parent = next((q for q in p.parents if q.exists()), None)
-        if parent is not None and not parent.is_dir():
-            raise ValueError(f"{flag} {value!r}: {str(parent)!r} is a file, not a folder")
-    if args.log and Path(args.log).exists() and not args.log_overwrite:
-        raise ValueError(f"--log {args.log!r} exists; pass --log-overwrite to replace it")
-
-
-def open_frames(args, rig):
-    """Open the cameras of ``--source`` and the frame-set assembler; returns (assembler, description)."""
-    from harness.live.assembly import AssemblyOptions, FrameSetAssembler
-    from harness.live.sources import open_sources, parse_source_spec
-
-    spec = parse_source_spec(args.source)
-    if not (isinstance(args.rate_hz, (int, float)) and math.isfinite(args.rate_hz) and args.rate_hz > 0):
-        raise ValueError(f"--rate-hz must be a positive number, got {args.rate_hz}")
-    extra = {}
-    if getattr(args, "prerender", None) is not None:
-        if spec.kind != "sim":
-            raise ValueError(f"--prerender applies to the sim source only, got --source {' '.join(args.source)}")
-        if not (math.isfinite(args.prerender) and 0 < args.prerender <= 10):
-            raise ValueError(f"--prerender must be in (0, 10] seconds, got {args.prerender}")
-        extra["prerender_s"] = float(args.prerender)
-    queue_s = getattr(args, "queue_s", 0.25)
-    if not (math.isfinite(queue_s) and 0 < queue_s <= 10):
-        raise ValueError(f"--queue-s must be in (0, 10] seconds, got {queue_s}")
-    n_queue = max(8, math.ceil(queue_s * args.rate_hz))
-    render_rig, clock, provider = rig, "host", None
-    if spec.kind != "sim" and (getattr(args, "truth_stream", None) or getattr(args, "sim_rig", None)):
-        raise ValueError(f"--truth-stream and --sim-rig apply to the sim source only, got --source {' '.join(args.source)}")
-    if getattr(args, "sim_rig", None):
-        from harness.sim.rigs import resolve_rig
-
-        render_rig = resolve_rig(args.sim_rig)
-        if render_rig.names != rig.names:
-            raise ValueError(f"--sim-rig {args.sim_rig!r} has cameras {list(render_rig.names)}, --rig {args.rig!r} has "
-                             f"{list(rig.names)}: they must be the same cameras")
-    if getattr(args, "truth_stream", None):
-        from harness.experiments.accuracy.truth_scene import LabTruthScene
-
-        if "prerender_s" in extra:
-            raise ValueError("--prerender cannot go with --truth-stream (the lab is rendered as the truth arrives)")
-        provider = LabTruthScene(args.truth_stream, args.scene, seed=args.seed)
-        if not (math.isfinite(args.max_behind) and 0 < args.max_behind <= 3600):
-            raise ValueError(f"--max-behind must be in (0, 3600] seconds, got {args.max_behind}")
-        extra["clock"], clock = "host", "device"  # exposure stamped on the host clock: take it as it is
-        extra["max_behind_s"] = float(args.max_behind)
-    sources = open_sources(spec, render_rig, rate_hz=args.rate_hz, seed=args.seed, queue_len=n_queue,
-                           scene_provider=provider, **extra)
-    try:
-        if len(sources) != len(rig):
-            raise ValueError(f"--source {' '.join(args.source)} gives {len(sources)} camera(s) but rig {args.rig!r} has {len(rig)}")
-        assembler = FrameSetAssembler(sources, AssemblyOptions(rate_hz=args.rate_hz, queue_len=n_queue, output_len=n_queue,
-                                                               clock=clock))
-    except BaseException:
-        for s in sources:
-            s.close()
-        raise
-    return assembler, " ".join(args.source)
-
-
-def open_service(args, *, status=print, tracker_overrides: dict | None = None):
-    """Everything ``rt2 track`` runs, opened in an order that leaves nothing behind on bad input:
-    checks, rig, tracker, sockets, live view, cameras, and the log last. Returns (service, assembler, closers).
-
-    tracker_overrides : options of the tracker (``roi=False`` for full-frame search, ...)"""
-    from harness.live.publish import Publisher
-    from harness.live.service import ServiceOptions, TrackingService, warm_up
-    from harness.sim.rigs import resolve_rig
-    from tracker import Tracker
-
-    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
-        raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
-    if not (math.isfinite(args.status_period) and args.status_period >= 0):
-        raise ValueError(f"--status-period must be >= 0 seconds, got {args.status_period}")
-    check_output_paths(args)
-    tennicam_addr, rich_addr = _addresses(args)
-    rig = resolve_rig(args.rig)
-    closers = []
-    try:
-        tracker = Tracker(rig, args.tracker, **(tracker_overrides or {}))
-        closers.append(tracker.close)
-        warm_up(tracker, rig)
-        publisher = None
-        if tennicam_addr is not None or rich_addr is not None:
-            publisher = Publisher(tennicam_addr, rich_addr)
-            closers.append(publisher.close)
-        view = None
-        if args.foxglove is not None:
-            from harness.live.foxglove_view import LiveView, ViewOptions
-
-            view = LiveView(rig, args.tracker, ViewOptions(host=args.foxglove_host, port=args.foxglove))
-            closers.append(view.close)
-        assembler, described = open_frames(args, rig)
-        closers.append(assembler.close)
-        log = None
-        if args.log:
-            from harness.live.session_log import LiveLog
-
-            Path(args.log).parent.mkdir(parents=True, exist_ok=True)
-            log = LiveLog(args.log, rig, tracker, source=described, seed=args.seed, log_images=args.log_images,
-                          image_format=args.log_image_format, overwrite=args.log_overwrite,
-                          config={"rig": str(args.rig), "source": list(args.source), "rate_hz": args.rate_hz,
-                                  "tracker": args.tracker, "publish": tennicam_addr, "publish_rt2": rich_addr})
-        try:
-            service = TrackingService(rig, tracker, publisher=publisher, log=log, view=view,
-                                      options=ServiceOptions(status_period_s=args.status_period), status=status)
-        except BaseException:
-            if log is not None:  # nothing tracked yet: leave no half-written log behind
-                log.close(error="not started")
-                Path(args.log).unlink(missing_ok=True)
-            raise
-    except BaseException:
-        for close in reversed(closers):
-            close()
-        raise
-    return service, assembler, closers
+    return LabTruthScene(address, scene, seed=seed)
 
 
 def _print_summary(s: dict) -> None:
@@ -259,7 +127,7 @@ def run(args) -> int:
         got.setdefault("t_s", time.monotonic())
         stop.set()
 
-    service, assembler, closers = open_service(args, status=lambda line: print(line, flush=True))
+    service, assembler, closers = open_service(args, status=lambda line: print(line, flush=True), truth_scene=lab_truth_scene)
     where = [f"{k} stream on {v}" for k, v in (service.publisher.addresses if service.publisher else {}).items()]
     if service.view is not None:
         where.append(f"live view on ws://{args.foxglove_host}:{service.view.port}")

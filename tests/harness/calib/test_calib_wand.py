@@ -142,6 +142,41 @@ def test_same_seed_same_result(ewand_dir):
     assert np.array_equal(runs[0].R, runs[1].R) and np.array_equal(runs[0].t, runs[1].t)
 
 
+def test_calibrate_recording_from_python_matches_the_cli_and_repeats_with_its_seed(tmp_path, ewand_dir):
+    """harness.calib.wand.calibrate_recording is rt2 calib wand's work: same rig and report as the command
+    wrote, the same again for the same seed, and nothing written by the function itself."""
+    import json
+
+    from harness.calib.wand import calibrate_recording
+
+    yamls = [str(p) for p in sorted(ewand_dir.glob("frame_*.yaml"))]
+    out = tmp_path / "cli.yaml"
+    assert main(["calib", "wand", "--recording", str(ewand_dir), "--intrinsics", *yamls, "--wand", "0.13,0.26",
+                 "--every", "4", "--seed", "3", "--out", str(out)]) == 0
+    before = set(tmp_path.iterdir())
+    cals = [calibrate_recording(ewand_dir, yamls, wand="0.13,0.26", every=4, seed=3) for _ in range(2)]
+    assert set(tmp_path.iterdir()) == before
+    for a, b in ((cals[0].rig, cals[1].rig), (cals[0].rig, Rig.load(out))):
+        assert np.allclose(a.stacked()["P"], b.stacked()["P"], rtol=0, atol=1e-9)
+    assert cals[0].report["holdout_wand_mm"] == cals[1].report["holdout_wand_mm"]
+    written = json.loads(out.with_suffix(".report.json").read_text())
+    assert written["fit_frames"] == cals[0].report["fit_frames"] and written["cameras"] == cals[0].rig.names
+    assert cals[0].world_residual_m is None
+    assert cals[0].error_px == pytest.approx(np.mean([v["rms_px"] for v in cals[0].report["reprojection_px"].values()]))
+
+
+def test_calibrate_recording_bad_options_name_the_option(ewand_dir):
+    from harness.calib.wand import calibrate_recording
+
+    yamls = sorted(ewand_dir.glob("frame_*.yaml"))
+    with pytest.raises(ValueError, match="either --wand"):
+        calibrate_recording(ewand_dir, yamls)
+    with pytest.raises(ValueError, match="--ball needs --world-points"):
+        calibrate_recording(ewand_dir, yamls, ball=True)
+    with pytest.raises(ValueError, match="--every must be >= 1, got 0"):
+        calibrate_recording(ewand_dir, yamls, wand="0.13,0.26", every=0)
+
+
 def test_wand_from_a_session_log_with_unlabelled_detections(tmp_path):
     """Detections as a tracker logs them (unordered, per camera) -> labelled along the wand -> calibrated."""
     from harness.logs.writer import SessionLogWriter

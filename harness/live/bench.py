@@ -1,0 +1,161 @@
+"""The measurement of ``rt2 bench live``: end-to-end latency and sustained rate of ``rt2 track``'s service,
+measured by a subscriber in another process.
+
+    doc = bench_live(args, check_options(args), progress=print)   # args: rt2 bench live's options
+
+For each mode (``roi``: rt2 as it runs, windows around the predicted ball; ``full``: every camera
+searched in full every frame set) the whole service runs: cameras -> frame-set assembly -> tracker
+-> ZeroMQ. A subscriber process (:mod:`harness.live._bench_subscriber`) stamps each rt2 message
+with ``time.monotonic()`` on arrival; latency = that stamp - the frame set's first host arrival
+stamp, which travels in the message (both processes read the host's CLOCK_MONOTONIC). Frame sets
+of the first ``--warmup`` seconds are left out.
+
+Drops are split by cause: **by rt2** (frame sets the assembler dropped because the tracker did not
+take them in time, frames dropped from a camera's queue, messages lost between the service and the
+subscriber) and **by the source** (the simulated cameras could not render or emit a frame set in
+time: the machine, not the tracker). The sim source pre-renders ``--prerender`` seconds (default 0.5)
+and loops them, so rendering takes no CPU while measuring (the ball jumps back at each loop, as when
+a new ball is served: the window search then falls back to the full frame once).
+
+Goals on the 2-core machine: 4 VGA cameras at 200 Hz with the ROI, no frame set dropped by rt2 and
+p99 latency <= 10 ms; full frame: what it sustains is reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from harness.live.run import open_service
+
+__all__ = ["GOALS", "MODES", "bench_live", "check_options", "measure_mode"]
+
+MODES = {"roi": {}, "full": {"roi": False}}
+#: the service's goals at 4 VGA cameras, 200 Hz, with the ROI (mode "roi")
+GOALS = {"rate_hz": 200.0, "p99_ms": 10.0, "dropped_by_rt2": 0}
+
+
+def check_options(args) -> list[str]:
+    """The modes of ``--modes`` (comma-separated), after checking them and ``--duration`` / ``--warmup``."""
+    modes = [m.strip() for m in str(args.modes).split(",") if m.strip()]
+    bad = [m for m in modes if m not in MODES]
+    if not modes or bad:
+        raise ValueError(f"--modes must list some of {sorted(MODES)}, got {args.modes!r}")
+    if not (math.isfinite(args.duration) and args.duration > 0 and 0 <= args.warmup < args.duration):
+        raise ValueError(f"need --duration > --warmup >= 0 seconds, got {args.duration} and {args.warmup}")
+    return modes
+
+
+def bench_live(args, modes: list[str], *, progress=None, truth_scene=None) -> dict:
+    """Measure every mode in turn; returns the figures as ``rt2 bench live --json`` writes them
+    (``modes``: one row per mode; ``goals_met``: the roi mode against :data:`GOALS`, None without it).
+
+    args : ``rt2 bench live``'s options (``rt2 track``'s source options, ``duration``, ``warmup``); the sim
+    source pre-renders 0.5 s unless ``args.prerender`` says otherwise (set on ``args``, as the figures record it)
+    progress : called with a line before each mode (None = quiet); truth_scene : as :func:`harness.live.run.open_service`"""
+    if args.source and args.source[0] == "sim" and args.prerender is None:
+        args.prerender = 0.5
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for mode in modes:
+            if progress is not None:
+                progress(f"rt2 bench live: mode {mode}, {args.duration:g} s ({args.warmup:g} s warm-up), source "
+                         f"{' '.join(args.source)}, {args.rate_hz:g} Hz ...")
+            rows.append(measure_mode(args, mode, tmp, truth_scene=truth_scene))
+    roi = next((r for r in rows if r["mode"] == "roi"), None)
+    goals = None
+    if roi is not None:
+        goals = {"rate": roi["rate_hz"] >= 0.98 * GOALS["rate_hz"] if args.rate_hz >= GOALS["rate_hz"] else None,
+                 "p99": roi["latency_ms"]["p99"] <= GOALS["p99_ms"],
+                 "no_drops_by_rt2": roi["dropped_by_rt2_total"] == 0}
+    return {"date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "cpus": os.cpu_count(),
+            "source": list(args.source), "rig": args.rig, "rate_hz": args.rate_hz, "tracker": args.tracker,
+            "duration_s": args.duration, "warmup_s": args.warmup, "prerender_s": args.prerender,
+            "goals": GOALS, "goals_met": goals, "modes": rows}
+
+
+def _subscriber(addr: str, out: str) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    p = subprocess.Popen([sys.executable, "-m", "harness.live._bench_subscriber", addr, out], stdout=subprocess.PIPE,
+                         text=True, env=env)
+    line = p.stdout.readline().strip()
+    if line != "ready":
+        p.kill()
+        raise RuntimeError(f"the benchmark's subscriber process did not start (said {line!r})")
+    return p
+
+
+def _pct(a: np.ndarray, q: float) -> float:
+    return float(np.percentile(a, q)) if len(a) else math.nan
+
+
+def measure_mode(args, mode: str, tmp: str, *, truth_scene=None) -> dict:
+    """One mode's figures: the service of ``args`` (``rt2 track``'s source options, ``duration`` and
+    ``warmup`` in seconds) with the tracker options of ``MODES[mode]``, measured at a subscriber process
+    that writes its stamps under the folder ``tmp``. truth_scene : as :func:`harness.live.run.open_service`."""
+    ns = argparse.Namespace(**vars(args), publish="tcp://127.0.0.1:0", publish_rt2=None, foxglove=None,
+                            foxglove_host="127.0.0.1", log=None, log_overwrite=False, status_period=0.0)
+    ns.duration = float(args.duration)
+    service, assembler, closers = open_service(ns, status=None, tracker_overrides=MODES[mode],
+                                               truth_scene=truth_scene)
+    out = str(Path(tmp) / f"sub_{mode}.json")
+    sub = None
+    try:
+        pub = service.publisher
+        sub = _subscriber(pub.addresses["rt2"], out)
+        t_end = time.monotonic() + 1.0  # PUB/SUB joins asynchronously: probes first
+        while time.monotonic() < t_end:
+            pub.publish(None, {"num": -1, "t_first_host_s": 0.0, "t_publish_s": None})
+            time.sleep(0.01)
+        probes = dict(pub.sent)
+        load0 = os.getloadavg()
+        assembler.start()
+        t_start = time.monotonic()
+        summary = service.run(assembler, duration_s=ns.duration)
+        for _ in range(20):
+            pub.publish(None, {"end": True})
+            time.sleep(0.01)
+        sub.wait(timeout=30)
+        load1 = os.getloadavg()
+    finally:
+        if sub is not None and sub.poll() is None:
+            sub.kill()
+        for close in reversed(closers):
+            close()
+    rec = json.loads(Path(out).read_text())
+    num, t_first, t_recv = (np.asarray(rec[k], float) for k in ("num", "t_first_host_s", "t_recv_s"))
+    keep = t_first >= t_start + args.warmup
+    lat_ms = (t_recv[keep] - t_first[keep]) * 1e3
+    span = t_recv[keep][-1] - t_recv[keep][0] if keep.sum() > 1 else math.nan
+    a = summary.get("assembly") or {}
+    published = int(summary["published"]["rt2"] - probes["rt2"])
+    lost_to_sub = published - len(num)
+    dropped_sets = int(a.get("dropped_framesets", 0) or 0)
+    dropped_frames = [int(v) for v in a.get("dropped", ()) or ()]
+    return {
+        "mode": mode,
+        "frame_sets_published": published,
+        "frame_sets_measured": int(keep.sum()),
+        "rate_hz": (keep.sum() - 1) / span if span and span > 0 else math.nan,
+        "latency_ms": {"p50": _pct(lat_ms, 50), "p90": _pct(lat_ms, 90), "p99": _pct(lat_ms, 99),
+                       "max": float(lat_ms.max()) if len(lat_ms) else math.nan},
+        "share_within_10ms": float((lat_ms <= 10.0).mean()) if len(lat_ms) else math.nan,
+        "tracker_ms": summary["tracker_ms"],
+        "dropped_by_rt2": {"frame_sets_not_taken_in_time": dropped_sets, "frames_dropped_per_camera": dropped_frames,
+                           "messages_lost_to_subscriber": lost_to_sub},
+        "dropped_by_rt2_total": dropped_sets + sum(dropped_frames) + max(lost_to_sub, 0),
+        "by_the_source": {"late_frames_per_camera": [int(v) for v in a.get("late", ()) or ()],
+                          "incomplete_frame_sets": int(a.get("incomplete", 0) or 0)},
+        "status": summary["status"],
+        "load_average_1min": [load0[0], load1[0]],
+    }
