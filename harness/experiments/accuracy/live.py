@@ -27,7 +27,6 @@ the cameras' offsets from frame stamps vs arrival) and the latency budget; ``rt2
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
@@ -48,6 +47,7 @@ from harness.experiments.accuracy.rig_error import estimated_rig
 from harness.common.outputs import check_output_dir
 from harness.sim.rigs import resolve_rig
 from harness.link.clock import ClockEstimate, pair_joint_states
+from harness.logs.codecs import to_json_value
 from robot_models import WamKinematics, load_robot_config
 
 __all__ = ["run_live_accuracy", "run_live_local", "scene_name"]
@@ -189,7 +189,7 @@ def run_live_accuracy(config: AccuracyConfig, out_dir, *, robot: str, tracker_st
         writer = AccuracyLogWriter(out / "session.mcap", config, tracker_rig, motion, kin, true_rig=rig,
                                    calibration_error=cal_error, log_images="none", overwrite=True)
         try:
-            writer.writer.write_metadata("live", _json_safe(live))
+            writer.writer.write_metadata("live", to_json_value(live, "live", lenient=True))
             # every joint state of the motion too (robot stamps on the host clock via the estimate), in time order
             t_state = s.t_s - est.offset_ns * 1e-9 - h0 + config.motion.start_s
             keep = np.flatnonzero(t_state >= 0)
@@ -200,7 +200,7 @@ def run_live_accuracy(config: AccuracyConfig, out_dir, *, robot: str, tracker_st
                     writer.writer.write_ground_truth(float(t_state[j]), None, s.q[j], s.qdot[j])
                     i += 1
                 writer.write_frame(fr)
-            writer.finish(figures, extra={"timing": timing, "live": _json_safe(live)})
+            writer.finish(figures, extra={"timing": timing, "live": to_json_value(live, "live", lenient=True)})
         except BaseException as exc:
             writer.close(error=f"{type(exc).__name__}: {exc}")
             raise
@@ -219,10 +219,6 @@ def _check_config(config: AccuracyConfig) -> None:
     if config.eps_px is not None:
         raise ValueError("--eps-px is not available with --live (rt2 track runs its tracker's default threshold)")
     scene_name(config.scene)
-
-
-def _json_safe(d):
-    return json.loads(json.dumps(d, default=float, allow_nan=True).replace("NaN", "null"))
 
 
 def _run_motion(wam, stream, plan, config, est, period, lead_s, timeout_s, status, lag_ok_s: float = 1.0):

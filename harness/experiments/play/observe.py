@@ -26,7 +26,7 @@ import zmq
 
 from harness.sim.lab import coverage
 from harness.live.frames import AssembledFrameSet
-from harness.sim.lab_truth import decode_truth
+from harness.sim.lab_truth import TruthError, decode_truth
 from harness.live.publish import Publisher, rich_message, tennicam_message
 from harness.experiments.play.profiles import TrackerProfile
 from harness.experiments.play.sources import SyntheticSource
@@ -58,6 +58,7 @@ class ObservationService:
         self.profile, self.seed = profile, int(seed)
         self.rig = resolve_rig(rig)
         self.source = SyntheticSource(self.rig, profile)
+        self.malformed_truth = 0  #: truth samples skipped as malformed
         self._ctx = zmq.Context()
         self._truth = self._ctx.socket(zmq.SUB)
         self._world = self._ctx.socket(zmq.SUB)
@@ -105,7 +106,11 @@ class ObservationService:
         b = self._ball
         if b is None or not b["live"]:
             return
-        sample = decode_truth(frame)
+        try:
+            sample = decode_truth(frame)
+        except TruthError:  # a malformed sample is skipped and counted, never observed
+            self.malformed_truth += 1
+            return
         t_ns, q = sample.t_ns, sample.q
         if t_ns <= b["prev"][0]:
             return

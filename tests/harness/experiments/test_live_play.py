@@ -113,10 +113,13 @@ def test_the_tracker_process_draws_the_in_process_observations():
         for n in range(1, 200):
             t = t0 + n * 2_000_000
             svc._on_truth(encode_truth(t, q, [x0 + v * (t - t0) * 1e-9], n))
+            if n == 100:
+                svc._on_truth(b"\x93not truth")  # malformed: skipped and counted, the stream goes on
             if n % 7 == 0:
                 svc._observe_captures()
         svc._observe_captures()
         live = [item[2] for item in sorted(svc._queue)]
+        assert svc.malformed_truth == 1
     finally:
         svc.close()
     ss_source, ss_phase = ball_observation_seeds(3, 2)
