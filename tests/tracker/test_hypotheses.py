@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tracker import BallHypotheses, FrameSet, HypothesisOptions, Status, Tracker, TrackerOptions
-from tracker.detection.synthetic import draw_disk, hand_made_model
+from tracker.detection.synthetic import draw_disk
 
 DT_S = 1 / 180
 G_MPS2 = np.array([0.0, 0.0, -9.81])
@@ -147,11 +147,6 @@ def rig():
     from harness.sim.rigs import resolve_rig
 
     return resolve_rig("lab4_vga")
-
-
-@pytest.fixture(scope="module")
-def model():
-    return hand_made_model()
 
 
 def _frameset(rig, balls_m, k, seed=0):

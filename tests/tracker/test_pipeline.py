@@ -26,25 +26,15 @@ from tracker import (
     TrackerOptions,
     make_tracker,
 )
-from tests.tracker._tracker_scenes import FLIGHT_DT_S, FLIGHT_V_MPS, FLIGHT_X0_M, shipped_rig
+from tests.tracker._tracker_scenes import FLIGHT_DT_S, FLIGHT_V_MPS, FLIGHT_X0_M
 from tracker._pipeline_roi import MotionPredictor, project_point, project_point_numba
-from tracker.detection.synthetic import draw_disk, hand_made_model
+from tracker.detection.synthetic import draw_disk
 from tracker.pipeline import TRACKER_KINDS
 
 DT_S, X0_M, V_MPS = FLIGHT_DT_S, FLIGHT_X0_M, FLIGHT_V_MPS
 
 
 # -- shared scene -----------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def rig():
-    return shipped_rig("lab4_vga")
-
-
-@pytest.fixture(scope="module")
-def model():
-    return hand_made_model()
-
-
 def _kw(kind, model):
     """Constructor arguments per kind: the hand-made model, or RTBlob with a brightness-invariant
     colour (the rendered ball at nominal exposure is too dark for RTBlob's default RGB orange) and a

@@ -17,7 +17,7 @@ import pytest
 
 from tracker import FrameSet, Status, Tracker, TrackerOptions
 from tracker.handover import SupportHandover
-from tracker.detection.synthetic import draw_disk, hand_made_model
+from tracker.detection.synthetic import draw_disk
 from tracker.robust import RobustTriangulator
 
 DT_S = 0.005
@@ -34,11 +34,6 @@ def rigs():
     true = resolve_rig("lab4_vga")
     est, info = estimated_rig(true, seed=0)
     return true, est
-
-
-@pytest.fixture(scope="module")
-def model():
-    return hand_made_model()
 
 
 def _frameset(rig_true, X, k, visible):

@@ -10,22 +10,12 @@ import json
 import numpy as np
 import pytest
 
-from tests.tracker._tracker_scenes import FLIGHT_DT_S, FLIGHT_V_MPS, FLIGHT_X0_M, shipped_rig
+from tests.tracker._tracker_scenes import FLIGHT_DT_S, FLIGHT_V_MPS, FLIGHT_X0_M
 from tracker import FrameSet, Status, Tracker
 from tracker.pipeline import TrackerOptions
-from tracker.detection.synthetic import hand_made_model
+
 
 DT_S, X0_M, V_MPS = FLIGHT_DT_S, FLIGHT_X0_M, FLIGHT_V_MPS
-
-
-@pytest.fixture(scope="module")
-def rig():
-    return shipped_rig("lab4_vga")
-
-
-@pytest.fixture(scope="module")
-def model():
-    return hand_made_model()
 
 
 @pytest.fixture(scope="module")

@@ -11,15 +11,10 @@ import statistics
 import numpy as np
 import pytest
 
-from tests.tracker._tracker_scenes import shipped_rig
+
 from tracker.size_test import EdgeLossFit, SizeTest, fit_edge_loss
 
 RADIUS_M = 0.02
-
-
-@pytest.fixture(scope="module")
-def rig():
-    return shipped_rig("lab4_vga")
 
 
 def _ball_px_independent(rig, X):
