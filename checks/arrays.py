@@ -72,7 +72,17 @@ def check_covariance(value, name: str, n: int, *, where: str = "", allow_singula
     if asym > 1e-8 * scale:
         raise ValueError(f"{_prefix(where)}{name} must be symmetric; max |C - C^T| = {asym:.3g}")
     arr = 0.5 * (arr + arr.T)
-    low = float(np.linalg.eigvalsh(arr)[0]) if n else 0.0
+    if n == 0:
+        return arr
+    # A Cholesky factorisation (~10x cheaper than the eigenvalues; the ProMP's conditioning checks a
+    # 100 x 100 covariance at every step of a plan) proves the bound; only when it fails are the
+    # eigenvalues computed, to decide exactly and to name the smallest.
+    try:
+        np.linalg.cholesky(arr + (1e-9 * scale if allow_singular else 0.0) * np.eye(n))
+        return arr
+    except np.linalg.LinAlgError:
+        pass
+    low = float(np.linalg.eigvalsh(arr)[0])
     if low < -1e-9 * scale or (not allow_singular and low <= 0.0):
         kind = "semi-definite" if allow_singular else "definite"
         raise ValueError(f"{_prefix(where)}{name} must be positive {kind}; smallest eigenvalue {low:.3g}")

@@ -58,6 +58,7 @@ class RoundTripClock:
         _check_window(window, best)
         self.best = best
         self._samples: deque = deque(maxlen=window)
+        self._estimate: ClockEstimate | None = None  # of the present samples (read every control tick)
 
     def add(self, t0_ns: int, t1_ns: int, t2_ns: int, t3_ns: int) -> None:
         """One exchange: t0, t3 on the harness clock, t1, t2 on the robot clock (ints, ns)."""
@@ -68,16 +69,20 @@ class RoundTripClock:
         delay = (t3 - t0) - (t2 - t1)
         offset = ((t1 - t0) + (t2 - t3)) / 2
         self._samples.append((max(delay, 0), offset))
+        self._estimate = None
 
     def estimate(self) -> ClockEstimate:
         """The present estimate; ValueError before the first sample."""
+        if self._estimate is not None:
+            return self._estimate
         if not self._samples:
             raise ValueError("no clock exchange yet: cannot estimate the robot clock offset")
         s = np.array(self._samples, dtype=np.float64)
         keep = s[np.argsort(s[:, 0], kind="stable")[: self.best]]
         offset = float(np.median(keep[:, 1]))
         spread = float(np.max(np.abs(keep[:, 1] - offset)))
-        return ClockEstimate(offset, float(keep[0, 0] / 2 + spread), len(s), float(keep[0, 0]))
+        self._estimate = ClockEstimate(offset, float(keep[0, 0] / 2 + spread), len(s), float(keep[0, 0]))
+        return self._estimate
 
 
 def pair_joint_states(t_harness_s, t_robot_s, q, estimate: ClockEstimate) -> np.ndarray:

@@ -13,8 +13,11 @@ robot through :class:`harness.link.WamClient` in real time. Per ball:
   estimate;
 * each loop: take the robot states that arrived, deliver every observation that arrived (in order),
   then ``policy.step(now + lead, filter.predict, wam)``: ``now`` is the robot clock read through the
-  offset estimate; ``lead`` (``plan_lead_s``; default: the longest of the last 5 planning steps, at
-  most 0.2 s) is how late a plan reaches the robot, so a planned movement starts after it arrives;
+  offset estimate; ``lead`` (``plan_lead_s``; default: the longest of the last 5 planning steps of the
+  same kind, at most 0.2 s) is how late a plan reaches the robot, so a planned movement starts after it
+  arrives. The two kinds take very different times: the first plan of a ball (from rest, no warm start,
+  every candidate tried) costs several re-plans (which continue a commanded movement from a warm start),
+  so each kind is timed apart -- one slow first plan must not push every re-plan of the ball late;
 * the world reports the outcome (its ``world_summary``); the result is
   ``harness.experiments.play.session.ball_result`` of the policy and that summary -- the in-process rule.
 
@@ -130,7 +133,7 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
     world_ended = False
     ended: dict[int, dict] = {}  # ball -> the world's summary, until the ball's result is made
     last_event = time.monotonic()
-    plan_times: collections.deque = collections.deque(maxlen=5)
+    plan_times = {kind: collections.deque(maxlen=5) for kind in ("first", "replan")}  # wall s of planning steps
     dt = 1.0 / wam.control_rate_hz
     try:
         while done_balls < balls and not stop():
@@ -211,7 +214,8 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
                 rec.filter_states.append((obs.t_s, filt.state()))
             if policy.status == PolicyStatus.DONE:
                 continue
-            lead = plan_lead_s if plan_lead_s is not None else min(max(plan_times, default=0.0), 0.2)
+            kind = "first" if policy.plan is None else "replan"
+            lead = plan_lead_s if plan_lead_s is not None else min(max(plan_times[kind], default=0.0), 0.2)
             t_now = (time.monotonic_ns() + est.offset_ns) * 1e-9 - bwam.t0_s
             n_sent = len(bwam.sent)
             t0 = time.perf_counter()
@@ -227,8 +231,8 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
 
                 logging.getLogger("rt2.play.live").warning("ball %d: %s", cur["index"], exc)
             took = time.perf_counter() - t0
-            if took > 0.002:  # a planning step (not a skipped one)
-                plan_times.append(took)
+            if step is None or step.plan is not None or step.reason:  # a planning step (not a skipped one)
+                plan_times[kind].append(took)
                 run.plan_step_ms.append(took * 1e3)
             if len(bwam.sent) > n_sent and cur["last_obs_ns"] is not None:
                 cur["cmd_obs"].append((bwam.sent[-1][0], cur["last_obs_ns"]))
