@@ -50,6 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_sweep_arguments(parser)
     parser.add_argument("--rate-hz", type=float, default=None, help="tracker frame rate (default: rt2 180, rtblob 60)")
     parser.add_argument("--latency-ms", type=float, default=None, help="tracker latency (default 10 ms)")
+    parser.add_argument("--plan-latency-ms", type=float, default=0.0,
+                        help="in process: a planning step of the policy takes this long (it plans this far ahead from "
+                             "what has arrived, and its command reaches the robot this much later); default 0, the "
+                             "paper's instantaneous policy. Live, planning takes its real time (see --plan-lead-ms)")
     parser.add_argument("--profiles", default="vision", choices=sorted(PROFILE_SETS),
                         help="synthetic source's error model: vision (measured from the vision source, default) or "
                              "paper (the paper's real-robot RTBlob outliers); see harness/experiments/play/profiles.py")
@@ -72,7 +76,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     live.add_argument("--world-stream", default=None, help="--live / observe: the world's serve and outcome events "
                       "(tcp://HOST:PORT, the world bridge's ready line)")
     live.add_argument("--plan-lead-ms", type=float, default=None, help="--live: plan this far ahead of the robot "
-                      "clock (default: the longest of the last 5 planning steps, at most 200 ms)")
+                      "clock (default: the longest of the last 5 planning steps of the same kind -- first plan of a ball "
+                      "or re-plan --, at most 200 ms)")
     live.add_argument("--truth", default=None, help="observe: the world's lab truth stream (tcp://HOST:PORT)")
     live.add_argument("--publish", default="tcp://127.0.0.1:7661", help="observe: rt2 stream endpoint (default "
                       "tcp://127.0.0.1:7661, as rt2 track)")
@@ -87,6 +92,11 @@ def _check(args) -> None:
         raise ValueError(f"--rate-hz must be > 0, got {args.rate_hz}")
     if args.latency_ms is not None and not 0 <= args.latency_ms < 1000:
         raise ValueError(f"--latency-ms must be in [0, 1000), got {args.latency_ms}")
+    if not 0 <= args.plan_latency_ms <= 500:
+        raise ValueError(f"--plan-latency-ms must be in [0, 500], got {args.plan_latency_ms}")
+    if args.live and args.plan_latency_ms:
+        raise ValueError("--plan-latency-ms models planning time in process; live, planning takes its real time "
+                         "(--plan-lead-ms sets how far ahead the policy plans)")
     if args.log_images < 0:
         raise ValueError(f"--log-images must be >= 0, got {args.log_images}")
     if not args.promp.is_file():
@@ -141,7 +151,7 @@ def _configs(args, profiles) -> list[PlayConfig]:
     for tracker, filt in pairs:
         prof = profile_for(tracker, profiles).with_timing(args.rate_hz, None if args.latency_ms is None else args.latency_ms / 1e3)
         out.append(PlayConfig(tracker, filt, args.source, prof, str(args.promp), scene=args.scene, record=not args.no_log,
-                              record_images_every=args.log_images))
+                              record_images_every=args.log_images, plan_latency_s=args.plan_latency_ms / 1e3))
     return out
 
 
@@ -153,7 +163,7 @@ def _open_log(args, config: PlayConfig):
     path = args.out / f"play{live}_{config.tracker}_{config.filter}_{config.source}_s{args.seed}.mcap"
     meta = {"kind": "play", "seed": args.seed, "ball_slot_s": 10.0, "live": bool(live),
             "config": {"tracker": config.tracker, "filter": config.filter, "source": config.source, "scene": config.scene,
-                       "profiles": args.profiles,
+                       "profiles": args.profiles, "plan_latency_s": config.plan_latency_s,
                        "balls": args.balls, "profile": config.resolved_profile().__dict__, "promp": config.promp_path}}
     log = SessionLogWriter(path, metadata=meta, log_images="all" if args.log_images else "none", overwrite=True)
     return log, path

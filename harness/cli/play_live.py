@@ -20,6 +20,7 @@ def _budget_lines(budget: dict) -> list[str]:
              "obs_to_command_ms": "observation -> command sent",
              "command_to_robot_ms": "command sent -> robot state under it here",
              "plan_step_ms": "(a planning step of the policy)",
+             "first_plan_ms": "(  of which a ball's first plan)",
              "world_lag_ms": "(simulated lab behind real time, per ball)"}
     out = ["latency budget (ms)            p50     p95     max      n"]
     for key, label in names.items():

@@ -41,6 +41,7 @@ class PlayConfig:
     record: bool = False
     record_images_every: int = 0
     policy: dict = field(default_factory=dict)
+    plan_latency_s: float = 0.0  #: the policy's modelled planning time (SessionOptions.plan_latency_s)
 
     def resolved_profile(self) -> TrackerProfile:
         return self.profile if self.profile is not None else profile_for(self.tracker, PROFILES)
@@ -69,7 +70,7 @@ def _build(config: PlayConfig):
     """The session objects of one configuration (once per worker process)."""
     from threadpoolctl import threadpool_limits
 
-    from harness.experiments.play.session import PlaySession
+    from harness.experiments.play.session import PlaySession, SessionOptions
     from harness.experiments.play.sources import make_source
     from harness.sim.rigs import resolve_rig
     from policies.ball_model import BallParams
@@ -93,7 +94,8 @@ def _build(config: PlayConfig):
         kwargs = {}
     source = make_source(config.source, rig, profile, **kwargs)
     session = PlaySession(kin, promp, source, lambda: make_filter(config.filter), profile,
-                          policy_options=HittingOptions(**config.policy))
+                          policy_options=HittingOptions(**config.policy),
+                          options=SessionOptions(plan_latency_s=config.plan_latency_s))
     return {"config": config, "session": session, "launcher_params": BallParams.load()}
 
 
@@ -172,7 +174,8 @@ def summarise(config: PlayConfig, results: list, seed: int) -> dict:
     prof = config.resolved_profile()
     return {"tracker": config.tracker, "filter": config.filter, "balls": n, "successes": int(k),
             "success_rate": k / n, "ci_low": lo, "ci_high": hi, "source": config.source, "seed": int(seed),
-            "rate_hz": prof.rate_hz, "latency_ms": 1e3 * prof.latency_s, "outcomes": outcomes,
+            "rate_hz": prof.rate_hz, "latency_ms": 1e3 * prof.latency_s, "plan_latency_ms": 1e3 * config.plan_latency_s,
+            "outcomes": outcomes,
             "no_attempt_reasons": no_attempt,
             "attempted": int(sum(r.attempted for r in results)),
             "hit": int(sum(r.contact_t_s is not None for r in results))}

@@ -77,6 +77,7 @@ class LiveRun:
     obs_to_command_ms: list = field(default_factory=list)
     command_to_robot_ms: list = field(default_factory=list)
     plan_step_ms: list = field(default_factory=list)
+    first_plan_ms: list = field(default_factory=list)  #: the planning steps that made (or tried) a ball's first plan
     world_lag_ms: list = field(default_factory=list)  #: per ball, the world+robot simulation's largest lag behind its clock
     refused: int = 0
     error: str | None = None
@@ -85,7 +86,8 @@ class LiveRun:
 def latency_budget(run: LiveRun) -> dict:
     """p50 / p95 / max (ms) and count of each stage of the latency budget."""
     out = {}
-    for name in ("exposure_to_obs_ms", "obs_to_command_ms", "command_to_robot_ms", "plan_step_ms", "world_lag_ms"):
+    for name in ("exposure_to_obs_ms", "obs_to_command_ms", "command_to_robot_ms", "plan_step_ms", "first_plan_ms",
+                 "world_lag_ms"):
         v = np.asarray(getattr(run, name), float)
         out[name] = {"n": int(v.size)} if v.size == 0 else {
             "n": int(v.size), "p50": float(np.percentile(v, 50)), "p95": float(np.percentile(v, 95)), "max": float(v.max())}
@@ -234,6 +236,8 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
             if step is None or step.plan is not None or step.reason:  # a planning step (not a skipped one)
                 plan_times[kind].append(took)
                 run.plan_step_ms.append(took * 1e3)
+                if kind == "first":
+                    run.first_plan_ms.append(took * 1e3)
             if len(bwam.sent) > n_sent and cur["last_obs_ns"] is not None:
                 cur["cmd_obs"].append((bwam.sent[-1][0], cur["last_obs_ns"]))
             if step is not None and step.plan is not None:

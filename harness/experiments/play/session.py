@@ -38,16 +38,46 @@ __all__ = ["BallRecord", "BallResult", "PlaySession", "SessionOptions", "ball_ov
 @dataclass(frozen=True)
 class SessionOptions:
     """max_flight_s : an unhit ball is followed at most this long; after_hit_s : a hit one this long
-    after the contact; past_robot_x_m : an unhit ball beyond this x is gone; world : ball world options."""
+    after the contact; past_robot_x_m : an unhit ball beyond this x is gone; world : ball world options;
+    plan_latency_s : how long a planning step of the policy takes (0: no time at all, the paper's
+    setting): a step made at t plans for t + plan_latency_s, from the observations that arrived by t, and
+    its command reaches the robot at t + plan_latency_s -- what a live policy process does with its lead
+    (harness/experiments/play/live.py), here with a fixed, reproducible latency."""
 
     max_flight_s: float = 2.5
     after_hit_s: float = 2.0
     past_robot_x_m: float = -2.6
     world: WorldOptions = field(default_factory=WorldOptions)
+    plan_latency_s: float = 0.0
 
     def __post_init__(self):
         if not (self.max_flight_s > 0 and self.after_hit_s > 0):
             raise ValueError(f"SessionOptions need max_flight_s > 0 and after_hit_s > 0, got {self}")
+        lat = self.plan_latency_s
+        if isinstance(lat, bool) or not isinstance(lat, (int, float)) or not 0.0 <= lat <= 0.5:
+            raise ValueError(f"SessionOptions.plan_latency_s must be a number of seconds in [0, 0.5], got {lat!r}")
+
+
+class _LateCommands:
+    """The robot as a policy that needs ``latency_s`` to plan sees it: states now, commands ``latency_s`` later
+    (:meth:`deliver` hands them to the robot when the session's clock reaches them)."""
+
+    def __init__(self, wam, latency_s: float):
+        self.wam, self.latency_s, self.now_s = wam, float(latency_s), 0.0
+        self.control_rate_hz, self.n_joints = wam.control_rate_hz, wam.n_joints
+        self._queue: collections.deque = collections.deque()
+
+    def read_state(self):
+        return self.wam.read_state()
+
+    def command_trajectory(self, t_s, q, qdot=None) -> None:
+        self._queue.append((self.now_s + self.latency_s, np.array(t_s, float), np.array(q, float),
+                            None if qdot is None else np.array(qdot, float)))
+
+    def deliver(self, t_s: float) -> None:
+        while self._queue and self._queue[0][0] <= t_s + 1e-12:
+            _, ts, q, qd = self._queue.popleft()
+            self.wam.command_trajectory(ts, q, qd)
 
 
 @dataclass(frozen=True)
@@ -134,6 +164,7 @@ class PlaySession:
         self.source.reset(ss_source)
         filt.reset()
         policy.reset(q_ready=wam.read_state().q)
+        late = _LateCommands(wam, o.plan_latency_s) if o.plan_latency_s > 0 else None
         frame_dt = 1.0 / prof.rate_hz
         t_frame = float(np.random.default_rng(ss_phase).uniform(0.0, frame_dt))
         pending: collections.deque = collections.deque()
@@ -155,7 +186,12 @@ class PlaySession:
                 if rec is not None:
                     rec.observations.append((obs, upd))
                     rec.filter_states.append((obs.t_s, filt.state()))
-            step = policy.step(t, filt.predict, wam)
+            if late is None:
+                step = policy.step(t, filt.predict, wam)
+            else:  # the step plans for t + latency from what arrived by t; its command reaches the robot then
+                late.deliver(t)
+                late.now_s = t
+                step = policy.step(t + late.latency_s, filt.predict, late)
             if rec is not None and step.plan is not None:
                 rec.plans.append(step.plan)
             samples = wam.advance_to(t + dt)

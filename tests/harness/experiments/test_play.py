@@ -142,6 +142,45 @@ def test_ball_that_never_arrives_is_no_attempt():
     assert result.outcome == "no_attempt" and not result.success and "does not reach" in result.reason
 
 
+# ----------------------------------------------------------------------------- modelled planning time
+def test_late_commands_reach_the_robot_after_the_latency():
+    """A command made at t reaches the simulated WAM at t + latency, not before; states are read at once."""
+    from harness.experiments.play.session import _LateCommands
+    from harness.sim.robot import SimulatedWam
+    from robot_models import WamKinematics
+
+    kin = WamKinematics.default()
+    wam = SimulatedWam(kin, seed=0)
+    late = _LateCommands(wam, 0.05)
+    q0 = wam.advance_to(0.1).q_ref[-1]  # the rest posture it holds
+    late.now_s = 0.1
+    t = np.arange(0.11, 0.5, 0.002)  # starts before the command can arrive: delivered at once it would move by 0.15
+    target = q0 + np.r_[0.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    ramp = np.clip((t - 0.11) / 0.3, 0.0, 1.0)[:, None]
+    late.command_trajectory(t, q0 + ramp * (target - q0))
+    assert np.allclose(late.read_state().q, wam.read_state().q)
+    late.deliver(0.149)
+    samples = wam.advance_to(0.15)
+    assert np.allclose(samples.q_ref[-1], q0)  # at rest: no reference but the rest posture
+    late.deliver(0.15)
+    samples = wam.advance_to(0.45)
+    assert samples.q_ref[-1][0] > q0[0] + 0.1  # following the delivered ramp
+
+
+def test_plan_latency_plans_ahead_and_is_reproducible(tmp_path):
+    """With a modelled planning time every plan is made for (step time + latency), the same seed gives the
+    same figures, and a policy that needs long enough to plan misses balls the instantaneous one plays."""
+    slow = _play(tmp_path, "slow", "--no-log", "--plan-latency-ms", "300")
+    assert slow == _play(tmp_path, "slow2", "--no-log", "--plan-latency-ms", "300")
+    fast = _play(tmp_path, "fast", "--no-log")
+    assert slow[0]["plan_latency_ms"] == 300.0 and fast[0]["plan_latency_ms"] == 0.0
+    assert slow[0]["successes"] < fast[0]["successes"]
+    from harness.experiments.play.session import SessionOptions
+
+    with pytest.raises(ValueError, match=r"plan_latency_s must be a number of seconds in \[0, 0.5\], got 0.8"):
+        SessionOptions(plan_latency_s=0.8)
+
+
 # ----------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize("argv, match", [
     (["--balls", "0"], "--balls must be >= 1"),
@@ -151,6 +190,8 @@ def test_ball_that_never_arrives_is_no_attempt():
     (["--log-images", "5"], "--log-images needs --source vision"),
     (["--promp", "/nonexistent/promp.npz"], "no such file"),
     (["--scene", "busy"], "unknown --scene 'busy'"),
+    (["--plan-latency-ms", "-5"], "--plan-latency-ms must be in [0, 500], got -5"),
+    (["--plan-latency-ms", "30", "--live"], "--plan-latency-ms models planning time in process"),
 ])
 def test_bad_arguments_exit_2(argv, match, tmp_path, capsys):
     assert main(["play", "--balls", "1", "--out", str(tmp_path), "--quiet", *argv]) == 2
