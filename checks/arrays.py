@@ -78,7 +78,9 @@ def check_covariance(value, name: str, n: int, *, where: str = "", allow_singula
     # 100 x 100 covariance at every step of a plan) proves the bound; only when it fails are the
     # eigenvalues computed, to decide exactly and to name the smallest.
     try:
-        np.linalg.cholesky(arr + (1e-9 * scale if allow_singular else 0.0) * np.eye(n))
+        shifted = arr.copy()
+        shifted.flat[:: n + 1] += 1e-9 * scale if allow_singular else 0.0  # the tolerance on the diagonal
+        np.linalg.cholesky(shifted)
         return arr
     except np.linalg.LinAlgError:
         pass
