@@ -21,12 +21,16 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/rt2 demo
 
+# Tests marked `realtime` time live processes against the in-process run: they run alone, after the rest,
+# so that the parallel suite does not take the cores they measure.
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(JOBS)
+	$(PY) -m pytest -q -n $(JOBS) -m "not slow and not realtime"
+	$(PY) -m pytest -q -m "realtime and not slow"
 
 # Long experiments marked `slow` (full studies); not part of `make test`.
 test-all: $(STAMP)
-	$(PY) -m pytest -q -n $(JOBS) -m ""
+	$(PY) -m pytest -q -n $(JOBS) -m "not realtime"
+	$(PY) -m pytest -q -m "realtime"
 
 bench: $(STAMP)
 	$(VENV)/bin/rt2 bench estimator

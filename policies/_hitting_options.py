@@ -6,7 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HittingOptions"]
+__all__ = ["PLANNERS", "HittingOptions"]
+
+PLANNERS = ("fast", "reference")  #: HittingOptions.planner (policies._hitting_motion / _hitting_return METHODS)
 
 
 @dataclass(frozen=True)
@@ -31,6 +33,8 @@ class HittingOptions:
     replan_period_s : at most one plan per this period
     control_rate_hz : sampling rate of the commanded trajectory (the WAM's control loop)
     limit_margin : commanded velocities and accelerations stay within this fraction of the WAM's limits
+    planner : "fast" (compiled return outcome, reduced conditioning) or "reference" (the public ball model and
+        the ProMP API in sequence): the same plans to rounding, ~4x apart in time (``rt2 bench policy``)
     """
 
     region_min_m: tuple = (-1.75, -0.8, 0.85)
@@ -51,6 +55,7 @@ class HittingOptions:
     replan_period_s: float = 0.02
     control_rate_hz: float = 500.0
     limit_margin: float = 1.0
+    planner: str = "fast"
 
     def __post_init__(self):
         for name in ("region_min_m", "region_max_m"):
@@ -76,6 +81,8 @@ class HittingOptions:
             raise ValueError(f"HittingOptions.min_time_scale must be in (0, 1], got {self.min_time_scale!r}")
         if not 0 < self.racket_restitution <= 1:
             raise ValueError(f"HittingOptions.racket_restitution must be in (0, 1], got {self.racket_restitution!r}")
+        if self.planner not in PLANNERS:
+            raise ValueError(f"HittingOptions.planner must be one of {list(PLANNERS)}, got {self.planner!r}")
         if not 0 < self.limit_margin <= 1:
             raise ValueError(f"HittingOptions.limit_margin must be in (0, 1], got {self.limit_margin!r}")
         if isinstance(self.max_time_scalings, bool) or not isinstance(self.max_time_scalings, int) or self.max_time_scalings < 0:

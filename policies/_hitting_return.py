@@ -18,21 +18,29 @@ landing target on the opponent's half, find the racket's unit normal n and veloc
    lands at (x_t, y_t). The policy's racket model (restitution, friction) is an option; its
    defaults are the simulated world's values.
 
-Everything here is a plain function of arrays; the caller validates.
+Everything here is a plain function of arrays; the caller validates. The outcome of one racket state
+(contact, then flight to the first bounce and over the net) is evaluated ~15 times per solve, at every
+re-plan: ``method="fast"`` runs it as one compiled kernel (:func:`_outcome_nb`), ``"reference"``
+composes the public ball model (:func:`policies.ball_model.surface_contact` and ``simulate``); the two
+agree to rounding (tests/policies/test_hitting_planner.py).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.optimize import least_squares
 
+from policies._ball_integrate import _step_nb
 from policies.ball_model import BallParams, TableGeometry, simulate, surface_contact
 
-__all__ = ["ReturnSolution", "mirror_law", "solve_return"]
+__all__ = ["METHODS", "ReturnSolution", "mirror_law", "solve_return"]
 
+METHODS = ("fast", "reference")  #: how a racket state's outcome is evaluated (module docstring)
 _FLIGHT_GRID_S = np.arange(0.0, 1.2, 0.01)  # flight samples of the outgoing ball, s after contact
+_FLIGHT_DT_S = 5e-3  # integration step of the outgoing flight
 
 
 @dataclass(frozen=True)
@@ -80,12 +88,13 @@ def _normal(yaw, pitch):
     return np.array([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)])
 
 
-def _outcome(p, v_in, w_in, n, s, params, restitution, friction, plane):
-    """Landing xy (2,), net-crossing height (m, NaN if never crossed), v_out (3,), for racket (n, s n)."""
+def _outcome_reference(p, v_in, w_in, n, s, params, restitution, friction, plane):
+    """Landing xy (2,), net-crossing height (m, NaN if never crossed), v_out (3,), for racket (n, s n):
+    the public ball model (contact, then the flight sampled on ``_FLIGHT_GRID_S``)."""
     v_out, w_out = surface_contact(v_in, w_in, n, params, restitution=restitution, friction=friction,
                                    surface_velocity=s * n)
     state = np.concatenate([p, v_out, w_out])
-    traj, bounce = simulate(state, _FLIGHT_GRID_S, params, plane, dt_s=5e-3)
+    traj, bounce = simulate(state, _FLIGHT_GRID_S, params, plane, dt_s=_FLIGHT_DT_S)
     x = traj[:, 0]
     cross = np.nonzero((x[:-1] < 0.0) & (x[1:] >= 0.0))[0]
     if cross.size:
@@ -97,14 +106,94 @@ def _outcome(p, v_in, w_in, n, s, params, restitution, friction, plane):
     return bounce[1:3], z_net, v_out
 
 
+@numba.njit(cache=True)
+def _outcome_nb(p, v_in, w_in, yaw, pitch, speed, c, tb, restitution, friction, grid, dt, out):
+    """:func:`_outcome_reference` as one kernel, for the racket normal (yaw, pitch) and speed.
+
+    The contact is eqs. (4)-(6) of ``surface_contact`` written out; the flight takes the same steps as
+    ``simulate`` on ``grid`` (``_step_nb``), and stops once it has both the first bounce and the net
+    crossing (what follows cannot change them). out (7,) <- [landing x, y, net-crossing z (NaN if
+    none), v_out (3,), 1 if it bounced else 0]."""
+    n0 = np.cos(pitch) * np.cos(yaw)
+    n1 = np.cos(pitch) * np.sin(yaw)
+    n2 = np.sin(pitch)
+    r, alpha = c[7], c[6]
+    s = np.empty(9)
+    s[0], s[1], s[2] = p[0], p[1], p[2]
+    vr0, vr1, vr2 = v_in[0] - speed * n0, v_in[1] - speed * n1, v_in[2] - speed * n2
+    vn = vr0 * n0 + vr1 * n1 + vr2 * n2
+    if vn < 0.0:  # approaching the racket: normal impulse (4), Coulomb friction on the slip (5), spin (6)
+        jn = -(1.0 + restitution) * vn
+        wn0 = w_in[1] * n2 - w_in[2] * n1  # w x n
+        wn1 = w_in[2] * n0 - w_in[0] * n2
+        wn2 = w_in[0] * n1 - w_in[1] * n0
+        sl0, sl1, sl2 = vr0 - vn * n0 - r * wn0, vr1 - vn * n1 - r * wn1, vr2 - vn * n2 - r * wn2
+        slip = np.sqrt(sl0 * sl0 + sl1 * sl1 + sl2 * sl2)
+        jt = min(friction * jn, slip * alpha / (1.0 + alpha))
+        j0 = j1 = j2 = 0.0
+        if slip > 0.0:
+            j0, j1, j2 = -jt * sl0 / slip, -jt * sl1 / slip, -jt * sl2 / slip
+        s[3], s[4], s[5] = v_in[0] + jn * n0 + j0, v_in[1] + jn * n1 + j1, v_in[2] + jn * n2 + j2
+        s[6] = w_in[0] - (n1 * j2 - n2 * j1) / (alpha * r)  # w - (n x J_t) / (alpha r)
+        s[7] = w_in[1] - (n2 * j0 - n0 * j2) / (alpha * r)
+        s[8] = w_in[2] - (n0 * j1 - n1 * j0) / (alpha * r)
+    else:
+        for i in range(3):
+            s[3 + i] = v_in[i]
+            s[6 + i] = w_in[i]
+    for i in range(3):
+        out[3 + i] = s[3 + i]
+    out[0] = out[1] = out[2] = np.nan
+    out[6] = 0.0
+    k1, k2, k3, k4 = np.empty(9), np.empty(9), np.empty(9), np.empty(9)
+    tmp, nxt = np.empty(9), np.empty(9)
+    t = 0.0
+    x_prev, z_prev = s[0], s[2]
+    for q in range(grid.shape[0]):
+        tq = grid[q]
+        while t < tq:  # simulate_nb's stepping, to the sample
+            h = min(dt, tq - t)
+            if tq - (t + h) < 1e-12:
+                h = tq - t
+            tc = _step_nb(s, h, c, tb, k1, k2, k3, k4, tmp, nxt)
+            if tc >= 0.0 and out[6] == 0.0:  # nxt holds the state at the first contact
+                out[0], out[1], out[6] = nxt[0], nxt[1], 1.0
+            t = t + h if h < tq - t else tq
+        if q > 0 and np.isnan(out[2]) and x_prev < 0.0 and s[0] >= 0.0:
+            f = -x_prev / (s[0] - x_prev)
+            out[2] = z_prev + f * (s[2] - z_prev)
+        if out[6] == 1.0 and not np.isnan(out[2]):
+            break
+        x_prev, z_prev = s[0], s[2]
+
+
+def _outcome_function(p, v_in, w_in, params, restitution, friction, plane, method):
+    """x = (yaw, pitch, speed) of the racket -> (landing xy (2,), net-crossing z, v_out (3,)) by ``method``."""
+    if method == "reference":
+        return lambda x: _outcome_reference(p, v_in, w_in, _normal(x[0], x[1]), x[2], params, restitution, friction,
+                                            plane)
+    c, tb, out = params.coefficients(), plane.as_array(), np.empty(7)
+    e, mu = float(restitution), float(friction)
+
+    def outcome(x):
+        _outcome_nb(p, v_in, w_in, float(x[0]), float(x[1]), float(x[2]), c, tb, e, mu, _FLIGHT_GRID_S, _FLIGHT_DT_S,
+                    out)
+        return out[0:2].copy(), float(out[2]), out[3:6].copy()
+
+    return outcome
+
+
 def solve_return(p, v_in, w_in, target_xy, params: BallParams, table: TableGeometry, *, restitution: float,
                  friction: float, net_top_z_m: float, net_clearance_m: float, max_nfev: int = 40,
-                 warm_start: ReturnSolution | None = None) -> ReturnSolution:
+                 warm_start: ReturnSolution | None = None, method: str = "fast") -> ReturnSolution:
     """Racket normal and velocity that send the ball at p (3,) with v_in (3,), w_in (3,) to land at
     target_xy (2,) on the table top, crossing the net plane ``net_clearance_m`` above ``net_top_z_m``.
 
     warm_start : a previous solution for a nearby ball (re-planning), used as the initial guess.
+    method : "fast" (compiled outcome) or "reference" (the public ball model); same solution to rounding.
     Raises ValueError when no racket state does it (e.g. a ball moving away from the robot)."""
+    if method not in METHODS:
+        raise ValueError(f"unknown return method {method!r}; valid: {list(METHODS)}")
     p, v_in, w_in = (np.asarray(a, float) for a in (p, v_in, w_in))
     target_xy = np.asarray(target_xy, float)
     z_net = net_top_z_m + net_clearance_m
@@ -119,14 +208,16 @@ def solve_return(p, v_in, w_in, target_xy, params: BallParams, table: TableGeome
         x0 = np.concatenate([_angles(warm_start.normal), [float(warm_start.racket_velocity_mps @ warm_start.normal)]])
     scale = np.array([1.0, 1.0, 0.3])  # metres of residual per unit: angles of ~1 rad ~ 1 m at the landing
 
+    outcome = _outcome_function(p, v_in, w_in, params, restitution, friction, plane, method)
+
     def resid(x):
-        xy, zn, _ = _outcome(p, v_in, w_in, _normal(x[0], x[1]), x[2], params, restitution, friction, plane)
+        xy, zn, _ = outcome(x)
         if not np.isfinite(xy).all() or not np.isfinite(zn):
             return np.full(3, 5.0)
         return np.array([xy[0] - target_xy[0], xy[1] - target_xy[1], zn - z_net])
 
     res = least_squares(resid, x0, x_scale=scale * 0.1, max_nfev=max_nfev, xtol=1e-8, ftol=1e-8)
     n = _normal(res.x[0], res.x[1])
-    xy, zn, v_out = _outcome(p, v_in, w_in, n, res.x[2], params, restitution, friction, plane)
+    xy, zn, v_out = outcome(res.x)
     return ReturnSolution(n, res.x[2] * n, np.asarray(xy, float), float(zn - net_top_z_m), v_out,
                           float(np.linalg.norm(res.fun)))

@@ -35,14 +35,17 @@ from enum import StrEnum
 import numpy as np
 
 from policies._hitting_motion import check_feasible, condition_hit, sample_mean
-from policies._hitting_options import HittingOptions
+from policies._hitting_options import PLANNERS, HittingOptions
 from policies._hitting_return import solve_return
 from policies._hitting_select import Candidate, score_candidates
 from policies.ball_model import BallParams, TableGeometry
-from policies.teacher import racket_kinematics
+from policies.teacher import racket_fk_jacobian, racket_kinematics
 from robot_models.robot_interface import WamInterface
 
-__all__ = ["HitPlan", "HittingOptions", "HittingPolicy", "PolicyStatus", "PolicyStep"]
+__all__ = ["NO_PREDICTION", "PLANNERS", "HitPlan", "HittingOptions", "HittingPolicy", "PolicyStatus", "PolicyStep"]
+
+
+NO_PREDICTION = "no ball prediction yet"  #: the reason of a step before the filter predicts: nothing was planned
 
 
 class PolicyStatus(StrEnum):
@@ -143,10 +146,10 @@ class HittingPolicy:
         self.params = ball_params or BallParams.load()
         self.table = table or TableGeometry()
         self.phases = np.unique(np.clip(z0 + sz * np.array([-2.0, -1.0, 0.0, 1.0, 2.0]), 0.05, 0.95))
-        self._fk6, self._jac6 = racket_kinematics(kinematics, with_normal=True)
-        fk3, self._jac3 = racket_kinematics(kinematics)
+        self._racket = racket_fk_jacobian(kinematics, with_normal=True)
+        fk3, jac3 = racket_kinematics(kinematics)
         # (S1): the racket marginal per phase (independent of the duration for positions)
-        self._mu_r, self._S_r = promp.task_marginal(self.phases * promp.duration_s, fk3, self._jac3)
+        self._mu_r, self._S_r = promp.task_marginal(self.phases * promp.duration_s, fk3, jac3)
         self.reset()
 
     # ---------------------------------------------------------------- state
@@ -158,11 +161,20 @@ class HittingPolicy:
         self.status = PolicyStatus.WAITING
         self.plan: HitPlan | None = None
         self.plans: list[HitPlan] = []
-        self.reason = "no ball prediction yet"
+        self.reason = NO_PREDICTION
         self.reason_counts: dict[str, int] = {}  #: why steps made no plan: first words of the reason -> count
         self._t_last_plan = -np.inf
         self._t_now = -np.inf
         self._last_return = None
+
+    def warm_up(self, ball_filter, **options) -> dict:
+        """Pay a fresh process's one-time costs (compiled kernels, first solver calls) before the first real
+        ball: play a nominal served ball through ``ball_filter`` and this policy against a robot stand-in
+        that only reports rest, then reset both. For real-time use (``rt2 play --live``); options and
+        return value: :func:`policies._hitting_warmup.warm_up`."""
+        from policies._hitting_warmup import warm_up
+
+        return warm_up(self, ball_filter, **options)
 
     @property
     def attempted(self) -> bool:
@@ -210,7 +222,7 @@ class HittingPolicy:
         t_grid = t + np.arange(0.0, o.horizon_s, o.candidate_dt_s)
         pred = predict(t_grid)
         if pred is None:
-            return None, "no ball prediction yet"
+            return None, NO_PREDICTION
         t_s, X, V, C = _check_prediction(pred, len(t_grid))
         offset = -self.params.radius_m * np.array([1.0, 0.0, 0.0])
         if started:  # the hit time and duration stay; only the point follows the prediction
@@ -242,7 +254,7 @@ class HittingPolicy:
         ret = solve_return(x_ball, v_ball, np.zeros(3), o.target_xy_m, self.params, self.table,
                            restitution=o.racket_restitution, friction=o.racket_friction,
                            net_top_z_m=self.table.surface_z_m + self.table.net_height_m, net_clearance_m=o.net_clearance_m,
-                           warm_start=self._last_return)
+                           warm_start=self._last_return, method=o.planner)
         if ret.residual_m > o.max_return_residual_m:
             raise ValueError(f"no racket state returns the ball to {list(o.target_xy_m)} (residual {ret.residual_m:.3f} m)")
         self._last_return = ret
@@ -256,11 +268,11 @@ class HittingPolicy:
                 t_from, q_now, qd_now = plan.t_s[i], plan.q[i], plan.qd[i]
             else:
                 t_from, q_now, qd_now = t_start, np.asarray(wam.read_state().q, float), np.zeros(self.kin.n_joints)
-            cond = condition_hit(self.promp, duration_s=T, t_rel_now=t_from - t_start, q_now=q_now, qd_now=qd_now,
+            mu_w = condition_hit(self.promp, duration_s=T, t_rel_now=t_from - t_start, q_now=q_now, qd_now=qd_now,
                                  q_ready=self.q_ready, t_rel_hit=c.t_hit_s - t_start, x_racket=x_racket,
-                                 normal=ret.normal, v_racket=ret.racket_velocity_mps, fk6=self._fk6,
-                                 jac6=self._jac6, jac3=self._jac3)
-            t_rel, q, qd = sample_mean(cond, T, t_from - t_start, o.control_rate_hz)
+                                 normal=ret.normal, v_racket=ret.racket_velocity_mps, racket=self._racket,
+                                 method=o.planner)
+            t_rel, q, qd = sample_mean(self.promp, mu_w, T, t_from - t_start, o.control_rate_hz)
             bad, scale = check_feasible(self.kin, t_rel, q, qd, o.limit_margin)
             if not bad:
                 break

@@ -46,33 +46,38 @@ from scipy.interpolate import CubicHermiteSpline
 
 from checks.arrays import check_array, check_positive
 
-__all__ = ["Demonstration", "ScriptedTeacher", "TeacherOptions", "racket_kinematics"]
+__all__ = ["Demonstration", "ScriptedTeacher", "TeacherOptions", "racket_fk_jacobian", "racket_kinematics"]
 
 SWING_NAMES = ("backswing", "direct")  #: the keys of SWINGS (defined with the swings, below)
 
 
+def racket_fk_jacobian(kin, *, with_normal: bool = True, frame: str = "racket"):
+    """One callable q (7,) -> (x, J) of the racket from one kinematics evaluation: x (3,) racket centre in the
+    lab world, m, or (6,) [centre; normal] with ``with_normal``; J (3, 7) or (6, 7), the normal's rows
+    d z / dq = -[z]x J_w. Uses the trusted inner call (no joint-limit check), since a conditioned mean may
+    graze a limit."""
+    fid = kin.frame_id(frame)
+
+    def fk_jacobian(q):
+        T, J = kin.fk_and_jacobian(np.asarray(q, float), fid)
+        if not with_normal:
+            return T[:3, 3].copy(), J[:3].copy()
+        z = T[:3, 2]
+        skew = np.array([[0, -z[2], z[1]], [z[2], 0, -z[0]], [-z[1], z[0], 0]])
+        return np.concatenate([T[:3, 3], z]), np.vstack([J[:3], -skew @ J[3:]])
+
+    return fk_jacobian
+
+
 def racket_kinematics(kin, *, with_normal: bool = False, frame: str = "racket"):
-    """``(fk, jacobian)`` callables of the racket for :meth:`ProMP.condition_on_task`.
+    """``(fk, jacobian)`` callables of the racket for :meth:`ProMP.condition_on_task` (the two halves of
+    :func:`racket_fk_jacobian`).
 
     fk(q (7,)) -> (3,) racket centre in the lab world, m (or (6,) [centre; normal] with ``with_normal``)
     jacobian(q) -> (3, 7) (or (6, 7)); the normal's rows are d z / dq = -[z]x J_w.
-    Uses the trusted inner call (no joint-limit check), since a conditioned mean may graze a limit.
     """
-    fid = kin.frame_id(frame)
-
-    def fk(q):
-        T, _ = kin.fk_and_jacobian(np.asarray(q, float), fid)
-        return np.concatenate([T[:3, 3], T[:3, 2]]) if with_normal else T[:3, 3].copy()
-
-    def jacobian(q):
-        T, J = kin.fk_and_jacobian(np.asarray(q, float), fid)
-        if not with_normal:
-            return J[:3].copy()
-        z = T[:3, 2]
-        skew = np.array([[0, -z[2], z[1]], [z[2], 0, -z[0]], [-z[1], z[0], 0]])
-        return np.vstack([J[:3], -skew @ J[3:]])
-
-    return fk, jacobian
+    both = racket_fk_jacobian(kin, with_normal=with_normal, frame=frame)
+    return (lambda q: both(q)[0]), (lambda q: both(q)[1])
 
 
 @dataclass(frozen=True)

@@ -295,6 +295,7 @@ def _no_work(monkeypatch):
     import harness.experiments.accuracy.experiment as acc
     import harness.cli.reevaluate as ree
     import harness.experiments.studies.bench_estimator as bes
+    import harness.experiments.play.bench as bpol
     import harness.experiments.studies.eval_filters as evf
     import harness.experiments.studies.fit_flight as ff
     import harness.cli.play as playexp
@@ -318,6 +319,7 @@ def _no_work(monkeypatch):
     monkeypatch.setattr(ff, "run_study", boom)
     monkeypatch.setattr(demos, "collect_demonstrations", boom)
     monkeypatch.setattr(bes, "bench", boom)
+    monkeypatch.setattr(bpol, "bench_policy", boom)
     monkeypatch.setattr(evfs, "evaluate", boom)
     monkeypatch.setattr(playexp, "run_configuration", boom)
 
@@ -347,13 +349,14 @@ def _commands(tmp_path, synthetic_ball_coco):
         "eval framesets --json": lambda p: ["eval", "framesets", "--frames", "2", "--json", p],
         "play --json": lambda p: ["play", "--balls", "1", "--no-log", "--no-figure", "--json", p],
         "play --out": lambda p: ["play", "--balls", "1", "--out", p],
+        "bench policy --json": lambda p: ["bench", "policy", "--balls", "2", "--json", p],
     }
 
 
 COMMANDS_WITH_OUTPUTS = ["accuracy --out", "accuracy --json", "sim dataset --out", "sim table1 --json", "train --out",
                          "reevaluate --json", "reevaluate --plot", "eval detector --json", "eval filters --json",
                          "sim fit-flight --json", "learn promp --out", "bench estimator --json",
-                         "eval framesets --json", "play --json", "play --out"]
+                         "eval framesets --json", "play --json", "play --out", "bench policy --json"]
 
 
 def _one_line_exit_2(argv, capsys, *patterns):

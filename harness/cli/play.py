@@ -54,6 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="in process: a planning step of the policy takes this long (it plans this far ahead from "
                              "what has arrived, and its command reaches the robot this much later); default 0, the "
                              "paper's instantaneous policy. Live, planning takes its real time (see --plan-lead-ms)")
+    parser.add_argument("--planner", default="fast",
+                        help="the hitting policy's planner: fast (compiled return, reduced ProMP conditioning; default) or "
+                             "reference (the public ball model and the ProMP API in sequence): the same plans to "
+                             "rounding, ~3-4x slower (rt2 bench policy)")
     parser.add_argument("--profiles", default="vision", choices=sorted(PROFILE_SETS),
                         help="synthetic source's error model: vision (measured from the vision source, default) or "
                              "paper (the paper's real-robot RTBlob outliers); see harness/experiments/play/profiles.py")
@@ -99,6 +103,10 @@ def _check(args) -> None:
                          "(--plan-lead-ms sets how far ahead the policy plans)")
     if args.log_images < 0:
         raise ValueError(f"--log-images must be >= 0, got {args.log_images}")
+    from policies.hitting import PLANNERS
+
+    if args.planner not in PLANNERS:
+        raise ValueError(f"unknown --planner {args.planner!r}; valid: {list(PLANNERS)}")
     if not args.promp.is_file():
         raise FileNotFoundError(f"--promp: no such file {args.promp}")
     for f in ([args.filter] if args.mode == "play" else args.filters):
@@ -151,7 +159,8 @@ def _configs(args, profiles) -> list[PlayConfig]:
     for tracker, filt in pairs:
         prof = profile_for(tracker, profiles).with_timing(args.rate_hz, None if args.latency_ms is None else args.latency_ms / 1e3)
         out.append(PlayConfig(tracker, filt, args.source, prof, str(args.promp), scene=args.scene, record=not args.no_log,
-                              record_images_every=args.log_images, plan_latency_s=args.plan_latency_ms / 1e3))
+                              record_images_every=args.log_images, plan_latency_s=args.plan_latency_ms / 1e3,
+                              policy={"planner": args.planner}))
     return out
 
 
@@ -163,7 +172,7 @@ def _open_log(args, config: PlayConfig):
     path = args.out / f"play{live}_{config.tracker}_{config.filter}_{config.source}_s{args.seed}.mcap"
     meta = {"kind": "play", "seed": args.seed, "ball_slot_s": 10.0, "live": bool(live),
             "config": {"tracker": config.tracker, "filter": config.filter, "source": config.source, "scene": config.scene,
-                       "profiles": args.profiles, "plan_latency_s": config.plan_latency_s,
+                       "profiles": args.profiles, "plan_latency_s": config.plan_latency_s, "policy": config.policy,
                        "balls": args.balls, "profile": config.resolved_profile().__dict__, "promp": config.promp_path}}
     log = SessionLogWriter(path, metadata=meta, log_images="all" if args.log_images else "none", overwrite=True)
     return log, path

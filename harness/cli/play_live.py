@@ -95,7 +95,8 @@ def run_live(args, config, open_log, print_rows) -> int:
     results = run.results
     row = summarise(config, results, args.seed) if results else None
     if row is not None:
-        row.update(live=True, latency_ms=latency_budget(run), refused_commands=run.refused)
+        row.update(live=True, latency_ms=latency_budget(run), refused_commands=run.refused,
+                   warm_up_ms=round(run.warm_up_s * 1e3, 1))
         if error or len(results) < args.balls:
             row["partial"] = True
         if log is not None:

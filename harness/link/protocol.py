@@ -15,9 +15,11 @@ was received; nothing malformed gets further on either side.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import msgpack
+import numpy as np
 
 __all__ = ["MAX_MESSAGE_BYTES", "MAX_TRAJECTORY_SAMPLES", "MODES", "ProtocolError", "SCHEMA", "VERSION", "decode",
            "encode", "request_id"]
@@ -149,6 +151,25 @@ def _check_vec(kind, name, value, where="") -> None:
         raise ProtocolError(f"{kind}: {name}{where} must be {N_JOINTS} finite numbers, got {_short(value)}")
 
 
+_NUMBER_TYPES = frozenset((int, float))
+
+
+def _plain_numbers(value, shape: tuple, kinds: str = "if") -> bool:
+    """True if ``value`` is certainly valid: of ``shape``, finite numbers of numpy ``kinds`` ("i": all 64-bit
+    integers; "if": integers and floats), every element a plain int or float (not a bool, which numpy would
+    quietly take as a number). One array conversion instead of a Python call per element: a
+    trajectory of 700 samples is ~10,000 numbers, checked on both sides of the link at every re-plan. False
+    means "not sure": the per-element check decides and names the culprit."""
+    try:
+        arr = np.asarray(value)
+    except (ValueError, TypeError, OverflowError):  # rows of different lengths, odd objects
+        return False
+    if arr.dtype.kind not in kinds or arr.shape != shape or not np.isfinite(arr).all():
+        return False
+    elements = itertools.chain.from_iterable(value) if arr.ndim == 2 else value
+    return _NUMBER_TYPES.issuperset(map(type, elements))
+
+
 def _check_field(kind: str, name: str, field_kind: str, value) -> None:
     if value is None and field_kind.endswith("|nil"):
         return
@@ -169,11 +190,15 @@ def _check_field(kind: str, name: str, field_kind: str, value) -> None:
         if not isinstance(value, dict):
             raise ProtocolError(f"{kind}: {name} must be a map or nil, got {_short(value)}")
     elif base == _INTS:
+        if isinstance(value, (list, tuple)) and _plain_numbers(value, (len(value),), "i"):
+            return
         if not isinstance(value, (list, tuple)) or not all(_is_int(x) for x in value):
             raise ProtocolError(f"{kind}: {name} must be a list of integers, got {_short(value)}")
     elif base == _VEC:
         _check_vec(kind, name, value)
     elif base == _MAT:
+        if isinstance(value, (list, tuple)) and value and _plain_numbers(value, (len(value), N_JOINTS)):
+            return
         if not isinstance(value, (list, tuple)):
             raise ProtocolError(f"{kind}: {name} must be a list of joint vectors, got {_short(value)}")
         for i, row in enumerate(value):

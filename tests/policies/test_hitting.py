@@ -7,73 +7,18 @@ a ball that never arrives, out of reach), bad input.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from policies import BallParams, TableGeometry, racket_kinematics, simulate
+from policies import TableGeometry, racket_kinematics, simulate
 from policies._hitting_motion import check_feasible, condition_hit, sample_mean
 from policies._hitting_return import solve_return
 from policies._hitting_select import score_candidates
 from policies.hitting import HittingOptions, HittingPolicy, PolicyStatus
-from policies.promp import ProMP
-
-SHIPPED = Path(__file__).resolve().parents[2] / "data" / "promp" / "wam_hitting.npz"
-
-
-@pytest.fixture(scope="module")
-def kin():
-    from robot_models import WamKinematics
-
-    return WamKinematics.default()
-
-
-@pytest.fixture(scope="module")
-def promp(kin):
-    return ProMP.load(SHIPPED, robot_id="wam7", joint_names=kin.joint_names)
-
-
-@pytest.fixture(scope="module")
-def params():
-    return BallParams.load()
-
-
-@dataclass
-class _Prediction:
-    t_s: np.ndarray
-    position_m: np.ndarray
-    velocity_mps: np.ndarray
-    covariance_m2: np.ndarray
-
-
-def _predictor(state, t0, params, std_m=0.005):
-    """A perfect ball prediction from the true state at t0 (with a small isotropic covariance)."""
-
-    def predict(t_query):
-        t = np.asarray(t_query, float)
-        out, _ = simulate(state, t, params, TableGeometry(), t0_s=t0)
-        cov = np.broadcast_to(np.eye(3) * std_m**2, (len(t), 3, 3)).copy()
-        return _Prediction(t, out[:, :3], out[:, 3:6], cov)
-
-    return predict
-
-
-class _FakeWam:
-    """Records commands; reports a fixed rest posture."""
-
-    def __init__(self, q):
-        self.q = np.asarray(q, float)
-        self.commands = []
-
-    def read_state(self):
-        from robot_models.robot_interface import JointState
-
-        return JointState(0.0, self.q.copy(), np.zeros(7))
-
-    def command_trajectory(self, t_s, q, qdot=None):
-        self.commands.append((np.asarray(t_s), np.asarray(q), qdot))
+from policies.teacher import racket_fk_jacobian
+from tests.policies.hitting_util import Prediction, RecordingWam, predictor
 
 
 def _served(seed=0):
@@ -138,15 +83,16 @@ def test_return_rule_lands_on_the_target(params):
 
 # ----------------------------------------------------------------------------- conditioning hits the point
 def test_conditioning_hits_point_normal_and_velocity(promp, kin):
-    fk6, jac6 = racket_kinematics(kin, with_normal=True)
+    fk6, _ = racket_kinematics(kin, with_normal=True)
     _, jac3 = racket_kinematics(kin)
     z = promp.metadata["hit_phase_mean"]
     T = promp.duration_s
     x = np.array([-1.25, 0.08, 1.12])
     n = np.array([0.95, 0.0, 0.31]) / np.linalg.norm([0.95, 0.0, 0.31])
     v = 1.3 * n
-    cond = condition_hit(promp, duration_s=T, t_rel_now=0.0, q_now=kin.q_home, qd_now=np.zeros(7), q_ready=kin.q_home,
-                         t_rel_hit=z * T, x_racket=x, normal=n, v_racket=v, fk6=fk6, jac6=jac6, jac3=jac3)
+    mu_w = condition_hit(promp, duration_s=T, t_rel_now=0.0, q_now=kin.q_home, qd_now=np.zeros(7), q_ready=kin.q_home,
+                         t_rel_hit=z * T, x_racket=x, normal=n, v_racket=v, racket=racket_fk_jacobian(kin))
+    cond = replace(promp, mu_w=mu_w)
     q, qd = (a[0] for a in cond.mean_trajectory([z * T], duration_s=T))
     f = fk6(q)
     assert np.linalg.norm(f[:3] - x) < 1e-3
@@ -155,7 +101,7 @@ def test_conditioning_hits_point_normal_and_velocity(promp, kin):
     q0, qd0 = (a[0] for a in cond.mean_trajectory([0.0], duration_s=T))
     np.testing.assert_allclose(q0, kin.q_home, atol=1e-6)  # starts where the robot is, at rest
     np.testing.assert_allclose(qd0, 0.0, atol=1e-6)
-    t, Q, QD = sample_mean(cond, T, 0.0, 500.0)
+    t, Q, QD = sample_mean(promp, mu_w, T, 0.0, 500.0)
     assert np.diff(t)[:-1].max() <= 0.002 + 1e-12 and np.diff(t)[-1] <= 1.25 * 0.002 and t[-1] == pytest.approx(T)
     np.testing.assert_allclose(Q[-1], kin.q_home, atol=1e-6)  # back at rest
 
@@ -176,10 +122,10 @@ def test_check_feasible_names_the_broken_limit(kin):
 # ----------------------------------------------------------------------------- the policy on a served ball
 def test_policy_plans_a_reachable_hit_and_commands_it(promp, kin, params):
     state = _served(3)
-    wam = _FakeWam(kin.q_home)
+    wam = RecordingWam(kin.q_home)
     policy = HittingPolicy(promp, kin, HittingOptions(), ball_params=params)
     policy.reset(kin.q_home)
-    predict = _predictor(state, 0.0, params)
+    predict = predictor(state, 0.0, params)
     plan = None
     for t in np.arange(0.15, 0.6, 0.02):
         step = policy.step(t, predict, wam)
@@ -202,7 +148,7 @@ def test_policy_plans_a_reachable_hit_and_commands_it(promp, kin, params):
 
 # ----------------------------------------------------------------------------- no attempt, with a reason
 def test_no_prediction_no_command(promp, kin, params):
-    wam = _FakeWam(kin.q_home)
+    wam = RecordingWam(kin.q_home)
     policy = HittingPolicy(promp, kin, ball_params=params)
     step = policy.step(0.1, lambda t: None, wam)
     assert step.plan is None and step.reason == "no ball prediction yet" and not wam.commands
@@ -210,17 +156,17 @@ def test_no_prediction_no_command(promp, kin, params):
 
 def test_ball_that_never_arrives(promp, kin, params):
     away = np.array([0.5, 0.0, 1.1, 4.0, 0.0, 1.0, 0, 0, 0])  # flying to the opponent
-    wam = _FakeWam(kin.q_home)
+    wam = RecordingWam(kin.q_home)
     policy = HittingPolicy(promp, kin, ball_params=params)
-    step = policy.step(0.0, _predictor(away, 0.0, params), wam)
+    step = policy.step(0.0, predictor(away, 0.0, params), wam)
     assert step.plan is None and "does not reach the hitting region" in step.reason and not wam.commands
 
 
 def test_unreachable_ball_is_out_of_reach(promp, kin, params):
     wide = np.array([0.0, 0.72, 1.2, -2.5, 0.0, 1.5, 0, 0, 0])  # bounces and passes the robot 0.72 m to its left
-    wam = _FakeWam(kin.q_home)
+    wam = RecordingWam(kin.q_home)
     policy = HittingPolicy(promp, kin, ball_params=params)
-    step = policy.step(0.0, _predictor(wide, 0.0, params), wam)
+    step = policy.step(0.0, predictor(wide, 0.0, params), wam)
     assert step.plan is None and not wam.commands and policy.status == PolicyStatus.WAITING
     assert step.reason.startswith("out of reach: the best hitting point") and "sigma" in step.reason
     assert policy.reason_counts == {"out of reach": 1}
@@ -243,6 +189,6 @@ def test_bad_input(promp, kin, params):
     with pytest.raises(ValueError, match="HittingOptions.min_time_scale"):
         HittingOptions(min_time_scale=1.5)
     policy = HittingPolicy(promp, kin, ball_params=params)
-    bad = lambda t: _Prediction(t, np.zeros((len(t), 2)), np.zeros((len(t), 3)), np.zeros((len(t), 3, 3)))  # noqa: E731
+    bad = lambda t: Prediction(t, np.zeros((len(t), 2)), np.zeros((len(t), 3)), np.zeros((len(t), 3, 3)))  # noqa: E731
     with pytest.raises(ValueError, match="ball prediction shapes"):
-        policy.step(0.0, bad, _FakeWam(kin.q_home))
+        policy.step(0.0, bad, RecordingWam(kin.q_home))

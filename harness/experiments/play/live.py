@@ -18,6 +18,9 @@ robot through :class:`harness.link.WamClient` in real time. Per ball:
   arrives. The two kinds take very different times: the first plan of a ball (from rest, no warm start,
   every candidate tried) costs several re-plans (which continue a commanded movement from a warm start),
   so each kind is timed apart -- one slow first plan must not push every re-plan of the ball late;
+* before the first ball the policy and the filter are warmed up on a nominal ball against a robot stand-in
+  (``HittingPolicy.warm_up``): a fresh process's one-time costs (compiled kernels, first solver calls) had
+  held the first ball's first steps ~0.2 s back and lost that ball in every run;
 * the world reports the outcome (its ``world_summary``); the result is
   ``harness.experiments.play.session.ball_result`` of the policy and that summary -- the in-process rule.
 
@@ -79,6 +82,7 @@ class LiveRun:
     plan_step_ms: list = field(default_factory=list)
     first_plan_ms: list = field(default_factory=list)  #: the planning steps that made (or tried) a ball's first plan
     world_lag_ms: list = field(default_factory=list)  #: per ball, the world+robot simulation's largest lag behind its clock
+    warm_up_s: float = 0.0  #: the policy's and filter's warm-up before the first ball (HittingPolicy.warm_up)
     refused: int = 0
     error: str | None = None
 
@@ -112,13 +116,18 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
     serve) in ball order. Ends after the balls, at the world's ``end``, on ``stop()``, or after
     ``idle_timeout_s`` without any ball event (ValueError). A lost link raises LinkLostError (the run so far is
     in the exception's ``run`` attribute)."""
+    from threadpoolctl import threadpool_limits
+
     from harness.experiments.play.session import BallRecord, ball_result
     from harness.link.client import LinkLostError
     from policies.filters import make_filter
-    from policies.hitting import HittingOptions, HittingPolicy, PolicyStatus
+    from policies.hitting import NO_PREDICTION, HittingOptions, HittingPolicy, PolicyStatus
 
+    threadpool_limits(1)  # small linear algebra (140 x 140): BLAS threads would only contend with the world and tracker
     filt = make_filter(filter_name)
     policy = HittingPolicy(promp, kinematics, policy_options or HittingOptions(), ball_params=filt.params)
+    run = LiveRun()
+    run.warm_up_s = policy.warm_up(filt)["seconds"]  # one-time costs now, not at the first ball's first observations
     bwam = BallClockWam(wam)
     ctx = zmq.Context.instance()
     obs_sub, world_sub = ctx.socket(zmq.SUB), ctx.socket(zmq.SUB)
@@ -127,7 +136,6 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
         sock.setsockopt(zmq.SUBSCRIBE, b"")
         sock.setsockopt(zmq.RCVHWM, 100_000)
         sock.connect(addr)
-    run = LiveRun()
     pending: dict[int, dict] = {}  # announced balls
     observations: collections.deque = collections.deque()  # (arrival ns, message) not yet delivered
     cur = None  # the ball being played
@@ -233,7 +241,7 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, fil
 
                 logging.getLogger("rt2.play.live").warning("ball %d: %s", cur["index"], exc)
             took = time.perf_counter() - t0
-            if step is None or step.plan is not None or step.reason:  # a planning step (not a skipped one)
+            if step is None or step.plan is not None or step.reason not in ("", NO_PREDICTION):  # a planning step
                 plan_times[kind].append(took)
                 run.plan_step_ms.append(took * 1e3)
                 if kind == "first":

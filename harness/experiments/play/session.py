@@ -30,7 +30,7 @@ import numpy as np
 
 from harness.sim.physics import BallWorld, EventKind, RacketState, WorldOptions, classify_return
 from harness.sim.robot import SimulatedWam, SimWamOptions
-from policies.hitting import HittingPolicy, PolicyStatus
+from policies.hitting import NO_PREDICTION, HittingPolicy, PolicyStatus
 
 __all__ = ["BallRecord", "BallResult", "PlaySession", "SessionOptions", "ball_over", "ball_result", "lerp_racket", "world_summary"]
 
@@ -273,7 +273,7 @@ def ball_result(ball: int, serve, policy, world: dict, n_frames: int, n_position
     ``speed_mps`` and ``spin_kind``."""
     plan = policy.plan
     if not policy.attempted:
-        counts = {k: v for k, v in policy.reason_counts.items() if k != "no ball prediction yet"}
+        counts = {k: v for k, v in policy.reason_counts.items() if k != NO_PREDICTION}
         reason = "; ".join(f"{k} ({v}x)" for k, v in sorted(counts.items(), key=lambda kv: -kv[1]))
         outcome, reason = "no_attempt", reason or policy.reason or "no movement started"
     elif world["contact_t_s"] is None:

@@ -96,7 +96,7 @@ def _assert_close(live, ref):
         assert abs(a[key] - b[key]) * 10 <= tol_mm, (key, a, b)
 
 
-@pytest.mark.slow
+@pytest.mark.realtime
 @pytest.mark.parametrize("skew_ms", [0.0, 5.0])
 def test_live_figures_match_the_in_process_run(tmp_path, in_process, skew_ms):
     from harness.experiments.accuracy.live import run_live_local

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import subprocess
 import sys
 import threading
@@ -48,6 +49,45 @@ def test_protocol_round_trip():
 def test_protocol_rejects_malformed(msg, match):
     with pytest.raises(ProtocolError, match=match):
         protocol.decode(msgpack.packb(msg))
+
+
+def _valid_by_the_rule(value, kind):
+    """The protocol's rule, element by element: a list of ints (kind 'ints'), or of rows of 7 finite ints or
+    floats (kind 'mat'); bool is not a number."""
+    def number(x, ints_only):
+        if isinstance(x, bool) or not isinstance(x, int if ints_only else (int, float)):
+            return False
+        return -(1 << 63) <= x < (1 << 63) if ints_only else math.isfinite(x)
+
+    if not isinstance(value, (list, tuple)):
+        return False
+    if kind == "ints":
+        return all(number(x, True) for x in value)
+    return all(isinstance(r, (list, tuple)) and len(r) == 7 and all(number(x, False) for x in r) for r in value)
+
+
+_ROWS = [list(np.linspace(-1, 1, 7))] * 40
+
+
+@pytest.mark.parametrize("kind, value", [
+    ("mat", _ROWS), ("mat", [[0, 1, 2, 3, 4, 5, 6]] * 3), ("mat", [[0, 1.5, 2, 3, 4, 5, 6], (0.0,) * 7]),
+    ("mat", _ROWS[:5] + [[True] + [0.0] * 6]), ("mat", [[True] * 7] * 2), ("mat", _ROWS[:3] + [[float("inf")] * 7]),
+    ("mat", _ROWS[:3] + [["1.0"] + [0.0] * 6]), ("mat", _ROWS[:3] + [[None] * 7]), ("mat", _ROWS[:3] + [[0.0] * 6]),
+    ("mat", _ROWS[:3] + [[[0.0]] * 7]), ("mat", [[2**70] + [0.0] * 6] * 2), ("mat", _ROWS[:3] + [[0.0] * 8]),
+    ("mat", [np.float64(0.5)] * 7), ("mat", [[np.float64(0.5)] * 7] * 2), ("mat", []), ("mat", "not a matrix"),
+    ("ints", list(range(0, 10**9, 10**6))), ("ints", [0, True, 2]), ("ints", [0, 1.5]), ("ints", [0, 2**63]),
+    ("ints", [0, -(2**63)]), ("ints", [0, "1"]), ("ints", []),
+])
+def test_protocol_array_check_is_the_element_rule(kind, value):
+    """Joint matrices and time lists are checked in one array conversion (a trajectory is ~10,000 numbers) and
+    element by element only when that is unsure: the decision is always the element-by-element rule's."""
+    expect = _valid_by_the_rule(value, kind)
+    try:
+        protocol._check_field("trajectory", "q", kind, value)
+        accepted = True
+    except ProtocolError:
+        accepted = False
+    assert accepted == expect, value
 
 
 def test_protocol_rejects_garbage_and_wrong_place():
