@@ -36,7 +36,7 @@ def run_live(args, config, open_log, print_rows) -> int:
     """open_log, print_rows : `rt2 play`'s session-log opener and result-table printer (the same as in process)."""
     from harness.common.outputs import atomic_write_json
     from harness.experiments.play.experiment import summarise
-    from harness.experiments.play.live import LiveRun, latency_budget, play_live, play_live_local
+    from harness.experiments.play.live import LiveRun, latency_budget, play_live, play_live_local, prepare_policy
     from harness.experiments.play.log import write_ball
     from harness.link.client import LinkLostError, WamClient
     from policies.hitting import HittingOptions
@@ -45,6 +45,7 @@ def run_live(args, config, open_log, print_rows) -> int:
 
     kin = WamKinematics.default()
     promp = ProMP.load(args.promp, robot_id=str(kin.model.name), joint_names=kin.joint_names)
+    player = prepare_policy(kin, promp, config.filter, HittingOptions(**config.policy))  # before any process or link
     log, path = open_log(args, config) if not args.no_log else (None, None)
     stop_signal: list[int] = []
     old = {sig: signal.signal(sig, lambda s, _f: stop_signal.append(s)) for sig in (signal.SIGINT, signal.SIGTERM)}
@@ -63,8 +64,7 @@ def run_live(args, config, open_log, print_rows) -> int:
             if log is not None:
                 log.write_metadata("link", {"address": robot, "bridge_id": wam.bridge_id, "tracker_stream": tracker,
                                             "world_stream": world, "clock": wam.clock.estimate().to_dict()})
-            run = play_live(wam, tracker, world, kinematics=kin, promp=promp, filter_name=config.filter,
-                            balls=args.balls, policy_options=HittingOptions(**config.policy),
+            run = play_live(wam, tracker, world, player=player, balls=args.balls,
                             plan_lead_s=None if args.plan_lead_ms is None else args.plan_lead_ms / 1e3,
                             on_ball=on_ball, stop=lambda: bool(stop_signal))
         return run

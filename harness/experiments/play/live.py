@@ -18,9 +18,10 @@ robot through :class:`harness.link.WamClient` in real time. Per ball:
   arrives. The two kinds take very different times: the first plan of a ball (from rest, no warm start,
   every candidate tried) costs several re-plans (which continue a commanded movement from a warm start),
   so each kind is timed apart -- one slow first plan must not push every re-plan of the ball late;
-* before the first ball the policy and the filter are warmed up on a nominal ball against a robot stand-in
-  (``HittingPolicy.warm_up``): a fresh process's one-time costs (compiled kernels, first solver calls) had
-  held the first ball's first steps ~0.2 s back and lost that ball in every run;
+* before the robot link opens, the policy and the filter are warmed up on a nominal ball against a robot
+  stand-in (:func:`prepare_policy`, ``HittingPolicy.warm_up``): a fresh process's one-time costs (compiled
+  kernels, first solver calls) had held the first ball's first steps ~0.2 s back and lost that ball in
+  every run;
 * the world reports the outcome (its ``world_summary``); the result is
   ``harness.experiments.play.session.ball_result`` of the policy and that summary -- the in-process rule.
 
@@ -47,7 +48,7 @@ import zmq
 
 from robot_models.robot_interface import JointState
 
-__all__ = ["BallClockWam", "LiveRun", "latency_budget", "play_live", "play_live_local"]
+__all__ = ["BallClockWam", "LivePolicy", "LiveRun", "latency_budget", "play_live", "play_live_local", "prepare_policy"]
 
 
 class BallClockWam:
@@ -109,25 +110,44 @@ def _observation(msg: dict, t_ball_s: float):
                            notes=tuple(msg["notes"]))
 
 
-def play_live(wam, tracker_addr: str, world_addr: str, *, kinematics, promp, filter_name: str, balls: int,
-              policy_options=None, plan_lead_s: float | None = None, on_ball=None, stop=lambda: False,
-              idle_timeout_s: float = 30.0) -> LiveRun:
-    """Play ``balls`` balls live (module docstring). wam : a connected WamClient; on_ball(index, result, record,
-    serve) in ball order. Ends after the balls, at the world's ``end``, on ``stop()``, or after
-    ``idle_timeout_s`` without any ball event (ValueError). A lost link raises LinkLostError (the run so far is
-    in the exception's ``run`` attribute)."""
+@dataclass
+class LivePolicy:
+    """The policy process's ball filter and hitting policy, warmed up (:func:`prepare_policy`)."""
+
+    policy: object
+    ball_filter: object
+    warm_up_s: float
+
+
+def prepare_policy(kinematics, promp, filter_name: str, policy_options=None) -> LivePolicy:
+    """The filter and the hitting policy of a live session, warmed up before the robot link opens: a fresh
+    process's one-time costs (compiled kernels -- seconds with a cold numba cache --, first solver calls) are
+    paid here, not at the first ball's first observations, and not while the world counts down to its first
+    serve. One BLAS thread: the algebra is small (140 x 140), threads would only contend with the world and
+    the tracker."""
     from threadpoolctl import threadpool_limits
 
-    from harness.experiments.play.session import BallRecord, ball_result
-    from harness.link.client import LinkLostError
     from policies.filters import make_filter
-    from policies.hitting import NO_PREDICTION, HittingOptions, HittingPolicy, PolicyStatus
+    from policies.hitting import HittingOptions, HittingPolicy
 
-    threadpool_limits(1)  # small linear algebra (140 x 140): BLAS threads would only contend with the world and tracker
+    threadpool_limits(1)
     filt = make_filter(filter_name)
     policy = HittingPolicy(promp, kinematics, policy_options or HittingOptions(), ball_params=filt.params)
-    run = LiveRun()
-    run.warm_up_s = policy.warm_up(filt)["seconds"]  # one-time costs now, not at the first ball's first observations
+    return LivePolicy(policy, filt, policy.warm_up(filt)["seconds"])
+
+
+def play_live(wam, tracker_addr: str, world_addr: str, *, player: LivePolicy, balls: int,
+              plan_lead_s: float | None = None, on_ball=None, stop=lambda: False, idle_timeout_s: float = 30.0) -> LiveRun:
+    """Play ``balls`` balls live (module docstring) with ``player`` (:func:`prepare_policy`). wam : a connected
+    WamClient; on_ball(index, result, record, serve) in ball order. Ends after the balls, at the world's ``end``,
+    on ``stop()``, or after ``idle_timeout_s`` without any ball event (ValueError). A lost link raises
+    LinkLostError (the run so far is in the exception's ``run`` attribute)."""
+    from harness.experiments.play.session import BallRecord, ball_result
+    from harness.link.client import LinkLostError
+    from policies.hitting import NO_PREDICTION, PolicyStatus
+
+    policy, filt = player.policy, player.ball_filter
+    run = LiveRun(warm_up_s=player.warm_up_s)
     bwam = BallClockWam(wam)
     ctx = zmq.Context.instance()
     obs_sub, world_sub = ctx.socket(zmq.SUB), ctx.socket(zmq.SUB)
