@@ -16,9 +16,13 @@ with the pixels their inliers used. For an estimate ``X_S`` from the camera set 
 * per reference ``r``: ``X_r`` its position, ``X_S,r`` the same estimator run on only the pixels the
   cameras of ``S`` used in ``r``; offset ``X_r - X_S,r``;
 * the estimate becomes ``X_S + median offset`` (per axis) unless that exceeds ``max_offset_m``; the
-  offset is kept while ``S`` carries the estimate and stays within ``max_travel_m`` of the references
-  (an episode: computed once), and a confirmed
-  estimate becomes a reference as reported, so hand-overs chain (4 -> 3 -> 2 cameras).
+  offset is kept for ``S`` while the estimate stays within ``max_travel_m`` of the references it was
+  measured on (an episode: computed once per camera set), and a confirmed estimate becomes a reference
+  as reported, so hand-overs chain (4 -> 3 -> 2 cameras). Episodes are kept per camera set until every
+  camera is back or no confirmed frame is recent: 4 -> 3 -> 2 -> 3 cameras returns to the 3-camera
+  episode (its references, confirmed by 4 cameras, are older than the window by then; without the kept
+  episode those 3-camera estimates jumped ~1 cm for as long as they lasted, as seen live after a single
+  2-camera frame).
 
 The median over a window (not the newest frame alone) matters: a camera about to disappear behind an
 occluder is often already partly hidden in the last confirmed frames, its blob centre off by 2-3 px.
@@ -55,7 +59,7 @@ class SupportHandover:
         self._uv_px = np.full((history, n_cams, 2), np.nan)  # the pixels each inlier used, NaN rows elsewhere
         self._next = 0
         self._t_last = None  # the last frame set's time (``step``)
-        self._episode = None  # (inlier cameras, offset, where it was measured) of the hand-over under way
+        self._episodes: dict = {}  # inlier cameras -> (offset, where it was measured) of the hand-overs under way
 
     def step(self, t_s: float) -> None:
         """The tracker's time rule, for a caller without a Tracker (re-evaluation from logged detections):
@@ -70,7 +74,7 @@ class SupportHandover:
     def reset(self) -> None:
         """Forget every confirmed frame (a new rally, a time jump)."""
         self._t_s.fill(np.nan)
-        self._episode = None
+        self._episodes.clear()
 
     def apply(self, t_s: float, X_m: np.ndarray, uv_used_px: np.ndarray, confirmed: bool):
         """One estimate through the hand-over: ``(X_m + offset, offset)`` (offset None: unchanged).
@@ -81,8 +85,10 @@ class SupportHandover:
         """
         inliers = np.isfinite(uv_used_px[:, 0])
         d = self.offset(t_s, inliers)
-        if d is not None and not float(np.linalg.norm(X_m + d - self._episode[2])) <= self.max_travel_m:
-            d = self._episode = None  # moved too far from where the offset was measured
+        key = tuple(np.flatnonzero(inliers).tolist())
+        if d is not None and not float(np.linalg.norm(X_m + d - self._episodes[key][1])) <= self.max_travel_m:
+            d = None  # moved too far from where the offset was measured
+            del self._episodes[key]
         if d is not None:
             X_m = X_m + d
         if confirmed:
@@ -99,11 +105,11 @@ class SupportHandover:
         t_new = self._t_s[(self._next - 1) % len(self._t_s)]  # the newest confirmed frame (NaN: none)
         cams = np.flatnonzero(inliers)
         if not 0.0 < t_s - t_new <= self.max_age_s or len(cams) == len(inliers):  # all cameras: none had more
-            self._episode = None
+            self._episodes.clear()
             return None
         key = tuple(cams.tolist())
-        if self._episode is not None and self._episode[0] == key:
-            return self._episode[1]
+        if key in self._episodes:
+            return self._episodes[key][0]
         refs = np.flatnonzero(t_new - self._t_s <= self.window_s)  # NaN (empty slots) compare False
         have = np.isfinite(self._uv_px[refs, :, 0])  # (m, n_cams)
         refs = refs[have[:, cams].all(axis=1) & (have.sum(axis=1) > len(cams))]  # these cameras and more
@@ -120,5 +126,6 @@ class SupportHandover:
             d = np.median(np.asarray(offsets), axis=0)
             if not float(np.linalg.norm(d)) <= self.max_offset_m:
                 d = None
-        self._episode = None if d is None else (key, d, np.median(np.asarray(where), axis=0))
+        if d is not None:
+            self._episodes[key] = (d, np.median(np.asarray(where), axis=0))
         return d

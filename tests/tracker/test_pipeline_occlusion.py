@@ -109,6 +109,24 @@ def test_three_camera_estimates_are_handed_over_too(rigs, model, framesets_3):
     assert np.median(err_off[N_ALL:]) > 2.0 * np.median(err[N_ALL:]) and np.median(err_off[N_ALL:]) > 2.0, err_off[N_ALL:]
 
 
+def test_three_cameras_again_after_a_two_camera_frame_keep_their_offset(rigs, model):
+    """4 cameras, then 3 (cam3 hidden), one frame set with 2 (cam0 too), then 3 again: the later 3-camera
+    estimates keep the 3-camera offset measured when the fourth camera went (their confirmed references are
+    3-camera frames by then). Seen live in the accuracy experiment: without it they jumped ~1 cm."""
+    true, est = rigs
+    n3 = 15  # longer than the hand-over window (50 ms): at the return, no 4-camera frame is a reference
+    visible = [(0, 1, 2, 3)] * N_ALL + [(0, 1, 2)] * n3 + [(1, 2)] + [(0, 1, 2)] * n3
+    X = X0_M + V_MPS * DT_S * np.arange(len(visible))[:, None]
+    sets = [_frameset(true, X[k], k, visible[k]) for k in range(len(X))]
+    status, err, obs, stats = _errors_mm(rigs, model, (sets, X))
+    again = slice(N_ALL + n3 + 1, None)
+    assert all(s is Status.OK for s in status[again])
+    assert all(any("support hand-over" in n for n in o.notes) for o in obs[again])
+    assert err[again].max() < 2.0, err[again]
+    _, err_off, _, _ = _errors_mm(rigs, model, (sets, X), handover_max_age_s=None)
+    assert np.median(err_off[again]) > 2.0 * np.median(err[again]), (err_off[again], err[again])
+
+
 def test_the_handover_ends_after_max_age(rigs, model, framesets):
     """Frames later than handover_max_age_s after the last confirmed one are left as estimated."""
     age_s = 4.5 * DT_S
