@@ -34,7 +34,8 @@ class HittingOptions:
     control_rate_hz : sampling rate of the commanded trajectory (the WAM's control loop)
     limit_margin : commanded velocities and accelerations stay within this fraction of the WAM's limits
     planner : "fast" (compiled return outcome, reduced conditioning) or "reference" (the public ball model and
-        the ProMP API in sequence): the same plans to rounding, ~4x apart in time (``rt2 bench policy``)
+        the ProMP API in sequence): the same plans to rounding, ~2.4x apart in time per planning step
+        (``rt2 bench policy``)
     """
 
     region_min_m: tuple = (-1.75, -0.8, 0.85)

@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--planner", default="fast",
                         help="the hitting policy's planner: fast (compiled return, reduced ProMP conditioning; default) or "
                              "reference (the public ball model and the ProMP API in sequence): the same plans to "
-                             "rounding, ~3-4x slower (rt2 bench policy)")
+                             "rounding, ~2.4x slower per planning step (rt2 bench policy)")
     parser.add_argument("--profiles", default="vision", choices=sorted(PROFILE_SETS),
                         help="synthetic source's error model: vision (measured from the vision source, default) or "
                              "paper (the paper's real-robot RTBlob outliers); see harness/experiments/play/profiles.py")
