@@ -182,8 +182,9 @@ def test_both_planners_make_the_same_plans(promp, kin, params, serve_seed):
 
 
 # ----------------------------------------------------------------------------- warm-up
-def test_warm_up_plans_a_ball_then_leaves_policy_and_filter_as_new(promp, kin, params):
-    filt = make_filter("raw")
+@pytest.mark.parametrize("filter_name", ["raw", "ransac_kalman"])
+def test_warm_up_plans_a_ball_then_leaves_policy_and_filter_as_new(promp, kin, params, filter_name):
+    filt = make_filter(filter_name)
     policy = HittingPolicy(promp, kin, ball_params=filt.params)
     info = policy.warm_up(filt)
     assert info["plans"] >= 1 and info["commands"] == info["plans"] and info["seconds"] > 0
