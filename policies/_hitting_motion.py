@@ -38,6 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from policies._promp_condition import block, jittered
+
 __all__ = ["METHODS", "check_feasible", "condition_hit", "sample_mean"]
 
 METHODS = ("fast", "reference")  #: how (M1)-(M4) are computed (same result to rounding; module docstring)
@@ -78,12 +80,6 @@ def _condition_sequential(promp, T, t_now, q_now, qd_now, q_ready, t_hit, x_rack
     return p.condition_on_joint(t_hit, q_hit, None, qd_mean=qd_star, duration_s=T).mu_w
 
 
-def _jittered(S: np.ndarray) -> np.ndarray:
-    """Symmetrised, with the relative jitter of ``_promp_condition._kalman`` (exact via points stay invertible)."""
-    S = 0.5 * (S + S.T)
-    return S + 1e-12 * (np.trace(S) / len(S) + 1e-300) * np.eye(len(S))
-
-
 def _condition_reduced(promp, T, t_now, q_now, qd_now, q_ready, t_hit, target, v_racket, racket):
     """The fast form. Every via point observes O_r w with O_r = I_D (x) f_r^T for a feature row f_r (positions
     phi(z), velocities dphi/dz(z) / T), so one product S O^T (n_weights x 6 D) with all six rows carries every
@@ -94,14 +90,13 @@ def _condition_reduced(promp, T, t_now, q_now, qd_now, q_ready, t_hit, target, v
     z = np.clip(np.array([t_now, T, t_hit]) / T, 0.0, 1.0)
     phi, dphi = promp.basis.evaluate(z)
     F = np.stack([phi[0], dphi[0] / T, phi[1], dphi[1] / T, phi[2], dphi[2] / T])  # (6, K)
-    eye = np.eye(D)
-    O = np.concatenate([np.kron(eye, f[None, :]) for f in F])  # (6 D, D K): rows (M1 q, qd), (M2 q, qd), hit (q, qd)
+    O = np.concatenate([block(f, D) for f in F])  # (6 D, D K): rows (M1 q, qd), (M2 q, qd), hit (q, qd)
     mu, Sigma = promp.mu_w, promp.Sigma_w
     SO = Sigma @ O.T
     G = O @ SO
     a, h, p = slice(0, 4 * D), slice(4 * D, 6 * D), slice(0, D)
     # (M1) + (M2): exact joint via points, one update (sequential exact updates give the same posterior)
-    Saa = _jittered(G[a, a])
+    Saa = jittered(G[a, a])
     y = np.concatenate([q_now, qd_now, q_ready, np.zeros(D)])
     mu = mu + SO[:, a] @ np.linalg.solve(Saa, y - O[a] @ mu)
     Gah = np.linalg.solve(Saa, G[a, h])
@@ -113,7 +108,7 @@ def _condition_reduced(promp, T, t_now, q_now, qd_now, q_ready, t_hit, target, v
     u, q = np.zeros(D), q0.copy()
     f, J = racket(q)
     for _ in range(_ITERATIONS):
-        r = np.linalg.solve(_jittered(J @ Sq @ J.T), target - f - J @ (q0 - q))
+        r = np.linalg.solve(jittered(J @ Sq @ J.T), target - f - J @ (q0 - q))
         u_new = J.T @ r
         q_new = q0 + Sq @ u_new
         step = float(np.linalg.norm(q_new - q))
@@ -131,13 +126,13 @@ def _condition_reduced(promp, T, t_now, q_now, qd_now, q_ready, t_hit, target, v
     mu = mu + B[:, p] @ u
     # the covariance after (M3) at the last linearisation, as its products with O_h
     JC = J @ C[p, :]
-    Sy = _jittered(J @ Sq @ J.T)
+    Sy = jittered(J @ Sq @ J.T)
     C3 = C - JC.T @ np.linalg.solve(Sy, JC)
     B3 = B - (B[:, p] @ J.T) @ np.linalg.solve(Sy, JC)
     # (M4): the racket velocity at the hit, with q_hit = the conditioned mean there
     qd_hit, J3 = O[5 * D :] @ mu, J[:3]
     qd_star = qd_hit + np.linalg.pinv(J3) @ (v_racket - J3 @ qd_hit)
-    return mu + B3 @ np.linalg.solve(_jittered(C3), np.concatenate([q, qd_star]) - O[h] @ mu)
+    return mu + B3 @ np.linalg.solve(jittered(C3), np.concatenate([q, qd_star]) - O[h] @ mu)
 
 
 def sample_mean(promp, mu_w, duration_s, t_rel_from, rate_hz):
@@ -151,9 +146,8 @@ def sample_mean(promp, mu_w, duration_s, t_rel_from, rate_hz):
     t = np.append(t[t < T - 0.25 * dt], T)
     if t.size < 2:
         t = np.array([max(T - dt, 0.0), T])
-    phi, dphi = promp.basis.evaluate(np.clip(t / T, 0.0, 1.0))
-    W = np.asarray(mu_w, float).reshape(promp.n_dims, -1).T  # (K, D), joint-major weights
-    return t, phi @ W, (dphi * (1.0 / T)) @ W  # as ProMP.mean_trajectory (phase rate 1 / T)
+    q, qd = promp.mean_trajectory(t, duration_s=T, weights=mu_w)
+    return t, q, qd
 
 
 def check_feasible(kin, t, q, qd, margin: float) -> tuple[str, float]:

@@ -68,7 +68,7 @@ def warm_up(policy, ball_filter, *, rate_hz: float = 180.0, params: BallParams |
             k += 1
         step = policy.step(float(t), ball_filter.predict, robot)
         plans += step.plan is not None
-        if step.status in ("committed", "done"):
+        if step.status in ("committed", "done"):  # PolicyStatus values (a StrEnum; policies.hitting imports this module)
             break
     ball_filter.reset()
     policy.reset(q_ready=robot.q)

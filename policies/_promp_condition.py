@@ -27,7 +27,7 @@ import numpy as np
 
 from checks.arrays import check_array, check_covariance, check_positive
 
-__all__ = ["condition_on_joint", "condition_on_task", "eval_kinematics"]
+__all__ = ["block", "condition_on_joint", "condition_on_task", "eval_kinematics", "jittered"]
 
 _MAX_STEP_RAD = 0.5  # longest joint-space step of one task-space iteration (keeps Gauss-Newton stable)
 
@@ -41,15 +41,20 @@ def _scalar_time(t_s) -> float:
         raise ValueError(f"t_s must be a number of seconds, got {t_s!r}") from exc
 
 
-def _block(row: np.ndarray, n_dims: int) -> np.ndarray:
+def block(row: np.ndarray, n_dims: int) -> np.ndarray:
     """I_D (x) row^T: (n_dims, n_dims * K) from a (K,) feature row."""
     return np.kron(np.eye(n_dims), row[None, :])
 
 
+def jittered(S: np.ndarray) -> np.ndarray:
+    """S symmetrised, plus a relative jitter on the diagonal that keeps it invertible for exact (R = 0) or
+    repeated via points."""
+    return 0.5 * (S + S.T) + 1e-12 * (np.trace(S) / len(S) + 1e-300) * np.eye(len(S))
+
+
 def _kalman(mu_w, Sigma_w, O, y, R):
-    """(C1)-(C2); a tiny jitter keeps S invertible for exact (R = 0) or repeated via points."""
-    S = O @ Sigma_w @ O.T + R
-    S = 0.5 * (S + S.T) + 1e-12 * (np.trace(S) / len(S) + 1e-300) * np.eye(len(S))
+    """(C1)-(C2)."""
+    S = jittered(O @ Sigma_w @ O.T + R)
     K = np.linalg.solve(S, O @ Sigma_w).T
     mu = mu_w + K @ (y - O @ mu_w)
     A = np.eye(len(mu_w)) - K @ O
@@ -68,7 +73,7 @@ def condition_on_joint(promp, t_s, q_mean, q_cov, qd_mean, qd_cov, duration_s):
             if cov is not None:
                 raise ValueError(f"{name}_cov given without {name}_mean")
             continue
-        rows.append(_block(feat, D))
+        rows.append(block(feat, D))
         ys.append(check_array(mean, f"{name}_mean", (D,), finite=True))
         covs.append(np.zeros((D, D)) if cov is None else check_covariance(cov, f"{name}_cov", D))
     if not rows:
@@ -106,7 +111,7 @@ def condition_on_task(promp, t_s, x_target, x_cov, fk, jacobian, iterations, tol
         raise ValueError(f"iterations must be a positive integer, got {iterations!r}")
     tol = check_positive(tol, "tol", allow_zero=True)
     z, _ = promp.phase(_scalar_time(t_s), duration_s=duration_s)
-    Psi = _block(promp.basis(z)[0], D)  # (D, d)
+    Psi = block(promp.basis(z)[0], D)  # (D, d)
     mu0, S0 = np.asarray(promp.mu_w), np.asarray(promp.Sigma_w)
     w = mu0.copy()
     f, J = eval_kinematics(fk, jacobian, Psi @ w, D)
@@ -114,8 +119,7 @@ def condition_on_task(promp, t_s, x_target, x_cov, fk, jacobian, iterations, tol
         raise ValueError(f"fk(q) returns {f.shape[1]} values but x_target has {m}")
     for _ in range(int(iterations)):
         H = J[0] @ Psi
-        S = H @ S0 @ H.T + R
-        S = 0.5 * (S + S.T) + 1e-12 * (np.trace(S) / m + 1e-300) * np.eye(m)
+        S = jittered(H @ S0 @ H.T + R)
         K = np.linalg.solve(S, H @ S0).T
         w_new = mu0 + K @ (x_target - f[0] - H @ (mu0 - w))  # (C3)
         step = float(np.linalg.norm(Psi @ (w_new - w)))
@@ -126,8 +130,7 @@ def condition_on_task(promp, t_s, x_target, x_cov, fk, jacobian, iterations, tol
         if step <= tol:
             break
     H = J[0] @ Psi
-    S = H @ S0 @ H.T + R
-    S = 0.5 * (S + S.T) + 1e-12 * (np.trace(S) / m + 1e-300) * np.eye(m)
+    S = jittered(H @ S0 @ H.T + R)
     K = np.linalg.solve(S, H @ S0).T
     A = np.eye(len(w)) - K @ H
     cov = A @ S0 @ A.T + K @ R @ K.T  # (C2) at the last linearisation

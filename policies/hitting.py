@@ -99,6 +99,12 @@ class PolicyStep:
     plan: HitPlan | None = None
     reason: str = ""
 
+    @property
+    def planned(self) -> bool:
+        """The step did planning work: it made a plan, or failed to with a reason other than
+        :data:`NO_PREDICTION` (not a step skipped by the re-plan period, not one before any prediction)."""
+        return self.plan is not None or self.reason not in ("", NO_PREDICTION)
+
 
 def _check_prediction(pred, m: int):
     """The filter's prediction (duck-typed: t_s, position_m, velocity_mps, covariance_m2) as arrays."""

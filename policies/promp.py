@@ -125,14 +125,16 @@ class ProMP:
         return phi, dphi * rate
 
     # ------------------------------------------------------------------ evaluation
-    def mean_trajectory(self, t_s=None, *, phase=None, duration_s=None) -> tuple[np.ndarray, np.ndarray]:
+    def mean_trajectory(self, t_s=None, *, phase=None, duration_s=None, weights=None) -> tuple[np.ndarray, np.ndarray]:
         """Mean positions and velocities.
 
+        weights : (n_weights,) joint-major weights to evaluate instead of :attr:`mu_w` (e.g. a conditioned
+            mean computed without building a new ProMP; trusted: the caller's own array)
         returns q (n, n_dims) rad, qd (n, n_dims) rad/s
         """
         z, rate = self.phase(t_s, phase=phase, duration_s=duration_s)
         phi, dphi = self._features(z, rate)
-        W = self.mu_w.reshape(self.n_dims, -1).T  # (K, D)
+        W = (self.mu_w if weights is None else np.asarray(weights, float)).reshape(self.n_dims, -1).T  # (K, D)
         return phi @ W, dphi @ W
 
     def covariance(self, t_s=None, *, phase=None, duration_s=None, include_noise: bool = False) -> np.ndarray:

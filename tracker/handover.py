@@ -85,10 +85,11 @@ class SupportHandover:
         """
         inliers = np.isfinite(uv_used_px[:, 0])
         d = self.offset(t_s, inliers)
-        key = tuple(np.flatnonzero(inliers).tolist())
-        if d is not None and not float(np.linalg.norm(X_m + d - self._episodes[key][1])) <= self.max_travel_m:
-            d = None  # moved too far from where the offset was measured
-            del self._episodes[key]
+        if d is not None:
+            key = tuple(np.flatnonzero(inliers).tolist())  # offset() has just kept this episode
+            if not float(np.linalg.norm(X_m + d - self._episodes[key][1])) <= self.max_travel_m:
+                d = None  # moved too far from where the offset was measured
+                del self._episodes[key]
         if d is not None:
             X_m = X_m + d
         if confirmed:

@@ -23,12 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from policies.hitting import NO_PREDICTION
+from policies.hitting import PLANNERS
 
 __all__ = ["GOAL_P95_MS", "add_arguments", "bench_policy", "format_table", "run"]
 
 GOAL_P95_MS = 30.0  #: rt2 play --plan-latency-ms 30: 89/100 against 90/100 at 0 (README, planning time)
-PLANNERS = ("fast", "reference")
 
 
 class _TimedPolicy:
@@ -45,7 +44,7 @@ class _TimedPolicy:
         t0 = time.perf_counter_ns()
         step = self._policy.step(t_now_s, predict, wam)
         took = time.perf_counter_ns() - t0
-        if step.plan is not None or step.reason not in ("", NO_PREDICTION):  # planned (not skipped, not before a prediction)
+        if step.planned:
             self._times[kind].append(took / 1e6)
         return step
 
@@ -59,8 +58,8 @@ def bench_policy(balls: int = 10, seed: int = 0, *, tracker: str = "rt2", filter
     from harness.experiments.play.experiment import PlayConfig, _build, ball_seeds
     from harness.sim.launcher import BallLauncher
 
-    if balls < 1:
-        raise ValueError(f"--balls must be >= 1, got {balls}")
+    if balls < 2:
+        raise ValueError(f"--balls must be >= 2 (the first ball's steps are left out), got {balls}")
     threadpool_limits(1)  # as the play workers and the live policy process: one core
     sessions, out = {}, {}
     for planner in PLANNERS:
@@ -142,8 +141,6 @@ def run(args) -> int:
 
     if args.filter not in FILTERS:
         raise ValueError(f"unknown --filter {args.filter!r}; valid: {sorted(FILTERS)}")
-    if args.balls < 2:
-        raise ValueError(f"--balls must be >= 2 (the first ball's steps are left out), got {args.balls}")
     rows = summarise(bench_policy(args.balls, args.seed, filter_name=args.filter, progress=not args.no_progress))
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     print(f"Planning steps of the hitting policy (rt2 + {args.filter}, synthetic source, seed {args.seed}, "

@@ -144,7 +144,7 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, player: LivePolicy, ba
     LinkLostError (the run so far is in the exception's ``run`` attribute)."""
     from harness.experiments.play.session import BallRecord, ball_result
     from harness.link.client import LinkLostError
-    from policies.hitting import NO_PREDICTION, PolicyStatus
+    from policies.hitting import PolicyStatus
 
     policy, filt = player.policy, player.ball_filter
     run = LiveRun(warm_up_s=player.warm_up_s)
@@ -261,7 +261,7 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, player: LivePolicy, ba
 
                 logging.getLogger("rt2.play.live").warning("ball %d: %s", cur["index"], exc)
             took = time.perf_counter() - t0
-            if step is None or step.plan is not None or step.reason not in ("", NO_PREDICTION):  # a planning step
+            if step is None or step.planned:  # a planning step (step None: the robot refused its command)
                 plan_times[kind].append(took)
                 run.plan_step_ms.append(took * 1e3)
                 if kind == "first":
