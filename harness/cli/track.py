@@ -134,8 +134,11 @@ def run(args) -> int:
     if service.log is not None:
         where.append(f"log {service.log.path}")
     if getattr(args, "ready_json", False):
-        print(json.dumps({"streams": dict(service.publisher.addresses if service.publisher else {}),
-                          "tracker": args.tracker, "rig": str(args.rig), "pid": os.getpid()}), flush=True)
+        ready = {"streams": dict(service.publisher.addresses if service.publisher else {}),
+                 "tracker": args.tracker, "rig": str(args.rig), "pid": os.getpid()}
+        if service.view is not None:
+            ready["live_view"] = f"ws://{args.foxglove_host}:{service.view.port}"
+        print(json.dumps(ready), flush=True)
     else:
         print(f"rt2 track: {args.tracker} on {' '.join(args.source)} ({len(service.rig)} cameras, rig {args.rig}): "
               + ("; ".join(where) or "nothing published"), flush=True)

@@ -1,6 +1,10 @@
 """Live view of ``rt2 track`` in Foxglove / Lichtblick, through the foxglove-sdk WebSocket server.
 
-Open Foxglove (or Lichtblick), "Open connection", ``ws://127.0.0.1:8765``. Topics (the session
+Open Foxglove (or Lichtblick), "Open connection", ``ws://127.0.0.1:8765``. The port takes both
+WebSocket subprotocols, ``foxglove.sdk.v1`` (Foxglove's current apps) and the classic
+``foxglove.websocket.v1`` (Lichtblick, older Foxglove apps, Foxglove's ``ws-protocol`` clients): a
+front (:class:`~harness.live.ws_subprotocols.SubprotocolFront`) listens there and hands each
+connection to the SDK server on a loopback port. Topics (the session
 log's names and schemas, docs/logging.md, so a layout made for logs works live):
 
     /camera/<camera>/image        foxglove.CompressedImage (JPEG), throttled to ``image_rate_hz``
@@ -31,6 +35,7 @@ from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
+from harness.live.ws_subprotocols import SubprotocolFront
 from harness.logs import codecs, scene, topics
 
 __all__ = ["LiveView", "ViewOptions", "ball_scene"]
@@ -99,10 +104,15 @@ class LiveView:
         self.rig, self.kind, self.names = rig, kind, rig.names
         self._ctx = foxglove.Context()
         try:
-            self._server = foxglove.start_server(name="rt2 track", host=o.host, port=o.port, context=self._ctx)
+            self._server = foxglove.start_server(name="rt2 track", host="127.0.0.1", port=0, context=self._ctx)
         except RuntimeError as exc:
+            raise ValueError(f"cannot start the Foxglove live view's server on 127.0.0.1: {exc}") from None
+        try:  # the user's port takes both subprotocols (ws_subprotocols.py); the SDK server stays on loopback
+            self._front = SubprotocolFront(o.host, o.port, self._server.port)
+        except OSError as exc:
+            self._server.stop()
             raise ValueError(f"cannot start the Foxglove live view on {o.host}:{o.port}: {exc}") from None
-        self.port = self._server.port
+        self.port = self._front.port
         ch = lambda topic, cls: _proto_channel(foxglove, self._ctx, topic, cls)  # noqa: E731
         self._img = [ch(topics.image_topic(c), CompressedImage) for c in self.names]
         self._ann = [ch(topics.annotations_topic(c), ImageAnnotations) for c in self.names]
@@ -198,7 +208,8 @@ class LiveView:
         self._stop.set()
         self._wake.set()
         self._thread.join(timeout=2.0)
-        self._server.stop()
+        self._server.stop()  # its close frames still pass the front
+        self._front.close()
 
     def __enter__(self) -> "LiveView":
         return self

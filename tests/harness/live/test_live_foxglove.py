@@ -20,17 +20,19 @@ websockets = pytest.importorskip("websockets")
 SUBPROTOCOL = "foxglove.sdk.v1"
 
 
-async def _receive(port: int, topics: list[str], timeout_s: float = 20.0) -> dict:
-    """Connect, wait for the advertised channels, subscribe to ``topics``; returns {topic: payload bytes}
-    of the first message of each."""
-    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL]) as ws:
+async def _receive(port: int, topics: list[str] | None, timeout_s: float = 20.0, subprotocol: str = SUBPROTOCOL) -> dict:
+    """Connect offering ``subprotocol``, wait for the advertised channels, subscribe to ``topics`` (None: every
+    advertised one); returns {topic: payload bytes} of the first message of each, the channels and the
+    subprotocol the server chose."""
+    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[subprotocol]) as ws:
         channels = {}
-        while not all(t in channels for t in topics):
+        while not channels or (topics is not None and not all(t in channels for t in topics)):
             msg = await asyncio.wait_for(ws.recv(), timeout_s)
             if isinstance(msg, str):
                 doc = json.loads(msg)
                 if doc["op"] == "advertise":
                     channels.update({c["topic"]: c for c in doc["channels"]})
+        topics = sorted(channels) if topics is None else topics
         subs = {i + 1: t for i, t in enumerate(topics)}
         await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": channels[t]["id"]} for i, t in subs.items()]}))
         got = {}
@@ -39,12 +41,11 @@ async def _receive(port: int, topics: list[str], timeout_s: float = 20.0) -> dic
             if isinstance(msg, bytes) and msg[0] == 0x01:  # message data: op, subscription id (u32), log time (u64), payload
                 sub = int.from_bytes(msg[1:5], "little")
                 got.setdefault(subs[sub], msg[13:])
-        return {"payloads": got, "channels": channels}
+        return {"payloads": got, "channels": channels, "subprotocol": ws.subprotocol}
 
 
-def test_websocket_client_subscribes_and_receives_scene_and_image():
-    rendered_images()
-    rig = lab_rig()
+def _fed_view(rig, topics, subprotocol=SUBPROTOCOL) -> dict:
+    """A live view fed by the tracker on rendered frames while a client offering ``subprotocol`` receives ``topics``."""
     view = LiveView(rig, "rt2", ViewOptions(port=0, image_rate_hz=20))
     stop = threading.Event()
 
@@ -59,11 +60,17 @@ def test_websocket_client_subscribes_and_receives_scene_and_image():
     th = threading.Thread(target=feed)
     th.start()
     try:
-        r = asyncio.run(_receive(view.port, ["/scene/balls", "/camera/cam0/image", "/scene/static"]))
+        return asyncio.run(_receive(view.port, topics, subprotocol=subprotocol))
     finally:
         stop.set()
         th.join()
         view.close()
+
+
+def test_websocket_client_subscribes_and_receives_scene_and_image():
+    rendered_images()
+    rig = lab_rig()
+    r = _fed_view(rig, ["/scene/balls", "/camera/cam0/image", "/scene/static"])
     ch = r["channels"]
     assert ch["/scene/balls"]["schemaName"] == "foxglove.SceneUpdate" and ch["/scene/balls"]["encoding"] == "protobuf"
     assert {f"/camera/{c}/annotations" for c in rig.names} <= set(ch) and "/tracker/rt2/ball" in ch
@@ -98,3 +105,18 @@ def test_view_without_clients_costs_the_loop_nothing():
         for k in range(2000):
             view.update(k, afs, obs, info)
         assert time.perf_counter() - t0 < 0.5
+
+
+@pytest.mark.parametrize("subprotocol", ["foxglove.sdk.v1", "foxglove.websocket.v1"])
+def test_each_subprotocol_receives_every_advertised_channel(subprotocol):
+    """Foxglove's current apps offer ``foxglove.sdk.v1``; Lichtblick and the ws-protocol clients offer only the
+    classic ``foxglove.websocket.v1``: both are accepted on the one port, answered with the name they offered,
+    and a client subscribed to every advertised channel receives a message on each."""
+    rendered_images()
+    rig = lab_rig()
+    r = _fed_view(rig, None, subprotocol)
+    assert r["subprotocol"] == subprotocol
+    expected = {f"/camera/{c}/{k}" for c in rig.names for k in ("image", "annotations", "calibration")}
+    expected |= {"/scene/balls", "/scene/static", "/tf_static", "/tracker/rt2/ball"}
+    assert set(r["channels"]) == expected
+    assert set(r["payloads"]) == expected and all(len(p) > 0 for p in r["payloads"].values())
