@@ -100,10 +100,12 @@ def _as_rows(value, n: int) -> np.ndarray:
 
 
 # -- reading -------------------------------------------------------------------------------------
-def read_coco(path) -> list[LabelledImage]:
+def read_coco(path, *, image_root=None) -> list[LabelledImage]:
     """Read ball labels from a COCO JSON file, or from a folder holding ``annotations.json``.
 
     path : the JSON file or its folder; image ``file_name`` entries are relative to the JSON's folder
+    image_root : the folder ``file_name`` is relative to instead (CVAT's COCO export keeps the JSON in
+        ``annotations/`` and the images in ``images/``)
     returns one :class:`LabelledImage` per entry of ``images`` (in file order; boxes in annotation order)
 
     Raises ``ValueError`` naming the file, the field (and annotation / image id) for: invalid JSON,
@@ -128,7 +130,7 @@ def read_coco(path) -> list[LabelledImage]:
             raise ValueError(f"{src}: field {key!r} must be a list, got {type(data[key]).__name__}")
 
     ball_ids = _ball_category_ids(data["categories"], src)
-    root = json_path.parent
+    root = json_path.parent if image_root is None else Path(image_root)
     images: dict = {}
     order = []
     for i, im in enumerate(data["images"]):

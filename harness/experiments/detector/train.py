@@ -462,7 +462,11 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
 
 # -- command line ----------------------------------------------------------------------------------
 def add_arguments(parser) -> None:
-    parser.add_argument("--data", nargs="+", required=True, help="COCO sets: folders holding annotations.json, or COCO JSON files")
+    from harness.experiments.detector.labels import LABEL_FORMATS
+
+    parser.add_argument("--data", nargs="+", required=True, help="labelled sets (any --label-format): COCO folders or JSON files, YOLO data.yaml, labelme, CVAT XML, Label Studio JSON")
+    parser.add_argument("--label-format", choices=("auto", *LABEL_FORMATS), default="auto",
+                        help="format of the --data labels (default auto: found from the files; README 'Label formats')")
     parser.add_argument("--out", required=True, help="weights file to write (.npz)")
     parser.add_argument("--epochs", type=int, default=TrainOptions.epochs)
     parser.add_argument("--seed", type=int, default=0)
@@ -480,7 +484,7 @@ def run(args) -> int:
     import shlex
     import sys
 
-    from harness.experiments.detector.coco import read_coco
+    from harness.experiments.detector.labels import read_labels
 
     from harness.common.outputs import atomic_path, check_output_file
 
@@ -488,7 +492,7 @@ def run(args) -> int:
     if out.suffix != ".npz":
         raise ValueError(f"--out must end in .npz, got {args.out!r}")
     check_output_file(out, "--out")  # before the training, not after
-    labelled = [li for path in args.data for li in read_coco(path)]
+    labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if args.max_images is not None:
         labelled = labelled[: args.max_images]
     opts = TrainOptions(epochs=args.epochs, seed=args.seed, val_fraction=args.val_fraction, input_transform=args.input_transform,

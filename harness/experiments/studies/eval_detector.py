@@ -126,8 +126,24 @@ def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80)) -
     return path
 
 
+def failure_sheet(model, labelled, path, *, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None):
+    """Write the contact sheet of misses and false alarms (harness/experiments/detector/failures.py) of the
+    top-K detector on ``labelled`` to ``path``; returns (path, misses, false alarms)."""
+    from harness.experiments.detector.failures import contact_sheet
+    from harness.experiments.detector.train import load_image
+    from tracker import BallDetector, DetectorOptions
+
+    ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low))
+    dets = [ours.detect(load_image(li)) for li in labelled]
+    return contact_sheet(labelled, [d.uv_px for d in dets], [d.boxes_xywh for d in dets], path, min_diameter_px=min_diameter_px)
+
+
 def add_arguments(parser) -> None:
-    parser.add_argument("--data", nargs="+", required=True, help="held-out COCO sets: folders with annotations.json, or JSON files")
+    from harness.experiments.detector.labels import LABEL_FORMATS
+
+    parser.add_argument("--data", nargs="+", required=True, help="labelled sets (any --label-format): held-out COCO folders or JSON files, YOLO data.yaml, labelme, CVAT XML, Label Studio JSON")
+    parser.add_argument("--label-format", choices=("auto", *LABEL_FORMATS), default="auto",
+                        help="format of the --data labels (default auto: found from the files; README 'Label formats')")
     parser.add_argument("--model", default=str(DEFAULT_MODEL), help="weights file (.npz; default: the shipped model)")
     parser.add_argument("--json", default=None, help="also write the figures as JSON to this path")
     parser.add_argument("--max-candidates", type=int, default=4, help="K of the top-K detector (default 4)")
@@ -138,11 +154,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--t-high", type=float, default=None, help="Algorithm 1's T_h, a probability (default: the model's recommended one)")
     parser.add_argument("--t-low", type=float, default=None, help="Algorithm 1's T_l, a probability (default: the model's recommended one)")
     parser.add_argument("--max-images", type=int, default=None, help="evaluate only the first N images")
-    parser.add_argument("--figure", default=None, help="also draw the probability-image figure (image, B, detection) to this PNG")
+    parser.add_argument("--figure", default=None, help="also draw the probability-image figure (image, B, detection) to this PNG, "
+                                                        "and the contact sheet of misses and false alarms beside it (NAME_failures.png)")
 
 
 def run(args) -> int:
-    from harness.experiments.detector.coco import read_coco
+    from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.train import select_ball_colour
     from tracker import BallSegmentationModel
 
@@ -150,8 +167,10 @@ def run(args) -> int:
 
     check_output_file(args.json, "--json")  # before the evaluation, not after
     check_output_file(args.figure, "--figure")
+    sheet = None if args.figure is None else str(Path(args.figure).with_name(Path(args.figure).stem + "_failures.png"))
+    check_output_file(sheet, "--figure")
     model = BallSegmentationModel.load(args.model)
-    labelled = [li for path in args.data for li in read_coco(path)]
+    labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if args.max_images is not None:
         labelled = labelled[: args.max_images]
     if not labelled:
@@ -179,4 +198,7 @@ def run(args) -> int:
         atomic_write_json(args.json, [s.as_json() for s in scores], "--json")
     if args.figure:
         print(f"wrote {probability_figure(model, labelled, args.figure)}")
+        path, n_miss, n_alarm = failure_sheet(model, labelled, sheet, max_candidates=args.max_candidates,
+                                              min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low)
+        print(f"wrote {path}: contact sheet of {n_miss} misses and {n_alarm} false alarms")
     return 0
