@@ -305,6 +305,8 @@ HOSTILE = [
      r"instances_default\.json: field 'categories' has no 'ball' category"),
     ("auto: unknown JSON", lambda t: _file(t, "x.json", '{"hello": 1}') / "x.json",
      r"x\.json: a JSON file in no label format rt2 reads"),
+    ("labelstudio: JSON-MIN export", lambda t: _file(t, "min.json", json.dumps([{"image": "/data/upload/1/a.png", "id": 1, "label": []}])) / "min.json",
+     r"min\.json: tasks without field 'data': this looks like Label Studio's JSON-MIN export"),
     ("auto: empty folder", lambda t: (t.mkdir(exist_ok=True), t)[1], r"cannot tell the label format"),
     ("auto: no such path", lambda t: t / "nope", r"nope: no such file or folder"),
 ]

@@ -101,6 +101,9 @@ def _json_kind(path: Path, *, strict: bool = False) -> str | None:
     if isinstance(doc, list) and doc and all(isinstance(t, dict) for t in doc[:10]) and any(
             k in doc[0] for k in ("data", "annotations", "completions", "predictions")):
         return "labelstudio"
+    if strict and isinstance(doc, list) and doc and isinstance(doc[0], dict) and "image" in doc[0]:
+        raise LabelError(f"{path}: tasks without field 'data': this looks like Label Studio's JSON-MIN export; "
+                         "export as 'JSON' (the full export, with annotations) instead")
     return None
 
 
