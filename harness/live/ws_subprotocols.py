@@ -11,7 +11,9 @@ every connection to the SDK server on a loopback port:
   if it offers ``foxglove.websocket.v1`` but not ``foxglove.sdk.v1``, the offer is renamed to
   ``foxglove.sdk.v1`` before it goes on, and the server's answer is renamed back, so the client sees
   the name it asked for (``Sec-WebSocket-Accept`` depends only on the key, so it stays valid);
-* from then on the bytes pass unchanged both ways (one thread per direction).
+* from then on the bytes pass unchanged both ways (one thread per direction); the server's first frames
+  go on 50 ms after its answer, not in the same read (a client that attaches its handlers on the open
+  event, as Foxglove's ``mcap-record`` does, would lose them).
 
 A request that offers ``foxglove.sdk.v1`` (or anything else) passes unchanged, so the SDK server
 keeps deciding what it accepts. A request that never ends its header, or one too long, gets
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import socket
 import threading
+import time
 
 __all__ = ["CLASSIC", "MAX_HEADER_BYTES", "SDK", "SubprotocolFront"]
 
@@ -30,6 +33,7 @@ SDK = "foxglove.sdk.v1"
 MAX_HEADER_BYTES = 16 * 1024
 _HEADER_END = b"\r\n\r\n"
 _PROTOCOL_HEADER = b"sec-websocket-protocol"
+_AFTER_HANDSHAKE_S = 0.05
 _BAD_REQUEST = b"HTTP/1.1 400 Bad Request\r\nConnection: close\r\nContent-Length: 0\r\n\r\n"
 
 
@@ -137,11 +141,15 @@ class SubprotocolFront:
             reply, rest = answer
             if classic:
                 reply = rename_protocol(reply, SDK, CLASSIC)
-            client.sendall(reply + rest)
+            client.sendall(reply)
+            # The server's first frames (serverInfo, advertise) follow its answer by microseconds; a client that
+            # reads both in one chunk and attaches its handlers on the open event (Foxglove's mcap-record does)
+            # loses them. They go on no sooner than _AFTER_HANDSHAKE_S after the answer.
+            not_before = time.monotonic() + _AFTER_HANDSHAKE_S
             self.connections["classic" if classic else "passed"] += 1
             client.settimeout(None)
             upstream.settimeout(None)
-            back = threading.Thread(target=_pump, args=(upstream, client), name="rt2-ws-pump", daemon=True)
+            back = threading.Thread(target=_pump, args=(upstream, client, rest, not_before), name="rt2-ws-pump", daemon=True)
             back.start()
             _pump(client, upstream)
             back.join()
@@ -168,14 +176,15 @@ class SubprotocolFront:
         self._thread.join(timeout=2.0)
 
 
-def _pump(src: socket.socket, dst: socket.socket) -> None:
-    """Copy ``src`` to ``dst`` until ``src`` ends; then end ``dst``'s sending side."""
+def _pump(src: socket.socket, dst: socket.socket, first: bytes = b"", not_before: float = 0.0) -> None:
+    """Copy ``first``, then ``src``, to ``dst`` until ``src`` ends (nothing before ``time.monotonic()`` reaches
+    ``not_before``); then end ``dst``'s sending side."""
     try:
-        while True:
-            data = src.recv(65536)
-            if not data:
-                break
+        data = first or src.recv(65536)
+        time.sleep(max(0.0, not_before - time.monotonic()))
+        while data:
             dst.sendall(data)
+            data = src.recv(65536)
     except OSError:
         pass
     finally:

@@ -152,3 +152,18 @@ def test_foxglove_classic_client_records_every_channel_of_rt2_track(tmp_path):
     assert set(topics) == expected and all(t["count"] > 0 for t in topics.values()), topics
     assert topics["/camera/cam0/image"]["schema"] == "foxglove.CompressedImage"
     assert topics["/scene/balls"]["schema"] == "foxglove.SceneUpdate"
+
+
+def test_first_frames_follow_the_handshake_apart(front):
+    """The server's serverInfo comes microseconds after its 101; the front holds it back 50 ms, so a client that
+    attaches its handlers on the open event (Foxglove's mcap-record) never reads both in one chunk and loses it."""
+    with socket.create_connection(("127.0.0.1", front.port), timeout=10) as s:
+        s.sendall(_upgrade(CLASSIC))
+        buf = b""
+        while b"\r\n\r\n" not in buf:
+            buf += s.recv(4096)
+        t_head = time.monotonic()
+        assert buf.endswith(b"\r\n\r\n")  # nothing of the first frame with the handshake
+        first = s.recv(4096)
+        assert time.monotonic() - t_head >= 0.03 and first[:1] == b"\x81"  # a text frame: serverInfo
+        assert b"serverInfo" in first
