@@ -148,6 +148,13 @@ def test_ultralytics_yolo_layout(tmp_path):
     np.testing.assert_allclose(got[0].boxes_xywh, [[152.0, 232.0, 16.0, 16.0]], atol=1e-3)
 
 
+def test_yolo_segmentation_polygon_is_read_as_its_box(tmp_path):
+    _roboflow_yolo(tmp_path)
+    (tmp_path / "train/labels/f0001.txt").write_text("1 0.5 0.5 0.5125 0.5 0.5 0.5166666 0.4875 0.5\n")
+    got = read_labels(tmp_path)
+    np.testing.assert_allclose(got[0].boxes_xywh, [[312.0, 240.0, 16.0, 8.0]], atol=1e-3)
+
+
 def test_labelme_file(tmp_path):
     folder = _labelme(tmp_path)
     assert detect_format(folder) == "labelme" and detect_format(folder / "f1.json") == "labelme"
@@ -243,6 +250,8 @@ HOSTILE = [
      r"data\.yaml: field 'train' names 'nowhere', which does not exist"),
     ("yolo: four fields", lambda t: (_roboflow_yolo(t), (t / "train/labels/f0001.txt").write_text("1 0.5 0.5 0.1\n"))[0],
      r"f0001\.txt: line 1: expected 5 fields"),
+    ("yolo: six fields", lambda t: (_roboflow_yolo(t), (t / "train/labels/f0001.txt").write_text("1 0.5 0.5 0.1 0.1 0.9\n"))[0],
+     r"f0001\.txt: line 1: expected 5 fields .* got 6"),
     ("yolo: class not a number", lambda t: (_roboflow_yolo(t), (t / "train/labels/f0001.txt").write_text("b 0.5 0.5 0.1 0.1\n"))[0],
      r"f0001\.txt: line 1: field 'class' must be an integer"),
     ("yolo: class out of range", lambda t: (_roboflow_yolo(t), (t / "train/labels/f0001.txt").write_text("7 0.5 0.5 0.1 0.1\n"))[0],

@@ -10,6 +10,7 @@ A data set is a ``data.yaml`` and one text file of labels per image::
 
     # labels/train/frame_000123.txt (the image's path with its last /images/ replaced by /labels/, .txt):
     0 0.512 0.433 0.0125 0.0167      # class  x_centre y_centre width height, all as fractions of the image
+    0 0.50 0.42 0.52 0.43 0.51 0.44  # or a polygon (segmentation export): its bounding box is read
 
 An image without a label file, or with an empty one, has no ball (a background image). Only the class
 named ``ball`` is read. Every split (train, val, test) is read; an image in several splits once; a
@@ -141,15 +142,24 @@ def _read_label_file(txt: Path, ball: int, nc: int, width: int, height: int) -> 
         if not fields:
             continue
         where = f"{txt}: line {n}"
-        if len(fields) != 5:
-            raise LabelError(f"{where}: expected 5 fields 'class x_centre y_centre width height', got {len(fields)}: {short(line)}")
+        polygon = len(fields) >= 7 and len(fields) % 2 == 1  # segmentation: class x1 y1 x2 y2 x3 y3 ...
+        if len(fields) != 5 and not polygon:
+            raise LabelError(f"{where}: expected 5 fields 'class x_centre y_centre width height' (or a polygon "
+                             f"'class x1 y1 x2 y2 x3 y3 ...'), got {len(fields)}: {short(line)}")
         try:
             cls = int(fields[0])
         except ValueError:
             raise LabelError(f"{where}: field 'class' must be an integer class id, got {short(fields[0])}") from None
         if not 0 <= cls < nc:
             raise LabelError(f"{where}: field 'class' {cls} is not a class of data.yaml (0..{nc - 1})")
-        xc, yc, w, h = (number(v, where, f) for v, f in zip(fields[1:], ("x_centre", "y_centre", "width", "height")))
+        if polygon:  # its bounding box, as Ultralytics makes of a segment for detection
+            xy = [number(v, where, "x" if k % 2 == 0 else "y") for k, v in enumerate(fields[1:])]
+            if max(abs(v) for v in xy) > 1.0 + 1e-6:
+                raise LabelError(f"{where}: polygon points must be fractions of the image (0..1), got {short(line)}")
+            xs, ys = xy[0::2], xy[1::2]
+            xc, yc, w, h = (min(xs) + max(xs)) / 2, (min(ys) + max(ys)) / 2, max(xs) - min(xs), max(ys) - min(ys)
+        else:
+            xc, yc, w, h = (number(v, where, f) for v, f in zip(fields[1:], ("x_centre", "y_centre", "width", "height")))
         if max(abs(xc), abs(yc), abs(w), abs(h)) > 1.0 + 1e-6:
             raise LabelError(f"{where}: fields x_centre y_centre width height must be fractions of the image (0..1), got {short(line)}")
         if cls == ball:
