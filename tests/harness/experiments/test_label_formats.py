@@ -148,6 +148,25 @@ def test_ultralytics_yolo_layout(tmp_path):
     np.testing.assert_allclose(got[0].boxes_xywh, [[152.0, 232.0, 16.0, 16.0]], atol=1e-3)
 
 
+def _cvat_yolo11(root: Path) -> Path:
+    """CVAT's "YOLO 1.1" (Darknet) export: obj.data, obj.names, obj_train_data/ with images and labels, train.txt."""
+    _png(root / "obj_train_data" / "frame_000000.png")
+    _png(root / "obj_train_data" / "frame_000001.png")
+    (root / "obj_train_data" / "frame_000000.txt").write_text("0 0.500000 0.500000 0.012500 0.016667\n1 0.1 0.1 0.1 0.1\n")
+    (root / "obj_train_data" / "frame_000001.txt").write_text("")
+    (root / "obj.names").write_text("ball\nracket\n")
+    (root / "obj.data").write_text("classes = 2\ntrain = data/train.txt\nnames = data/obj.names\nbackup = backup/\n")
+    (root / "train.txt").write_text("data/obj_train_data/frame_000000.png\ndata/obj_train_data/frame_000001.png\n")
+    return root
+
+
+def test_cvat_yolo_1_1_darknet_export(tmp_path):
+    assert detect_format(_cvat_yolo11(tmp_path)) == "yolo" and detect_format(tmp_path / "obj.data") == "yolo"
+    a, b = read_labels(tmp_path)
+    np.testing.assert_allclose(a.boxes_xywh, [[316.0, 236.0, 8.0, 8.0]], atol=1e-3)
+    assert b.n_balls == 0 and b.path.name == "frame_000001.png"
+
+
 def test_yolo_segmentation_polygon_is_read_as_its_box(tmp_path):
     _roboflow_yolo(tmp_path)
     (tmp_path / "train/labels/f0001.txt").write_text("1 0.5 0.5 0.5125 0.5 0.5 0.5166666 0.4875 0.5\n")
@@ -264,6 +283,11 @@ HOSTILE = [
      r"f0001\.txt: line 1: field 'box' .* outside the 640x480 image"),
     ("yolo: yaml alias bomb", lambda t: (_roboflow_yolo(t), (t / "data.yaml").write_text("a: &a [1]\nnames: *a\n"))[0],
      r"data\.yaml: not valid YAML: .*aliases"),
+    ("yolo 1.1: no names file", lambda t: (_cvat_yolo11(t), (t / "obj.names").unlink())[0], r"obj\.data: field 'names' names 'data/obj\.names', which does not exist"),
+    ("yolo 1.1: no ball in obj.names", lambda t: (_cvat_yolo11(t), (t / "obj.names").write_text("racket\n"))[0], r"obj\.names: field 'names' has no 'ball' class"),
+    ("yolo 1.1: obj.data line", lambda t: (_cvat_yolo11(t), (t / "obj.data").write_text("names obj.names\n"))[0], r"obj\.data: line 1: expected 'key = value'"),
+    ("yolo 1.1: listed image missing", lambda t: (_cvat_yolo11(t), (t / "obj_train_data" / "frame_000001.png").unlink())[0],
+     r"train\.txt: lists 'data/obj_train_data/frame_000001\.png', which does not exist"),
     ("labelme: no imagePath", lambda t: _mutate_json(_labelme(t) / "f1.json", lambda d: d.pop("imagePath")), r"f1\.json: missing field 'imagePath'"),
     ("labelme: image missing", lambda t: _mutate_json(_labelme(t) / "f1.json", lambda d: d.update(imagePath="..\\img\\gone.png")),
      r"f1\.json: field 'imagePath' names .*gone\.png.*which does not exist"),

@@ -5,7 +5,8 @@ format     what it reads                                                        
 ========== ==================================================================================== ============
 coco       COCO JSON (``annotations.json``; CVAT's "COCO 1.0" ``annotations/instances_*.json``   coco.py
            with ``images/``; Label Studio's and Roboflow's COCO exports)
-yolo       ``data.yaml`` + one ``.txt`` per image (Ultralytics, Roboflow, CVAT "YOLOv8")         yolo.py
+yolo       ``data.yaml`` + one ``.txt`` per image (Ultralytics, Roboflow, CVAT "YOLOv8"); also     yolo.py
+           Darknet's ``obj.data`` + ``obj.names`` (CVAT "YOLO 1.1")
 labelme    one labelme JSON per image                                                           labelme.py
 cvat       CVAT for images 1.1 XML (``annotations.xml`` + ``images/``)                          cvat.py
 labelstudio Label Studio's JSON export (a list of tasks)                                        labelstudio.py
@@ -30,7 +31,7 @@ from harness.experiments.detector.labels.common import LabelError, place_images
 from harness.experiments.detector.labels.cvat import ANNOTATIONS_XML, read_cvat, write_cvat
 from harness.experiments.detector.labels.labelme import is_labelme, read_labelme, write_labelme
 from harness.experiments.detector.labels.labelstudio import is_labelstudio, read_labelstudio, write_labelstudio
-from harness.experiments.detector.labels.yolo import DATA_YAML, read_yolo, write_yolo
+from harness.experiments.detector.labels.yolo import DARKNET_DATA, DATA_YAML, read_yolo, write_yolo
 
 __all__ = ["LABEL_FORMATS", "LabelError", "LabelFormat", "detect_format", "read_labels", "write_labels"]
 
@@ -114,7 +115,7 @@ def detect_format(path) -> str:
         raise LabelError(f"{path}: no such file or folder")
     if path.is_file():
         suffix = path.suffix.lower()
-        if suffix in (".yaml", ".yml"):
+        if suffix in (".yaml", ".yml", ".data"):
             return "yolo"
         if suffix == ".xml":
             return "cvat"
@@ -127,7 +128,7 @@ def detect_format(path) -> str:
         raise LabelError(f"{path}: not a label file rt2 reads (.json, .xml, data.yaml); give --label-format")
     if (path / coco.ANNOTATIONS_FILE).is_file() or list((path / "annotations").glob("instances_*.json")):
         return "coco"
-    if (path / DATA_YAML).is_file() or any(path.glob("*.yaml")) or any(path.glob("*.yml")):
+    if (path / DATA_YAML).is_file() or (path / DARKNET_DATA).is_file() or any(path.glob("*.yaml")) or any(path.glob("*.yml")):
         return "yolo"
     if (path / ANNOTATIONS_XML).is_file():
         return "cvat"

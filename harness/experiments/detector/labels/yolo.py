@@ -12,6 +12,10 @@ A data set is a ``data.yaml`` and one text file of labels per image::
     0 0.512 0.433 0.0125 0.0167      # class  x_centre y_centre width height, all as fractions of the image
     0 0.50 0.42 0.52 0.43 0.51 0.44  # or a polygon (segmentation export): its bounding box is read
 
+Darknet's layout (CVAT's "YOLO 1.1" export) is read too: ``obj.data`` (``names = obj.names``,
+``train = train.txt``, ``valid = valid.txt``), ``obj.names`` (one class per line), and each image's
+``.txt`` beside it in ``obj_train_data/`` (the lists' ``data/`` prefix is Darknet's and is dropped).
+
 An image without a label file, or with an empty one, has no ball (a background image). Only the class
 named ``ball`` is read. Every split (train, val, test) is read; an image in several splits once; a
 ``test`` folder that does not exist is skipped (Roboflow names one whether or not it exported it).
@@ -29,6 +33,7 @@ from harness.experiments.detector.labels.common import IMAGE_SUFFIXES, LabelErro
 __all__ = ["DATA_YAML", "read_yolo", "write_yolo"]
 
 DATA_YAML = "data.yaml"
+DARKNET_DATA = "obj.data"
 IMAGE_LIST = "images.txt"
 _SPLITS = ("train", "val", "test")
 
@@ -78,6 +83,8 @@ def _split_images(entry, root: Path, src: str, field: str) -> list[Path]:
             line = line.strip()
             if line:  # Ultralytics: ./x is relative to the list's folder, other relative paths to the root
                 q = Path(line) if Path(line).is_absolute() else (p.parent / line[2:] if line.startswith("./") else root / line)
+                if not q.is_file() and line.startswith("data/"):  # Darknet lists data/obj_train_data/x.jpg
+                    q = root / line[len("data/"):]
                 if not q.is_file():
                     raise LabelError(f"{p}: lists {short(line)}, which does not exist (looked for {str(q)!r})")
                 out.append(q)
@@ -99,14 +106,50 @@ def label_path(image: Path) -> Path:
     return Path(s[:i] + "/labels/" + s[i + len("/images/"):]).with_suffix(".txt")
 
 
+def _darknet(path: Path) -> tuple[dict, str, str]:
+    """Darknet's ``obj.data`` (``key = value`` lines) as the data.yaml keys: train/val lists and the names
+    read from ``obj.names`` (one per line). Returns (doc, the file naming the classes, source for messages)."""
+    src = str(path)
+    doc = {}
+    for n, line in enumerate(read_text_capped(path, MAX_CONFIG_BYTES, "YOLO obj.data").splitlines(), start=1):
+        line = line.split("#", 1)[0].strip()
+        if line:
+            key, sep, value = line.partition("=")
+            if not sep:
+                raise LabelError(f"{src}: line {n}: expected 'key = value', got {short(line)}")
+            doc[key.strip()] = value.strip()
+    if not doc.get("names"):
+        raise LabelError(f"{src}: missing field 'names' (the file of class names, e.g. names = obj.names)")
+    names = path.parent / doc["names"]
+    if not names.is_file() and doc["names"].startswith("data/"):
+        names = path.parent / doc["names"][len("data/"):]
+    if not names.is_file():
+        raise LabelError(f"{src}: field 'names' names {short(doc['names'])}, which does not exist (looked for {str(names)!r})")
+    classes = [ln.strip() for ln in read_text_capped(names, MAX_CONFIG_BYTES, "YOLO obj.names").splitlines() if ln.strip()]
+    out = {"names": classes}
+    for key, split in (("train", "train"), ("valid", "val")):
+        if doc.get(key):
+            out[split] = doc[key][len("data/"):] if doc[key].startswith("data/") and not (path.parent / doc[key]).exists() else doc[key]
+    return out, str(names), src
+
+
 def read_yolo(path) -> list:
-    """Ball labels of a YOLO data set: ``path`` is its ``data.yaml`` or the folder holding it (module docstring)."""
-    yml = _yaml_path(Path(path))
-    src = str(yml)
-    doc = load_yaml_checked(yml, "YOLO data.yaml", max_bytes=MAX_CONFIG_BYTES)
-    if not isinstance(doc, dict):
-        raise LabelError(f"{src}: expected a mapping (train, val, names), got {type(doc).__name__}")
-    ball, nc = _ball_class(doc, src)
+    """Ball labels of a YOLO data set: ``path`` is its ``data.yaml`` (Ultralytics) or ``obj.data`` (Darknet,
+    CVAT's "YOLO 1.1"), or the folder holding one (module docstring)."""
+    path = Path(path)
+    darknet = path / DARKNET_DATA if path.is_dir() and (path / DARKNET_DATA).is_file() and not (path / DATA_YAML).is_file() else (
+        path if path.suffix == ".data" else None)
+    if darknet is not None:
+        yml = darknet
+        doc, names_src, src = _darknet(darknet)
+        ball, nc = _ball_class(doc, names_src)
+    else:
+        yml = _yaml_path(path)
+        src = str(yml)
+        doc = load_yaml_checked(yml, "YOLO data.yaml", max_bytes=MAX_CONFIG_BYTES)
+        if not isinstance(doc, dict):
+            raise LabelError(f"{src}: expected a mapping (train, val, names), got {type(doc).__name__}")
+        ball, nc = _ball_class(doc, src)
     root = yml.parent
     if doc.get("path") not in (None, ""):
         if not isinstance(doc["path"], str):
@@ -128,7 +171,8 @@ def read_yolo(path) -> list:
     out = []
     for image in images:
         width, height = image_size(image, src)
-        boxes = _read_label_file(label_path(image), ball, nc, width, height)
+        txt = image.with_suffix(".txt") if darknet is not None else label_path(image)  # Darknet: beside the image
+        boxes = _read_label_file(txt, ball, nc, width, height)
         out.append(labelled(image, width, height, boxes))
     return out
 
