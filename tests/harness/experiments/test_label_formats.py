@@ -174,6 +174,15 @@ def test_yolo_segmentation_polygon_is_read_as_its_box(tmp_path):
     np.testing.assert_allclose(got[0].boxes_xywh, [[312.0, 240.0, 16.0, 8.0]], atol=1e-3)
 
 
+def test_yolo_pose_lines_are_read_by_their_box(tmp_path):
+    """A pose line is a box and keypoints (here 2 keypoints x 3 = 11 fields, odd like a polygon): with kpt_shape
+    in data.yaml only the box is read, never the keypoints as polygon points."""
+    _roboflow_yolo(tmp_path)
+    (tmp_path / "data.yaml").write_text("train: ../train/images\nval: ../valid/images\nkpt_shape: [2, 3]\nnames: ['person', 'ball']\n")
+    (tmp_path / "train/labels/f0001.txt").write_text("1 0.5 0.5 0.0125 0.0166666 0.9 0.9 2 0.1 0.1 2\n")
+    np.testing.assert_allclose(read_labels(tmp_path)[0].boxes_xywh, [[316.0, 236.0, 8.0, 8.0]], atol=1e-3)
+
+
 def test_labelme_file(tmp_path):
     folder = _labelme(tmp_path)
     assert detect_format(folder) == "labelme" and detect_format(folder / "f1.json") == "labelme"

@@ -10,7 +10,8 @@ A data set is a ``data.yaml`` and one text file of labels per image::
 
     # labels/train/frame_000123.txt (the image's path with its last /images/ replaced by /labels/, .txt):
     0 0.512 0.433 0.0125 0.0167      # class  x_centre y_centre width height, all as fractions of the image
-    0 0.50 0.42 0.52 0.43 0.51 0.44  # or a polygon (segmentation export): its bounding box is read
+    0 0.50 0.42 0.52 0.43 0.51 0.44  # or a polygon (segmentation, oriented-box exports): its bounding box is read
+                                     # (a pose data set, with kpt_shape in data.yaml: the box before the keypoints)
 
 Darknet's layout (CVAT's "YOLO 1.1" export) is read too: ``obj.data`` (``names = obj.names``,
 ``train = train.txt``, ``valid = valid.txt``), ``obj.names`` (one class per line), and each image's
@@ -172,12 +173,14 @@ def read_yolo(path) -> list:
     for image in images:
         width, height = image_size(image, src)
         txt = image.with_suffix(".txt") if darknet is not None else label_path(image)  # Darknet: beside the image
-        boxes = _read_label_file(txt, ball, nc, width, height)
+        boxes = _read_label_file(txt, ball, nc, width, height, pose="kpt_shape" in doc)
         out.append(labelled(image, width, height, boxes))
     return out
 
 
-def _read_label_file(txt: Path, ball: int, nc: int, width: int, height: int) -> list:
+def _read_label_file(txt: Path, ball: int, nc: int, width: int, height: int, *, pose: bool = False) -> list:
+    """Boxes of class ``ball`` in one label file; ``pose``: a pose data set (``kpt_shape``), whose lines are a
+    box followed by keypoints, so only the first 5 fields are read."""
     if not txt.is_file():
         return []
     boxes = []
@@ -186,6 +189,8 @@ def _read_label_file(txt: Path, ball: int, nc: int, width: int, height: int) -> 
         if not fields:
             continue
         where = f"{txt}: line {n}"
+        if pose and len(fields) > 5:
+            fields = fields[:5]
         polygon = len(fields) >= 7 and len(fields) % 2 == 1  # segmentation: class x1 y1 x2 y2 x3 y3 ...
         if len(fields) != 5 and not polygon:
             raise LabelError(f"{where}: expected 5 fields 'class x_centre y_centre width height' (or a polygon "
