@@ -24,6 +24,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("sim", "dataset"): ("harness.experiments.studies.sim_dataset", "render a labelled synthetic ball data set (PNG + COCO annotations.json)"),
     ("bench", "renderer"): ("harness.experiments.studies.bench_renderer", "frames/s of the synthetic camera renderer on one core, per scene type"),
     ("bench", "estimator"): ("harness.experiments.studies.bench_estimator", "run time of the robust estimator vs cameras (paper Table 2)"),
+    ("label",): ("harness.cli.label", "label ball frames in a browser (folder, video or session log): the model proposes, you accept; COCO saved as you go"),
     ("train",): ("harness.experiments.detector.train", "train the 5x5 ball segmentation model from COCO box labels"),
     ("eval", "detector"): ("harness.experiments.studies.eval_detector", "ball detector recall, outlier rate and centre error on labelled images"),
     ("eval", "framesets"): ("harness.experiments.studies.eval_framesets", "trackers on random rendered frame sets: 3D recall and wrong positions (what the cameras together make of detector outliers)"),
