@@ -52,17 +52,23 @@ def run(args) -> int:
     options = LabelOptions(n_suggestions=args.suggestions, min_train_labels=args.min_train, train_args=tuple(train_args))
     model = BallSegmentationModel.load(args.model)
     out = check_output_dir(args.out, "--out")
-    bar = tqdm(desc="frames", unit="frame", file=sys.stderr, leave=False)
+    bars: dict = {}
 
-    def progress(done, total):
-        bar.total = total
-        bar.update(done - bar.n)
+    def progress_of(what):
+        def progress(done, total):  # a bar once there is something to show (none for a source refused at once)
+            if what not in bars:
+                bars[what] = tqdm(desc=what, unit="frame", file=sys.stderr, leave=False)
+            bar = bars[what]
+            bar.total = total
+            bar.update(done - bar.n)
+        return progress
 
-    frames = open_frames(args.source, out, camera=args.camera, every=args.every, max_frames=args.max_frames, progress=progress)
-    bar.close()
-    bar = tqdm(desc="proposals", unit="frame", file=sys.stderr, leave=False)
-    session = LabelSession(frames, out, model, args.model, options, progress=progress)
-    bar.close()
+    try:
+        frames = open_frames(args.source, out, camera=args.camera, every=args.every, max_frames=args.max_frames, progress=progress_of("frames"))
+        session = LabelSession(frames, out, model, args.model, options, progress=progress_of("proposals"))
+    finally:
+        for bar in bars.values():
+            bar.close()
     server = LabelServer(session, args.port, verbose=args.verbose)
 
     stop = threading.Event()

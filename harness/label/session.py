@@ -8,6 +8,7 @@ kept, so the page never waits for the model.
 
 from __future__ import annotations
 
+import json
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -142,6 +143,8 @@ class LabelSession:
         unknown = sorted(set(body) - {"frame", "boxes"})
         if unknown or "frame" not in body or "boxes" not in body:
             raise ValueError(f"the request body needs exactly the fields 'frame' and 'boxes', got {sorted(body)}")
+        if isinstance(body["frame"], bool) or not isinstance(body["frame"], int):
+            raise ValueError(f"'frame' must be a frame index (integer), got {json.dumps(body['frame'])[:80]}")
         i = self.frame_index(body["frame"])
         f = self.frames.frames[i]
         boxes = check_boxes(body["boxes"], f.width, f.height, f"frame {i} ({f.key})")

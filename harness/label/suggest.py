@@ -69,7 +69,8 @@ def suggest(descriptors, uncertainties, labelled, k: int) -> list[int]:
     else:
         d = None
     picks: list[int] = []
-    while len(picks) < min(k, n - int(done.sum())):
+    n_picks = min(k, n - int(done.sum()))
+    while len(picks) < n_picks:
         if d is None:  # nothing labelled: the most typical frame first
             i = int(np.argmin(np.where(done, np.inf, np.linalg.norm(x - x.mean(axis=0), axis=1))))
             d = np.full(n, np.inf)
