@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import shutil
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -165,13 +166,16 @@ def _log(src: Path, out_dir: Path, camera, every: int, max_frames: int, progress
     from harness.logs import LogError, SessionLogReader
 
     try:
-        reader = SessionLogReader(src)
+        with warnings.catch_warnings():  # damage is reported in the one-line error below, or read around
+            warnings.simplefilter("ignore", RuntimeWarning)
+            reader = SessionLogReader(src)
     except (LogError, OSError) as exc:
         raise ValueError(f"{str(src)!r}: not a readable session log: {exc}") from None
     with reader:
         cams = [t[len("/camera/"):-len("/image")] for t in reader.topics() if t.startswith("/camera/") and t.endswith("/image")]
         if not cams:
-            raise ValueError(f"{str(src)!r}: the session log holds no camera images (recorded with --log-images none?)")
+            damage = f" (damaged: {reader.problems[0]})" if reader.problems else " (recorded with --log-images none?)"
+            raise ValueError(f"{str(src)!r}: the session log holds no camera images{damage}")
         if camera is not None and camera not in cams:
             raise ValueError(f"--camera {camera!r}: {str(src)!r} has images of {sorted(cams)} only")
         wanted = [camera] if camera is not None else sorted(cams)

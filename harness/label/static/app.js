@@ -251,8 +251,9 @@ const rt2label = (() => {
       case "k": case "K": e[1] += step; break;
       case "j": case "J": e[0] -= step; break;
       case "l": case "L": e[0] += step; break;
-      case "+": case "=": e[0] -= step / 2; e[1] -= step / 2; e[2] += step; e[3] += step; break;
-      case "-": case "_": if (e[2] > step + 1 && e[3] > step + 1) { e[0] += step / 2; e[1] += step / 2; e[2] -= step; e[3] -= step; } break;
+      // + and - grow / shrink by 1 px on each side (Shift is how many keyboards type "+": it does not change the step)
+      case "+": case "=": e[0] -= 1; e[1] -= 1; e[2] += 2; e[3] += 2; break;
+      case "-": case "_": if (e[2] > 3 && e[3] > 3) { e[0] += 1; e[1] += 1; e[2] -= 2; e[3] -= 2; } break;
       case "t": train(); break;
       default: handled = false;
     }
@@ -277,8 +278,10 @@ const rt2label = (() => {
     const p = toImage(ev);
     let box;
     if (Math.hypot(ev.clientX - d.screen[0], ev.clientY - d.screen[1]) < 4) {  // a click: the ball's centre
-      const w = S.edit[2], h = S.edit[3];
-      box = [p[0] - w / 2, p[1] - h / 2, w, h];
+      // the size of the last label (else of the cyan box), shrunk about the centre at the image's border
+      const size = S.lastSize || [S.edit[2], S.edit[3]];
+      const hw = Math.min(size[0] / 2, p[0], S.frame.width - p[0]), hh = Math.min(size[1] / 2, p[1], S.frame.height - p[1]);
+      box = [p[0] - hw, p[1] - hh, 2 * hw, 2 * hh];
     } else {
       box = [Math.min(d.start[0], p[0]), Math.min(d.start[1], p[1]), Math.abs(p[0] - d.start[0]), Math.abs(p[1] - d.start[1])];
     }
