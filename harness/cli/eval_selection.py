@@ -38,12 +38,17 @@ def run(args) -> int:
     print(f"\nheld-out detection on the later {result['n_held_out']} frames (median of {opts.repeats} seeds from {opts.seed}):")
     print(f"{'arm':<24} {'recall ours':>11} {'recall top-K':>12} {'outliers ours':>13} {'median err px':>13}")
     for arm, n in (("chosen", opts.n_chosen), ("consecutive", opts.n_consecutive)):
-        m = result["median"][arm]
+        m = {k: float("nan") if v is None else v for k, v in result["median"][arm].items()}
         print(f"{f'{arm} ({n} frames)':<24} {100 * m['ours_recall']:>10.1f}% {100 * m['topk_recall']:>11.1f}% "
               f"{100 * m['ours_outlier_rate']:>12.1f}% {m['ours_median_center_error_px']:>13.2f}")
-    c, k = result["median"]["chosen"], result["median"]["consecutive"]
-    verdict = "at least as good as" if c["topk_recall"] >= k["topk_recall"] and c["ours_recall"] >= k["ours_recall"] else "NOT as good as"
-    print(f"goal: {opts.n_chosen} chosen frames train a model {verdict} {opts.n_consecutive} consecutive ones (held-out recall)")
+    c, k = ({key: 0.0 if v is None else v for key, v in result["median"][arm].items()} for arm in ("chosen", "consecutive"))
+    if max(c["topk_recall"], k["topk_recall"]) == 0.0:
+        print(f"goal: cannot tell: neither arm's model finds a ball in the held-out frames (rt2 train learns no detector for "
+              f"this ball from {opts.n_consecutive} frames or fewer), so the frames chosen make no difference here")
+    else:
+        verdict = "at least as good as" if c["topk_recall"] >= k["topk_recall"] and c["ours_recall"] >= k["ours_recall"] else "NOT as good as"
+        print(f"goal: {opts.n_chosen} chosen frames train a model {verdict} {opts.n_consecutive} consecutive ones (held-out recall): "
+              f"{'met' if verdict.startswith('at least') else 'not met'}")
     if args.json:
-        atomic_write_json(args.json, result, "--json")
+        atomic_write_json(args.json, result, "--json", allow_nan=False)
     return 0

@@ -130,6 +130,7 @@ def _medians(runs) -> dict:
     out = {}
     for arm in ("chosen", "consecutive"):
         rows = [r for r in runs if r["arm"] == arm]
-        out[arm] = {f"{m}_{k}": float(np.median([np.nan if r[m][k] is None else r[m][k] for r in rows]))
-                    for m in ("ours", "topk") for k in ("recall", "outlier_rate", "median_center_error_px")}
+        values = {f"{m}_{k}": [r[m][k] for r in rows if r[m][k] is not None]
+                  for m in ("ours", "topk") for k in ("recall", "outlier_rate", "median_center_error_px")}
+        out[arm] = {key: float(np.median(v)) if v else None for key, v in values.items()}  # None: no run had the figure
     return out

@@ -9,7 +9,7 @@ const rt2label = (() => {
   const $ = (id) => document.getElementById(id);
   const S = {
     state: null, cur: null, frame: null, img: null, edit: null, proposal: 0,
-    lastSize: null, busy: false, view: { scale: 1, ox: 0, oy: 0 }, drag: null, trainPoll: null,
+    lastSize: null, busy: false, placed: false, view: { scale: 1, ox: 0, oy: 0 }, drag: null, trainPoll: null,
   };
 
   function message(text, kind) {
@@ -171,14 +171,18 @@ const rt2label = (() => {
     const img = new Image();
     await new Promise((ok, fail) => { img.onload = ok; img.onerror = () => fail(new Error(`frame ${i}: the image did not load`)); img.src = `/api/image/${i}`; });
     S.cur = i; S.frame = f; S.img = img; S.proposal = 0; S.edit = defaultEdit(f);
+    S.placed = Boolean(f.proposals.length || (f.labels && f.labels.length));  // a box someone (model or user) put there
     renderPanels();
     draw();
     canvas.dataset.frame = String(i);
   }
 
+  // Space walks down the list (the current frame's successor in it, else its top), so it never bounces between two
   function nextSuggested() {
-    const s = S.state.suggestions.filter((i) => i !== S.cur);
-    return s.length ? s[0] : null;
+    const s = S.state.suggestions;
+    if (!s.length) return null;
+    const k = s.indexOf(S.cur);
+    return s[(k + 1) % s.length];
   }
 
   // -- changes -------------------------------------------------------------------------------
@@ -227,6 +231,10 @@ const rt2label = (() => {
   }
 
   function acceptEdit() {
+    if (!S.placed) {
+      message("no proposal in this frame: click the ball, move the box with i j k l, or press n for no ball", "error");
+      return;
+    }
     const b = clip(S.edit);
     if (b[2] < 1 || b[3] < 1) { message("the box is outside the image; move it in (i j k l) or press n for no ball", "error"); return; }
     save([b]);
@@ -246,6 +254,8 @@ const rt2label = (() => {
       case " ": case "s": { const n = nextSuggested(); if (n !== null) show(n).catch((x) => message(x.message, "error")); break; }
       case "ArrowRight": case ".": if (S.cur + 1 < S.state.n_frames) show(S.cur + 1); break;
       case "ArrowLeft": case ",": if (S.cur > 0) show(S.cur - 1); break;
+      case "Home": show(0); break;
+      case "End": show(S.state.n_frames - 1); break;
       case "Tab": if (S.frame.proposals.length) { S.proposal = (S.proposal + 1) % S.frame.proposals.length; S.edit = S.frame.proposals[S.proposal].box.slice(); } break;
       case "i": case "I": e[1] -= step; break;
       case "k": case "K": e[1] += step; break;
@@ -257,6 +267,7 @@ const rt2label = (() => {
       case "t": train(); break;
       default: handled = false;
     }
+    if (handled && "ijklIJKL+=-_".includes(ev.key)) S.placed = true;
     if (handled) { ev.preventDefault(); draw(); }
   }
 
@@ -286,6 +297,7 @@ const rt2label = (() => {
       box = [Math.min(d.start[0], p[0]), Math.min(d.start[1], p[1]), Math.abs(p[0] - d.start[0]), Math.abs(p[1] - d.start[1])];
     }
     S.edit = box;
+    S.placed = true;
     draw();
     acceptEdit();
   }

@@ -75,6 +75,19 @@ class Page:
             chain.send_keys(k)
         chain.perform()
 
+    def until_frame(self, condition, what: str) -> None:
+        """Press the right arrow (Home after the last frame) until ``condition()`` holds, at most once per frame."""
+        from selenium.webdriver.common.keys import Keys
+
+        n = self.js("rt2label.state.n_frames")
+        for _ in range(n + 1):
+            if condition():
+                return
+            shown = self.js("rt2label.cur")
+            self.keys(Keys.ARROW_RIGHT if shown < n - 1 else Keys.HOME)
+            self.wait.until(lambda d: self.js("rt2label.cur") != shown and not self.js("rt2label.busy"))
+        pytest.fail(f"no frame is {what}")
+
     def saved(self, frame: int) -> None:
         """Wait until the server confirmed the change of ``frame`` (the page says so only after the answer)."""
         self.wait.until(lambda d: self.text("message").startswith(f"saved frame {frame + 1}:") and not self.js("rt2label.busy"))
@@ -126,8 +139,14 @@ def test_label_by_keys_and_mouse_survive_a_kill_resume_and_train(browser, ball_f
         page = Page(browser, server.ready["url"])
         assert "0 of 12 frames labelled" in page.text("counts")
         assert len(browser.find_elements("css selector", "#suggestions li")) == 10
+        # the page opens on the first suggestion; Space walks down the list
+        suggestions = page.js("rt2label.state.suggestions")
+        assert page.current[0] == suggestions[0]
+        page.keys(" ")
+        page.wait.until(lambda d: page.js("rt2label.cur") == suggestions[1] and not page.js("rt2label.busy"))
 
-        # Enter accepts the cyan box (the model's best proposal, or a default box) as it is
+        # Enter accepts the cyan box (the model's best proposal) as it is
+        page.until_frame(lambda: page.js("rt2label.frame.proposals.length") > 0, "a frame with a proposal")
         i, key = page.current
         box = page.js("rt2label.edit.slice()")
         page.keys("\n")
@@ -148,9 +167,8 @@ def test_label_by_keys_and_mouse_survive_a_kill_resume_and_train(browser, ball_f
         exact.add(key)
         # the mouse: a click on the ball's centre, then a dragged box, each on a frame with a ball
         for how in ("click", "drag"):
-            while not len(ball_truth[page.current[1]]):
-                page.keys(" ")  # Space: the next suggested frame
-                page.wait.until(lambda d: not page.js("rt2label.busy"))
+            page.until_frame(lambda: len(ball_truth[page.current[1]]) > 0 and page.js("rt2label.frame.labels") is None,
+                             "an unlabelled frame with a ball")
             i, key = page.current
             tx, ty, tw, th = ball_truth[key][0]
             if how == "click":
@@ -187,7 +205,9 @@ def test_label_by_keys_and_mouse_survive_a_kill_resume_and_train(browser, ball_f
         assert server.ready["labelled"] == len(confirmed)
         page = Page(browser, server.ready["url"])
         assert f"{len(confirmed)} of 12 frames labelled" in page.text("counts")
-        while page.js("rt2label.state.suggestions.length") > 0:
+        for _ in range(12):
+            if not page.js("rt2label.state.suggestions.length"):
+                break
             i, key = page.current
             if len(ball_truth[key]):
                 tx, ty, tw, th = ball_truth[key][0]
@@ -221,19 +241,25 @@ def test_video_and_session_log_load_and_label_by_keys(browser, kind, ball_video,
         page = Page(browser, server.ready["url"])
         n = 12 if kind == "video" else 6
         assert f"0 of {n} frames labelled" in page.text("counts")
+        assert page.current[1].startswith(prefix)
+        page.until_frame(lambda: page.js("rt2label.frame.proposals.length") > 0, "a frame with a proposal")
         i, key = page.current
-        assert key.startswith(prefix)
-        page.keys("n")
-        page.saved(i)
-        j, key2 = page.current
         page.keys("\n")
+        page.saved(i)
+        j, key2 = page.current  # the next suggested frame
+        page.keys("n")
         page.saved(j)
         from selenium.webdriver.common.keys import Keys
 
+        # a frame without a proposal: Enter saves nothing (no box at a made-up place) and says what to do
+        page.until_frame(lambda: page.js("rt2label.frame.proposals.length") == 0 and page.js("rt2label.frame.labels") is None,
+                         "an unlabelled frame without a proposal")
+        page.keys("\n")
+        page.wait.until(lambda d: page.text("message").startswith("no proposal in this frame: click the ball"))
         now = page.js("rt2label.cur")
         page.keys(Keys.ARROW_RIGHT if now < n - 1 else Keys.ARROW_LEFT)  # the next (previous) frame in source order
         page.wait.until(lambda d: page.js("rt2label.cur") == (now + 1 if now < n - 1 else now - 1))
         disk = on_disk(out)
-        assert list(disk) == [f"{key}.png", f"{key2}.png"] and len(disk[f"{key}.png"]) == 0
+        assert list(disk) == [f"{key}.png", f"{key2}.png"] and len(disk[f"{key}.png"]) == 1 and len(disk[f"{key2}.png"]) == 0
     finally:
         server.stop()
