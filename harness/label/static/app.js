@@ -53,7 +53,7 @@ const rt2label = (() => {
     return [(ev.clientX - r.left - v.ox) / v.scale, (ev.clientY - r.top - v.oy) / v.scale];
   }
 
-  function strokeBox(b, colour, dash, text) {
+  function strokeBox(b, colour, dash, text, below) {
     const [x, y, w, h] = toScreen(b);
     ctx.save();
     ctx.strokeStyle = colour;
@@ -63,7 +63,7 @@ const rt2label = (() => {
     if (text) {
       ctx.fillStyle = colour;
       ctx.font = "13px sans-serif";
-      ctx.fillText(text, x, y - 4);
+      ctx.fillText(text, x, below ? y + h + 14 : y - 4);
     }
     ctx.restore();
   }
@@ -77,7 +77,7 @@ const rt2label = (() => {
     ctx.drawImage(S.img, v.ox, v.oy, S.frame.width * v.scale, S.frame.height * v.scale);
     S.frame.proposals.forEach((p, k) => strokeBox(p.box, "#f2cc60", [5, 4], `${k + 1}: ${p.score.toFixed(2)}`));
     const labels = S.frame.labels;
-    if (labels) labels.forEach((b) => strokeBox(b, "#7ee787", [], "label"));
+    if (labels) labels.forEach((b) => strokeBox(b, "#7ee787", [], "label", true));
     if (labels && labels.length === 0) {
       ctx.fillStyle = "rgba(255,123,114,0.9)";
       ctx.font = "bold 28px sans-serif";
