@@ -29,6 +29,8 @@ __all__ = ["LabelStore", "check_boxes"]
 #: boxes per image at most (a table-tennis scene shows a handful of balls)
 MAX_BOXES = 32
 MIN_BOX_PX = 1.0
+#: how the ``info.description`` of a file this module wrote begins (a file without it is not resumed)
+DESCRIPTION = "ball labels made with rt2 label"
 
 
 def check_boxes(value, width: int, height: int, where: str) -> np.ndarray:
@@ -75,7 +77,12 @@ class LabelStore:
             self._resume()
 
     def _resume(self) -> None:
-        for li in read_coco(self.json_path):
+        labelled = read_coco(self.json_path)  # checked like any COCO input first
+        info = json.loads(self.json_path.read_text()).get("info")
+        if not (isinstance(info, dict) and str(info.get("description", "")).startswith(DESCRIPTION)):
+            raise ValueError(f"{self.json_path} was not written by rt2 label; it would be rewritten in rt2 label's shape (fields "
+                             "other tools added dropped): label into a new --out folder (rt2 train takes several --data folders)")
+        for li in labelled:
             i = self._index.get(li.path.resolve())
             if i is None:  # a labelled image of another source: kept as it is
                 self._labels[f"kept:{li.path}"] = li
@@ -147,6 +154,6 @@ class LabelStore:
             centers = np.stack([b[:, 0] + b[:, 2] / 2 - 0.5, b[:, 1] + b[:, 3] / 2 - 0.5], axis=1) if len(b) else np.zeros((0, 2))
             images.append(LabelledImage(f.image_path.resolve(), f.width, f.height, b, centers))
             extra.append({"rt2_frame": key})
-        info = {"description": f"ball labels made with rt2 label from {self.frames.kind} {self.frames.spec}",
+        info = {"description": f"{DESCRIPTION} from {self.frames.kind} {self.frames.spec}",
                 "no_ball_images": "an image without annotations shows no ball"}
         write_coco(self.out_dir, images, image_extra=extra, info=info)

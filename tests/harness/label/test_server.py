@@ -90,6 +90,18 @@ def test_restart_resumes_from_the_file_and_keeps_labels_of_other_sources(serve, 
     np.testing.assert_allclose(session3.store.boxes(1), ball_truth[key])
 
 
+def test_a_coco_file_of_another_tool_is_not_taken_over(ball_folder, tmp_path):
+    out = tmp_path / "theirs"
+    out.mkdir()
+    (out / "annotations.json").write_text((ball_folder / "annotations.json").read_text().replace(str(ball_folder), str(out)))
+    for p in ball_folder.glob("*.png"):
+        (out / p.name).write_bytes(p.read_bytes())
+    before = (out / "annotations.json").read_bytes()
+    with pytest.raises(ValueError, match=r"annotations.json was not written by rt2 label; .* label into a new --out folder"):
+        LabelSession(open_frames(ball_folder, out), out, BallSegmentationModel.load(DEFAULT_MODEL), DEFAULT_MODEL)
+    assert (out / "annotations.json").read_bytes() == before
+
+
 def test_suggestions_skip_labelled_frames_and_state_reports_counts(serve, ball_folder):
     server, session = serve(ball_folder)
     _, state = request(server, "GET", "/api/state")
