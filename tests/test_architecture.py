@@ -37,7 +37,8 @@ HARNESS_LAYERS = {
     "live": {"sim", "logs", "common"},
     "calib": {"sim", "logs", "common"},
     "experiments": {"live", "link", "sim", "logs", "common"},
-    "cli": {"experiments", "calib", "live", "link", "sim", "logs", "common"},
+    "label": {"experiments", "logs", "common"},
+    "cli": {"label", "experiments", "calib", "live", "link", "sim", "logs", "common"},
 }
 
 

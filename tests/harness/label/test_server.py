@@ -1,0 +1,246 @@
+"""rt2 label's server over real sockets on 127.0.0.1: labels on disk in COCO, undo, resume, hostile requests, bad sources."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import socket
+
+import numpy as np
+import pytest
+
+from harness.cli import main as rt2_main
+from harness.experiments.detector.coco import read_coco
+from harness.experiments.studies.eval_detector import DEFAULT_MODEL
+from harness.label.frames import open_frames
+from harness.label.server import MAX_BODY_BYTES, LabelServer
+from harness.label.session import LabelOptions, LabelSession
+from tracker import BallSegmentationModel
+
+
+@pytest.fixture()
+def serve(tmp_path):
+    """``serve(source, out=None, **open_kw) -> (server, session)``; closed after the test."""
+    started = []
+
+    def start(source, out=None, **kw):
+        out = out or tmp_path / "labels"
+        frames = open_frames(source, out, **kw)
+        session = LabelSession(frames, out, BallSegmentationModel.load(DEFAULT_MODEL), DEFAULT_MODEL, LabelOptions(min_train_labels=4))
+        server = LabelServer(session, 0).start()
+        started.append((server, session))
+        return server, session
+
+    yield start
+    for server, session in started:
+        server.close()
+        session.close()
+
+
+def request(server, method, path, body=None, headers=None, raw=None):
+    """(status, parsed JSON or bytes) of one request on a fresh connection."""
+    conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=10)
+    h = {"Content-Type": "application/json"} if body is not None or raw is not None else {}
+    h.update(headers or {})
+    data = raw if raw is not None else (None if body is None else json.dumps(body))
+    conn.request(method, path, body=data, headers=h)
+    r = conn.getresponse()
+    payload = r.read()
+    conn.close()
+    ctype = r.getheader("Content-Type", "")
+    return r.status, json.loads(payload) if ctype.startswith("application/json") else payload
+
+
+# -- labels on disk ---------------------------------------------------------------------------------
+def test_labels_no_ball_and_undo_are_on_disk_after_each_answer(serve, ball_folder, ball_truth):
+    server, session = serve(ball_folder)
+    keys = [f.key for f in session.frames.frames]
+    box = ball_truth[keys[0]][0].tolist()
+    assert request(server, "POST", "/api/label", {"frame": 0, "boxes": [box]})[0] == 200
+    assert request(server, "POST", "/api/label", {"frame": 4, "boxes": []})[0] == 200
+    on_disk = {li.path.name: li for li in read_coco(session.store.json_path)}
+    assert list(on_disk) == [keys[0], keys[4]]
+    np.testing.assert_allclose(on_disk[keys[0]].boxes_xywh, [box])
+    assert on_disk[keys[4]].n_balls == 0  # "no ball" = an image without annotations
+    assert (session.out_dir / "images" / keys[0]).is_file()
+    status, body = request(server, "POST", "/api/undo", {})
+    assert status == 200 and body["frame"] == 4
+    assert [li.path.name for li in read_coco(session.store.json_path)] == [keys[0]]
+    status, body = request(server, "GET", "/api/frame/4")
+    assert body["labels"] is None and body["width"] == 128 and body["height"] == 96
+
+
+def test_restart_resumes_from_the_file_and_keeps_labels_of_other_sources(serve, ball_folder, ball_truth, tmp_path):
+    out = tmp_path / "labels"
+    server, session = serve(ball_folder, out)
+    key = session.frames.frames[1].key
+    request(server, "POST", "/api/label", {"frame": 1, "boxes": [ball_truth[key][0].tolist()]})
+    server.close()
+    # a second source into the same folder: the first source's label is kept, the new one appended
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "x.png").write_bytes((ball_folder / key).read_bytes())
+    server2, session2 = serve(other, out)
+    assert session2.store.counts()["kept_from_file"] == 1
+    request(server2, "POST", "/api/label", {"frame": 0, "boxes": []})
+    assert [li.path.name for li in read_coco(out)] == [key, "x.png"]
+    server2.close()
+    _, session3 = serve(ball_folder, out)
+    assert session3.store.counts()["labelled"] == 1 and session3.store.counts()["kept_from_file"] == 1
+    np.testing.assert_allclose(session3.store.boxes(1), ball_truth[key])
+
+
+def test_a_coco_file_of_another_tool_is_not_taken_over(ball_folder, tmp_path):
+    out = tmp_path / "theirs"
+    out.mkdir()
+    (out / "annotations.json").write_text((ball_folder / "annotations.json").read_text().replace(str(ball_folder), str(out)))
+    for p in ball_folder.glob("*.png"):
+        (out / p.name).write_bytes(p.read_bytes())
+    before = (out / "annotations.json").read_bytes()
+    with pytest.raises(ValueError, match=r"annotations.json was not written by rt2 label; .* label into a new --out folder"):
+        LabelSession(open_frames(ball_folder, out), out, BallSegmentationModel.load(DEFAULT_MODEL), DEFAULT_MODEL)
+    assert (out / "annotations.json").read_bytes() == before
+
+
+def test_suggestions_skip_labelled_frames_and_state_reports_counts(serve, ball_folder):
+    server, session = serve(ball_folder)
+    _, state = request(server, "GET", "/api/state")
+    first = state["suggestions"][0]
+    assert len(state["suggestions"]) == 10 and state["n_frames"] == 12 and not state["can_train"]
+    _, body = request(server, "POST", "/api/label", {"frame": first, "boxes": []})
+    assert first not in body["suggestions"] and body["counts"]["no_ball"] == 1
+
+
+def test_video_and_log_frames_are_extracted_and_keyed(serve, ball_video, ball_log):
+    _, video = serve(ball_video, every=2)
+    assert [f.key for f in video.frames.frames] == [f"rally_f{i:06d}" for i in range(0, 12, 2)]
+    assert all(f.image_path.is_file() and (f.width, f.height) == (128, 96) for f in video.frames.frames)
+    _, log = serve(ball_log, camera="cam1")
+    assert [f.key for f in log.frames.frames] == [f"cam1_s{k:06d}" for k in range(6)]
+    _, both = serve(ball_log)
+    assert len(both.frames) == 12
+
+
+# -- hostile requests -------------------------------------------------------------------------------
+HOSTILE = [
+    # (method, path, body (JSON value) or raw bytes, extra headers, status, message part)
+    ("GET", "/api/frame/999", None, {}, 404, "no frame 999: frames are numbered 0 to 11"),
+    ("GET", "/api/frame/-1", None, {}, 404, "no frame '-1'"),
+    ("GET", "/api/image/abc", None, {}, 404, "no frame 'abc'"),
+    ("GET", "/api/frame/99999999999999999999", None, {}, 404, "no frame"),
+    ("GET", "/nothing", None, {}, 404, "no page '/nothing'"),
+    ("GET", "/static/../../../etc/passwd", None, {}, 404, "no page"),
+    ("GET", "/%2e%2e/%2e%2e/etc/passwd", None, {}, 404, "no page"),
+    ("GET", "/static/app.js/../../server.py", None, {}, 404, "no page"),
+    ("POST", "/api/label", b"{frame: 1", {}, 400, "not valid JSON"),
+    ("POST", "/api/label", b"\xff\xfe", {}, 400, "not valid JSON"),
+    ("POST", "/api/label", [1, 2], {}, 400, "must be a JSON object"),
+    ("POST", "/api/label", {"frame": 1}, {}, 400, "exactly the fields 'frame' and 'boxes'"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [], "x": 1}, {}, 400, "exactly the fields"),
+    ("POST", "/api/label", {"frame": "1", "boxes": []}, {}, 400, "'frame' must be a frame index"),
+    ("POST", "/api/label", {"frame": 1.5, "boxes": []}, {}, 400, "'frame' must be a frame index"),
+    ("POST", "/api/label", {"frame": True, "boxes": []}, {}, 400, "'frame' must be a frame index"),
+    ("POST", "/api/label", {"frame": 12, "boxes": []}, {}, 404, "no frame 12"),
+    ("POST", "/api/label", {"frame": 1, "boxes": "all"}, {}, 400, "'boxes' must be a list"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [[1, 2, 3]]}, {}, 400, r"boxes\[0\] must be 4 finite numbers"),
+    ("POST", "/api/label", b'{"frame": 1, "boxes": [[NaN, 2, 3, 4]]}', {}, 400, r"boxes\[0\] must be 4 finite numbers"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [[120, 10, 20, 20]]}, {}, 400, "lies outside the 128x96 image"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [[-3, 10, 20, 20]]}, {}, 400, "lies outside the 128x96 image"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [[10, 10, 0, 20]]}, {}, 400, "at least 1 px wide"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [[1, 1, 2, 2]] * 33}, {}, 400, "at most 32 boxes"),
+    ("POST", "/api/label", b"x" * (MAX_BODY_BYTES + 1), {}, 413, f"at most {MAX_BODY_BYTES} are taken"),
+    ("POST", "/api/label", {"frame": 1, "boxes": []}, {"Content-Type": "text/plain"}, 415, "application/json"),
+    ("PUT", "/api/label", {"frame": 1, "boxes": []}, {}, 405, "method PUT is not used"),
+    ("GET", "/api/label", None, {}, 405, "takes POST"),
+    ("POST", "/api/state", {}, {}, 405, "takes GET"),
+    ("POST", "/api/frame/1", {}, {}, 405, "takes GET"),
+    ("GET", "/api/state", None, {"Host": "evil.example:80"}, 403, "is not this server's address"),
+    ("POST", "/api/train", {}, {}, 409, "label at least 4 frames"),
+]
+
+
+@pytest.mark.parametrize("method, path, body, headers, status, message", HOSTILE, ids=[f"{c[0]} {c[1][:30]} {c[4]}" for c in HOSTILE])
+def test_hostile_request_gets_a_clear_error_and_changes_nothing(serve, ball_folder, method, path, body, headers, status, message):
+    import re
+
+    server, session = serve(ball_folder)
+    raw = body if isinstance(body, bytes) else None
+    got, answer = request(server, method, path, None if raw is not None else body, headers, raw=raw)
+    assert got == status, answer
+    assert re.search(message, answer["error"]), answer["error"]
+    assert not session.store.json_path.exists()  # nothing labelled
+    assert request(server, "GET", "/api/state")[0] == 200  # still serving
+
+
+def test_a_request_without_content_length_is_refused(serve, ball_folder):
+    server, _ = serve(ball_folder)
+    with socket.create_connection(("127.0.0.1", server.port), timeout=10) as s:
+        s.sendall(f"POST /api/label HTTP/1.1\r\nHost: 127.0.0.1:{server.port}\r\nContent-Type: application/json\r\n\r\n".encode())
+        chunks = []
+        while chunk := s.recv(4096):  # the server closes the connection after an error
+            chunks.append(chunk)
+        head = b"".join(chunks).decode()
+    assert head.startswith("HTTP/1.1 411") and "Content-Length header" in head
+
+
+def test_static_files_come_from_the_package_with_no_outside_urls(serve, ball_folder):
+    server, _ = serve(ball_folder)
+    for path in ("/", "/static/app.js", "/static/app.css"):
+        status, body = request(server, "GET", path)
+        assert status == 200
+        assert b"http://" not in body and b"https://" not in body and b"//cdn" not in body
+
+
+# -- bad sources on the command line ----------------------------------------------------------------
+@pytest.fixture()
+def bad_sources(tmp_path, ball_log):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (tmp_path / "notes.txt").write_text("not a video")
+    (tmp_path / "junk.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 64)
+    (tmp_path / "broken.png").write_bytes(b"\x89PNG not really")
+    bad_png = tmp_path / "badpng"
+    bad_png.mkdir()
+    (bad_png / "a.png").write_bytes(b"\x89PNG not really")
+    from harness.logs import SessionLogWriter
+
+    with SessionLogWriter(tmp_path / "noimages.mcap", metadata={"kind": "test"}) as w:
+        w.write_detections(0.0, "cam0", np.zeros((1, 2)), np.ones(1), 0)
+    return tmp_path
+
+
+BAD_SOURCES = [
+    (["nowhere"], "'.*nowhere': no such folder, video or session log"),
+    (["empty"], "'.*empty': no images"),
+    (["notes.txt"], "'.*notes.txt': OpenCV cannot open this file as a video"),
+    (["badpng"], r"a.png: cannot read the image"),
+    (["junk.mcap"], "junk.mcap"),
+    (["noimages.mcap"], "holds no camera images"),
+    (["LOG", "--camera", "cam7"], r"--camera 'cam7': .* has images of \['cam0', 'cam1'\] only"),
+    (["empty", "--camera", "cam0"], "--camera is for session logs"),
+    (["LOG", "--every", "0"], "--every must be a positive integer"),
+    (["LOG", "--model", "missing.npz"], "missing.npz"),
+    (["LOG", "--port", "70000"], r"--port must be in \[0, 65535\]"),
+    (["LOG", "--min-train", "1"], "min_train_labels >= 3"),
+]
+
+
+@pytest.mark.parametrize("args, message", BAD_SOURCES, ids=[" ".join(a) for a, _ in BAD_SOURCES])
+def test_bad_source_is_one_line_and_exit_2(bad_sources, ball_log, capsys, args, message):
+    import re
+
+    files = ("nowhere", "empty", "notes.txt", "badpng", "junk.mcap", "noimages.mcap")
+    argv = ["label", "--out", str(bad_sources / "out"), "--port", "0"]
+    argv += [str(ball_log) if a == "LOG" else (str(bad_sources / a) if a in files else a) for a in args]
+    assert rt2_main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("rt2 label: error: ") and re.search(message, err), err
+
+
+def test_a_port_in_use_is_refused(ball_folder, tmp_path, capsys):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        assert rt2_main(["label", str(ball_folder), "--out", str(tmp_path / "o"), "--port", str(port)]) == 2
+    assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
