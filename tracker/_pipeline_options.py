@@ -81,11 +81,12 @@ class TrackerOptions:
     blob_edge_px: float | None = None
     handover_max_age_s: float | None = 0.25
     hypotheses: HypothesisOptions | None = HypothesisOptions()
+    size_from_rig: bool = True
 
     def __post_init__(self):
         if self.roi is not None and not isinstance(self.roi, (bool, np.bool_)):
             raise ValueError(f"TrackerOptions.roi must be True, False or None, got {self.roi!r}")
-        for name in ("retry_full_frame", "threads_for_roi"):
+        for name in ("retry_full_frame", "threads_for_roi", "size_from_rig"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"TrackerOptions.{name} must be True or False, got {getattr(self, name)!r}")
         g = self.max_gap_s
