@@ -32,9 +32,10 @@ from harness.sim.render.composite import draw_ball, edge_blur_px
 from harness.sim.render.scene import Ball
 from harness.sim.rigs import read_anipose_toml
 from policies.ball_model import simulate
-from tracker import Rig
+from tracker import Camera, Rig
+from tracker.calibration.poses import rigid_fit, rotation_angle_deg
 
-__all__ = ["DEFAULT_SESSION", "EXPOSURES", "SemiRealOptions", "SemiRealSession", "common_view_box", "session_rig"]
+__all__ = ["DEFAULT_SESSION", "EXPOSURES", "SemiRealOptions", "SemiRealSession", "aligned_rig", "common_view_box", "session_rig"]
 
 #: the caliscope session shipped beside the project (``../shared`` next to the repository)
 DEFAULT_SESSION = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "caliscope_4cam"
@@ -72,6 +73,29 @@ def session_rig(folder=DEFAULT_SESSION) -> Rig:
         if not (folder / "calibration" / "extrinsic" / name).is_file():
             raise FileNotFoundError(f"semi-real session {str(folder)!r}: missing calibration/extrinsic/{name}")
     return Rig(rig.cameras, workspace_m=common_view_box(rig), description=f"caliscope_4cam (real calibration, {folder})")
+
+
+def aligned_rig(other: Rig, session: Rig) -> tuple[Rig, dict]:
+    """``other`` (another calibration of the session's cameras, same order, e.g. ``rt2 calib board`` of its
+    videos, whose world frame is its first camera) moved into the session's world frame by the rigid fit
+    of its camera centres onto the session's (no scale: a scale error stays); with the session's workspace.
+    Returns the rig and what differs: per camera the rotation (deg) and centre (mm) after the fit."""
+    if len(other) != len(session):
+        raise ValueError(f"the trackers' calibration has {len(other)} cameras, the session {len(session)} {session.names}")
+    for a, b in zip(other, session):
+        if tuple(a.image_size) != tuple(b.image_size):
+            raise ValueError(f"the trackers' calibration camera {a.name!r} is {a.image_size[0]}x{a.image_size[1]} px, "
+                             f"the session's {b.name!r} {b.image_size[0]}x{b.image_size[1]}")
+    A, t, _ = rigid_fit(np.array([c.center_world for c in other]), np.array([c.center_world for c in session]))
+    cams = []
+    for c in other:  # world' = A world + t  ->  R' = R A^T, t' = t_c - R A^T t
+        R = c.R_world_to_cam @ A.T
+        cams.append(Camera(name=c.name, K=c.K, distortion=c.distortion, R_world_to_cam=R, t_world_to_cam_m=c.t_world_to_cam_m - R @ t,
+                           image_size=c.image_size))
+    rig = Rig(cams, workspace_m=session.workspace_m, description=f"{other.description} (aligned to the session's world frame)")
+    diff = {"rotation_deg": [round(float(rotation_angle_deg(a.R_world_to_cam, b.R_world_to_cam)), 3) for a, b in zip(rig, session)],
+            "centre_mm": [round(1000 * float(np.linalg.norm(a.center_world - b.center_world)), 1) for a, b in zip(rig, session)]}
+    return rig, diff
 
 
 @dataclass(frozen=True)

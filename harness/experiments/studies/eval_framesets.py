@@ -220,13 +220,15 @@ def trackable_views(balls_m, n_seen, lo, hi) -> np.ndarray:
 
 def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "orange", tol_m: float = 0.04,
              model=None, max_size_ratio: float = MAX_SIZE_RATIO, progress=True, sweep: SweepOptions | None = None,
-             stopped: list | None = None, scene: str = "lab", semireal=None, session=None):  # fmt: skip
+             stopped: list | None = None, scene: str = "lab", semireal=None, session=None, tracker_rig=None):  # fmt: skip
     """Render ``frames`` random frame sets of ``rig`` and score each tracker; list of :class:`FramesetScores`.
 
     trackers : names in ``TRACKERS`` (default: ``DEFAULT_TRACKERS[scene]``)
     scene : one of ``SCENES``; "caliscope" ignores ``rig`` (the session's calibration is the rig) and draws
         the ball into the real frames of ``session`` (a folder, default ``harness.sim.semireal.DEFAULT_SESSION``)
-        with :class:`harness.sim.semireal.SemiRealOptions` ``semireal`` (its ``ball_colour`` is ``ball_colour``)
+        with :class:`harness.sim.semireal.SemiRealOptions` ``semireal`` (its ``ball_colour`` is ``ball_colour``);
+        the trackers get the session's calibration, or ``tracker_rig`` (a :class:`tracker.Rig`: another calibration
+        of the same cameras, aligned by :func:`harness.sim.semireal.aligned_rig`) for a real calibration error
     max_size_ratio : the ``rt2`` tracker's 3D size test threshold (``TrackerOptions.max_size_ratio``)
     sweep : where the chunks of frame sets run (default: this process); stopped : if a list is given, a sweep
     stopped early (:class:`harness.common.executor.SweepStopped`) is appended to it and the scores of the chunks
@@ -248,10 +250,12 @@ def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "
     if scene == "caliscope":
         from dataclasses import replace
 
-        from harness.sim.semireal import DEFAULT_SESSION, SemiRealOptions, session_rig
+        from harness.sim.semireal import DEFAULT_SESSION, SemiRealOptions, aligned_rig, session_rig
 
         session = DEFAULT_SESSION if session is None else session
         rig = session_rig(session)  # a missing file fails here, not in a worker
+        if tracker_rig is not None:
+            rig = aligned_rig(tracker_rig, rig)[0]
         semi = (session, replace(SemiRealOptions() if semireal is None else semireal, ball_colour=ball_colour))
     if rig.workspace_m is None:
         raise ValueError("the rig has no workspace_m: random frame sets need the box where balls fly")
@@ -378,6 +382,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--sync", choices=("exact", "recorded"), default="exact",
                         help="--scene caliscope: ball drawn at the frame set's time in every camera (exact, default) or at each camera's recorded frame time")
     parser.add_argument("--backgrounds", type=int, default=12, help="--scene caliscope: real frame sets used as backgrounds (default 12 of 48)")
+    parser.add_argument("--tracker-rig", default=None,
+                        help="--scene caliscope: the trackers' calibration (rig name or file, e.g. caliscope_4cam_rt2 = rt2 calib board of the "
+                             "session's videos), aligned to the session's world frame; the ball is drawn with caliscope's calibration, so the "
+                             "difference is a real calibration error (default: the trackers get caliscope's own)")
     parser.add_argument("--frames", type=int, default=300, help="frame sets to render (default 300)")
     parser.add_argument("--seed", type=int, default=2, help="scene and noise seed (default 2 = the held-out detector set's frames)")
     parser.add_argument("--model", default=None, help="weights file (.npz; default: the shipped model)")
@@ -420,7 +428,7 @@ def run(args) -> int:
         raise ValueError(f"--tol-m must be a positive number of metres, got {args.tol_m}")
     if not (np.isfinite(args.max_size_ratio) and args.max_size_ratio > 0):
         raise ValueError(f"--max-size-ratio must be a positive number, got {args.max_size_ratio}")
-    semireal, rig = None, None
+    semireal, rig, tracker_rig = None, None, None
     if args.scene == "caliscope":
         if args.rig is not None:
             raise ValueError("--rig applies to --scene lab; --scene caliscope uses the session's own calibration (--session)")
@@ -428,16 +436,23 @@ def run(args) -> int:
         from harness.sim.semireal import DEFAULT_SESSION
 
         args.rig = f"caliscope_4cam ({args.session or DEFAULT_SESSION})"
+        if args.tracker_rig is not None:
+            from harness.sim.semireal import aligned_rig, session_rig
+
+            tracker_rig = resolve_rig(args.tracker_rig)
+            diff = aligned_rig(tracker_rig, session_rig(args.session or DEFAULT_SESSION))[1]
+            args.rig += (f"; trackers' calibration {args.tracker_rig}: rotation {', '.join(f'{v:.2f}' for v in diff['rotation_deg'])} deg, "
+                         f"centres {', '.join(f'{v:.0f}' for v in diff['centre_mm'])} mm from caliscope's")
     else:
-        for name in ("session", "exposure", "sync", "backgrounds"):
+        for name in ("session", "exposure", "sync", "backgrounds", "tracker_rig"):
             if getattr(args, name) != {"exposure": "tracking", "sync": "exact", "backgrounds": 12}.get(name):
-                raise ValueError(f"--{name} applies to --scene caliscope only")
+                raise ValueError(f"--{name.replace('_', '-')} applies to --scene caliscope only")
         args.rig = args.rig or "lab4_vga_v1"
         rig = resolve_rig(args.rig)
     stopped: list = []
     scores = evaluate(rig, args.frames, args.seed, trackers=args.trackers, ball_colour=args.ball_colour, tol_m=args.tol_m, model=args.model,
                       max_size_ratio=args.max_size_ratio, sweep=options_from_args(args), stopped=stopped, scene=args.scene,
-                      semireal=semireal, session=args.session)  # fmt: skip
+                      semireal=semireal, session=args.session, tracker_rig=tracker_rig)  # fmt: skip
     done = scores[0].framesets if scores else 0
     if stopped:
         print(f"PARTIAL ({stopped[0]}): the figures of the {done} of {args.frames} frame sets that finished")
