@@ -42,7 +42,8 @@ TIME_SAMPLES = 8  #: ball positions over the exposure
 STATS_WINDOW_BALLS = 4.0  #: side of the statistics window, in ball diameters (at least MIN_STATS_PX)
 MIN_STATS_PX = 64
 AMBIENT, DIFFUSE = 0.45, 0.55  #: the ball's shading: ambient + diffuse (n . light)
-DRAWN_EDGE_SIGMA_PX = 0.5  #: the softness the supersampled silhouette already has
+DRAWN_EDGE_SIGMA_PX = 0.29  #: the softness the pixel-integrated silhouette already has (a 1 px box: 1 / sqrt(12))
+ESTIMATOR_SPREAD_PX2 = 0.55  #: what central differences on pixels add to a measured edge's sigma^2 (a blurred step: m^2 = sigma^2 + 0.55)
 MAX_DEFOCUS_PX = 4.0
 MIN_EDGE_CONTRAST = 40.0  #: a window whose grey levels span less than this has no edge to measure
 
@@ -74,7 +75,8 @@ def noise_sigma(gray: np.ndarray) -> float:
 def edge_blur_px(gray: np.ndarray) -> float:
     """Gaussian sigma (pixels) of the sharpest edges in a grey image: a step of contrast C blurred by
     sigma has peak gradient C / (sigma sqrt(2 pi)); C = 99th - 1st percentile of the levels, peak =
-    99.5th percentile of the gradient magnitude. NaN when the contrast is below ``MIN_EDGE_CONTRAST``."""
+    99.5th percentile of the gradient magnitude (central differences, whose own spread
+    ``ESTIMATOR_SPREAD_PX2`` is removed in quadrature). NaN when the contrast is below ``MIN_EDGE_CONTRAST``."""
     g = np.asarray(gray, np.float32)
     lo, hi = np.percentile(g, [1, 99])
     if hi - lo < MIN_EDGE_CONTRAST or min(g.shape) < 5:
@@ -82,7 +84,10 @@ def edge_blur_px(gray: np.ndarray) -> float:
     gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8.0
     peak = float(np.percentile(np.hypot(gx, gy), 99.5))
-    return float((hi - lo) / (peak * math.sqrt(2 * math.pi))) if peak > 0 else float("nan")
+    if not peak > 0:
+        return float("nan")
+    m = float((hi - lo) / (peak * math.sqrt(2 * math.pi)))
+    return math.sqrt(max(m * m - ESTIMATOR_SPREAD_PX2, 0.0))
 
 
 def local_look(image: np.ndarray, center_px, diameter_px: float, *, frame_blur_px: float) -> BallLook:
