@@ -8,9 +8,9 @@ calibration and add one ball of known 3D flight. Per camera, :func:`draw_ball`:
    so a ball near the edge of a wide lens is as oval as the lens makes it;
 2. **motion blur**: the coverage is averaged over ``TIME_SAMPLES`` positions spread over the exposure
    (the flight's image-space velocity smears it, as a rolling-free shutter would);
-3. **light**: the ball's lit colour is its reflectance times the local *white level* (the 95th
-   percentile of the brightest channel in a window of ``STATS_WINDOW_BALLS`` ball diameters around it,
-   what white paper there reaches), tinted by the window's grey-world colour cast, and shaded
+3. **light**: the ball's lit colour is its reflectance times the local *white level* (the
+   ``WHITE_PERCENTILE`` th percentile of the brightest channel in a window of ``STATS_WINDOW_BALLS`` ball
+   diameters around it, at least ``MIN_STATS_PX``: what the brightest surfaces there reach), tinted by the window's grey-world colour cast, and shaded
    (ambient + diffuse from the scene's light direction);
 4. **defocus**: the ball layer is blurred by a Gaussian whose sigma makes its edge as soft as the
    local image's sharpest edges (:func:`edge_blur_px`: contrast / (peak gradient sqrt(2 pi)), the
@@ -39,8 +39,9 @@ __all__ = ["BallLook", "draw_ball", "edge_blur_px", "local_look", "noise_sigma"]
 
 SUPERSAMPLE = 3  #: rays per pixel side
 TIME_SAMPLES = 8  #: ball positions over the exposure
-STATS_WINDOW_BALLS = 4.0  #: side of the statistics window, in ball diameters (at least MIN_STATS_PX)
-MIN_STATS_PX = 64
+STATS_WINDOW_BALLS = 6.0  #: side of the statistics window, in ball diameters (at least MIN_STATS_PX)
+MIN_STATS_PX = 128  #: light varies slowly; a dark surface behind the ball says little about the light on it
+WHITE_PERCENTILE = 98  #: of the brightest channel in the window: what white (the brightest surfaces there) shows
 AMBIENT, DIFFUSE = 0.45, 0.55  #: the ball's shading: ambient + diffuse (n . light)
 DRAWN_EDGE_SIGMA_PX = 0.29  #: the softness the pixel-integrated silhouette already has (a 1 px box: 1 / sqrt(12))
 ESTIMATOR_SPREAD_PX2 = 0.55  #: what central differences on pixels add to a measured edge's sigma^2 (a blurred step: m^2 = sigma^2 + 0.55)
@@ -103,7 +104,7 @@ def local_look(image: np.ndarray, center_px, diameter_px: float, *, frame_blur_p
         y0, y1 = (0, min(2 * half, h)) if cv < h / 2 else (max(h - 2 * half, 0), h)
     patch = image[y0:y1, x0:x1].astype(np.float32)
     gray = cv2.cvtColor(patch, cv2.COLOR_RGB2GRAY)
-    level = float(np.clip(np.percentile(patch.max(axis=2), 95), 40.0, 255.0))
+    level = float(np.clip(np.percentile(patch.max(axis=2), WHITE_PERCENTILE), 40.0, 255.0))
     mean = patch.reshape(-1, 3).mean(axis=0) + 1.0
     cast = np.clip(np.sqrt(mean / mean.mean()), 0.7, 1.3)  # half the grey-world cast (in log terms)
     blur = edge_blur_px(gray)
