@@ -190,6 +190,31 @@ class SemiRealSession:
         rng = np.random.default_rng([self.seed, f])
         k = int(self.frame_indices[rng.integers(len(self.frame_indices))])
         p, v = self.ball_state(rng)
+        return (*self._draw(k, p, v, rng), p[None, :], k)
+
+    def flight(self, n: int, frames: int, rate_hz: float) -> tuple[int, np.ndarray, np.ndarray]:
+        """Flight ``n`` (stream ``[seed, n, 0]``): its background frame set index and the ball's positions and
+        velocities (frames, 3), world frame, every ``1 / rate_hz`` s. The flight passes a random point of the
+        workspace at its middle (launched ``frames / 2`` frames earlier, back along its launch velocity)."""
+        rng = np.random.default_rng([self.seed, n, 0])
+        o, (lo, hi), R = self.options, self.rig.workspace_m, _lab_from_world()
+        k = int(self.frame_indices[rng.integers(len(self.frame_indices))])
+        mid = rng.uniform(lo, hi)
+        d = rng.standard_normal(3)
+        v0 = rng.uniform(*o.speed_mps) * d / np.linalg.norm(d)
+        w0 = 2 * np.pi * o.spin_rps * rng.standard_normal(3)
+        t = np.arange(frames) / float(rate_hz)
+        state = np.concatenate([R @ (mid - v0 * t[-1] / 2) + [0, 0, LIFT_M], R @ v0, R @ w0])
+        s = simulate(state, t)[0]
+        return k, (s[:, :3] - [0, 0, LIFT_M]) @ R, s[:, 3:6] @ R
+
+    def flight_frameset(self, n: int, j: int, flight) -> tuple:
+        """Frame ``j`` of flight ``n`` (``flight`` = :meth:`flight`'s result; noise stream ``[seed, n, j + 1]``),
+        as :meth:`frameset` returns it."""
+        k, P, V = flight
+        return (*self._draw(k, P[j], V[j], np.random.default_rng([self.seed, n, j + 1])), P[j][None, :], k)
+
+    def _draw(self, k: int, p: np.ndarray, v: np.ndarray, rng) -> tuple[list, list]:
         times = self._times[k]
         dt = times - np.median(times) if self.options.sync == "recorded" else np.zeros(len(self.rig))
         images, truths = [], []
@@ -199,7 +224,7 @@ class SemiRealSession:
                                    light_dir_world=UP_WORLD + 0.3 * np.array([1.0, 0.0, 1.0]), frame_blur_px=self._blur[k][i])
             images.append(img)
             truths.append((truth,))
-        return images, truths, p[None, :], k
+        return images, truths
 
 
 def _lab_from_world() -> np.ndarray:

@@ -39,6 +39,20 @@ variants run without the ball hypotheses (``TrackerOptions.hypotheses=None``): t
 by their motion over frame sets, and a frame set scored alone has none (with them, a frame set showing two
 balls would get no position, as the first 50 ms of a live run do); ``rt2 play --scene second_ball`` measures them.
 
+``rtblob`` is the RTBlob baseline (fixed pairs 0+1, 2+3); ``rt2-trained-sizes`` and ``rtblob-3m`` are ``rt2``
+and ``rtblob`` with ``TrackerOptions.size_from_rig=False`` (the model's trained blob areas, RTBlob's template
+for a ball 3 m away), to show what the rig's size limits change (docs/pipeline.md, "Size limits from the rig").
+
+Scenes (``--scene``): ``lab`` renders random frame sets of ``--rig`` (above; trackers ``rt2``, ``rt2-no-size``,
+``rt2-no-edge``, ``rt2-paper`` by default); ``caliscope`` builds semi-real frame sets on the real 4-camera
+caliscope session (:mod:`harness.sim.semireal`: its real frames as backgrounds, its real calibration, one
+orange or white ball of known physics flight drawn into every camera with that camera's lens, local light,
+sharpness and noise; trackers ``rt2``, ``rt2-paper``, ``rtblob`` by default), and also prints the accuracy
+table: percentiles of every position's 3D error, wrong ones included. ``--tracker-rig`` gives the
+trackers a second real calibration of the same cameras (``caliscope_4cam_rt2``: ``rt2 calib board`` of the
+session's videos, aligned to caliscope's world frame), so the ball drawn with caliscope's calibration is
+tracked through a real calibration error.
+
 The frame sets run in chunks of ``CHUNK`` on :mod:`harness.common.executor` (``--workers``, ``--ray``); every
 frame set depends only on ``(seed, f)`` and the trackers are reset in between, so the figures do not
 depend on the backend or the number of workers. Stopped early (SIGINT, SIGTERM, a lost worker): the
@@ -220,7 +234,8 @@ def trackable_views(balls_m, n_seen, lo, hi) -> np.ndarray:
 
 def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "orange", tol_m: float = 0.04,
              model=None, max_size_ratio: float = MAX_SIZE_RATIO, progress=True, sweep: SweepOptions | None = None,
-             stopped: list | None = None, scene: str = "lab", semireal=None, session=None, tracker_rig=None):  # fmt: skip
+             stopped: list | None = None, scene: str = "lab", semireal=None, session=None, tracker_rig=None,
+             flight_frames: int = 1, rate_hz: float = 100.0):  # fmt: skip
     """Render ``frames`` random frame sets of ``rig`` and score each tracker; list of :class:`FramesetScores`.
 
     trackers : names in ``TRACKERS`` (default: ``DEFAULT_TRACKERS[scene]``)
@@ -229,6 +244,9 @@ def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "
         with :class:`harness.sim.semireal.SemiRealOptions` ``semireal`` (its ``ball_colour`` is ``ball_colour``);
         the trackers get the session's calibration, or ``tracker_rig`` (a :class:`tracker.Rig`: another calibration
         of the same cameras, aligned by :func:`harness.sim.semireal.aligned_rig`) for a real calibration error
+    flight_frames : (caliscope) 1 = every frame set alone (a new ball, trackers reset, no window search); N > 1 =
+        flights of N frame sets at ``rate_hz`` (the trackers run through each flight as they would live: motion
+        prediction and window search on, reset between flights; frame set ``f`` is frame ``f % N`` of flight ``f // N``)
     max_size_ratio : the ``rt2`` tracker's 3D size test threshold (``TrackerOptions.max_size_ratio``)
     sweep : where the chunks of frame sets run (default: this process); stopped : if a list is given, a sweep
     stopped early (:class:`harness.common.executor.SweepStopped`) is appended to it and the scores of the chunks
@@ -240,6 +258,12 @@ def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "
 
     if scene not in SCENES:
         raise ValueError(f"unknown scene {scene!r}; valid: {list(SCENES)}")
+    if isinstance(flight_frames, bool) or not isinstance(flight_frames, (int, np.integer)) or flight_frames < 1:
+        raise ValueError(f"flight_frames must be an integer >= 1, got {flight_frames!r}")
+    if flight_frames > 1 and scene != "caliscope":
+        raise ValueError("flights (flight_frames > 1) are a --scene caliscope mode; --scene lab scores frame sets alone")
+    if not (np.isfinite(rate_hz) and 0 < rate_hz <= 10000):
+        raise ValueError(f"rate_hz must be a frame rate in (0, 10000] Hz, got {rate_hz!r}")
     trackers = DEFAULT_TRACKERS[scene] if trackers is None else tuple(trackers)
     for name in trackers:
         if name not in TRACKERS:
@@ -260,8 +284,9 @@ def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "
     if rig.workspace_m is None:
         raise ValueError("the rig has no workspace_m: random frame sets need the box where balls fly")
     model = load_model(model)  # fails here, not in a worker
-    setup = (rig, seed, tuple(trackers), ball_colour, tol_m, model, max_size_ratio, semi)
-    chunks = [(a, min(a + CHUNK, frames)) for a in range(0, frames, CHUNK)]
+    setup = (rig, seed, tuple(trackers), ball_colour, tol_m, model, max_size_ratio, semi, (int(flight_frames), float(rate_hz)))
+    size = CHUNK if flight_frames == 1 else flight_frames * max(1, CHUNK // flight_frames)  # a flight never straddles two chunks
+    chunks = [(a, min(a + size, frames)) for a in range(0, frames, size)]
     bar = tqdm(total=frames, desc="eval framesets", unit="frame set", disable=not progress, leave=False)
     with bar:
         parts = run_sweep(sweep or SweepOptions(), _score_chunk, chunks, stopped=stopped, initializer=_init_worker,
@@ -276,7 +301,7 @@ def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "
 _WORKER: dict = {}
 
 
-def _init_worker(rig, seed, trackers, ball_colour, tol_m, model, max_size_ratio, semi=None) -> None:
+def _init_worker(rig, seed, trackers, ball_colour, tol_m, model, max_size_ratio, semi=None, flights=(1, 100.0)) -> None:
     """Per worker process: the renderer (or the semi-real session, ``semi`` = (folder, options)) and the
     trackers (reset before every frame set)."""
     from harness.sim.render import Renderer
@@ -293,7 +318,8 @@ def _init_worker(rig, seed, trackers, ball_colour, tol_m, model, max_size_ratio,
         rig=rig, seed=seed, tol_m=tol_m, target=colour_rgb(ball_colour, "ball_colour"),
         box=rig.workspace_m + np.array([[-1.0], [1.0]]) * RobustOptions().workspace_margin_m,
         renderer=None if semi is not None else Renderer(rig, seed=seed),
-        runs={name: Tracker(rig, TRACKERS[name][0], roi=False, **({} if TRACKERS[name][0] == "rtblob" else {"model": model}), **overrides[name])
+        flights=flights,
+        runs={name: Tracker(rig, TRACKERS[name][0], roi=False if flights[0] == 1 else None, **({} if TRACKERS[name][0] == "rtblob" else {"model": model}), **overrides[name])
               for name in trackers},
     )
     if semi is not None:
@@ -312,8 +338,19 @@ def _score_chunk(chunk: tuple[int, int]) -> dict:
     rig, seed, tol_m, (lo, hi), runs = w["rig"], w["seed"], w["tol_m"], w["box"], w["runs"]
     scores = {name: FramesetScores(name) for name in runs}
     rejections0 = {name: tr.stats.size_rejections for name, tr in runs.items()}
+    n_flight, rate_hz = w["flights"]
+    flight = None
     for f in range(*chunk):
-        if w["renderer"] is None:  # semi-real: one ball, the target
+        t_s = float(f)
+        if w["renderer"] is None and n_flight > 1:  # a frame of a semi-real flight: the trackers keep their motion
+            n, j = divmod(f, n_flight)
+            if flight is None or j == 0:
+                flight = w["session"].flight(n, n_flight, rate_hz)
+                for tr in runs.values():
+                    tr.reset()
+            images, truths, balls_m, _ = w["session"].flight_frameset(n, j, flight)
+            ours, t_s = [0], j / rate_hz
+        elif w["renderer"] is None:  # semi-real: one ball, the target
             images, truths, balls_m, _ = w["session"].frameset(f)
             ours = [0]
         else:
@@ -323,8 +360,9 @@ def _score_chunk(chunk: tuple[int, int]) -> dict:
             balls_m = np.array([scene.balls[b].position_m for b in ours]).reshape(-1, 3)
         n_seen = trackable_views(balls_m, [sum(bool(t[b].visible) for t in truths) for b in ours], lo, hi)
         for name, tr in runs.items():
-            tr.reset()
-            obs, info = tr.process_with_info(FrameSet(float(f), images))
+            if n_flight == 1:
+                tr.reset()
+            obs, info = tr.process_with_info(FrameSet(t_s, images))
             sc = scores[name]
             found = sc.found
             widths = None
@@ -351,21 +389,23 @@ def format_edge_loss(scores) -> str:
 
 def format_accuracy(scores) -> str:
     """Accuracy table: percentiles of every position's 3D error (wrong positions included), cm."""
-    head = f"{'tracker':<12} {'positions':>10} " + " ".join(f"{'p' + str(q) + ' cm':>9}" for q in PERCENTILES)
+    n = max([12] + [len(s.tracker) for s in scores])
+    head = f"{'tracker':<{n}} {'positions':>10} " + " ".join(f"{'p' + str(q) + ' cm':>9}" for q in PERCENTILES)
     lines = [head, "-" * len(head)]
     for s in scores:
         pct = s.error_percentiles_cm()
-        lines.append(f"{s.tracker:<12} {s.positions:10d} " + " ".join(f"{pct[f'p{q}']:9.2f}" if pct[f"p{q}"] is not None else f"{'-':>9}" for q in PERCENTILES))
+        lines.append(f"{s.tracker:<{n}} {s.positions:10d} " + " ".join(f"{pct[f'p{q}']:9.2f}" if pct[f"p{q}"] is not None else f"{'-':>9}" for q in PERCENTILES))
     return "\n".join(lines)
 
 
 def format_table(scores) -> str:
-    head = f"{'tracker':<12} {'recall':>8} {'recall OK':>10} {'wrong':>8} {'wrong OK':>9} {'median cm':>10} {'positions':>10} {'OK':>5} {'trackable':>10} {'size rej.':>10} {'max ratio':>10} {'missed: det.':>13}"
+    n = max([12] + [len(s.tracker) for s in scores])  # the tracker column (12 unless a longer name needs more)
+    head = f"{'tracker':<{n}} {'recall':>8} {'recall OK':>10} {'wrong':>8} {'wrong OK':>9} {'median cm':>10} {'positions':>10} {'OK':>5} {'trackable':>10} {'size rej.':>10} {'max ratio':>10} {'missed: det.':>13}"
     lines = [head, "-" * len(head)]
     for s in scores:
         missed = f"{s.missed_detector}/{s.trackable - s.found}"
         lines.append(
-            f"{s.tracker:<12} {100 * s.recall:7.2f}% {100 * s.recall_ok:9.2f}% {100 * s.wrong_rate:7.2f}% {100 * s.wrong_ok_rate:8.2f}% "
+            f"{s.tracker:<{n}} {100 * s.recall:7.2f}% {100 * s.recall_ok:9.2f}% {100 * s.wrong_rate:7.2f}% {100 * s.wrong_ok_rate:8.2f}% "
             f"{s.median_error_cm:10.3f} {s.positions:10d} {s.ok_positions:5d} {s.trackable:10d} {s.size_rejections:10d} {s.max_right_size_ratio:10.2f} {missed:>13}"
         )
     return "\n".join(lines)
@@ -382,6 +422,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--sync", choices=("exact", "recorded"), default="exact",
                         help="--scene caliscope: ball drawn at the frame set's time in every camera (exact, default) or at each camera's recorded frame time")
     parser.add_argument("--backgrounds", type=int, default=12, help="--scene caliscope: real frame sets used as backgrounds (default 12 of 48)")
+    parser.add_argument("--flight-frames", type=int, default=1,
+                        help="--scene caliscope: 1 = every frame set alone (default); N > 1 = flights of N frame sets at --rate-hz, "
+                             "the trackers running through each (motion prediction and window search on)")
+    parser.add_argument("--rate-hz", type=float, default=100.0, help="--scene caliscope with --flight-frames: frame rate of the flights (default 100)")
     parser.add_argument("--tracker-rig", default=None,
                         help="--scene caliscope: the trackers' calibration (rig name or file, e.g. caliscope_4cam_rt2 = rt2 calib board of the "
                              "session's videos), aligned to the session's world frame; the ball is drawn with caliscope's calibration, so the "
@@ -404,6 +448,10 @@ def _semireal_options(args):
 
     if args.backgrounds < 1:
         raise ValueError(f"--backgrounds must be >= 1, got {args.backgrounds}")
+    if args.flight_frames < 1:
+        raise ValueError(f"--flight-frames must be >= 1, got {args.flight_frames}")
+    if not (np.isfinite(args.rate_hz) and 0 < args.rate_hz <= 10000):
+        raise ValueError(f"--rate-hz must be a frame rate in (0, 10000] Hz, got {args.rate_hz}")
     if args.exposure in ("tracking", "recorded"):
         return SemiRealOptions(exposure=args.exposure, sync=args.sync, backgrounds=args.backgrounds)
     try:
@@ -436,6 +484,8 @@ def run(args) -> int:
         from harness.sim.semireal import DEFAULT_SESSION
 
         args.rig = f"caliscope_4cam ({args.session or DEFAULT_SESSION})"
+        if args.flight_frames > 1:
+            args.rig += f"; flights of {args.flight_frames} frame sets at {args.rate_hz:g} Hz (trackers run through each)"
         if args.tracker_rig is not None:
             from harness.sim.semireal import aligned_rig, session_rig
 
@@ -444,15 +494,16 @@ def run(args) -> int:
             args.rig += (f"; trackers' calibration {args.tracker_rig}: rotation {', '.join(f'{v:.2f}' for v in diff['rotation_deg'])} deg, "
                          f"centres {', '.join(f'{v:.0f}' for v in diff['centre_mm'])} mm from caliscope's")
     else:
-        for name in ("session", "exposure", "sync", "backgrounds", "tracker_rig"):
-            if getattr(args, name) != {"exposure": "tracking", "sync": "exact", "backgrounds": 12}.get(name):
+        for name in ("session", "exposure", "sync", "backgrounds", "tracker_rig", "flight_frames", "rate_hz"):
+            if getattr(args, name) != {"exposure": "tracking", "sync": "exact", "backgrounds": 12, "flight_frames": 1, "rate_hz": 100.0}.get(name):
                 raise ValueError(f"--{name.replace('_', '-')} applies to --scene caliscope only")
         args.rig = args.rig or "lab4_vga_v1"
         rig = resolve_rig(args.rig)
     stopped: list = []
     scores = evaluate(rig, args.frames, args.seed, trackers=args.trackers, ball_colour=args.ball_colour, tol_m=args.tol_m, model=args.model,
                       max_size_ratio=args.max_size_ratio, sweep=options_from_args(args), stopped=stopped, scene=args.scene,
-                      semireal=semireal, session=args.session, tracker_rig=tracker_rig)  # fmt: skip
+                      semireal=semireal, session=args.session, tracker_rig=tracker_rig, flight_frames=args.flight_frames,
+                      rate_hz=args.rate_hz)  # fmt: skip
     done = scores[0].framesets if scores else 0
     if stopped:
         print(f"PARTIAL ({stopped[0]}): the figures of the {done} of {args.frames} frame sets that finished")

@@ -123,6 +123,7 @@ def test_cli_writes_json_and_rejects_bad_arguments(tmp_path, capsys):
         (["--max-size-ratio", "0"], "--max-size-ratio must be a positive number, got 0.0"),
         (["--tracker-rig", "lab4_vga"], "--tracker-rig applies to --scene caliscope only"),
         (["--exposure", "recorded"], "--exposure applies to --scene caliscope only"),
+        (["--flight-frames", "10"], "--flight-frames applies to --scene caliscope only"),
     )
     for args, message in bad:
         assert main(["eval", "framesets", *args]) == 2

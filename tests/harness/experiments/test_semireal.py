@@ -56,6 +56,26 @@ def test_frame_sets_are_seeded_and_the_ball_is_where_its_truth_says(folder, sess
         assert d[far].max() == 0  # nothing else in the real frame was touched
 
 
+def test_flights_follow_the_ball_physics_and_the_trackers_follow_them(folder, session):
+    from harness.experiments.studies.eval_framesets import evaluate
+
+    k, P, V = flight = session.flight(2, 30, 100.0)
+    again = session.flight(2, 30, 100.0)
+    assert again[0] == k and np.array_equal(again[1], P)
+    acc = np.diff(V, axis=0) * 100.0  # m/s^2, world frame: +y is up
+    assert np.median(acc[:, 1]) == pytest.approx(-9.81, abs=1.5)  # gravity (drag and Magnus add a little)
+    assert np.allclose(np.diff(P, axis=0) * 100.0, 0.5 * (V[1:] + V[:-1]), atol=0.05)
+    images, truths, balls, k2 = session.flight_frameset(2, 5, flight)
+    assert k2 == k and np.array_equal(balls[0], P[5])
+    a = evaluate(None, 20, 0, scene="caliscope", session=folder, semireal=SemiRealOptions(backgrounds=2), trackers=("rt2",),
+                 flight_frames=10, progress=False)[0]
+    b = evaluate(None, 20, 0, scene="caliscope", session=folder, semireal=SemiRealOptions(backgrounds=2), trackers=("rt2",),
+                 flight_frames=10, progress=False)[0]
+    assert a.as_json() == b.as_json() and a.framesets == 20
+    with pytest.raises(ValueError, match="--scene caliscope mode"):
+        evaluate(session.rig, 20, 0, flight_frames=10, progress=False)
+
+
 def test_the_real_calibration_error_of_a_second_calibration(folder):
     from harness.sim.rigs import resolve_rig
 
@@ -90,6 +110,8 @@ def test_cli_same_seed_same_figures_and_hostile_inputs(folder, tmp_path, capsys)
         (["--backgrounds", "0"], "--backgrounds must be >= 1, got 0"),
         (["--session", str(tmp_path)], "no camera_array.toml"),
         (["--tracker-rig", "no_such_rig"], "no_such_rig"),
+        (["--flight-frames", "0"], "--flight-frames must be >= 1, got 0"),
+        (["--flight-frames", "5", "--rate-hz", "0"], "--rate-hz must be a frame rate in (0, 10000] Hz, got 0.0"),
     )
     for extra, message in bad:
         assert main([*args[:-2], *extra] if extra[0] == "--session" else [*args, *extra]) == 2
