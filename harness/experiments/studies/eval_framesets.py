@@ -486,6 +486,9 @@ def run(args) -> int:
         args.rig = f"caliscope_4cam ({args.session or DEFAULT_SESSION})"
         if args.flight_frames > 1:
             args.rig += f"; flights of {args.flight_frames} frame sets at {args.rate_hz:g} Hz (trackers run through each)"
+        shutter = "each webcam's own" if semireal.exposure == "recorded" else f"{1e3 * semireal.tracking_exposure_s:g} ms"
+        when = "each camera's recorded frame time" if semireal.sync == "recorded" else "one time in all cameras"
+        args.rig += f"; shutter {shutter}; ball drawn at {when}"
         if args.tracker_rig is not None:
             from harness.sim.semireal import aligned_rig, session_rig
 
