@@ -27,8 +27,6 @@ __all__ = ["SizeLimits", "ball_diameter_range_px", "rtblob_radius_floor_px", "si
 
 #: workspace grid points per axis where the ball's size is measured (plus each camera's nearest box point)
 GRID = 9
-#: a blob as small as this fraction of the farthest ball's blob area is still accepted (partly hidden, dim rim)
-MIN_AREA_FRACTION = 0.5
 
 
 def ball_diameter_range_px(rig: Rig, workspace_m=None, *, ball_radius_m: float = 0.02) -> np.ndarray:
