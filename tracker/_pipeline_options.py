@@ -68,6 +68,13 @@ class TrackerOptions:
         balls are kept as known objects, and the full frame is searched while no ball is in play
         (:mod:`tracker.hypotheses`, docs/pipeline.md step 10). None = off (one track: the estimator's
         best set)
+    size_from_rig : the detectors' size limits follow from the rig when it has a workspace box
+        (:mod:`tracker.ball_size`): per camera, rt2's accepted blob area is widened to the blobs of the
+        ball at the workspace's nearest and farthest points, its search window grown to hold the
+        nearest ball, and RTBlob's template raised to at least the farthest ball's radius; limits
+        already wide enough are kept as they are (docs/pipeline.md, "Size limits from the rig").
+        False = the model's trained area range, ``roi_half_size_px`` and RTBlob's
+        ``expected_distance_m`` sizing on every rig
     """
 
     roi: bool | None = None
@@ -81,11 +88,12 @@ class TrackerOptions:
     blob_edge_px: float | None = None
     handover_max_age_s: float | None = 0.25
     hypotheses: HypothesisOptions | None = HypothesisOptions()
+    size_from_rig: bool = True
 
     def __post_init__(self):
         if self.roi is not None and not isinstance(self.roi, (bool, np.bool_)):
             raise ValueError(f"TrackerOptions.roi must be True, False or None, got {self.roi!r}")
-        for name in ("retry_full_frame", "threads_for_roi"):
+        for name in ("retry_full_frame", "threads_for_roi", "size_from_rig"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"TrackerOptions.{name} must be True or False, got {getattr(self, name)!r}")
         g = self.max_gap_s

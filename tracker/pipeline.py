@@ -48,6 +48,7 @@ from tracker._pipeline_options import (
     load_model,
     with_overrides,
 )
+from tracker.ball_size import ball_diameter_range_px, rtblob_radius_floor_px, size_limits
 from tracker.handover import SupportHandover
 from tracker._pipeline_roi import MotionPredictor
 from tracker.size_test import SizeTest
@@ -114,7 +115,10 @@ class Tracker:
                 raise ValueError("kind 'rtblob' has no ROI search (RTBlob always searches the full frame); pass roi=False or None")
             if options.workers != 1:
                 raise ValueError(f"kind 'rtblob' runs its cameras in its own loop; workers must be 1, got {options.workers}")
-            self._rtblob = RTBlobTracker(rig, RTBlobOptions() if rtblob_options is None else rtblob_options)
+            rtblob_options = RTBlobOptions() if rtblob_options is None else rtblob_options
+            if options.size_from_rig:
+                rtblob_options = _rtblob_sized(rig, rtblob_options)
+            self._rtblob = RTBlobTracker(rig, rtblob_options)
             self.options = options
             return
         if rtblob_options is not None:
@@ -122,6 +126,8 @@ class Tracker:
         self.options = options
         model = load_model(model)
         self._detector = BallDetector(model, detector_options_for(kind, det_method, detector_options))
+        self._detectors = _sized_detectors(rig, self._detector) if options.size_from_rig else [self._detector] * len(rig)
+        self._roi_half = np.array([d.options.roi_half_size_px for d in self._detectors], np.int64)[:, None]  # (n_cams, 1)
         self._estimator = RobustTriangulator(rig, estimator_options_for(estimator_options, options.eps_px), method=est_method)
         k = self._detector.options.k
         if k > self._estimator.options.max_candidates_per_camera:
@@ -398,7 +404,7 @@ class Tracker:
         has it), so the detector's own fallback (empty or truncated window) searches only that
         neighbourhood, never the full frame; ``[0, 0, W, H]`` for a full-frame search; ``x0 = -1``
         for a window entirely outside the image (nothing to search)."""
-        half = self._detector.options.roi_half_size_px
+        half = self._roi_half
         margin = half // 2
         wh = self._wh
         boxes = np.zeros((self.n_cams, 4), np.int64)
@@ -414,8 +420,9 @@ class Tracker:
         return boxes
 
     def _detect_chunk(self, cams, roi_px, boxes) -> None:
-        det, dets, images = self._detector, self._dets, self._images
+        dets, images = self._dets, self._images
         for i in cams:
+            det = self._detectors[i]
             x0, y0, x1, y1 = boxes[i]
             if x0 < 0:
                 dets[i] = None  # the predicted window lies outside this camera's image
@@ -442,6 +449,41 @@ class Tracker:
         self.stats.positions += obs.position_m is not None
         self.stats.ok += obs.status is Status.OK
         return replace(obs, notes=tuple(notes), latency_s=time.perf_counter() - t0), pinfo
+
+
+def _sized_detectors(rig: Rig, detector: BallDetector) -> list[BallDetector]:
+    """One detector per camera with the size limits of the rig's workspace (``TrackerOptions.size_from_rig``,
+    :mod:`tracker.ball_size`); ``detector`` itself for the cameras whose limits it already has."""
+    if rig.workspace_m is None:
+        return [detector] * len(rig)
+    o = detector.options
+    lim = size_limits(ball_diameter_range_px(rig), detector.area_range_px, o.roi_half_size_px, edge_loss_px=detector.model.edge_loss_px)
+    out, made = [], {}
+    for i in range(len(rig)):
+        (lo, hi), half = lim.area_px[i], int(lim.roi_half_size_px[i])
+        if (lo, hi) == detector.area_range_px and half == o.roi_half_size_px:
+            out.append(detector)
+            continue
+        key = (lo, hi, half)
+        if key not in made:
+            made[key] = BallDetector(detector.model, replace(o, roi_half_size_px=half,
+                                                             min_area_px=int(lo) if lo != detector.area_range_px[0] else o.min_area_px,
+                                                             max_area_px=int(hi) if hi != detector.area_range_px[1] else o.max_area_px))
+        out.append(made[key])
+    return out
+
+
+def _rtblob_sized(rig: Rig, options: RTBlobOptions) -> RTBlobOptions:
+    """RTBlob's options with each camera's template raised to the farthest ball's radius where the
+    ``expected_distance_m`` sizing is smaller (``TrackerOptions.size_from_rig``); unchanged when the
+    rig has no workspace, the radii are given, or no camera needs it."""
+    if rig.workspace_m is None or options.template_radius_px is not None:
+        return options
+    floor = rtblob_radius_floor_px(ball_diameter_range_px(rig, ball_radius_m=options.ball_radius_m))
+    expected = [0.5 * (c.K[0, 0] + c.K[1, 1]) * options.ball_radius_m / options.expected_distance_m for c in rig]
+    if not any(f > e for f, e in zip(floor, expected)):  # NaN floor (camera sees no workspace): keep
+        return options
+    return replace(options, template_radius_px=tuple(float(max(e, f)) if f > e else float(e) for f, e in zip(floor, expected)))
 
 
 def make_tracker(kind: str, rig: Rig, **kwargs) -> Tracker:

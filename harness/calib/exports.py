@@ -23,14 +23,13 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from tracker import Camera, Rig
-from checks.files import MAX_CONFIG_BYTES, read_text_capped
+from harness.sim.rigs import read_anipose_toml  # the reader lives with the rig resolver (--rig accepts .toml)
 
 __all__ = ["add_export_arguments", "read_anipose_toml", "save_calibration", "write_anipose_toml", "write_exports", "write_opencv_files"]
 
@@ -86,37 +85,6 @@ def write_anipose_toml(rig: Rig, path, *, length_unit_m: float = 1.0, error: flo
     lines += ["[metadata]", "adjusted = false", f"error = {_toml_value(float(error))}", ""]
     path.write_text("\n".join(lines))
     return path
-
-
-def read_anipose_toml(path, *, length_unit_m: float = 1.0) -> Rig:
-    """Rig from an aniposelib ``calibration.toml`` (``rotation`` as a Rodrigues vector or a 3x3 matrix,
-    as caliscope writes it). Tables without ``matrix`` (``metadata``) are skipped."""
-    path = Path(path)
-    try:
-        data = tomllib.loads(read_text_capped(path, MAX_CONFIG_BYTES, "calibration file"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: {exc}") from None
-    tables = [(k, v) for k, v in data.items() if isinstance(v, dict) and "matrix" in v]
-    tables += [(f"{k}.{kk}", vv) for k, v in data.items() if isinstance(v, dict) and "matrix" not in v
-               for kk, vv in v.items() if isinstance(vv, dict) and "matrix" in vv]
-    if not tables:
-        raise ValueError(f"{path}: no camera tables (with 'matrix') found")
-    cams = []
-    for key, t in tables:
-        where = f"{path}: [{key}]"
-        for field in ("size", "matrix", "distortions", "rotation", "translation"):
-            if field not in t:
-                raise ValueError(f"{where}: missing field {field!r}")
-        rot = np.asarray(t["rotation"], float)
-        R = cv2.Rodrigues(rot.reshape(3, 1))[0] if rot.size == 3 else rot.reshape(3, 3)
-        dist = np.asarray(t["distortions"], float).ravel()
-        try:
-            cams.append(Camera(name=str(t.get("name", key)), K=t["matrix"], distortion=dist, R_world_to_cam=R,
-                               t_world_to_cam_m=np.asarray(t["translation"], float) * length_unit_m,
-                               image_size=tuple(int(s) for s in t["size"])))
-        except ValueError as exc:
-            raise ValueError(f"{where}: {exc}") from None
-    return Rig(cams, description=f"imported from {path.name}")
 
 
 def add_export_arguments(parser) -> None:

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from harness.experiments.studies.eval_framesets import TRACKERS, FramesetScores, cameras_with_ball, evaluate, format_edge_loss, format_table, score_frameset, trackable_views
+from harness.experiments.studies.eval_framesets import DEFAULT_TRACKERS, FramesetScores, cameras_with_ball, evaluate, format_edge_loss, format_table, score_frameset, trackable_views
 from tracker import TrackerOptions
 
 
@@ -85,13 +85,13 @@ def small_run():
 
 def test_short_run_is_seeded_and_scores_every_tracker(small_run):
     rig, scores = small_run
-    assert [s.tracker for s in scores] == list(TRACKERS)
+    assert [s.tracker for s in scores] == list(DEFAULT_TRACKERS["lab"])
     for s in scores:
         assert s.framesets == 12 and 0 < s.trackable <= 12 and s.found <= s.trackable and s.positions >= s.found
         assert 0 <= s.missed_detector <= s.trackable - s.found
     # the same seed gives the same figures
     again = evaluate(rig, 12, 2, trackers=("rt2", "rt2-no-edge"), progress=False)
-    assert again[0].as_json() == scores[0].as_json() and again[1].as_json() == scores[list(TRACKERS).index("rt2-no-edge")].as_json()
+    assert again[0].as_json() == scores[0].as_json() and again[1].as_json() == scores[list(DEFAULT_TRACKERS["lab"]).index("rt2-no-edge")].as_json()
     # the edge loss is measured on ours' right OK positions, the same for the same seed, near the shipped model's
     fit = scores[0].edge_loss_fit
     assert fit is not None and fit == again[0].edge_loss_fit and fit.cameras >= 2 * scores[0].found_ok
@@ -121,6 +121,9 @@ def test_cli_writes_json_and_rejects_bad_arguments(tmp_path, capsys):
         (["--tol-m", "0"], "--tol-m must be a positive number of metres, got 0.0"),
         (["--rig", "no_such_rig"], "no_such_rig"),
         (["--max-size-ratio", "0"], "--max-size-ratio must be a positive number, got 0.0"),
+        (["--tracker-rig", "lab4_vga"], "--tracker-rig applies to --scene caliscope only"),
+        (["--exposure", "recorded"], "--exposure applies to --scene caliscope only"),
+        (["--flight-frames", "10"], "--flight-frames applies to --scene caliscope only"),
     )
     for args, message in bad:
         assert main(["eval", "framesets", *args]) == 2
