@@ -26,6 +26,7 @@ import zmq
 
 from harness.link.bridge_core import BridgeCore, check_endpoint, default_state_bind
 from harness.sim.robot.sim_wam import SimulatedWam
+from robot_models.motion_limits import check_motion, stop_ramp
 from robot_models.robot_interface import check_joint_trajectory
 
 __all__ = ["BridgeOptions", "SimBridge"]
@@ -158,13 +159,22 @@ class SimBridge(BridgeCore):
 
     def apply_trajectory(self, msg: dict) -> None:
         t_s = (np.asarray(msg["t_ns"], dtype=np.int64) - self.wam_origin_ns) * 1e-9
-        t, Q, Qd = check_joint_trajectory(self.kin, t_s, msg["q"], msg["qdot"], now_s=self.wam.t_s)
+        now = self.wam.t_s
+        t, Q, Qd = check_joint_trajectory(self.kin, t_s, msg["q"], msg["qdot"], now_s=now)
+        if t[0] > now:  # it takes over later: from where the present reference drives the arm then
+            start = self.wam.reference_at(t[0])
+        else:
+            st = self.wam.true_state()
+            start = (st.q, st.qdot)
+        check_motion(self.kin, t, Q, Qd, now_s=now, start=start)  # robot_models.motion_limits: the shared rule
         self.wam.command_trajectory(t, Q, Qd)
         self.cmd_id, self.mode = int(msg["id"]), "track"
 
     def hold(self, mode: str) -> None:
-        """Hold the present (true) joint position from now on."""
-        q = np.clip(self.wam.true_state().q, self.kin.q_min, self.kin.q_max)
-        now = self.wam.t_s
-        self.wam.command_trajectory([now, now + 1.0 / self.wam.control_rate_hz], np.stack([q, q]), np.zeros((2, q.size)))
+        """Stop where the arm gets to from now on: its (true) velocity ramps down to rest within the
+        deceleration limits (``robot_models.motion_limits.stop_ramp``), then it holds that position."""
+        st = self.wam.true_state()
+        t, q, qd = stop_ramp(self.kin, self.wam.t_s, np.clip(st.q, self.kin.q_min, self.kin.q_max), st.qdot,
+                             1.0 / self.wam.control_rate_hz)
+        self.wam.command_trajectory(t, q, qd)
         self.mode = mode
