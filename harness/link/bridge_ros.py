@@ -224,17 +224,17 @@ class RosBridge(BridgeCore):
         """Run until :meth:`stop`, ROS shutdown or ``duration_s``; holds the robot if it was tracking; closes the sockets."""
         end_ns = None if duration_s is None else self.robot_ns() + int(duration_s * 1e9)
         poller = zmq.Poller()
-        poller.register(self._router, zmq.POLLIN)
+        poller.register(self.requests, zmq.POLLIN)
         poller.register(self._inbox, zmq.POLLIN)
         self.event("started", f"WAM via ROS wam_node at {self.ns or '/'}, bridge {self.bridge_id}, "
                               f"types {self.types.origin}")
+        self.start_intake()
         try:
             while not self._stop and not rospy.is_shutdown() and (end_ns is None or self.robot_ns() < end_ns):
                 ready = dict(poller.poll(timeout=20))
                 if self._inbox in ready:
                     self._drain_inbox()
-                if self._router in ready:
-                    self.serve_requests()
+                self.serve_requests()  # what the intake thread validated, within a time budget
                 self.watchdog()
         finally:
             if self.mode == "track":
