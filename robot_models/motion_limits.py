@@ -12,8 +12,10 @@ interpolation of its samples):
 * **acceleration**: the change of that velocity between consecutive segments over the distance of the
   segments' midpoints, and the same of the given ``qdot`` (when given) over each segment, within
   ``qddot_max * (1 + tol)``;
-* **jerk**: the change of that acceleration over the distance of its stamps, within
-  ``qddot_max / jerk_ramp_s`` (the acceleration limit reached from rest in ``jerk_ramp_s``);
+* **jerk**: the change of that acceleration over ``jerk_window_s`` (10 ms, so that a short interval where
+  a planner joins two pieces does not divide a rounding error by a millisecond), within
+  ``qddot_max / jerk_ramp_s`` (the acceleration limit reached from rest in ``jerk_ramp_s``): an acceleration
+  step of more than the limit is refused;
 * **start**: the position at ``t_on`` within ``start_tol_rad`` of where the arm is driven at ``t_on`` (the
   caller's ``start``: the arm's state now, or the reference it follows at a later ``t_on``), and the first
   segment's velocity within ``qddot_max * start_blend_s`` of the start velocity -- no teleports, no steps;
@@ -23,10 +25,11 @@ interpolation of its samples):
   (``q + v |v| / (2 qddot_max)``): a hold at any moment never drives a joint into its hard stop.
 
 Tolerances (:class:`MotionRule`, defaults from the hitting policy's and the accuracy motion's trajectories,
-which plan to 1.00 x the acceleration limit, reach 22 x ``qddot_max`` per second of jerk, start within
-0.027 rad and 0.02 s x ``qddot_max`` of the arm, and end at rest): 10 % on velocity and acceleration
-(finite differences of a curve planned at the limit), ``jerk_ramp_s`` 0.02 s, ``start_tol_rad`` 0.05 rad,
-``start_blend_s`` 0.05 s, ``stop_s`` 0.01 s.
+which plan to 1.00 x the acceleration limit, reach 22 (hitting) and up to ~60 (the accuracy motion's
+joins, over 10 ms) x ``qddot_max`` per second of jerk, start within 0.027 rad and 0.02 s x ``qddot_max`` of
+the arm, and end at rest): 10 % on velocity and acceleration (finite differences of a curve planned at the
+limit), ``jerk_ramp_s`` 0.01 s (100 x ``qddot_max`` per second), ``jerk_window_s`` 0.01 s,
+``start_tol_rad`` 0.05 rad, ``start_blend_s`` 0.05 s, ``stop_s`` 0.01 s.
 
 :func:`stop_ramp` is the hold both ends use: from the present state every joint's velocity ramps linearly
 to zero together within ``hold_decel_share`` (90 %) of each joint's deceleration limit.
@@ -50,14 +53,15 @@ class MotionRule:
     """Tolerances of the motion-safety rule (module docstring); times s, angles rad, fractions of a limit."""
 
     tol: float = 0.10  #: finite-difference velocity and acceleration may exceed the limits by this share
-    jerk_ramp_s: float = 0.02  #: jerk limit = qddot_max / jerk_ramp_s
+    jerk_ramp_s: float = 0.01  #: jerk limit = qddot_max / jerk_ramp_s
+    jerk_window_s: float = 0.01  #: jerk = change of the acceleration over at least this long
     start_tol_rad: float = 0.05  #: the take-over position may be this far from where the arm is driven
     start_blend_s: float = 0.05  #: the first velocity may differ from the arm's by qddot_max x this
     stop_s: float = 0.01  #: the final velocity must stop within this at the acceleration limit
     hold_decel_share: float = 0.9  #: a hold ramps down at this share of the deceleration limit
 
     def __post_init__(self):
-        for name in ("tol", "jerk_ramp_s", "start_tol_rad", "start_blend_s", "stop_s"):
+        for name in ("tol", "jerk_ramp_s", "jerk_window_s", "start_tol_rad", "start_blend_s", "stop_s"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= float(v) <= 10:
                 raise ValueError(f"MotionRule.{name} must be a number in [0, 10], got {v!r}")
@@ -148,12 +152,15 @@ def check_motion(limits, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray | None
             fail(base + hit[0] + 1, hit[1], "acceleration", a[hit], "rad/s^2", qdd_max[hit[1]] * tol,
                  f"its limit (x{tol:g} tolerance, finite difference of the neighbouring samples)")
         if a.shape[0] >= 2 and rule.jerk_ramp_s > 0:
-            jerk = np.diff(a, axis=0) / np.diff(t[1:-1])[:, None]
+            ta = t[1:-1]  # the stamps of the accelerations
+            later = np.searchsorted(ta, ta + rule.jerk_window_s - 1e-9)  # the first stamp a window later
+            i = np.flatnonzero(later < ta.shape[0])
+            jerk = (a[later[i]] - a[i]) / (ta[later[i]] - ta[i])[:, None]
             jerk_max = qdd_max / rule.jerk_ramp_s
             hit = _first_over(jerk, jerk_max)
             if hit:
-                fail(base + hit[0] + 2, hit[1], "jerk", jerk[hit], "rad/s^3", jerk_max[hit[1]],
-                     f"its limit (acceleration limit / {rule.jerk_ramp_s:g} s)")
+                fail(base + int(i[hit[0]]) + 1, hit[1], "jerk", jerk[hit], "rad/s^3", jerk_max[hit[1]],
+                     f"its limit (acceleration limit / {rule.jerk_ramp_s:g} s, over {rule.jerk_window_s:g} s)")
     if Qd is not None:
         ad = np.diff(Qd, axis=0) / dt[:, None]
         hit = _first_over(ad / qdd_max, np.full(ad.shape[1], tol))

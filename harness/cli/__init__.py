@@ -89,6 +89,10 @@ def _build_parser(argv: list[str]) -> tuple[argparse.ArgumentParser, dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if argv is None:  # a process of its own (not a call from a test): started by ReadyProcess, die with the parent
+        from harness.common.spawn import die_with_parent_from_env
+
+        die_with_parent_from_env()
     argv = list(sys.argv[1:] if argv is None else argv)
     parser, _ = _build_parser(argv)
     args = parser.parse_args(argv)
