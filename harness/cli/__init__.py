@@ -105,6 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError, PermissionError, IsADirectoryError) as exc:
         print(f"rt2 {cmd}: error: {exc}", file=sys.stderr)
         return 2
+    except ConnectionError as exc:  # a robot link or stream lost at run time (LinkLostError): a failure, not bad input
+        print(f"rt2 {cmd}: error: {exc}", file=sys.stderr)
+        return 1
     except OSError as exc:  # a full disk, a file-size limit, an I/O error while writing: one line, not a traceback
         where = f" ({exc.filename})" if exc.filename else ""
         print(f"rt2 {cmd}: error: {exc.strerror or exc}{where}", file=sys.stderr)
