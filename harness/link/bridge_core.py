@@ -32,7 +32,6 @@ from __future__ import annotations
 import collections
 import gc
 import logging
-import re
 import sys
 import threading
 import time
@@ -40,10 +39,11 @@ import uuid
 
 import zmq
 
+from harness.common.ratelimit import RateLimit
 from harness.link import protocol
 from harness.link.protocol import ProtocolError
 
-__all__ = ["BridgeCore", "RejectLog", "check_endpoint", "default_state_bind"]
+__all__ = ["BridgeCore", "check_endpoint", "default_state_bind"]
 
 log = logging.getLogger("rt2.robot.link.bridge")
 MAX_REQUESTS_PER_WAKE = 64  #: the intake thread answers replies between at most this many requests
@@ -67,53 +67,6 @@ def default_state_bind(bind: str) -> str:
     """The state endpoint when none is given: the command port + 1, or a free port when that is ``*``."""
     head, _, port = bind.rpartition(":")
     return f"{head}:{int(port) + 1}" if bind.startswith("tcp://") and port.isdigit() else f"{head}:*"
-
-
-class RejectLog:
-    """Rate limit of rejected-message reports: :meth:`note` says whether this one is reported on its own
-    (the first ``burst`` of each ``period_s``); the others are counted per reason (numbers and quoted values
-    folded) and :meth:`summary` returns them once per period. Thread-safe."""
-
-    def __init__(self, burst: int = REJECT_BURST, period_s: float = 1.0, clock=time.monotonic):
-        self.burst, self.period_s, self._clock = int(burst), float(period_s), clock
-        self._lock = threading.Lock()
-        self._window = clock()
-        self._in_window = 0
-        self._counts: collections.Counter = collections.Counter()
-        self.total = 0  #: every rejection noted
-
-    @staticmethod
-    def kind(reason: str) -> str:
-        """The reason without its numbers and quoted values (what rejections are counted by)."""
-        short = re.sub(r"'[^']*'|\"[^\"]*\"|\[[^\]]*\]|\([^)]*\)", "...", reason)
-        return re.sub(r"[-+]?\d[\d.e+-]*", "N", short)[:80]
-
-    def note(self, reason: str) -> bool:
-        with self._lock:
-            self.total += 1
-            self._roll()
-            self._in_window += 1
-            if self._in_window <= self.burst:
-                return True
-            self._counts[self.kind(reason)] += 1
-            return False
-
-    def _roll(self) -> str | None:
-        now = self._clock()
-        if now - self._window < self.period_s:
-            return None
-        counts, elapsed = self._counts, now - self._window
-        self._counts, self._window, self._in_window = collections.Counter(), now, 0
-        if not counts:
-            return None
-        parts = "; ".join(f"{n} x {k}" for k, n in counts.most_common(5))
-        more = f" (and {len(counts) - 5} more kinds)" if len(counts) > 5 else ""
-        return f"{sum(counts.values())} more messages rejected in {elapsed:.1f} s: {parts}{more}"
-
-    def summary(self) -> str | None:
-        """The summary of the suppressed rejections when a period has passed, else None."""
-        with self._lock:
-            return self._roll()
 
 
 class BridgeCore:
@@ -154,7 +107,7 @@ class BridgeCore:
         self.mode = "idle"
         self.cmd_id = -1
         self.seq = 0
-        self.rejects = RejectLog()
+        self.rejects = RateLimit(REJECT_BURST)  # rejections: 10 a second one by one, the rest counted
         self._queue: collections.deque = collections.deque()  # (ident, request, t_recv_ns) for the control thread
         self._pending_events: collections.deque = collections.deque()  # rejection reasons to publish
         self._last_contact_ns: int | None = None

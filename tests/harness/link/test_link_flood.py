@@ -2,7 +2,7 @@
 
 - ``protocol.decode_request`` (the bridge's intake) accepts and refuses what ``protocol.decode`` does, on a table
   of hostile frames, and gives up early on shapes no request has;
-- ``RejectLog``: the first rejections of a second one by one, the rest counted per reason;
+- ``RateLimit``: the first rejections of a second one by one, the rest counted per reason;
 - under a flood of 64 frames of 4 MiB, 2000 small bad frames and 8 of 50 MB from one peer, a good client keeps
   its joint states, every bad frame is answered, the bridge's memory stays bounded and its log is rate-limited
   (``realtime``: run alone; the strict timing figures are ``rt2 bench link-flood``'s).
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from harness.link import ProtocolError, protocol
-from harness.link.bridge_core import RejectLog
+from harness.common.ratelimit import RateLimit
 from harness.link.flood import flood_frames, measure_flood
 from tests.harness.link.robot_link_util import BridgeProcess
 
@@ -74,7 +74,7 @@ def test_intake_decoding_gives_up_early_on_shapes_no_request_has():
 
 def test_reject_log_counts_per_reason_beyond_its_burst():
     now = [0.0]
-    rl = RejectLog(burst=3, period_s=1.0, clock=lambda: now[0])
+    rl = RateLimit(burst=3, period_s=1.0, clock=lambda: now[0])
     shown = [rl.note(f"trajectory {i}: sample {i}: joint_1 velocity {i}.5 rad/s") for i in range(10)]
     shown += [rl.note("not a msgpack message (ValueError: x)") for _ in range(5)]
     assert shown[:3] == [True] * 3 and not any(shown[3:])
@@ -83,7 +83,11 @@ def test_reject_log_counts_per_reason_beyond_its_burst():
     text = rl.summary()
     assert text.startswith("12 more messages rejected in 1.5 s") and "7 x trajectory N: sample N" in text
     assert "5 x not a msgpack message" in text and rl.total == 15
-    assert rl.note("x") is True  # a new second: shown again
+    assert rl.summary() is None and rl.note("x") is True  # a new second: shown again
+    rl.note("y"), rl.note("z"), rl.note("w")  # the 4th of this second: counted
+    now[0] = 3.0
+    assert rl.note("v") is True  # a note in a new period keeps the last one's summary for summary()
+    assert rl.summary().startswith("1 more messages rejected in 1.5 s: 1 x w")
 
 
 @pytest.mark.realtime

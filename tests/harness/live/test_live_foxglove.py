@@ -98,3 +98,34 @@ def test_view_without_clients_costs_the_loop_nothing():
         for k in range(2000):
             view.update(k, afs, obs, info)
         assert time.perf_counter() - t0 < 0.5
+
+
+def test_bad_clients_are_logged_prefixed_and_rate_limited(capfd):
+    """40 clients that fail the WebSocket handshake: a few prefixed lines and a count, not 40 bare stderr lines."""
+    import socket
+
+    view = LiveView(lab_rig(), "rt2", ViewOptions(port=0))
+    try:
+        for _ in range(40):
+            with socket.create_connection(("127.0.0.1", view.port)) as s:
+                s.sendall(b"garbage\r\n\r\n")
+                s.settimeout(2.0)
+                try:
+                    s.recv(100)
+                except OSError:
+                    pass
+        time.sleep(1.2)
+        with socket.create_connection(("127.0.0.1", view.port)) as s:  # one more, in the next second: the summary
+            s.sendall(b"garbage\r\n\r\n")
+            s.settimeout(2.0)
+            try:
+                s.recv(100)
+            except OSError:
+                pass
+        time.sleep(0.3)
+    finally:
+        view.close()
+    lines = [ln for ln in capfd.readouterr().err.splitlines() if "client" in ln]
+    assert lines and all(ln.startswith("rt2 live view: ") for ln in lines), lines
+    assert len(lines) <= 12, lines
+    assert any("more Foxglove messages in" in ln for ln in lines), lines
