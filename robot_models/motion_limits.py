@@ -34,7 +34,8 @@ limit), ``jerk_ramp_s`` 0.01 s (100 x ``qddot_max`` per second), ``jerk_window_s
 :func:`stop_ramp` is the hold both ends use: from the present state every joint's velocity ramps linearly
 to zero together within ``hold_decel_share`` (90 %) of each joint's deceleration limit.
 
-Numpy only (the ROS bridge runs it under a system Python). ``limits`` is anything with ``joint_names``,
+Numpy, and scipy's spline for a trajectory without ``qdot`` (the ROS bridge runs it under a system Python
+with python3-scipy). ``limits`` is anything with ``joint_names``,
 ``q_min``, ``q_max``, ``qdot_max`` and ``qddot_max`` (:class:`robot_models.WamKinematics`,
 :class:`robot_models.limits.JointLimits`).
 """
