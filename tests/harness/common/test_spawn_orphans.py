@@ -16,25 +16,13 @@ from pathlib import Path
 import pytest
 
 from harness.common.spawn import PARENT_PID_ENV, ROOT
-
-
-def _ppids() -> dict[int, int]:
-    out = {}
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                stat = (d / "stat").read_text()
-            except OSError:
-                continue
-            out[int(d.name)] = int(stat.rsplit(")", 1)[1].split()[1])
-    return out
+from tests.harness.common.test_worker_signals import children
 
 
 def _descendants(pid: int) -> list[int]:
-    ppids, found, todo = _ppids(), [], [pid]
+    found, todo = [], [pid]
     while todo:
-        p = todo.pop()
-        kids = [c for c, pp in ppids.items() if pp == p]
+        kids = children(todo.pop())
         found += kids
         todo += kids
     return found

@@ -104,24 +104,21 @@ def test_bad_clients_are_logged_prefixed_and_rate_limited(capfd):
     """40 clients that fail the WebSocket handshake: a few prefixed lines and a count, not 40 bare stderr lines."""
     import socket
 
-    view = LiveView(lab_rig(), "rt2", ViewOptions(port=0))
-    try:
-        for _ in range(40):
-            with socket.create_connection(("127.0.0.1", view.port)) as s:
-                s.sendall(b"garbage\r\n\r\n")
-                s.settimeout(2.0)
-                try:
-                    s.recv(100)
-                except OSError:
-                    pass
-        time.sleep(1.2)
-        with socket.create_connection(("127.0.0.1", view.port)) as s:  # one more, in the next second: the summary
+    def bad_client(port):
+        with socket.create_connection(("127.0.0.1", port)) as s:
             s.sendall(b"garbage\r\n\r\n")
             s.settimeout(2.0)
             try:
                 s.recv(100)
             except OSError:
                 pass
+
+    view = LiveView(lab_rig(), "rt2", ViewOptions(port=0))
+    try:
+        for _ in range(40):
+            bad_client(view.port)
+        time.sleep(1.2)
+        bad_client(view.port)  # one more, in the next second: the summary
         time.sleep(0.3)
     finally:
         view.close()
