@@ -73,22 +73,23 @@ class MotionRule:
 DEFAULT_RULE = MotionRule()
 
 
-def _take_over(t: np.ndarray, Q: np.ndarray, Qd: np.ndarray | None, now_s: float | None):
-    """The executed part: times, positions, given velocities (or None) from ``t_on``, and the index of its
-    first sample in the original trajectory (for messages)."""
+def _spline_slopes(t: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """(N, n) velocities at the samples of the not-a-knot cubic spline through ``Q`` (the robot's interpolation
+    of a trajectory without ``qdot``: ``harness.sim.robot._reference``, the ROS bridge)."""
+    if t.shape[0] == 2:
+        return np.repeat(np.diff(Q, axis=0) / np.diff(t)[0], 2, 0)
+    from scipy.interpolate import CubicSpline
+
+    return CubicSpline(t, Q, axis=0)(t, 1)
+
+
+def _take_over(t: np.ndarray, now_s: float | None) -> int:
+    """The first sample of the executed part: 0 when the trajectory starts at or after ``now_s``, else the
+    sample that opens the segment holding ``now_s`` (that segment is checked whole, so that every end of the
+    link, whatever its ``now``, checks a tail of the same samples)."""
     if now_s is None or now_s <= t[0]:
-        return t, Q, Qd, 0
-    k = int(np.searchsorted(t, now_s, side="right"))  # first sample after now (the caller ensured t[-1] > now)
-    w = (now_s - t[k - 1]) / (t[k] - t[k - 1])
-    q_on = Q[k - 1] + w * (Q[k] - Q[k - 1])
-    t_e = np.concatenate([[now_s], t[k:]])
-    Q_e = np.vstack([q_on, Q[k:]])
-    Qd_e = None if Qd is None else np.vstack([Qd[k - 1] + w * (Qd[k] - Qd[k - 1]), Qd[k:]])
-    if t_e[1] - t_e[0] < 1e-6:  # now falls on a sample: do not divide by a vanishing interval
-        t_e, Q_e = t_e[1:], Q_e[1:]
-        Qd_e = None if Qd_e is None else Qd_e[1:]
-        return t_e, Q_e, Qd_e, k
-    return t_e, Q_e, Qd_e, k - 1
+        return 0
+    return int(min(np.searchsorted(t, now_s, side="right") - 1, t.shape[0] - 2))
 
 
 def _first_over(values: np.ndarray, limit: np.ndarray):
@@ -112,8 +113,16 @@ def check_motion(limits, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray | None
     names = limits.joint_names
     qd_max = np.asarray(limits.qdot_max, float)
     qdd_max = np.asarray(limits.qddot_max, float)
-    t, Q, Qd, base = _take_over(np.asarray(t_s, float), np.asarray(q, float),
-                                None if qdot is None else np.asarray(qdot, float), now_s)
+    t_all, Q_all = np.asarray(t_s, float), np.asarray(q, float)
+    Qd_all = None if qdot is None else np.asarray(qdot, float)
+    slopes_all = Qd_all if Qd_all is not None else _spline_slopes(t_all, Q_all)  # the reference's velocity at samples
+    base = _take_over(t_all, now_s)
+    t, Q, slopes = t_all[base:], Q_all[base:], slopes_all[base:]
+    Qd = None if Qd_all is None else Qd_all[base:]
+    t_on = t_all[0] if now_s is None else max(float(t_all[0]), float(now_s))
+    w = 0.0 if t_on <= t[0] else (t_on - t[0]) / (t[1] - t[0])
+    q_on = Q[0] + w * (Q[1] - Q[0])  # where the trajectory takes over, and how fast (linear between samples)
+    v_on = slopes[0] + w * (slopes[1] - slopes[0])
     tol = 1.0 + rule.tol
     dt = np.diff(t)
 
@@ -122,10 +131,10 @@ def check_motion(limits, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray | None
 
     if start is not None:
         q0, qd0 = (np.asarray(x, float) for x in start)
-        gap = np.abs(Q[0] - q0)
+        gap = np.abs(q_on - q0)
         j = int(np.argmax(gap))
         if gap[j] > rule.start_tol_rad:
-            raise ValueError(f"sample {base}: {names[j]} starts {Q[0, j] - q0[j]:+.4g} rad from where the arm is "
+            raise ValueError(f"sample {base}: {names[j]} starts {q_on[j] - q0[j]:+.4g} rad from where the arm is "
                              f"({q0[j]:.4g} rad); the limit is {rule.start_tol_rad:g} rad (a trajectory must start at "
                              f"the arm: no teleports)")
     if t.shape[0] < 2:
@@ -135,14 +144,14 @@ def check_motion(limits, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray | None
     if hit:
         fail(base + hit[0] + 1, hit[1], "velocity", v[hit], "rad/s", qd_max[hit[1]] * tol,
              f"its limit (x{tol:g} tolerance, finite difference to the previous sample)")
-    _check_cubic(names, t, Q, Qd, base, qd_max * tol, qdd_max * tol, qdd_max / rule.jerk_ramp_s if rule.jerk_ramp_s else None)
-    v_first, v_last = (v[0], v[-1]) if Qd is None else (Qd[0], Qd[-1])  # velocities at the first and last samples
+    _check_cubic(names, t, Q, slopes, base, qd_max * tol, qdd_max * tol, qdd_max / rule.jerk_ramp_s if rule.jerk_ramp_s else None)
+    v_last = v[-1] if Qd is None else Qd[-1]  # the velocity at the last sample
     if start is not None:
-        dv = v_first - qd0
+        dv = v_on - qd0
         hit = _first_over(dv, qdd_max * rule.start_blend_s)
         if hit:
             j = hit[1]
-            raise ValueError(f"sample {base}: {names[j]} starts at {v_first[j]:.4g} rad/s while the arm moves at "
+            raise ValueError(f"sample {base}: {names[j]} starts at {v_on[j]:.4g} rad/s while the arm moves at "
                              f"{qd0[j]:.4g} rad/s; the step exceeds {qdd_max[j] * rule.start_blend_s:.4g} rad/s "
                              f"(its acceleration limit over {rule.start_blend_s:g} s): no velocity steps")
     tm = 0.5 * (t[1:] + t[:-1])
@@ -188,14 +197,9 @@ def check_motion(limits, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray | None
 
 
 def _check_cubic(names, t, Q, Qd, base, v_lim, a_lim, j_lim) -> None:
-    """The cubic the robot interpolates between samples (a Hermite through the given qdot, else the
-    not-a-knot spline through q, as ``harness.sim.robot._reference`` and the ROS bridge): per segment its
-    accelerations at both ends (the extremes: it is linear in between), its velocity extremum and its jerk
-    (constant) within the limits."""
-    if Qd is None:
-        from scipy.interpolate import CubicSpline  # the robot's own interpolation: its slopes at the samples
-
-        Qd = CubicSpline(t, Q, axis=0)(t, 1) if t.shape[0] > 2 else np.repeat(np.diff(Q, axis=0) / np.diff(t)[0], 2, 0)
+    """The cubic the robot interpolates between samples (a Hermite through the velocities ``Qd`` at the samples:
+    the given qdot, else the spline's slopes): per segment its accelerations at both ends (the extremes: it is
+    linear in between), its velocity extremum and its jerk (constant) within the limits."""
     h = np.diff(t)[:, None]
     d = np.diff(Q, axis=0) / h
     v0, v1 = Qd[:-1], Qd[1:]

@@ -122,6 +122,17 @@ def test_the_rule_accepts_smooth_moves_and_its_own_hold(kin):
     assert (decel <= DEFAULT_RULE.hold_decel_share * kin.qddot_max + 1e-9).all()
 
 
+def test_a_trajectory_accepted_now_is_accepted_later(kin):
+    """The bridge's clock is ahead of the client's: whatever ``now`` inside the trajectory, the executed part of
+    an accepted trajectory is accepted (the segment holding ``now`` is checked whole, never cut into a sliver)."""
+    q = np.asarray(kin.q_home, float)
+    t, Q, Qd = _smooth(q, q + np.r_[0.5, -0.3, 0.4, 0.3, 0.2, 0.3, 0.3], 1.0, 0.8)
+    rng = np.random.default_rng(0)
+    for now in np.concatenate([t[:-1] + 1e-7, rng.uniform(t[0], t[-1], 200)]):
+        for qdot in (Qd, None):
+            check_motion(kin, t, Q, qdot, now_s=float(now), start=state_at(t, Q, float(now)))
+
+
 def test_rule_options_are_validated():
     with pytest.raises(ValueError, match="MotionRule.tol"):
         MotionRule(tol=-1)
