@@ -85,28 +85,33 @@ def urdf_joint_limits(path: str | Path) -> tuple[tuple[str, ...], np.ndarray, np
 
 @dataclass(frozen=True, eq=False)
 class JointLimits:
-    """Joint names and limits of the arm. q_min, q_max : (n,) rad; qdot_max : (n,) rad/s (read-only arrays).
+    """Joint names and limits of the arm. q_min, q_max : (n,) rad; qdot_max : (n,) rad/s; qddot_max : (n,)
+    rad/s^2 (read-only arrays).
 
-    Has the members ``check_joint_trajectory`` uses (``n_joints``, ``joint_names``, ``qdot_max``,
-    ``check_q``), like :class:`robot_models.WamKinematics`. Build with :meth:`from_config`.
+    Has the members ``check_joint_trajectory`` and ``robot_models.motion_limits.check_motion`` use
+    (``n_joints``, ``joint_names``, ``qdot_max``, ``qddot_max``, ``check_q``), like
+    :class:`robot_models.WamKinematics`. Build with :meth:`from_config`.
     """
 
     joint_names: tuple
     q_min: np.ndarray
     q_max: np.ndarray
     qdot_max: np.ndarray
+    qddot_max: np.ndarray = None
 
     def __post_init__(self):
         n = len(self.joint_names)
-        for name in ("q_min", "q_max", "qdot_max"):
+        for name in ("q_min", "q_max", "qdot_max", "qddot_max"):
+            if name == "qddot_max" and self.qddot_max is None:
+                raise ValueError(f"JointLimits.qddot_max (acceleration limits, rad/s^2) must be given: {n} numbers")
             arr = np.array(getattr(self, name), dtype=float)
             if arr.shape != (n,) or not np.isfinite(arr).all():
                 raise ValueError(f"JointLimits.{name} must be {n} finite numbers, got {getattr(self, name)!r}")
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
-        if (self.q_min > self.q_max).any() or (self.qdot_max <= 0).any():
-            raise ValueError(f"JointLimits: need q_min <= q_max and qdot_max > 0, got {self.q_min}, {self.q_max}, "
-                             f"{self.qdot_max}")
+        if (self.q_min > self.q_max).any() or (self.qdot_max <= 0).any() or (self.qddot_max <= 0).any():
+            raise ValueError(f"JointLimits: need q_min <= q_max and qdot_max, qddot_max > 0, got {self.q_min}, {self.q_max}, "
+                             f"{self.qdot_max}, {self.qddot_max}")
         object.__setattr__(self, "joint_names", tuple(self.joint_names))
 
     @property
@@ -116,7 +121,8 @@ class JointLimits:
     @classmethod
     def from_config(cls, config: RobotConfig | str | Path | None = None) -> "JointLimits":
         """The limits of a :class:`RobotConfig` or robot YAML path (default ``data/robot/wam.yaml``): position
-        limits from its URDF, velocity limits from ``limits.qdot_max_rad_s`` (as ``WamKinematics.from_config``)."""
+        limits from its URDF, velocity and acceleration limits from ``limits.qdot_max_rad_s`` / ``qddot_max_rad_s2``
+        (as ``WamKinematics.from_config``)."""
         if not isinstance(config, RobotConfig):
             config = load_robot_config(config)
         if not config.urdf_path.is_file():
@@ -124,7 +130,8 @@ class JointLimits:
         names, q_min, q_max, _ = urdf_joint_limits(config.urdf_path)
         if len(names) != len(config.qdot_max_rad_s):
             raise ValueError(f"{config.urdf_path}: {len(names)} joints, but qdot_max_rad_s has {len(config.qdot_max_rad_s)}")
-        return cls(names, q_min, q_max, np.asarray(config.qdot_max_rad_s, float))
+        return cls(names, q_min, q_max, np.asarray(config.qdot_max_rad_s, float),
+                   np.asarray(config.qddot_max_rad_s2, float))
 
     def check_q(self, q, name: str = "q", *, limits: bool = True, tol_rad: float = 1e-9) -> np.ndarray:
         """As :meth:`robot_models.WamKinematics.check_q`: q (n,) or (N, n) rad, validated; ValueError naming ``name``."""

@@ -5,6 +5,8 @@ Every problem raises a ``ValueError`` naming the file and what is wrong (the CLI
 
 from __future__ import annotations
 
+import math
+
 import tomllib
 from pathlib import Path
 
@@ -36,6 +38,18 @@ def load_board(path) -> BoardSpec:
     return board_from_dict(data, source=str(path))
 
 
+def read_image(path) -> np.ndarray:
+    """One image file as BGR uint8; ValueError naming the file when it cannot be decoded or is a JPEG cut short
+    (no end-of-image marker: OpenCV would return it with its missing part grey, and only warn on stderr)."""
+    data = read_bytes_capped(path, MAX_DATA_BYTES, "image")
+    if data[:2] == b"\xff\xd8" and b"\xff\xd9" not in data.rstrip(b"\x00\r\n\t ")[-2:]:
+        raise ValueError(f"{path}: truncated JPEG ({len(data)} bytes, no end-of-image marker): not used")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data else None
+    if img is None:
+        raise ValueError(f"{path}: not a readable image")
+    return img
+
+
 def iter_frames(source, *, every: int = 1, max_frames: int | None = None):
     """Yield ``(index, name, image BGR uint8)`` from a video file or a folder of images (sorted by name).
 
@@ -52,10 +66,7 @@ def iter_frames(source, *, every: int = 1, max_frames: int | None = None):
         for i, p in enumerate(files):
             if i % every:
                 continue
-            img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-            if img is None:
-                raise ValueError(f"{p}: not a readable image")
-            yield i, p.name, img
+            yield i, p.name, read_image(p)
             kept += 1
             if max_frames is not None and kept >= max_frames:
                 return
@@ -109,6 +120,25 @@ def load_intrinsics(paths, names=None) -> list:
     return cams
 
 
+def _timestamp_ns(path, line: int, text: str) -> int:
+    """The timestamp column of one detections row: an integer number of ns (``1.5e9`` style allowed when it is
+    whole) that fits int64; anything else (NaN, inf, 1e30, 12.5) is a ValueError naming the file and line."""
+    text = text.strip()
+    try:
+        value = int(text)
+    except ValueError:
+        try:
+            f = float(text)
+        except ValueError:
+            f = math.nan
+        if not (math.isfinite(f) and f == int(f)):
+            raise ValueError(f"{path}: line {line}: timestamp {text!r} is not a whole number of ns") from None
+        value = int(f)
+    if not -(1 << 63) <= value < (1 << 63):
+        raise ValueError(f"{path}: line {line}: timestamp {text!r} does not fit a 64-bit time in ns")
+    return value
+
+
 def read_detection_csvs(paths) -> tuple[np.ndarray, np.ndarray]:
     """Per-camera 2D detections of the wand balls, one CSV per camera (the ewand layout).
 
@@ -121,7 +151,7 @@ def read_detection_csvs(paths) -> tuple[np.ndarray, np.ndarray]:
         if not p.is_file():
             raise ValueError(f"detections {str(p)!r}: no such file")
         lines = [ln.strip() for ln in read_text_capped(p, MAX_DATA_BYTES, "detections file").splitlines() if ln.strip()]
-        rows = []
+        rows, stamps = [], []
         for k, ln in enumerate(lines):
             parts = ln.replace(",", ";").split(";")
             try:
@@ -130,30 +160,33 @@ def read_detection_csvs(paths) -> tuple[np.ndarray, np.ndarray]:
                 if k == 0:
                     continue  # header
                 raise ValueError(f"{p}: line {k + 1} is not numbers: {ln[:60]!r}") from None
+            stamps.append(_timestamp_ns(p, k + 1, parts[0]))
+            bad = [x for x in vals[1:] if math.isinf(x)]
+            if bad:
+                raise ValueError(f"{p}: line {k + 1}: pixel coordinate {bad[0]!r} is not finite (-1, empty or NaN "
+                                 "mark a ball not found)")
             rows.append(vals)
         if not rows:
             raise ValueError(f"{p}: no detection rows")
         widths = {len(r) for r in rows}
         if len(widths) != 1 or (next(iter(widths)) - 1) % 2 or next(iter(widths)) < 3:
             raise ValueError(f"{p}: rows must be 'timestamp;u1;v1[;u2;v2...]' with the same width, got widths {sorted(widths)}")
-        arr = np.asarray(rows)
-        tables.append((p, arr))
-    n_balls = {(a.shape[1] - 1) // 2 for _, a in tables}
+        tables.append((p, np.asarray(stamps, dtype=np.int64), np.asarray(rows)[:, 1:]))
+    n_balls = {a.shape[1] // 2 for _, _, a in tables}
     if len(n_balls) != 1:
-        raise ValueError(f"detection files disagree on the number of balls: {[(str(p), (a.shape[1] - 1) // 2) for p, a in tables]}")
-    common = tables[0][1][:, 0].astype(np.int64)
-    for _, a in tables[1:]:
-        common = np.intersect1d(common, a[:, 0].astype(np.int64))
+        raise ValueError(f"detection files disagree on the number of balls: {[(str(p), a.shape[1] // 2) for p, _, a in tables]}")
+    common = tables[0][1]
+    for _, ts, _ in tables[1:]:
+        common = np.intersect1d(common, ts)
     if len(common) == 0:
-        raise ValueError(f"detection files share no timestamp: {[str(p) for p, _ in tables]}")
+        raise ValueError(f"detection files share no timestamp: {[str(p) for p, _, _ in tables]}")
+    common = np.unique(common)
     nb = n_balls.pop()
     uv = np.full((len(tables), len(common), nb, 2), np.nan)
-    for c, (_, a) in enumerate(tables):
-        ts = a[:, 0].astype(np.int64)
-        _, first = np.unique(ts, return_index=True)
-        a = a[first]
-        idx = np.searchsorted(a[:, 0].astype(np.int64), common)
-        pts = a[idx, 1:].reshape(len(common), nb, 2)
+    for c, (_, ts, a) in enumerate(tables):
+        ts_u, first = np.unique(ts, return_index=True)
+        idx = np.searchsorted(ts_u, common)
+        pts = a[first][idx].reshape(len(common), nb, 2)
         pts[(pts < 0).any(axis=2)] = np.nan
         uv[c] = pts
     return common, uv

@@ -39,6 +39,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("sim", "reach"): ("harness.cli.sim_reach", "WAM racket reachability over the hitting region (IK on a grid)"),
     ("sim", "wam"): ("harness.cli.sim_wam", "simulated WAM on a seeded ball-mount trajectory: tracking and reported-vs-true ball error"),
     ("bench", "policy"): ("harness.experiments.play.bench", "ms per planning step of the hitting policy (first plans, re-plans), fast vs reference planner"),
+    ("bench", "link-flood"): ("harness.cli.bench_link", "a hostile peer floods the simulated robot bridge: a good client's state rate, gaps, bridge memory"),
     ("bench", "robot"): ("harness.cli.bench_robot", "run time of batched FK, Jacobian, IK and simulated WAM ticks (numba vs numpy)"),
     ("sim", "fit-flight"): ("harness.experiments.studies.fit_flight", "fit the ball flight/bounce model to 88 real launcher flights; held-out prediction error"),
     ("learn", "promp"): ("harness.experiments.studies.learn_promp", "learn the WAM hitting ProMP from the scripted teacher (MAP vs ML, held-out fit)"),
@@ -92,6 +93,10 @@ def _build_parser(argv: list[str]) -> tuple[argparse.ArgumentParser, dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if argv is None:  # a process of its own (not a call from a test): started by ReadyProcess, die with the parent
+        from harness.common.spawn import die_with_parent_from_env
+
+        die_with_parent_from_env()
     argv = list(sys.argv[1:] if argv is None else argv)
     parser, _ = _build_parser(argv)
     args = parser.parse_args(argv)
@@ -104,6 +109,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError, PermissionError, IsADirectoryError) as exc:
         print(f"rt2 {cmd}: error: {exc}", file=sys.stderr)
         return 2
+    except ConnectionError as exc:  # a robot link or stream lost at run time (LinkLostError): a failure, not bad input
+        print(f"rt2 {cmd}: error: {exc}", file=sys.stderr)
+        return 1
     except OSError as exc:  # a full disk, a file-size limit, an I/O error while writing: one line, not a traceback
         where = f" ({exc.filename})" if exc.filename else ""
         print(f"rt2 {cmd}: error: {exc.strerror or exc}{where}", file=sys.stderr)

@@ -14,6 +14,7 @@ import os
 import signal
 import sys
 
+from harness.link.bridge_core import check_endpoint
 from harness.link.bridge_sim import BridgeOptions, SimBridge
 from harness.sim.robot.sim_wam import SimulatedWam, SimWamOptions
 from robot_models import DEFAULT_CONFIG_PATH, WamKinematics, load_robot_config
@@ -67,6 +68,10 @@ def run(args) -> int:
     sim_opts = SimWamOptions.from_mapping(sim_map, where=f"{args.config or DEFAULT_CONFIG_PATH}: simulator (--rate)")
     if args.duration is not None and not args.duration > 0:
         raise ValueError(f"--duration must be > 0 s, got {args.duration!r}")
+    for flag, value in (("--bind", args.bind), ("--state-bind", args.state_bind), ("--truth-stream", args.truth_stream),
+                        ("--world-bind", args.world_bind)):
+        if value is not None:
+            check_endpoint(flag, value)  # bad input names the option the user typed
     options = BridgeOptions(bind=args.bind, state_bind=args.state_bind, watchdog_s=args.watchdog,
                             clock_skew_ns=int(round(args.clock_skew_ms * 1e6)), publish_truth=args.publish_truth,
                             batch_ticks=args.batch,

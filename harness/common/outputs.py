@@ -104,9 +104,24 @@ def check_output_file(path, flag: str = "--json", *, overwrite: bool = True):
     return path
 
 
+def _umask() -> int:
+    """The process's umask, read without changing it (Linux ``/proc/self/status``; elsewhere set and restored)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextmanager
 def atomic_path(path, flag: str = "output"):
     """Yield a temporary path next to ``path``; on success it is renamed to ``path``, on any error removed.
+    The file gets the permissions a plain ``open(path, "w")`` would give (0666 less the umask).
 
     An ``OSError`` inside the block becomes :class:`OutputError` naming ``flag`` and ``path``.
     The temporary name keeps the suffix (``.npz``, ``.png``), which some writers look at.
@@ -115,7 +130,10 @@ def atomic_path(path, flag: str = "output"):
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=path.suffix, dir=path.parent)
-        os.close(fd)
+        try:
+            os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes it 0600: give it the mode open() would have
+        finally:
+            os.close(fd)
     except OSError as exc:
         raise OutputError(f"{flag} {str(path)!r}: cannot write: {_reason(exc)} (nothing written)") from None
     tmp = Path(tmp)

@@ -4,6 +4,15 @@ JSON line it prints on stdout when it serves (its ready line: the bound endpoint
 The one-command local runs use it (``rt2 accuracy --robot sim`` / ``--live``, ``rt2 play --live``: the
 simulated robot bridge, ``rt2 track``, the observation process), as do the tests of the robot link and of
 the live experiments.
+
+No orphans: a child dies with its parent however the parent ends (SIGKILL included) and so releases its
+ports. ``ReadyProcess`` passes its pid in :data:`PARENT_PID_ENV`; the child's ``rt2`` entry point calls
+:func:`die_with_parent_from_env`, which asks the kernel for SIGTERM when the parent dies
+(``PR_SET_PDEATHSIG``: the child shuts down cleanly) and starts a thread that watches the parent's pid and
+ends the process :data:`PARENT_GONE_GRACE_S` after the parent is gone, whatever its SIGTERM handler does
+(also where ``prctl`` does not exist). Children of the child (``rt2 track``'s renderer) go the same way:
+the renderer ends when its parent's pipe closes. Create a ``ReadyProcess`` from a thread that lives as long
+as the child should (the main thread): the kernel's signal follows the creating thread.
 """
 
 from __future__ import annotations
@@ -19,9 +28,47 @@ import threading
 import time
 from pathlib import Path
 
-__all__ = ["ReadyProcess"]
+__all__ = ["PARENT_PID_ENV", "ReadyProcess", "die_with_parent", "die_with_parent_from_env"]
 
 ROOT = Path(__file__).resolve().parents[2]
+PARENT_PID_ENV = "RT2_DIE_WITH_PARENT"  #: the parent's pid, for a child started by ReadyProcess
+PARENT_GONE_GRACE_S = 1.0  #: a child still alive this long after its parent died exits at once
+_WATCH_S = 0.1
+
+
+def die_with_parent(parent_pid: int, sig: int = signal.SIGTERM) -> None:
+    """In a child: get ``sig`` when the parent dies (Linux ``PR_SET_PDEATHSIG``), and exit (status 1)
+    :data:`PARENT_GONE_GRACE_S` after the parent is gone in any case; exit at once if it is gone already."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(sig), 0, 0, 0)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass  # the watcher below still works
+    if os.getppid() != parent_pid:  # the parent died before we got here
+        os._exit(1)
+
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(_WATCH_S)
+        time.sleep(PARENT_GONE_GRACE_S)  # time for a clean shutdown on the signal
+        os._exit(1)
+
+    threading.Thread(target=watch, name="rt2-parent-watch", daemon=True).start()
+
+
+def die_with_parent_from_env() -> None:
+    """:func:`die_with_parent` for the pid in :data:`PARENT_PID_ENV` (removed from the environment, so that the
+    child's own children do not watch their grandparent); nothing when it is not set."""
+    value = os.environ.pop(PARENT_PID_ENV, None)
+    if value is None:
+        return
+    try:
+        parent = int(value)
+    except ValueError:
+        return
+    die_with_parent(parent)
 
 
 class ReadyProcess:
@@ -40,7 +87,7 @@ class ReadyProcess:
         self._log = tempfile.TemporaryFile(mode="w+")
         self._lock = threading.Lock()
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=self._log, text=True,
-                                     env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                                     env={**os.environ, "PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid())})
         deadline = time.monotonic() + timeout_s
         line = ""
         try:

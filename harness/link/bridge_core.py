@@ -8,7 +8,20 @@ schema, one reply per request echoing ``id``, ``error`` replies that are logged 
 event). A concrete bridge supplies the robot clock (:meth:`BridgeCore.robot_ns`), what the robot is
 (:meth:`BridgeCore.welcome_fields`), how a validated trajectory reaches the controller
 (:meth:`BridgeCore.apply_trajectory`) and how it holds (:meth:`BridgeCore.hold`), and runs its own loop
-calling :meth:`BridgeCore.serve_requests`, :meth:`BridgeCore.publish_state` and :meth:`BridgeCore.watchdog`.
+calling :meth:`BridgeCore.start_intake` once, then :meth:`BridgeCore.serve_requests`,
+:meth:`BridgeCore.publish_state` and :meth:`BridgeCore.watchdog`, waking on :attr:`BridgeCore.requests`.
+
+The control loop never waits on a peer (docs/robot_link.md, "What a peer cannot do"): the ROUTER socket
+belongs to an *intake thread* that receives, unpacks and validates every request
+(``protocol.decode_request``: aborted as soon as a frame cannot be a request, so a hostile frame costs no
+more than the largest valid one; the GIL can pass to the control thread between lists) and answers
+``hello``, ``clock`` and ``heartbeat`` itself; after a frame that took more than
+:data:`INTAKE_DUTY_FREE_S` it rests as long (at most half of the CPU and GIL go to peers). Only validated ``trajectory`` and ``hold`` requests reach
+the control thread, which applies them within a time budget per wake (:data:`REQUEST_BUDGET_S`). Frames
+over ``protocol.MAX_MESSAGE_BYTES`` are refused by ZeroMQ before they are received (``ZMQ_MAXMSGSIZE``:
+the peer is disconnected), and at most :data:`RCVHWM` frames wait per peer. Rejections are logged and
+published one by one up to :data:`REJECT_BURST` a second; beyond that they are counted per reason and
+summarised once a second.
 
 Implementations: ``bridge_sim.SimBridge`` (the simulated WAM) and ``bridge_ros.RosBridge`` (ROS ``wam_node``).
 Imports only the protocol and pyzmq, so that it runs under a system Python (``bridge_ros``).
@@ -16,18 +29,30 @@ Imports only the protocol and pyzmq, so that it runs under a system Python (``br
 
 from __future__ import annotations
 
+import collections
+import gc
 import logging
+import sys
+import threading
+import time
 import uuid
 
 import zmq
 
+from harness.common.ratelimit import RateLimit
 from harness.link import protocol
 from harness.link.protocol import ProtocolError
 
 __all__ = ["BridgeCore", "check_endpoint", "default_state_bind"]
 
 log = logging.getLogger("rt2.robot.link.bridge")
-MAX_REQUESTS_PER_WAKE = 64  #: a flood of requests never starves the control loop
+MAX_REQUESTS_PER_WAKE = 64  #: the intake thread answers replies between at most this many requests
+REQUEST_BUDGET_S = 0.002  #: the control thread applies queued requests for at most this long per wake
+RCVHWM = 8  #: frames queued per peer before ZeroMQ stops reading from it (bounds memory: 8 x 4 MiB)
+REJECT_BURST = 10  #: rejections logged/published one by one per second; the rest are counted and summarised
+ID_PEEK_BYTES = 64 << 10  #: the id of a refused frame is read back only from frames up to this size
+INTAKE_DUTY_FREE_S = 0.002  #: after a request that took longer to take in, the intake thread rests as long
+SWITCH_INTERVAL_S = 0.0005  #: the GIL passes between the intake and control threads at least this often
 REQUESTS = ("hello", "trajectory", "hold", "heartbeat", "clock")
 
 
@@ -57,10 +82,20 @@ class BridgeCore:
         self.bridge_id = uuid.uuid4().hex[:12]  # tells the harness that a restarted bridge is a new robot session
         self._ctx = context or zmq.Context.instance()
         self._router = self._ctx.socket(zmq.ROUTER)
+        self._router.setsockopt(zmq.MAXMSGSIZE, protocol.MAX_MESSAGE_BYTES)  # larger: refused unread
+        self._router.setsockopt(zmq.RCVHWM, RCVHWM)
         self._pub = self._ctx.socket(zmq.PUB)
-        for sock in (self._router, self._pub):
+        # the control thread's end (``requests``) and the intake thread's end of the in-process pipe
+        self.requests = self._ctx.socket(zmq.PAIR)
+        self._intake_end = self._ctx.socket(zmq.PAIR)
+        for sock in (self._router, self._pub, self.requests, self._intake_end):
             sock.setsockopt(zmq.LINGER, 0)
+        pipe = f"inproc://rt2-bridge-{self.bridge_id}"
+        self.requests.bind(pipe)
+        self._intake_end.connect(pipe)
         state_bind = default_state_bind(bind) if state_bind is None else state_bind
+        self._intake: threading.Thread | None = None
+        self._intake_stop = threading.Event()
         try:
             self._router.bind(bind)
             self._pub.bind(state_bind)
@@ -72,13 +107,20 @@ class BridgeCore:
         self.mode = "idle"
         self.cmd_id = -1
         self.seq = 0
-        self.rejected = 0
+        self.rejects = RateLimit(REJECT_BURST)  # rejections: 10 a second one by one, the rest counted
+        self._queue: collections.deque = collections.deque()  # (ident, request, t_recv_ns) for the control thread
+        self._pending_events: collections.deque = collections.deque()  # rejection reasons to publish
         self._last_contact_ns: int | None = None
         self._stop = False
 
+    @property
+    def rejected(self) -> int:
+        """Requests rejected so far."""
+        return self.rejects.total
+
     # -- what a concrete bridge supplies ------------------------------------------------------------
     def robot_ns(self) -> int:
-        """The robot clock now, integer ns."""
+        """The robot clock now, integer ns (called from the intake thread too)."""
         raise NotImplementedError
 
     def welcome_fields(self) -> dict:
@@ -98,16 +140,35 @@ class BridgeCore:
         """Ask the serving loop to return after the present iteration (signal handlers call this)."""
         self._stop = True
 
+    def start_intake(self) -> None:
+        """Start the intake thread (requests are answered from then on); the serving loop calls it once."""
+        if self._intake is None:
+            sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+            gc.freeze()  # what exists now (modules, compiled kernels) is never traversed by a collection again
+
+            self._intake = threading.Thread(target=self._intake_loop, name="robot-link intake", daemon=True)
+            self._intake.start()
+
     def close(self) -> None:
-        for sock in (self._router, self._pub):
+        self._intake_stop.set()
+        if self._intake is not None and self._intake is not threading.current_thread():
+            self._intake.join(timeout=2.0)
+        if self._intake is None or not self._intake.is_alive():
+            self._router.close(linger=0)
+            self._intake_end.close(linger=0)
+        for sock in (self._pub, self.requests):
             sock.close(linger=0)
 
-    def serve_requests(self) -> None:
-        """Answer the requests waiting on the ROUTER socket (at most :data:`MAX_REQUESTS_PER_WAKE`)."""
-        for _ in range(MAX_REQUESTS_PER_WAKE):
-            if not self._router.poll(0):
-                break
-            self._handle(self._router.recv_multipart())
+    def serve_requests(self, budget_s: float = REQUEST_BUDGET_S) -> None:
+        """Apply the validated ``trajectory`` / ``hold`` requests the intake thread queued, for at most
+        ``budget_s`` (the rest wait for the next wake), and publish the pending rejection events."""
+        while self.requests.poll(0):
+            self.requests.recv()  # wake-ups: the work is in the queue
+        while self._pending_events:
+            self.event("rejected", self._pending_events.popleft())
+        deadline = time.monotonic() + budget_s
+        while self._queue and time.monotonic() < deadline:
+            self._apply(*self._queue.popleft())
 
     def publish_state(self, t_ns: int, q: list, qdot: list, effort: list | None, sim: dict | None = None) -> None:
         """One ``state`` on PUB: robot time ``t_ns``, q (7,) rad, qdot (7,) rad/s, effort (7,) N m or None."""
@@ -116,11 +177,16 @@ class BridgeCore:
                                        mode=self.mode, cmd_id=self.cmd_id, sim=sim))
 
     def event(self, event: str, reason: str) -> None:
-        """One ``event`` on PUB, stamped with the robot clock now."""
-        self._pub.send(protocol.encode("event", t_ns=self.robot_ns(), event=event, reason=reason))
+        """One ``event`` on PUB, stamped with the robot clock now (control thread only)."""
+        self._pub.send(protocol.encode("event", t_ns=self.robot_ns(), event=event, reason=reason[:1000]))
 
     def watchdog(self) -> None:
-        """Hold (mode ``watchdog``, one ``watchdog_hold`` event) after ``watchdog_s`` without a command or heartbeat."""
+        """Hold (mode ``watchdog``, one ``watchdog_hold`` event) after ``watchdog_s`` without a command or heartbeat;
+        publish the summary of rate-limited rejections once a second."""
+        summary = self.rejects.summary()
+        if summary:
+            log.warning("rejected: %s", summary)
+            self.event("rejected", summary)
         if self.mode not in ("track", "hold") or self._last_contact_ns is None:
             return
         silent_s = (self.robot_ns() - self._last_contact_ns) * 1e-9
@@ -134,47 +200,92 @@ class BridgeCore:
             log.warning("watchdog: %s", reason)
             self.event("watchdog_hold", reason)
 
-    # -- requests -----------------------------------------------------------------------------------
-    def _reply(self, ident: bytes, msg_type: str, **fields) -> None:
-        self._router.send_multipart([ident, protocol.encode(msg_type, **fields)])
+    # -- the intake thread: owns the ROUTER socket ---------------------------------------------------
+    def _intake_loop(self) -> None:
+        router, pipe = self._router, self._intake_end
+        poller = zmq.Poller()
+        poller.register(router, zmq.POLLIN)
+        poller.register(pipe, zmq.POLLIN)
+        try:
+            while not self._intake_stop.is_set():
+                if not poller.poll(50):
+                    continue
+                self._forward_replies()
+                for _ in range(MAX_REQUESTS_PER_WAKE):
+                    if not router.poll(0):
+                        break
+                    t0 = time.perf_counter()
+                    self._take(router.recv_multipart())
+                    self._forward_replies()
+                    spent = time.perf_counter() - t0
+                    if spent > INTAKE_DUTY_FREE_S:  # a costly frame: leave the GIL and the CPU to the control loop
+                        time.sleep(min(spent, 0.05))
+        except zmq.ZMQError as exc:  # the context is being torn down
+            if not self._intake_stop.is_set():
+                log.error("robot link intake stopped: %s", exc)
+        finally:
+            router.close(linger=0)
+            pipe.close(linger=0)
 
-    def _handle(self, frames: list[bytes]) -> None:
+    def _forward_replies(self) -> None:
+        while self._intake_end.poll(0):
+            self._router.send_multipart(self._intake_end.recv_multipart())
+
+    def _take(self, frames: list[bytes]) -> None:
         t_recv = self.robot_ns()
         ident = frames[0]
         if len(frames) != 2:
-            self._reject(ident, None, f"expected one message frame, got {len(frames) - 1}")
+            self._refuse(ident, None, f"expected one message frame, got {len(frames) - 1}")
             return
         try:
-            msg = protocol.decode(frames[1], expect=REQUESTS)
+            msg = protocol.decode_request(frames[1], REQUESTS)
         except ProtocolError as exc:
-            self._reject(ident, protocol.request_id(frames[1]), str(exc))
+            small = len(frames[1]) <= ID_PEEK_BYTES
+            self._refuse(ident, protocol.request_id(frames[1]) if small else None, str(exc))
             return
         rid, kind = msg["id"], msg["type"]
-        if kind == "trajectory":
-            try:
-                self.apply_trajectory(msg)
-            except ValueError as exc:
-                self._reject(ident, rid, f"trajectory {rid}: {exc}")
-                return
-        if kind in ("trajectory", "hold", "heartbeat"):  # what keeps the watchdog quiet (not hello, not clock)
-            self._last_contact_ns = t_recv
         if kind == "hello":
-            self._reply(ident, "welcome", id=rid, bridge_id=self.bridge_id, state_endpoint=self.state_endpoint,
-                        watchdog_s=self.watchdog_s, t_ns=self.robot_ns(), **self.welcome_fields())
+            self._send(ident, "welcome", id=rid, bridge_id=self.bridge_id, state_endpoint=self.state_endpoint,
+                       watchdog_s=self.watchdog_s, t_ns=self.robot_ns(), **self.welcome_fields())
             log.info("hello from %s", msg["client"])
         elif kind == "clock":
-            self._reply(ident, "clock_reply", id=rid, t0_ns=msg["t0_ns"], t1_ns=t_recv, t2_ns=self.robot_ns())
-        else:
-            if kind == "hold":
-                try:
-                    self.hold("hold")
-                except ValueError as exc:
-                    self._reject(ident, rid, f"hold {rid}: {exc}")
-                    return
-            self._reply(ident, "ok", id=rid, t_ns=self.robot_ns())
+            self._send(ident, "clock_reply", id=rid, t0_ns=msg["t0_ns"], t1_ns=t_recv, t2_ns=self.robot_ns())
+        elif kind == "heartbeat":
+            self._last_contact_ns = t_recv
+            self._send(ident, "ok", id=rid, t_ns=self.robot_ns())
+        else:  # trajectory, hold: the control thread's
+            self._queue.append((ident, msg, t_recv))
+            self._intake_end.send(b"")
+
+    def _send(self, ident: bytes, msg_type: str, **fields) -> None:
+        self._router.send_multipart([ident, protocol.encode(msg_type, **fields)])
+
+    def _refuse(self, ident: bytes, rid, reason: str) -> None:
+        """A rejection on the intake thread: the reply at once, the event through the control thread."""
+        self._send(ident, "error", id=rid, reason=reason[:1000])
+        if self.rejects.note(reason):
+            log.warning("rejected: %s", reason)
+            self._pending_events.append(reason)
+
+    # -- the control thread: applies what the intake thread validated -------------------------------
+    def _reply(self, ident: bytes, msg_type: str, **fields) -> None:
+        self.requests.send_multipart([ident, protocol.encode(msg_type, **fields)])
+
+    def _apply(self, ident: bytes, msg: dict, t_recv: int) -> None:
+        rid, kind = msg["id"], msg["type"]
+        try:
+            if kind == "trajectory":
+                self.apply_trajectory(msg)
+            else:
+                self.hold("hold")
+        except ValueError as exc:
+            self._reject(ident, rid, f"{kind} {rid}: {exc}")
+            return
+        self._last_contact_ns = t_recv  # what keeps the watchdog quiet (with heartbeat; not hello, not clock)
+        self._reply(ident, "ok", id=rid, t_ns=self.robot_ns())
 
     def _reject(self, ident: bytes, rid, reason: str) -> None:
-        self.rejected += 1
-        log.warning("rejected: %s", reason)
-        self._reply(ident, "error", id=rid, reason=reason)
-        self.event("rejected", reason)
+        self._reply(ident, "error", id=rid, reason=reason[:1000])
+        if self.rejects.note(reason):
+            log.warning("rejected: %s", reason)
+            self.event("rejected", reason)

@@ -13,7 +13,7 @@ What it does with ``wam_node``'s topics and services:
   name (``--joint-names``, wam_node's ``wam_j1 .. wam_j7``) or, with no names, by order; ``velocity`` and
   ``effort`` when the message has them (else a backward difference of positions, and nil);
 * ``trajectory`` -> checked (schema, joint and velocity limits of the robot configuration, times after the
-  latest state), then interpolated on the robot clock like the simulator's reference (cubic Hermite with
+  latest state, the motion-safety rule of ``robot_models.motion_limits``), then interpolated on the robot clock like the simulator's reference (cubic Hermite with
   ``qdot``, else a spline; replace from ``max(t0, now)``; hold ``q[-1]`` after the end) and streamed as one
   ``wam_msgs/RTJointPos`` on ``<ns>/jnt_pos_cmd`` per joint state received (the reference one state period
   ahead, ``rate_limits`` = the velocity limits), so ``wam_node``'s 0.3 s command timeout never fires while
@@ -46,6 +46,7 @@ from harness.sim.robot import PiecewiseReference
 from harness.link.bridge_core import BridgeCore, check_endpoint
 from harness.link.ros_msgs import WamRosTypes, load_wam_types
 from robot_models.limits import JointLimits
+from robot_models.motion_limits import check_motion
 from robot_models.robot_interface import check_joint_trajectory
 
 __all__ = ["WAM_NODE_JOINTS", "RosBridge", "main"]
@@ -79,6 +80,7 @@ class RosBridge(BridgeCore):
         self._ref: PiecewiseReference | None = None  # the reference streamed while tracking; None: not streaming
         self._latest_t_ns: int | None = None
         self._latest_q: np.ndarray | None = None
+        self._latest_qd: np.ndarray | None = None
         self._orders: dict[tuple, np.ndarray | None] = {}  # JointState.name -> indices of our joints (None: unusable)
         self.dropped = 0  #: joint states not forwarded (not after the previous, unusable names, non-finite)
         self.commands_sent = 0  #: RTJointPos messages published
@@ -152,7 +154,7 @@ class RosBridge(BridgeCore):
             self.dropped += 1
             log.warning("dropped a joint state with non-finite values at %d ns", t_ns)
             return False
-        self._latest_t_ns, self._latest_q = t_ns, q
+        self._latest_t_ns, self._latest_q, self._latest_qd = t_ns, q, qd
         if self._ref is not None:
             q_ref = self._ref.evaluate(np.array([(t_ns + self._lead_ns) * 1e-9]))[0][0]
             self._cmd_pub.publish(self.types.RTJointPos(joints=q_ref.tolist(), rate_limits=self._rate_limits))
@@ -179,6 +181,13 @@ class RosBridge(BridgeCore):
         now_s = self._latest_t_ns * 1e-9
         t_s = np.asarray(msg["t_ns"], dtype=np.int64) * 1e-9
         t, Q, Qd = check_joint_trajectory(self.limits, t_s, msg["q"], msg["qdot"], now_s=now_s)
+        t_on = max(float(t[0]), now_s)
+        if self._ref is not None:  # streaming: from where the reference drives the arm at the take-over
+            q_ref, qd_ref, _ = self._ref.evaluate(np.array([t_on]))
+            start = (q_ref[0], qd_ref[0])
+        else:  # held by wam_node: from where it is
+            start = (self._latest_q, self._latest_qd)
+        check_motion(self.limits, t, Q, Qd, now_s=now_s, start=start)  # robot_models.motion_limits: the shared rule
         if self._ref is None:  # before t[0] the robot holds where it is
             self._ref = PiecewiseReference(np.clip(self._latest_q, self.limits.q_min, self.limits.q_max))
         self._ref.replace_from(t, Q, Qd, now_s)
@@ -215,17 +224,17 @@ class RosBridge(BridgeCore):
         """Run until :meth:`stop`, ROS shutdown or ``duration_s``; holds the robot if it was tracking; closes the sockets."""
         end_ns = None if duration_s is None else self.robot_ns() + int(duration_s * 1e9)
         poller = zmq.Poller()
-        poller.register(self._router, zmq.POLLIN)
+        poller.register(self.requests, zmq.POLLIN)
         poller.register(self._inbox, zmq.POLLIN)
         self.event("started", f"WAM via ROS wam_node at {self.ns or '/'}, bridge {self.bridge_id}, "
                               f"types {self.types.origin}")
+        self.start_intake()
         try:
             while not self._stop and not rospy.is_shutdown() and (end_ns is None or self.robot_ns() < end_ns):
                 ready = dict(poller.poll(timeout=20))
                 if self._inbox in ready:
                     self._drain_inbox()
-                if self._router in ready:
-                    self.serve_requests()
+                self.serve_requests()  # what the intake thread validated, within a time budget
                 self.watchdog()
         finally:
             if self.mode == "track":

@@ -1,12 +1,13 @@
 """The robot side of the link for the simulated WAM: :class:`SimBridge` runs a :class:`SimulatedWam` in real time.
 
-One loop, single-threaded (docs/robot_link.md, "What a bridge must do"):
+One control loop (docs/robot_link.md, "What a bridge must do"; requests are received, unpacked and validated
+by the intake thread of ``bridge_core``, which never holds this loop up):
 
 1. run the control ticks the robot clock has reached (``SimulatedWam.step``) and publish one ``state``
    per tick on the PUB socket, stamped with the tick's robot time;
-2. answer the requests waiting on the ROUTER socket (``hello``, ``trajectory``, ``hold``, ``heartbeat``,
-   ``clock``); a malformed or out-of-range request is answered ``error`` with the reason, logged, and never
-   reaches the simulated robot;
+2. apply the ``trajectory`` and ``hold`` requests the intake thread validated (within a time budget per
+   wake); a malformed or out-of-range request is answered ``error`` with the reason, logged (rate-limited),
+   and never reaches the simulated robot;
 3. the watchdog: no valid ``trajectory``, ``hold`` or ``heartbeat`` for ``watchdog_s`` (0.3 s, the command timeout of ``wam_node``) while
    tracking or holding -> hold the present position, mode ``watchdog``, one ``event`` ``watchdog_hold``.
 
@@ -26,6 +27,7 @@ import zmq
 
 from harness.link.bridge_core import BridgeCore, check_endpoint, default_state_bind
 from harness.sim.robot.sim_wam import SimulatedWam
+from robot_models.motion_limits import check_motion, stop_ramp
 from robot_models.robot_interface import check_joint_trajectory
 
 __all__ = ["BridgeOptions", "SimBridge"]
@@ -111,14 +113,15 @@ class SimBridge(BridgeCore):
         """Run until :meth:`stop` (or for ``duration_s`` of robot time); closes the sockets at the end."""
         end_ns = None if duration_s is None else self.robot_ns() + int(duration_s * 1e9)
         poller = zmq.Poller()
-        poller.register(self._router, zmq.POLLIN)
+        poller.register(self.requests, zmq.POLLIN)
         self.event("started", f"simulated WAM at {self.wam.control_rate_hz:g} Hz, bridge {self.bridge_id}")
+        self.start_intake()
         try:
             while not self._stop and (end_ns is None or self.robot_ns() < end_ns):
                 self._run_ticks()
                 wait_ms = ((self._ticks + self.options.batch_ticks) * self.dt_ns - self.robot_ns()) / 1e6
-                if poller.poll(timeout=max(1, math.ceil(wait_ms))):  # sleeps (a tick runs <= 1 ms late), never spins
-                    self.serve_requests()
+                poller.poll(timeout=max(1, math.ceil(wait_ms)))  # sleeps (a tick runs <= 1 ms late), never spins
+                self.serve_requests()  # what the intake thread validated, within a time budget
                 self.watchdog()
         finally:
             self.event("stopping", "bridge shutting down")
@@ -158,13 +161,22 @@ class SimBridge(BridgeCore):
 
     def apply_trajectory(self, msg: dict) -> None:
         t_s = (np.asarray(msg["t_ns"], dtype=np.int64) - self.wam_origin_ns) * 1e-9
-        t, Q, Qd = check_joint_trajectory(self.kin, t_s, msg["q"], msg["qdot"], now_s=self.wam.t_s)
+        now = self.wam.t_s
+        t, Q, Qd = check_joint_trajectory(self.kin, t_s, msg["q"], msg["qdot"], now_s=now)
+        if t[0] > now:  # it takes over later: from where the present reference drives the arm then
+            start = self.wam.reference_at(t[0])
+        else:
+            st = self.wam.true_state()
+            start = (st.q, st.qdot)
+        check_motion(self.kin, t, Q, Qd, now_s=now, start=start)  # robot_models.motion_limits: the shared rule
         self.wam.command_trajectory(t, Q, Qd)
         self.cmd_id, self.mode = int(msg["id"]), "track"
 
     def hold(self, mode: str) -> None:
-        """Hold the present (true) joint position from now on."""
-        q = np.clip(self.wam.true_state().q, self.kin.q_min, self.kin.q_max)
-        now = self.wam.t_s
-        self.wam.command_trajectory([now, now + 1.0 / self.wam.control_rate_hz], np.stack([q, q]), np.zeros((2, q.size)))
+        """Stop where the arm gets to from now on: its (true) velocity ramps down to rest within the
+        deceleration limits (``robot_models.motion_limits.stop_ramp``), then it holds that position."""
+        st = self.wam.true_state()
+        t, q, qd = stop_ramp(self.kin, self.wam.t_s, np.clip(st.q, self.kin.q_min, self.kin.q_max), st.qdot,
+                             1.0 / self.wam.control_rate_hz)
+        self.wam.command_trajectory(t, q, qd)
         self.mode = mode

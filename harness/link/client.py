@@ -6,9 +6,10 @@ a buffer that :meth:`WamClient.advance_to` hands out in order; :meth:`WamClient.
 latest. Link loss -- no state for ``timeout_s`` or no reply to a request in ``request_timeout_s`` -- ends
 the client: every later call raises :class:`LinkLostError` naming the address and how long it was silent.
 
-Commands are checked against the joint and velocity limits before they leave the harness
-(``check_joint_trajectory``); the robot checks them again and answers ``error`` with a reason, raised
-here as ``ValueError``. Malformed stream messages, states older than the latest, and states no robot
+Commands are checked against the joint and velocity limits and the motion-safety rule (implied velocity,
+acceleration and jerk, start at the arm, end at rest: ``robot_models.motion_limits.check_motion``) before
+they leave the harness; the robot checks them again and answers ``error`` with a reason, raised here as
+``ValueError``. Malformed stream messages, states older than the latest, and states no robot
 can be in (angles beyond the joint limits by more than 0.1 rad, velocities beyond 3x the limits) are
 dropped, logged and counted (``dropped``), never shown as a robot state.
 """
@@ -27,6 +28,7 @@ import zmq
 from harness.link import protocol
 from harness.link.clock import ClockEstimate, RoundTripClock
 from harness.link.protocol import ProtocolError
+from robot_models.motion_limits import check_motion, state_at
 from robot_models.robot_interface import JointSamples, JointState, check_joint_trajectory
 
 __all__ = ["LinkLostError", "WamClient"]
@@ -97,6 +99,7 @@ class WamClient:
         self.clock = RoundTripClock()
         self.last_request_id = 0  #: the id of the latest request sent
         self.last_command_id: int | None = None  #: the id of the latest trajectory the robot accepted
+        self._last_trajectory: tuple | None = None  # (t_s, q) of that trajectory, robot clock
         self.command_started: dict[int, int] = {}  #: trajectory id -> arrival (harness clock ns) of the first state tracking it
         welcome = self._request("hello", float(connect_timeout_s), client=str(client_name))
         self.robot_info = welcome
@@ -295,16 +298,29 @@ class WamClient:
         return JointState(m["t_ns"] * 1e-9, np.array(m["q"]), np.array(m["qdot"]))
 
     def command_trajectory(self, t_s, q, qdot=None) -> None:
-        """Send a trajectory (robot clock); limits are checked here first (ValueError, nothing sent)."""
+        """Send a trajectory (robot clock); limits and the motion-safety rule are checked here first
+        (ValueError naming the sample, joint and limit; nothing sent)."""
         self._check()
-        t, Q, Qd = check_joint_trajectory(self.kinematics, t_s, q, qdot, now_s=self.t_s)
+        now = self.t_s
+        t, Q, Qd = check_joint_trajectory(self.kinematics, t_s, q, qdot, now_s=now)
+        check_motion(self.kinematics, t, Q, Qd, now_s=now, start=self._start_state(max(float(t[0]), now)))
         t_ns = np.round(t * 1e9).astype(np.int64)
         self._request("trajectory", t_ns=t_ns.tolist(), q=Q.tolist(), qdot=None if Qd is None else Qd.tolist())
         self.last_command_id = self.last_request_id
+        self._last_trajectory = (t, Q)
+
+    def _start_state(self, t_on: float) -> tuple[np.ndarray, np.ndarray]:
+        """Where the arm is driven at ``t_on``: by this client's latest trajectory while the robot tracks
+        (reports mode ``track``), else the reported state (a held or idle arm stays where it is)."""
+        m = self._latest
+        if self._last_trajectory is not None and m["mode"] == "track" and t_on >= self._last_trajectory[0][0]:
+            return state_at(*self._last_trajectory, t_on)
+        return np.array(m["q"], float), np.array(m["qdot"], float)
 
     def hold(self) -> None:
-        """Hold the present position (the robot's ``hold`` request)."""
+        """Hold: the robot ramps down to rest within its deceleration limits (the robot's ``hold`` request)."""
         self._request("hold")
+        self._last_trajectory = None
 
     def advance_to(self, t_s: float) -> JointSamples:
         """Wait until the robot clock reaches the last tick at or before ``t_s``; the states since the last call."""

@@ -15,14 +15,17 @@ was received; nothing malformed gets further on either side.
 
 from __future__ import annotations
 
+import array
+import gc
 import itertools
 import math
+import time
 
 import msgpack
 import numpy as np
 
 __all__ = ["MAX_MESSAGE_BYTES", "MAX_TRAJECTORY_SAMPLES", "MODES", "ProtocolError", "SCHEMA", "VERSION", "decode",
-           "encode", "request_id"]
+           "decode_request", "encode", "request_id"]
 
 VERSION = 1
 MAX_MESSAGE_BYTES = 4 << 20  #: larger frames are rejected before unpacking
@@ -94,6 +97,78 @@ def decode(frame: bytes, expect: tuple[str, ...] | None = None) -> dict:
     return msg
 
 
+_YIELD_S = 0.001  #: unpacking offers the GIL to other threads at least this often (checked every _CHECK_ROWS rows)
+_CHECK_ROWS = 32
+
+
+class _RequestShape:
+    """Hooks that abort unpacking a request as soon as its shape is one no request has, and keep its joint
+    vectors as floats in one buffer (a list of them becomes an (N, 7) float64 array): the unpacker then builds
+    and frees no Python object per number, so a hostile frame costs no more than the largest valid request
+    and its refusal frees no large structure. Every :data:`_YIELD_S` the GIL is offered to other
+    threads (a bridge's control loop keeps its schedule while its intake thread decodes)."""
+
+    def __init__(self):
+        self.rows = self.lists = self.maps = 0
+        self._buf = array.array("d")
+        self._pending = 0  # rows in the buffer not yet claimed by a list of rows
+        self._next_yield = time.perf_counter() + _YIELD_S
+
+    def list_hook(self, lst: list):
+        if len(lst) == N_JOINTS and _NUMBER_TYPES.issuperset(map(type, lst)):  # a joint vector
+            self.rows += 1
+            if self.rows > 2 * MAX_TRAJECTORY_SAMPLES:
+                raise ProtocolError(f"more than {2 * MAX_TRAJECTORY_SAMPLES} joint vectors: no request is that large")
+            if not self.rows % _CHECK_ROWS and time.perf_counter() > self._next_yield:
+                time.sleep(0)  # hand the GIL over: a hook call alone does not (CPython 3.11)
+                self._next_yield = time.perf_counter() + _YIELD_S
+            self._buf.extend(lst)
+            self._pending += 1
+            return None
+        if lst and self._pending == len(lst) and lst.count(None) == len(lst):  # the list of those rows
+            rows = np.frombuffer(self._buf, dtype=np.float64).reshape(-1, N_JOINTS).copy()
+            self._buf, self._pending = array.array("d"), 0
+            return rows
+        self.lists += 1
+        if self.lists > 3:
+            raise ProtocolError("nested lists of a shape no request has")
+        return lst
+
+    def object_hook(self, obj: dict) -> dict:
+        self.maps += 1
+        if self.maps > 1:
+            raise ProtocolError("a map inside the message: no request has one")
+        return obj
+
+
+def decode_request(frame: bytes, expect: tuple[str, ...]) -> dict:
+    """:func:`decode` for requests arriving at a bridge from any peer: the same checks, with the unpacking
+    aborted as soon as the frame cannot be a request (:class:`_RequestShape`), and string/binary lengths capped.
+    Lists of joint vectors (``q``, ``qdot`` of a trajectory) come back as (N, 7) float64 arrays."""
+    if not isinstance(frame, (bytes, bytearray, memoryview)):
+        raise ProtocolError(f"a message must be bytes, got {type(frame).__name__}")
+    if len(frame) > MAX_MESSAGE_BYTES:
+        raise ProtocolError(f"message of {len(frame)} bytes exceeds the limit of {MAX_MESSAGE_BYTES}")
+    shape = _RequestShape()
+    collecting = gc.isenabled()
+    gc.disable()  # a message holds no cycles: no collection pass (which holds the GIL) for each thousand rows
+    try:
+        msg = msgpack.unpackb(frame, raw=False, strict_map_key=True, max_array_len=MAX_TRAJECTORY_SAMPLES + 16,
+                              max_map_len=64, max_str_len=4096, max_bin_len=4096, max_ext_len=0,
+                              list_hook=shape.list_hook, object_hook=shape.object_hook)
+    except ProtocolError:
+        raise
+    except Exception as exc:  # msgpack raises several types (ExtraData, FormatError, ValueError, ...)
+        raise ProtocolError(f"not a msgpack message ({type(exc).__name__}: {str(exc)[:80]})") from None
+    finally:
+        if collecting:
+            gc.enable()
+    _check(msg)
+    if msg["type"] not in expect:
+        raise ProtocolError(f"message type {msg['type']!r} not expected here; expected one of {list(expect)}")
+    return msg
+
+
 def request_id(frame: bytes) -> int | None:
     """The ``id`` of a frame that failed :func:`decode`, when it can still be read (for the ``error`` reply), else None."""
     try:
@@ -152,6 +227,7 @@ def _check_vec(kind, name, value, where="") -> None:
 
 
 _NUMBER_TYPES = frozenset((int, float))
+_CHUNK_ROWS = 2048
 
 
 def _plain_numbers(value, shape: tuple, kinds: str = "if") -> bool:
@@ -160,6 +236,9 @@ def _plain_numbers(value, shape: tuple, kinds: str = "if") -> bool:
     quietly take as a number). One array conversion instead of a Python call per element: a
     trajectory of 700 samples is ~10,000 numbers, checked on both sides of the link at every re-plan. False
     means "not sure": the per-element check decides and names the culprit."""
+    if len(value) > _CHUNK_ROWS:  # in chunks: another thread may run between them (a bridge's control loop)
+        return all(_plain_numbers(value[i:i + _CHUNK_ROWS], (len(value[i:i + _CHUNK_ROWS]),) + shape[1:], kinds)
+                   for i in range(0, len(value), _CHUNK_ROWS))
     try:
         arr = np.asarray(value)
     except (ValueError, TypeError, OverflowError):  # rows of different lengths, odd objects
@@ -197,6 +276,12 @@ def _check_field(kind: str, name: str, field_kind: str, value) -> None:
     elif base == _VEC:
         _check_vec(kind, name, value)
     elif base == _MAT:
+        if isinstance(value, np.ndarray):  # from decode_request: already numbers, one row per joint vector
+            if value.ndim == 2 and value.shape[1] == N_JOINTS and value.shape[0] and np.isfinite(value).all():
+                return
+            bad = np.argwhere(~np.isfinite(value))[:1]
+            where = f"[{int(bad[0][0])}]" if bad.size else ""
+            raise ProtocolError(f"{kind}: {name}{where} must be {N_JOINTS} finite numbers")
         if isinstance(value, (list, tuple)) and value and _plain_numbers(value, (len(value), N_JOINTS)):
             return
         if not isinstance(value, (list, tuple)):

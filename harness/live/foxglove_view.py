@@ -22,6 +22,8 @@ the view never slows the tracker down. The server binds to 127.0.0.1 unless told
 
 from __future__ import annotations
 
+import logging
+import sys
 import threading
 import time
 from collections import deque
@@ -36,6 +38,7 @@ from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from harness.live.ws_subprotocols import SubprotocolFront
+from harness.common.ratelimit import RateLimitedLogs
 from harness.logs import codecs, scene, topics
 
 __all__ = ["LiveView", "ViewOptions", "ball_scene"]
@@ -90,6 +93,30 @@ def _proto_channel(foxglove, ctx, topic: str, cls):
                             message_encoding="protobuf", context=ctx)
 
 
+class _StderrHandler(logging.Handler):
+    """Writes to whatever ``sys.stderr`` is when a record comes."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            sys.stderr.write(self.format(record) + "\n")
+        except Exception:  # noqa: BLE001 - logging must never raise
+            self.handleError(record)
+
+
+def _quiet_foxglove_logs() -> None:
+    """The Foxglove SDK logs each client it drops (``Dropping client ...: handshake failed``) through Python's
+    logging; without a handler each became an unprefixed stderr line. Once per process: prefixed
+    (``rt2 live view: ...``) and rate-limited (5 a second, the rest counted)."""
+    logger = logging.getLogger("foxglove")
+    if any(isinstance(h, _StderrHandler) for h in logger.handlers):
+        return
+    handler = _StderrHandler()
+    handler.setFormatter(logging.Formatter("rt2 live view: %(levelname)s %(message)s"))
+    handler.addFilter(RateLimitedLogs(5, what="Foxglove messages"))  # on the handler: the SDK logs on child loggers
+    logger.addHandler(handler)
+    logger.propagate = False
+
+
 class LiveView:
     """The Foxglove WebSocket server and the thread that feeds it (module docstring).
 
@@ -102,6 +129,7 @@ class LiveView:
 
         self.options = o = options if options is not None else ViewOptions()
         self.rig, self.kind, self.names = rig, kind, rig.names
+        _quiet_foxglove_logs()
         self._ctx = foxglove.Context()
         try:
             self._server = foxglove.start_server(name="rt2 track", host="127.0.0.1", port=0, context=self._ctx)

@@ -53,8 +53,10 @@ def test_trajectory_checks_agree_with_the_kinematics(kin):
 def test_bad_limits_and_urdf_name_the_problem(tmp_path):
     with pytest.raises(ValueError, match=r"JointLimits.q_min must be 2 finite numbers"):
         JointLimits(("a", "b"), [0.0], [1.0, 1.0], [1.0, 1.0])
-    with pytest.raises(ValueError, match=r"need q_min <= q_max and qdot_max > 0"):
-        JointLimits(("a",), [1.0], [0.0], [1.0])
+    with pytest.raises(ValueError, match=r"need q_min <= q_max and qdot_max, qddot_max > 0"):
+        JointLimits(("a",), [1.0], [0.0], [1.0], [1.0])
+    with pytest.raises(ValueError, match=r"JointLimits.qddot_max \(acceleration limits"):
+        JointLimits(("a",), [0.0], [1.0], [1.0])
     bad = tmp_path / "bad.urdf"
     bad.write_text('<robot name="r"><joint name="j" type="revolute"><limit lower="-1" upper="x"/></joint></robot>')
     with pytest.raises(ValueError, match=r"bad.urdf: joint 'j' needs <limit lower= upper= velocity=> numbers"):

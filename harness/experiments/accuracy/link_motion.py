@@ -115,11 +115,12 @@ def link_motion_source(address: str):
 
     def run_on(addr: str, kin, config) -> RobotMotion:
         try:
-            with WamClient(addr, kinematics=kin) as wam:
-                wam.sync_clock(32)
-                return motion_over_link(wam, config.n_frames, config.rate_hz, seed=config.seed, options=config.motion)
-        except LinkLostError as exc:
+            wam = WamClient(addr, kinematics=kin)
+        except LinkLostError as exc:  # no robot there: a bad address (exit 2)
             raise ValueError(f"robot link: {exc}") from None
+        with wam:  # a link lost from here on is a failure at run time (LinkLostError: exit 1)
+            wam.sync_clock(32)
+            return motion_over_link(wam, config.n_frames, config.rate_hz, seed=config.seed, options=config.motion)
 
     def source(kin, config) -> RobotMotion:
         if address != "sim":

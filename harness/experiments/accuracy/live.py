@@ -101,14 +101,16 @@ def run_live_accuracy(config: AccuracyConfig, out_dir, *, robot: str, tracker_st
         switch = sys.getswitchinterval()
         sys.setswitchinterval(0.0005)  # the link's heartbeat and state threads never wait 5 ms for this one
         try:
-            with WamClient(robot, kinematics=kin, timeout_s=link_timeout_s) as wam:
+            try:
+                wam = WamClient(robot, kinematics=kin, timeout_s=link_timeout_s)
+            except LinkLostError as exc:  # no robot there: a bad address (exit 2)
+                raise ValueError(f"robot link: {exc}") from None
+            with wam:  # a link lost from here on is a failure at run time (LinkLostError: exit 1)
                 est = wam.sync_clock(32)
                 status(f"robot at {robot}: clock offset {est.offset_ns / 1e6:+.3f} ms +- {est.uncertainty_ns / 1e6:.3f} ms")
                 msgs, t_recv, h0, f0, t0_robot, command, s, truth = _run_motion(
                     wam, stream, plan, config, est, period, lead_s, stream_timeout_s, status)
                 est = wam.clock.estimate()
-        except LinkLostError as exc:
-            raise ValueError(f"robot link: {exc}") from None
         finally:
             sys.setswitchinterval(switch)
     finally:

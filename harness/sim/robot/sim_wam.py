@@ -167,6 +167,12 @@ class SimulatedWam:
         t, Q, Qd = check_joint_trajectory(self.kinematics, t_s, q, qdot, now_s=self.t_s)
         self._reference.replace_from(t, Q, Qd, self.t_s)
 
+    def reference_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Where the present reference drives the arm at robot time ``t_s``: ``(q (7,) rad, qdot (7,) rad/s)``
+        (true joint coordinates, clamped into the joint limits like the ticks' reference)."""
+        q, qd, _ = self._reference.evaluate(np.array([float(t_s)]))
+        return np.clip(q[0], self.kinematics.q_min, self.kinematics.q_max), qd[0]
+
     def step(self, n_ticks: int = 1) -> SimSamples:
         """Run ``n_ticks`` control ticks; returns their samples."""
         if int(n_ticks) != n_ticks or n_ticks < 0:

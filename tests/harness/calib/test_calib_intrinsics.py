@@ -81,6 +81,38 @@ def test_wrong_board_spec_is_named_and_nothing_written(board_images, tmp_path, c
     assert "0 usable board views of 16 images" in err and "view_000" not in err
 
 
+@pytest.mark.parametrize("damage", ["truncated_jpeg", "jpeg_cut_in_header", "not_an_image", "empty"])
+def test_a_damaged_image_is_named_and_nothing_written(board_images, tmp_path, capsys, damage):
+    """A JPEG cut short decodes in OpenCV with its missing part grey and only a warning: it is named, never used."""
+    import shutil
+
+    folder = tmp_path / "imgs"
+    shutil.copytree(board_images, folder)
+    img = cv2.imread(str(folder / "view_003.png"))
+    ok, jpg = cv2.imencode(".jpg", img)
+    data = jpg.tobytes()
+    bad = folder / "view_003b.jpg"
+    bad.write_bytes({"truncated_jpeg": data[: len(data) * 2 // 3], "jpeg_cut_in_header": data[:300],
+                     "not_an_image": b"hello", "empty": b""}[damage])
+    out = tmp_path / "cam.yaml"
+    code = main(["calib", "intrinsics", "--images", str(folder), "--board", str(board_images.parent / "board.yaml"),
+                 "--out", str(out), "--fix-k3"])
+    err = capsys.readouterr().err
+    assert code == 2 and not out.exists(), err
+    assert "view_003b.jpg" in err and len(err.strip().splitlines()) == 1, err
+    if damage.startswith("truncated"):
+        assert "truncated JPEG" in err
+
+
+def test_an_intact_jpeg_is_read(board_images, tmp_path):
+    from harness.calib.inputs import read_image
+
+    img = cv2.imread(str(board_images / "view_003.png"))
+    ok, jpg = cv2.imencode(".jpg", img)
+    (tmp_path / "a.jpg").write_bytes(jpg.tobytes() + b"\x00\x00")  # some cameras pad after the end marker
+    assert read_image(tmp_path / "a.jpg").shape == img.shape
+
+
 def test_too_few_views_and_bad_specs():
     views = [detect_charuco(img, SPEC) for img in rendered_views(3, seed=3)]
     with pytest.raises(ValueError, match="camera7: 3 usable board views of 3 images, need >= 5"):

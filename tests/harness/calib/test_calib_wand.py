@@ -246,6 +246,38 @@ def test_detection_csvs_bad_input_is_named(tmp_path):
     assert ts.tolist() == [1, 2] and np.isnan(uv[1, 1]).all() and uv[1, 0, 0].tolist() == [5, 6]
 
 
+@pytest.mark.parametrize("row, needle", [
+    ("nan;10;20", "line 3: timestamp 'nan' is not a whole number of ns"),
+    ("NaN;10;20", "line 3: timestamp 'NaN' is not a whole number of ns"),
+    (";10;20", "line 3: timestamp '' is not a whole number of ns"),
+    ("1e30;10;20", "line 3: timestamp '1e30' does not fit a 64-bit time in ns"),
+    ("inf;10;20", "line 3: timestamp 'inf' is not a whole number of ns"),
+    ("-inf;10;20", "line 3: timestamp '-inf' is not a whole number of ns"),
+    ("2.5;10;20", "line 3: timestamp '2.5' is not a whole number of ns"),
+    ("9223372036854775808;10;20", "does not fit a 64-bit time"),
+    ("3;inf;20", "line 3: pixel coordinate inf is not finite"),
+    ("3;10;-inf", "line 3: pixel coordinate -inf is not finite"),
+])
+def test_detection_csvs_bad_timestamps_and_infinities_name_file_and_line(tmp_path, row, needle):
+    """Never a silent cast to int64's minimum (and a pairing on it), never an array index: the file and line."""
+    from harness.calib.inputs import read_detection_csvs
+
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_text("1;10;20\n2;11;21\n")
+    b.write_text(f"timestamp_ns;u1;v1\n1;10;20\n{row}\n")
+    with pytest.raises(ValueError, match="b.csv: " + needle.replace("(", r"\(") if needle.startswith("line") else needle):
+        read_detection_csvs([a, b])
+
+
+def test_detection_csv_timestamps_are_exact_nanoseconds(tmp_path):
+    from harness.calib.inputs import read_detection_csvs
+
+    a = tmp_path / "a.csv"
+    a.write_text("1732600000000000001;10;20\n1732600000000000002;11;21\n2e9;1;2\n")  # beyond float64's integers
+    ts, uv = read_detection_csvs([a])
+    assert ts.tolist() == [2_000_000_000, 1732600000000000001, 1732600000000000002]
+
+
 def test_order_wand_points_ignores_extra_candidates():
     uv = np.array([[10.0, 10.0], [12.0, 140.0], [16.0, 400.0]])  # 130 : 260, a slightly slanted line
     noisy = np.vstack([uv, [[200.0, 50.0], [90.0, 300.0]]])[[3, 1, 4, 0, 2]]

@@ -86,7 +86,8 @@ def test_pairing_with_the_estimate_matches_a_clock_without_skew(bridges):
         q1 = st.q.copy()
         q1[0] += 0.6
         q1[1] -= 0.4
-        wam.command_trajectory([st.t_s + 0.05, st.t_s + 0.6], np.stack([st.q, q1]))
+        # rest to rest within the acceleration limits (the motion-safety rule): a cubic Hermite over 0.8 s
+        wam.command_trajectory([st.t_s + 0.05, st.t_s + 0.85], np.stack([st.q, q1]), np.zeros((2, 7)))
         wam.advance_to(st.t_s)
         s = wam.advance_to(st.t_s + 0.8)
         t_true, q_true = wam.take_sim_truth()

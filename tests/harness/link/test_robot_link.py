@@ -132,7 +132,8 @@ def test_command_moves_the_robot(bridge, kin):
     with WamClient(bridge.address, kinematics=kin) as wam:
         st = wam.read_state()
         q_target = np.clip(st.q + 0.1, kin.q_min + 0.05, kin.q_max - 0.05)
-        wam.command_trajectory([st.t_s + 0.05, st.t_s + 0.5], np.stack([st.q, q_target]))
+        # rest to rest (qdot 0 at both samples: a cubic Hermite), as the motion-safety rule asks
+        wam.command_trajectory([st.t_s + 0.05, st.t_s + 0.5], np.stack([st.q, q_target]), np.zeros((2, 7)))
         s = wam.advance_to(st.t_s + 1.2)
         assert wam.mode == "track"
         assert np.abs(wam.sim_true_q() - q_target).max() < 2e-3  # the simulator's truth: where the arm went
@@ -203,7 +204,7 @@ def test_robot_holds_when_the_commanding_process_dies(bridge, kin):
         "from harness.link import WamClient\n"
         f"w = WamClient({bridge.address!r})\n"
         "s = w.read_state(); q1 = s.q.copy(); q1[0] += 0.6\n"
-        "w.command_trajectory([s.t_s + 0.02, s.t_s + 3.0], np.stack([s.q, q1]))\n"
+        "w.command_trajectory([s.t_s + 0.02, s.t_s + 3.0], np.stack([s.q, q1]), np.zeros((2, 7)))\n"
         "print('commanded', flush=True)\n"
         "time.sleep(30)\n")
     with WamClient(bridge.address, kinematics=kin, heartbeat_s=None, timeout_s=1.0) as listener:

@@ -120,3 +120,31 @@ def test_each_subprotocol_receives_every_advertised_channel(subprotocol):
     expected |= {"/scene/balls", "/scene/static", "/tf_static", "/tracker/rt2/ball"}
     assert set(r["channels"]) == expected
     assert set(r["payloads"]) == expected and all(len(p) > 0 for p in r["payloads"].values())
+
+
+def test_bad_clients_are_logged_prefixed_and_rate_limited(capfd):
+    """40 clients that fail the WebSocket handshake: a few prefixed lines and a count, not 40 bare stderr lines."""
+    import socket
+
+    def bad_client(port):
+        with socket.create_connection(("127.0.0.1", port)) as s:
+            s.sendall(b"garbage\r\n\r\n")
+            s.settimeout(2.0)
+            try:
+                s.recv(100)
+            except OSError:
+                pass
+
+    view = LiveView(lab_rig(), "rt2", ViewOptions(port=0))
+    try:
+        for _ in range(40):
+            bad_client(view.port)
+        time.sleep(1.2)
+        bad_client(view.port)  # one more, in the next second: the summary
+        time.sleep(0.3)
+    finally:
+        view.close()
+    lines = [ln for ln in capfd.readouterr().err.splitlines() if "client" in ln]
+    assert lines and all(ln.startswith("rt2 live view: ") for ln in lines), lines
+    assert len(lines) <= 12, lines
+    assert any("more Foxglove messages in" in ln for ln in lines), lines

@@ -111,7 +111,7 @@ def test_the_simulated_bridge_publishes_its_true_joints_on_the_host_clock():
             sub.wait_first(20.0)
             q_cmd = wam.read_state().q + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.2])
             t0 = wam.t_s + 0.1
-            wam.command_trajectory([t0, t0 + 0.4], np.stack([wam.read_state().q, q_cmd]))  # something that moves
+            wam.command_trajectory([t0, t0 + 0.4], np.stack([wam.read_state().q, q_cmd]), np.zeros((2, 7)))  # it moves
             wam.advance_to(t0 + 0.3)
             t_robot, q_true = wam.take_sim_truth()
             offset_ns = wam.sim_info()["offset_ns"]
