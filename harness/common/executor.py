@@ -23,6 +23,15 @@ watching the parent's pid everywhere), ignore SIGINT (the parent decides) and ar
 sweep stops. While the executor is open, SIGINT and SIGTERM raise :class:`SweepInterrupted` in the main
 thread; the sweep kills its workers (work inside them is lost, finished results are kept) and the caller
 writes what finished, marked partial. A worker that dies raises :class:`WorkerLost`.
+
+An exception raised by a signal handler can be lost: Python prints and drops it when the handler runs inside
+a ``__del__`` method or a weakref callback (numba and llvmlite free compiler objects that way while the main
+process loads a kernel), and a library's ``except BaseException`` can swallow it. The stop therefore does not
+rest on that one exception: until the sweep has acted on the stop (:meth:`Executor.close`, or ``map``
+catching it), every poll of ``map`` (4 a second while it waits for workers, and each time the caller asks
+for the next result) raises it again, and while a task runs in this process a watchdog thread re-delivers
+the signal to the main thread every ``_REDELIVER_S``. Consume ``map`` in a ``for`` loop, so that an
+exception leaving the loop closes the generator (and with it the workers).
 """
 
 from __future__ import annotations
@@ -44,6 +53,7 @@ __all__ = ["Executor", "SweepInterrupted", "SweepOptions", "SweepStopped", "Work
 
 RAY_EXTRA_HINT = "pip install 'rt2[cluster]'"
 _POLL_S = 0.25  #: how often the parent checks for finished tasks and workers check for their parent
+_REDELIVER_S = 0.3  #: after a signal, how often it is sent again to the main thread until the sweep stops
 
 
 class SweepStopped(BaseException):
@@ -228,6 +238,9 @@ class Executor:
         self._ray_started = False
         self._old_handlers: dict = {}
         self._signum: int | None = None
+        self._stop_seen = threading.Event()  #: set once the sweep has acted on the signal (workers stopping)
+        self._stop_lock = threading.Lock()  #: no re-delivery after _stop_seen (the old handler may be back)
+        self._task_here = False  #: a task runs in this process (the watchdog may re-deliver a signal)
 
     # -- lifetime ---------------------------------------------------------------------------------
     def __enter__(self) -> "Executor":
@@ -243,13 +256,38 @@ class Executor:
         self._old_handlers.clear()
 
     def _on_signal(self, signum, frame) -> None:
-        if self._signum is None:  # the first signal stops the sweep; a second one before the workers are
-            self._signum = signum  # stopped is ignored
+        if self._signum is None:  # the first signal stops the sweep
+            self._signum = signum
             _register_exit_at_once(128 + signum)  # runs first at exit, once everything is written
-            raise SweepInterrupted(signum)
+            threading.Thread(target=self._redeliver, name="rt2-sweep-stop", daemon=True).start()
+        if self._stop_seen.is_set():  # the workers are being stopped and the partial output written: a
+            return  # second signal (or a late re-delivery) must not interrupt that
+        raise SweepInterrupted(self._signum)  # again for a re-delivery: the first one may have been swallowed
+
+    def _redeliver(self) -> None:
+        """Watchdog started by the first signal: while a task runs in this process, send the signal again to
+        the main thread until the sweep acts on it (module docstring: an exception raised in a signal handler
+        can be dropped by the code it lands in). Outside a task, ``map``'s polls raise it again."""
+        main = threading.main_thread()
+        while not self._stop_seen.wait(_REDELIVER_S) and main.is_alive():
+            with self._stop_lock:
+                if not self._stop_seen.is_set() and self._task_here:
+                    signal.pthread_kill(main.ident, self._signum)
+
+    def _acknowledge_stop(self) -> None:
+        """The sweep acts on the signal: no more re-delivery, later signals are ignored."""
+        with self._stop_lock:
+            self._stop_seen.set()
+
+    def _check_signal(self) -> None:
+        """Raise the pending :class:`SweepInterrupted` if a signal came and the sweep has not acted on it."""
+        if self._signum is not None and not self._stop_seen.is_set():
+            raise SweepInterrupted(self._signum)
 
     def close(self, *, kill: bool = False) -> None:
         """Stop the workers: at once (``kill``) or after their current tasks."""
+        if self._signum is not None:
+            self._acknowledge_stop()
         if self._pool is not None:
             if kill:
                 self._kill_local()
@@ -289,9 +327,12 @@ class Executor:
         done = 0
         try:
             for item in runner(key, fn, tasks, initializer, initargs):
+                self._check_signal()
                 done += 1
                 yield item
+                self._check_signal()  # a signal whose exception the caller's code swallowed
         except SweepInterrupted as exc:
+            self._acknowledge_stop()
             self.close(kill=True)
             raise SweepInterrupted(exc.signum, done=done, total=len(tasks)) from None
         except WorkerLost as exc:
@@ -303,7 +344,13 @@ class Executor:
 
     def _map_here(self, key, fn, tasks, initializer, initargs):
         for i, task in enumerate(tasks):
-            yield _run_task(key, initializer, initargs, fn, i, task)
+            self._check_signal()
+            self._task_here = True
+            try:
+                item = _run_task(key, initializer, initargs, fn, i, task)
+            finally:
+                self._task_here = False
+            yield item
 
     def _map_local(self, key, fn, tasks, initializer, initargs):
         # The initializer and its arguments go to each process once, when it starts (not with every task:
@@ -318,6 +365,7 @@ class Executor:
             self._pool_key = key
         pending = {self._pool.submit(_run_task, key, None, (), fn, i, t) for i, t in enumerate(tasks)}
         while pending:
+            self._check_signal()
             finished, pending = wait(pending, timeout=_POLL_S, return_when=FIRST_COMPLETED)
             for fut in finished:
                 try:
@@ -343,6 +391,7 @@ class Executor:
         pending = list(refs)
         try:
             while pending:
+                self._check_signal()
                 ready, pending = ray.wait(pending, num_returns=1, timeout=_POLL_S)
                 for ref in ready:
                     try:

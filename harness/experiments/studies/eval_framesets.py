@@ -209,7 +209,7 @@ def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colo
     stopped early (:class:`harness.common.executor.SweepStopped`) is appended to it and the scores of the chunks
     that finished are returned (else the stop propagates)
     """
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     from tracker.pipeline import load_model
 
@@ -223,7 +223,7 @@ def evaluate(rig, frames: int, seed: int, *, trackers=tuple(TRACKERS), ball_colo
     model = load_model(model)  # fails here, not in a worker
     setup = (rig, seed, tuple(trackers), ball_colour, tol_m, model, max_size_ratio)
     chunks = [(a, min(a + CHUNK, frames)) for a in range(0, frames, CHUNK)]
-    bar = tqdm(total=frames, desc="eval framesets", unit="frame set", disable=not progress, leave=False)
+    bar = progress_bar(total=frames, desc="eval framesets", unit="frame set", disable=not progress, leave=False)
     with bar:
         parts = run_sweep(sweep or SweepOptions(), _score_chunk, chunks, stopped=stopped, initializer=_init_worker,
                           initargs=setup, on_result=lambda i: bar.update(chunks[i][1] - chunks[i][0]))
