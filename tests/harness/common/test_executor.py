@@ -101,6 +101,19 @@ def test_framesets_on_ray_equal_local(ray_local, monkeypatch):
     assert _framesets(SweepOptions(ray_address="auto"), monkeypatch) == _framesets(SweepOptions(workers=1), monkeypatch)
 
 
+@pytest.mark.slow  # a Ray worker builds a playing session (~20 s on a loaded machine)
+def test_play_on_ray_writes_the_same_bytes_as_this_process(ray_local, tmp_path, capsys):
+    from harness.cli import main
+
+    def play(name, *extra):
+        out = tmp_path / name
+        assert main(["play", "--balls", "2", "--seed", "4", "--out", str(out), "--json", str(out / "play.json"),
+                     "--quiet", "--no-figure", "--no-log", *extra]) == 0
+        return (out / "play.json").read_bytes()
+
+    assert play("ray", "--ray", "auto") == play("here", "--workers", "1")
+
+
 def test_ray_task_error_reaches_the_caller(ray_local):
     with Executor(SweepOptions(ray_address="auto")) as ex, pytest.raises(ValueError, match="math domain error"):
         list(ex.map(_sqrt, [4.0, -1.0]))
