@@ -16,7 +16,8 @@ of that ``map`` call (e.g. to build a renderer), in every backend.
 
 Same results whatever the backend and the number of workers: a task's result may depend only on the task
 (its seed comes from the run seed and the task index, :mod:`harness.common.seeding`), never on which worker or in
-which order it ran; callers put results back in task order (:func:`in_task_order`).
+which order it ran; callers put results back in task order (:func:`in_task_order`). Every task runs with one
+BLAS thread, whatever the backend (a threaded BLAS may sum in another order with another thread count).
 
 Crashes and signals: local workers die with the parent (``PR_SET_PDEATHSIG`` on Linux, plus a thread
 watching the parent's pid everywhere), ignore SIGINT (the parent decides) and are killed at once when the
@@ -37,6 +38,7 @@ exception leaving the loop closes the generator (and with it the workers).
 from __future__ import annotations
 
 import atexit
+import contextlib
 import os
 import signal
 import sys
@@ -165,11 +167,42 @@ def _run_task(key: str, initializer, initargs, fn, index: int, task):
     return index, fn(task)
 
 
+_BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _one_blas_thread():
+    """Run a task with one BLAS thread, in each backend: a threaded BLAS may sum in another order with another
+    thread count (and Ray gives its workers one thread), so the figures would depend on where a task ran; N
+    workers with several BLAS threads each would also only contend for the cores. The libraries loaded so far
+    are limited (threadpoolctl), one loaded during the task reads the environment; both are restored after."""
+    from threadpoolctl import threadpool_limits
+
+    old = {name: os.environ.get(name) for name in _BLAS_THREAD_VARIABLES}
+    os.environ.update(dict.fromkeys(_BLAS_THREAD_VARIABLES, "1"))
+    try:
+        with threadpool_limits(1):
+            yield
+    finally:
+        for name, value in old.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def _run_task_in_worker(key: str, initializer, initargs, fn, index: int, task):
+    """:func:`_run_task` in a worker process (local or Ray), with one BLAS thread as everywhere."""
+    with _one_blas_thread():
+        return _run_task(key, initializer, initargs, fn, index, task)
+
+
 def _start_local_worker(parent_pid: int, key: str, initializer, initargs) -> None:
     """Local worker start-up: die with the parent, then the sweep's initializer (once per process)."""
     _die_with_parent(parent_pid)
     if initializer is not None:
-        initializer(*initargs)
+        with _one_blas_thread():  # as the initializer runs in this process and on Ray (inside _run_task)
+            initializer(*initargs)
     _STATE["key"] = key
 
 
@@ -347,7 +380,8 @@ class Executor:
             self._check_signal()
             self._task_here = True
             try:
-                item = _run_task(key, initializer, initargs, fn, i, task)
+                with _one_blas_thread():  # as in the workers; this process's own limits come back after it
+                    item = _run_task(key, initializer, initargs, fn, i, task)
             finally:
                 self._task_here = False
             yield item
@@ -363,7 +397,7 @@ class Executor:
                                              initializer=_start_local_worker,
                                              initargs=(os.getpid(), key, initializer, initargs))
             self._pool_key = key
-        pending = {self._pool.submit(_run_task, key, None, (), fn, i, t) for i, t in enumerate(tasks)}
+        pending = {self._pool.submit(_run_task_in_worker, key, None, (), fn, i, t) for i, t in enumerate(tasks)}
         while pending:
             self._check_signal()
             finished, pending = wait(pending, timeout=_POLL_S, return_when=FIRST_COMPLETED)
@@ -385,7 +419,7 @@ class Executor:
 
     def _map_ray(self, key, fn, tasks, initializer, initargs):
         ray = self._connect_ray()
-        remote = ray.remote(num_cpus=1, max_retries=0)(_run_task)
+        remote = ray.remote(num_cpus=1, max_retries=0)(_run_task_in_worker)
         init_ref = ray.put(initargs)  # shipped to each node once, not with every task
         refs = [remote.remote(key, initializer, init_ref, fn, i, t) for i, t in enumerate(tasks)]
         pending = list(refs)

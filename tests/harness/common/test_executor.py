@@ -119,6 +119,21 @@ def test_ray_task_error_reaches_the_caller(ray_local):
         list(ex.map(_sqrt, [4.0, -1.0]))
 
 
+def _blas_threads(_task) -> list[int]:
+    from threadpoolctl import threadpool_info
+
+    return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_tasks_run_with_one_blas_thread_in_every_backend(workers):
+    before = _blas_threads(None)
+    with Executor(SweepOptions(workers=workers)) as ex:
+        seen = [threads for _, threads in ex.map(_blas_threads, range(3))]
+    assert seen and all(t == [1] * len(before) for t in seen)  # the same summation order everywhere
+    assert _blas_threads(None) == before  # this process gets its own limits back after the sweep
+
+
 # -- bad input ----------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("kw, match", [
     ({"workers": 0}, r"--workers must be >= 1 \(an integer\), got 0"),
