@@ -37,7 +37,6 @@ exception leaving the loop closes the generator (and with it the workers).
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import os
 import signal
@@ -49,6 +48,8 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from multiprocessing import get_context
+
+from harness.common.fast_exit import exit_at_once_when_done
 
 __all__ = ["Executor", "SweepInterrupted", "SweepOptions", "SweepStopped", "WorkerLost", "add_sweep_arguments",
            "in_task_order", "options_from_args", "run_sweep"]
@@ -229,34 +230,6 @@ def _die_with_parent(parent_pid: int) -> None:
 
 
 # ------------------------------------------------------------------------------------------ parent side
-def _exit_at_once(code: int) -> None:
-    """After a stop by a signal, once the program has written its partial output and returned: flush and
-    leave without the interpreter's teardown of native libraries, which takes seconds on a loaded machine."""
-    import logging
-
-    logging.shutdown()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
-    os._exit(code)
-
-
-def _register_exit_at_once(code: int) -> None:
-    """Have :func:`_exit_at_once` run when the main thread is done, before the interpreter joins threads:
-    threading's own exit hooks run before that join (and before :mod:`atexit`), last registered first, so
-    this one precedes concurrent.futures' join of its manager threads. Falls back to :mod:`atexit`."""
-    register = getattr(threading, "_register_atexit", None)
-    try:
-        if register is None:
-            raise RuntimeError("no threading exit hooks")
-        register(_exit_at_once, code)
-    except RuntimeError:  # already shutting down, or another Python
-        atexit.register(_exit_at_once, code)
-
-
-
 class Executor:
     """Runs a sweep's tasks (module docstring). Use as a context manager: while open, SIGINT/SIGTERM raise
     :class:`SweepInterrupted` in the main thread, and closing it stops every worker."""
@@ -291,7 +264,7 @@ class Executor:
     def _on_signal(self, signum, frame) -> None:
         if self._signum is None:  # the first signal stops the sweep
             self._signum = signum
-            _register_exit_at_once(128 + signum)  # runs first at exit, once everything is written
+            exit_at_once_when_done(128 + signum)  # runs first at exit, once everything is written
             threading.Thread(target=self._redeliver, name="rt2-sweep-stop", daemon=True).start()
         if self._stop_seen.is_set():  # the workers are being stopped and the partial output written: a
             return  # second signal (or a late re-delivery) must not interrupt that

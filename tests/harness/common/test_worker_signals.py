@@ -200,6 +200,94 @@ def test_sigterm_sim_dataset_stops_fast_and_leaves_out_as_it_was(tmp_path):
 
 
 
+
+# -- the other sweeps: play compare (SIGINT), eval framesets and table1 (SIGTERM) ------------------------------
+def test_sigint_play_compare_keeps_the_configurations_done(tmp_path):
+    run = Run(cli("play", "compare", "--trackers", "rt2", "--filters", "raw", "ransac_kalman", "--balls", "30",
+                  "--seed", "0", "--workers", "2", "--out", str(tmp_path), "--no-figure", "--no-log",
+                  "--json", str(tmp_path / "compare.json")))
+    run.wait_progress(r"(\d+)/30", 1)
+    out = stop(run, signal.SIGINT)
+    assert "PARTIAL (interrupted by SIGINT)" in out
+    rows = json.loads((tmp_path / "compare.json").read_text())
+    assert rows and rows[-1]["partial"] is True and 1 <= rows[-1]["balls"] < 30
+
+
+def test_sigterm_eval_framesets_writes_the_finished_chunks(tmp_path):
+    run = Run(cli("eval", "framesets", "--frames", "400", "--seed", "0", "--workers", "2", "--trackers", "rt2",
+                  "--json", str(tmp_path / "framesets.json")))
+    run.wait_progress(r"(\d+)/400", 20)
+    out = stop(run, signal.SIGTERM)
+    assert "PARTIAL (interrupted by SIGTERM)" in out
+    rows = json.loads((tmp_path / "framesets.json").read_text())
+    assert rows and all(r["partial"] is True for r in rows)
+
+
+def test_sigterm_table1_stops_fast_and_writes_the_finished_chunks(tmp_path):
+    run = Run(_table1(tmp_path))
+    run.wait_progress(r"(\d+)/160", 2)
+    assert "PARTIAL (interrupted by SIGTERM)" in stop(run, signal.SIGTERM)
+    assert all(r["partial"] is True for r in json.loads((tmp_path / "table1.json").read_text()))
+
+
+# -- child services: rt2 robot serve, rt2 play --live (which starts a bridge and a tracker process) ----------
+def descendants(pid: int) -> list[int]:
+    out, todo = [], [pid]
+    while todo:
+        kids = children(todo.pop())
+        out += kids
+        todo += kids
+    return out
+
+
+def test_sigterm_robot_serve_stops_within_2_s():
+    from harness.link.spawn import SimBridgeProcess
+
+    bridge = SimBridgeProcess("--batch", "4")
+    try:
+        t0 = time.monotonic()
+        bridge.proc.send_signal(signal.SIGTERM)
+        code = bridge.proc.wait(timeout=30)
+        dt = time.monotonic() - t0
+    finally:
+        bridge.kill()
+    assert code == 0  # a service asked to stop has done its job
+    assert dt < STOP_WITHIN_S
+
+
+def test_sigterm_play_live_stops_fast_closes_the_log_and_its_services(tmp_path):
+    from harness.logs import SessionLogReader
+
+    proc = subprocess.Popen(cli("play", "--live", "--balls", "20", "--seed", "0", "--out", str(tmp_path),
+                                "--json", str(tmp_path / "live.json")),
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    lines = []
+    for line in proc.stdout:  # the first ball played: both services up, the policy running
+        lines.append(line)
+        if line.startswith("ball 0:"):
+            break
+    else:
+        pytest.fail(f"rt2 play --live ended before its first ball: {''.join(lines)} {proc.stderr.read()[-2000:]}")
+    services = descendants(proc.pid)
+    assert len(services) >= 2, "the bridge and the tracker should run as child processes"
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    try:
+        out, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail("rt2 play --live did not stop within 30 s of SIGTERM")
+    dt = time.monotonic() - t0
+    assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
+    assert dt < STOP_WITHIN_S
+    assert_gone(services)
+    (row,) = json.loads((tmp_path / "live.json").read_text())
+    assert row["partial"] is True and 1 <= row["balls"] < 20
+    with SessionLogReader(tmp_path / "play_live_rt2_raw_synthetic_s0.mcap") as log:
+        assert log.finished_cleanly and "signal" in json.dumps(log.summary().session_end)
+
+
 # -- a signal whose exception is dropped by the code it lands in ---------------------------------------------
 SWALLOWED = """
 import os, signal, sys, time
