@@ -55,6 +55,7 @@ bench: $(STAMP)
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
 
-# numba's cache does not see edits to jitted helpers imported from another file (tracker/distortion.py)
+# Drop numba's disk cache (compiled kernels). Not needed after edits: each kernel's cache key holds the source
+# of every jitted helper it compiles in (checks/numba_cache.py); this only frees the disk or times a cold start.
 clean-numba:
-	find tracker harness policies -name '*.nbi' -delete -o -name '*.nbc' -delete
+	find tracker harness policies robot_models -name '*.nbi' -delete -o -name '*.nbc' -delete
