@@ -307,12 +307,27 @@ class Executor:
     def _kill_local(self) -> None:
         pool, self._pool = self._pool, None
         procs = list((getattr(pool, "_processes", None) or {}).values())
+        results = getattr(pool, "_result_queue", None)  # shutdown() forgets it
         for p in procs:
             if p.is_alive():
                 p.kill()
         pool.shutdown(wait=False, cancel_futures=True)
         for p in procs:
             p.join(timeout=1.0)
+        # A worker killed while it wrote a result leaves half a message in the result pipe: the pool's manager
+        # thread then waits in recv() for the rest forever (this process holds the pipe's write end too, so no
+        # end of file comes), and the interpreter's exit joins that thread: the process never ends (seen when
+        # a worker died, or on an error in a task). With every worker gone, closing our copy of the write end
+        # gives the reader its end of file: the manager thread marks the pool broken and ends.
+        writer = getattr(results, "_writer", None)
+        if writer is not None and not any(p.is_alive() for p in procs):
+            try:
+                writer.close()
+            except OSError:
+                pass
+        manager = getattr(pool, "_executor_manager_thread", None)
+        if manager is not None and manager is not threading.current_thread():
+            manager.join(timeout=1.0)
 
     # -- running ----------------------------------------------------------------------------------
     def map(self, fn, tasks, *, initializer=None, initargs: tuple = (), init_key: str | None = None):
@@ -371,6 +386,7 @@ class Executor:
                                              initargs=(os.getpid(), key, initializer, initargs))
             self._pool_key = key
         pending = {self._pool.submit(_run_task_in_worker, key, None, (), fn, i, t) for i, t in enumerate(tasks)}
+        dead_since: dict[int, float] = {}
         while pending:
             self._check_signal()
             finished, pending = wait(pending, timeout=_POLL_S, return_when=FIRST_COMPLETED)
@@ -379,6 +395,18 @@ class Executor:
                     yield fut.result()
                 except BrokenProcessPool as exc:
                     raise WorkerLost(f"a worker process died or its start-up failed ({exc})") from None
+            if not finished:
+                self._check_workers(dead_since)
+
+    def _check_workers(self, dead_since: dict) -> None:
+        """Raise :class:`WorkerLost` for a worker dead for a second without the pool noticing: its manager thread
+        notices a dead worker at once, unless the worker died in the middle of writing a result, when that
+        thread waits for the rest of the message forever (see :meth:`_kill_local`)."""
+        now = time.monotonic()
+        for p in list((getattr(self._pool, "_processes", None) or {}).values()):
+            if p.exitcode is not None and now - dead_since.setdefault(p.pid, now) > 1.0:
+                raise WorkerLost(f"a worker process died or its start-up failed (process {p.pid} exited with "
+                                 f"code {p.exitcode})")
 
     def _connect_ray(self):
         ray = self._ray = _import_ray()

@@ -4,7 +4,9 @@ of workers; bad options; ``--ray`` without Ray; seeds required where random numb
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -172,3 +174,33 @@ def test_launcher_and_trajectories_need_a_seed():
     a = BallLauncher(seed=np.random.SeedSequence(4)).serve().state
     b = BallLauncher(rng=np.random.default_rng(np.random.SeedSequence(4))).serve().state
     np.testing.assert_array_equal(a, b)
+
+
+def _die_in_the_middle_of_a_result(x):
+    """In a worker: write the start of a result message into the pool's result pipe, then die (as a worker
+    killed while it hands back a large result)."""
+    import gc
+    import os
+    import struct
+    import time
+    from multiprocessing.queues import SimpleQueue
+
+    if x >= 0:
+        time.sleep(0.05)
+        return x
+    results = next(q for q in gc.get_objects() if isinstance(q, SimpleQueue))  # the pool's result queue
+    os.write(results._writer.fileno(), struct.pack("!i", 100_000) + b"x" * 10)  # 10 of 100,000 bytes
+    os._exit(9)
+
+
+def test_a_worker_dying_in_the_middle_of_a_result_is_a_lost_worker_not_a_hang():
+    """The pool's manager thread then waits for the rest of the message forever: the sweep used to hang in its
+    wait loop (and the process at exit)."""
+    code = ("import sys\nfrom tests.harness.common.test_executor import _die_in_the_middle_of_a_result as f\n"
+            "from harness.common.executor import Executor, SweepOptions, WorkerLost\n"
+            "try:\n    with Executor(SweepOptions(workers=2)) as ex:\n"
+            "        for _ in ex.map(f, [1.0, 2.0, -1.0] + [3.0] * 20):\n            pass\n"
+            "except WorkerLost as exc:\n    print('LOST', exc.done, exc.total, flush=True)\n")
+    root = Path(__file__).resolve().parents[3]
+    proc = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=90)
+    assert proc.returncode == 0 and proc.stdout.startswith("LOST"), proc.stdout + proc.stderr[-2000:]
