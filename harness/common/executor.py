@@ -318,16 +318,14 @@ class Executor:
         # thread then waits in recv() for the rest forever (this process holds the pipe's write end too, so no
         # end of file comes), and the interpreter's exit joins that thread: the process never ends (seen when
         # a worker died, or on an error in a task). With every worker gone, closing our copy of the write end
-        # gives the reader its end of file: the manager thread marks the pool broken and ends.
+        # gives the reader its end of file: the manager thread marks the pool broken and ends (not waited for
+        # here: a stop by a signal leaves at once, and the interpreter's exit joins it otherwise).
         writer = getattr(results, "_writer", None)
         if writer is not None and not any(p.is_alive() for p in procs):
             try:
                 writer.close()
             except OSError:
                 pass
-        manager = getattr(pool, "_executor_manager_thread", None)
-        if manager is not None and manager is not threading.current_thread():
-            manager.join(timeout=1.0)
 
     # -- running ----------------------------------------------------------------------------------
     def map(self, fn, tasks, *, initializer=None, initargs: tuple = (), init_key: str | None = None):
