@@ -202,6 +202,8 @@ def run(args) -> int:
 
     kin = WamKinematics.default()
     ProMP.load(args.promp, robot_id=str(kin.model.name), joint_names=kin.joint_names)  # fails here, not in a worker
+    if not args.no_log:  # load the kernel the session log draws the arm with now, not while a signal stops the run
+        kin.link_points([0.0] * kin.n_joints, check_limits=False)
     rows, logs, stopped = [], [], []
     with Executor(options_from_args(args)) as executor:
         for config in _configs(args, profiles):
