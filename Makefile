@@ -7,7 +7,13 @@ STAMP  := $(VENV)/.rt2-installed
 NODE_CLIENTS := build/node/node_modules/.bin/ws-protocol-examples
 JOBS   ?= 2
 
-.PHONY: setup demo test test-all bench clean clean-numba
+TESTS  ?=
+JUNIT  ?=
+RUNS   ?= 5
+# TESTS: pytest arguments that narrow `make test` (files, -k EXPR); JUNIT: a folder for JUnit XML reports
+JUNIT_OPT = $(if $(JUNIT),--junitxml=$(JUNIT)/$(1).xml)
+
+.PHONY: setup demo test test-all bench clean clean-numba flaky slowest
 
 setup: $(STAMP) $(NODE_CLIENTS)
 
@@ -30,9 +36,20 @@ demo: $(STAMP)
 
 # Tests marked `realtime` time live processes against the in-process run: they run alone, after the rest,
 # so that the parallel suite does not take the cores they measure.
+# A narrowed run (TESTS=...) may select no realtime test: pytest's "no tests ran" (exit 5) is no failure there.
 test: $(STAMP) $(NODE_CLIENTS)
-	$(PY) -m pytest -q -n $(JOBS) -m "not slow and not realtime"
-	$(PY) -m pytest -q -m "realtime and not slow"
+	$(PY) -m pytest -q -n $(JOBS) -m "not slow and not realtime" $(call JUNIT_OPT,parallel) $(TESTS)
+	$(PY) -m pytest -q -m "realtime and not slow" $(call JUNIT_OPT,realtime) $(TESTS); \
+	  code=$$?; if [ -n "$(TESTS)" ] && [ $$code -eq 5 ]; then code=0; fi; exit $$code
+
+# `make test` RUNS times in a row (default 5); lists every test that failed at least once, and the slowest 20.
+# e.g. `make flaky RUNS=2 TESTS=tests/harness/common/test_progress.py` to try it on a subset.
+flaky: $(STAMP)
+	$(PY) tests/flaky_runs.py --runs $(RUNS) --tests "$(TESTS)"
+
+# The 20 slowest tests of `make test`'s parallel part (narrow with TESTS=...).
+slowest: $(STAMP)
+	$(PY) -m pytest -q -n $(JOBS) -m "not slow and not realtime" --durations=20 $(TESTS)
 
 # Long experiments marked `slow` (full studies); not part of `make test`.
 test-all: $(STAMP)
@@ -45,6 +62,7 @@ bench: $(STAMP)
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
 
-# numba's cache does not see edits to jitted helpers imported from another file (tracker/distortion.py)
+# Drop numba's disk cache (compiled kernels). Not needed after edits: each kernel's cache key holds the source
+# of every jitted helper it compiles in (checks/numba_cache.py); this only frees the disk or times a cold start.
 clean-numba:
-	find tracker harness policies -name '*.nbi' -delete -o -name '*.nbc' -delete
+	find tracker harness policies robot_models -name '*.nbi' -delete -o -name '*.nbc' -delete

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from checks.numba_cache import key_cache_on_callees
 
 N_BISECT = 48
 
@@ -256,3 +257,6 @@ def simulate_np(states: np.ndarray, t_query: np.ndarray, c: np.ndarray, tb: np.n
         out[:, q] = s
     bounces[:, 4] = count
     return out, bounces
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

@@ -35,6 +35,7 @@ from scipy.optimize import least_squares
 
 from policies._ball_integrate import _step_nb
 from policies.ball_model import BallParams, TableGeometry, simulate, surface_contact
+from checks.numba_cache import key_cache_on_callees
 
 __all__ = ["METHODS", "ReturnSolution", "mirror_law", "solve_return"]
 
@@ -221,3 +222,6 @@ def solve_return(p, v_in, w_in, target_xy, params: BallParams, table: TableGeome
     xy, zn, v_out = outcome(res.x)
     return ReturnSolution(n, res.x[2] * n, np.asarray(xy, float), float(zn - net_top_z_m), v_out,
                           float(np.linalg.norm(res.fun)))
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

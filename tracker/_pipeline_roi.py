@@ -23,6 +23,7 @@ import numpy as np
 
 from tracker.distortion import distort, distort_point
 from tracker.rig import Rig
+from checks.numba_cache import key_cache_on_callees
 
 __all__ = ["BACKENDS", "MotionPredictor", "project_point", "project_point_numba"]
 
@@ -137,3 +138,6 @@ class MotionPredictor:
         if X is None or not math.isfinite(float(X.sum())):
             return None
         return self._project(X, self._R, self._t, self._K, self._dist8, np.empty((len(self._R), 2)))
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

@@ -27,6 +27,7 @@ import numpy as np
 from numba import njit
 
 from tracker.distortion import distort_point, distort_point_jacobian, undistort_point
+from checks.numba_cache import key_cache_on_callees
 
 # -- layout of the option vectors, outputs and workspaces ----------------------------------------
 F_EPS_PX, F_MIN_DEPTH_M, F_SIGMA_PX, F_TOL_M, F_BOX = 0, 1, 2, 3, 4  # F_BOX..+5: box min xyz, max xyz
@@ -507,3 +508,6 @@ def estimate_batch(uv, cam, camT, fopt, iopt, fw, iw, fout, iout):
     """estimate_one for every frame: uv (n_frames, n, k, 2), fout/iout (n_frames, ...)."""
     for f in range(uv.shape[0]):
         estimate_one(uv[f], cam, camT, fopt, iopt, fw, iw, fout[f], iout[f])
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

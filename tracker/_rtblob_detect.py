@@ -24,6 +24,7 @@ import scipy.fft
 
 from checks.arrays import describe
 from tracker._rtblob_options import AUTO_DIRECT_MAX_SIDE, RTBlobOptions
+from checks.numba_cache import key_cache_on_callees
 
 __all__ = ["RTBlobDetector", "disk_template", "image_problem", "likelihood_reference"]
 
@@ -259,3 +260,6 @@ def _parabola(S: np.ndarray, y: int, x: int, dy: int, dx: int) -> float:
     if den >= 0.0:  # flat or not a maximum along this axis
         return 0.0
     return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

@@ -202,6 +202,8 @@ def run(args) -> int:
 
     kin = WamKinematics.default()
     ProMP.load(args.promp, robot_id=str(kin.model.name), joint_names=kin.joint_names)  # fails here, not in a worker
+    if not args.no_log:  # load the kernel the session log draws the arm with now, not while a signal stops the run
+        kin.link_points([0.0] * kin.n_joints, check_limits=False)
     rows, logs, stopped = [], [], []
     with Executor(options_from_args(args)) as executor:
         for config in _configs(args, profiles):
@@ -259,14 +261,15 @@ def _run_observe(args, profiles) -> int:
     import json
     import signal
 
+    from harness.common.fast_exit import exit_at_once_when_done
     from harness.experiments.play.observe import ObservationService
 
     prof = profile_for(args.tracker, profiles).with_timing(args.rate_hz, None if args.latency_ms is None else args.latency_ms / 1e3)
     service = ObservationService(args.truth, args.world_stream, prof, seed=args.seed, publish_addr=args.publish,
                                  tennicam_addr=args.publish_tennicam)
     stopping = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stopping.append(1))
+    for sig in (signal.SIGINT, signal.SIGTERM):  # stop; once run returns, leave without the slow teardown
+        signal.signal(sig, lambda *_: (stopping.append(1), exit_at_once_when_done(0)))
     ready = {"rt2": service.address, "tennicam": service.publisher.addresses.get("tennicam"), "tracker": prof.tracker,
              "rate_hz": prof.rate_hz, "latency_ms": prof.latency_s * 1e3, "seed": args.seed}
     print(json.dumps(ready) if args.ready_json else f"rt2 play observe: publishing {prof.tracker} observations on "

@@ -34,6 +34,7 @@ def _budget_lines(budget: dict) -> list[str]:
 
 def run_live(args, config, open_log, print_rows) -> int:
     """open_log, print_rows : `rt2 play`'s session-log opener and result-table printer (the same as in process)."""
+    from harness.common.fast_exit import exit_at_once_when_done
     from harness.common.outputs import atomic_write_json
     from harness.experiments.play.experiment import summarise
     from harness.experiments.play.live import LiveRun, latency_budget, play_live, play_live_local, prepare_policy
@@ -48,7 +49,11 @@ def run_live(args, config, open_log, print_rows) -> int:
     player = prepare_policy(kin, promp, config.filter, HittingOptions(**config.policy))  # before any process or link
     log, path = open_log(args, config) if not args.no_log else (None, None)
     stop_signal: list[int] = []
-    old = {sig: signal.signal(sig, lambda s, _f: stop_signal.append(s)) for sig in (signal.SIGINT, signal.SIGTERM)}
+    def on_signal(s, _frame):  # stop after this ball; once run_live returns, leave without the slow teardown
+        stop_signal.append(s)
+        exit_at_once_when_done(128 + stop_signal[0])
+
+    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     run, error, connected = LiveRun(), None, []
 
     def on_ball(i, result, record, serve):

@@ -15,6 +15,7 @@ import signal
 import sys
 
 from harness.link.bridge_core import check_endpoint
+from harness.common.fast_exit import exit_at_once_when_done
 from harness.link.bridge_sim import BridgeOptions, SimBridge
 from harness.sim.robot.sim_wam import SimulatedWam, SimWamOptions
 from robot_models import DEFAULT_CONFIG_PATH, WamKinematics, load_robot_config
@@ -86,8 +87,8 @@ def run(args) -> int:
         sim_opts = play_sim
     else:
         bridge = SimBridge(SimulatedWam(kin, sim_opts, seed=args.seed), options)
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: bridge.stop())
+    for sig in (signal.SIGINT, signal.SIGTERM):  # stop serving; once run returns, leave without the slow teardown
+        signal.signal(sig, lambda *_: (bridge.stop(), exit_at_once_when_done(0)))
     ready = {"command": bridge.command_endpoint, "state": bridge.state_endpoint, "pid": os.getpid(),
              "rate_hz": sim_opts.control_rate_hz, "watchdog_s": options.watchdog_s, "bridge_id": bridge.bridge_id,
              "epoch_monotonic_ns": bridge.epoch_ns, "clock_skew_ns": options.clock_skew_ns,

@@ -16,18 +16,28 @@ of that ``map`` call (e.g. to build a renderer), in every backend.
 
 Same results whatever the backend and the number of workers: a task's result may depend only on the task
 (its seed comes from the run seed and the task index, :mod:`harness.common.seeding`), never on which worker or in
-which order it ran; callers put results back in task order (:func:`in_task_order`).
+which order it ran; callers put results back in task order (:func:`in_task_order`). Every task runs with one
+BLAS thread, whatever the backend (a threaded BLAS may sum in another order with another thread count).
 
 Crashes and signals: local workers die with the parent (``PR_SET_PDEATHSIG`` on Linux, plus a thread
 watching the parent's pid everywhere), ignore SIGINT (the parent decides) and are killed at once when the
 sweep stops. While the executor is open, SIGINT and SIGTERM raise :class:`SweepInterrupted` in the main
 thread; the sweep kills its workers (work inside them is lost, finished results are kept) and the caller
 writes what finished, marked partial. A worker that dies raises :class:`WorkerLost`.
+
+An exception raised by a signal handler can be lost: Python prints and drops it when the handler runs inside
+a ``__del__`` method or a weakref callback (numba and llvmlite free compiler objects that way while the main
+process loads a kernel), and a library's ``except BaseException`` can swallow it. The stop therefore does not
+rest on that one exception: until the sweep has acted on the stop (:meth:`Executor.close`, or ``map``
+catching it), every poll of ``map`` (4 a second while it waits for workers, and each time the caller asks
+for the next result) raises it again, and while a task runs in this process a watchdog thread re-delivers
+the signal to the main thread every ``_REDELIVER_S``. Consume ``map`` in a ``for`` loop, so that an
+exception leaving the loop closes the generator (and with it the workers).
 """
 
 from __future__ import annotations
 
-import atexit
+import contextlib
 import os
 import signal
 import sys
@@ -39,11 +49,14 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from multiprocessing import get_context
 
+from harness.common.fast_exit import exit_at_once_when_done
+
 __all__ = ["Executor", "SweepInterrupted", "SweepOptions", "SweepStopped", "WorkerLost", "add_sweep_arguments",
            "in_task_order", "options_from_args", "run_sweep"]
 
 RAY_EXTRA_HINT = "pip install 'rt2[cluster]'"
 _POLL_S = 0.25  #: how often the parent checks for finished tasks and workers check for their parent
+_REDELIVER_S = 0.3  #: after a signal, how often it is sent again to the main thread until the sweep stops
 
 
 class SweepStopped(BaseException):
@@ -155,11 +168,42 @@ def _run_task(key: str, initializer, initargs, fn, index: int, task):
     return index, fn(task)
 
 
+_BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _one_blas_thread():
+    """Run a task with one BLAS thread, in each backend: a threaded BLAS may sum in another order with another
+    thread count (and Ray gives its workers one thread), so the figures would depend on where a task ran; N
+    workers with several BLAS threads each would also only contend for the cores. The libraries loaded so far
+    are limited (threadpoolctl), one loaded during the task reads the environment; both are restored after."""
+    from threadpoolctl import threadpool_limits
+
+    old = {name: os.environ.get(name) for name in _BLAS_THREAD_VARIABLES}
+    os.environ.update(dict.fromkeys(_BLAS_THREAD_VARIABLES, "1"))
+    try:
+        with threadpool_limits(1):
+            yield
+    finally:
+        for name, value in old.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def _run_task_in_worker(key: str, initializer, initargs, fn, index: int, task):
+    """:func:`_run_task` in a worker process (local or Ray), with one BLAS thread as everywhere."""
+    with _one_blas_thread():
+        return _run_task(key, initializer, initargs, fn, index, task)
+
+
 def _start_local_worker(parent_pid: int, key: str, initializer, initargs) -> None:
     """Local worker start-up: die with the parent, then the sweep's initializer (once per process)."""
     _die_with_parent(parent_pid)
     if initializer is not None:
-        initializer(*initargs)
+        with _one_blas_thread():  # as the initializer runs in this process and on Ray (inside _run_task)
+            initializer(*initargs)
     _STATE["key"] = key
 
 
@@ -186,34 +230,6 @@ def _die_with_parent(parent_pid: int) -> None:
 
 
 # ------------------------------------------------------------------------------------------ parent side
-def _exit_at_once(code: int) -> None:
-    """After a stop by a signal, once the program has written its partial output and returned: flush and
-    leave without the interpreter's teardown of native libraries, which takes seconds on a loaded machine."""
-    import logging
-
-    logging.shutdown()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
-    os._exit(code)
-
-
-def _register_exit_at_once(code: int) -> None:
-    """Have :func:`_exit_at_once` run when the main thread is done, before the interpreter joins threads:
-    threading's own exit hooks run before that join (and before :mod:`atexit`), last registered first, so
-    this one precedes concurrent.futures' join of its manager threads. Falls back to :mod:`atexit`."""
-    register = getattr(threading, "_register_atexit", None)
-    try:
-        if register is None:
-            raise RuntimeError("no threading exit hooks")
-        register(_exit_at_once, code)
-    except RuntimeError:  # already shutting down, or another Python
-        atexit.register(_exit_at_once, code)
-
-
-
 class Executor:
     """Runs a sweep's tasks (module docstring). Use as a context manager: while open, SIGINT/SIGTERM raise
     :class:`SweepInterrupted` in the main thread, and closing it stops every worker."""
@@ -228,6 +244,9 @@ class Executor:
         self._ray_started = False
         self._old_handlers: dict = {}
         self._signum: int | None = None
+        self._stop_seen = threading.Event()  #: set once the sweep has acted on the signal (workers stopping)
+        self._stop_lock = threading.Lock()  #: no re-delivery after _stop_seen (the old handler may be back)
+        self._task_here = False  #: a task runs in this process (the watchdog may re-deliver a signal)
 
     # -- lifetime ---------------------------------------------------------------------------------
     def __enter__(self) -> "Executor":
@@ -243,13 +262,38 @@ class Executor:
         self._old_handlers.clear()
 
     def _on_signal(self, signum, frame) -> None:
-        if self._signum is None:  # the first signal stops the sweep; a second one before the workers are
-            self._signum = signum  # stopped is ignored
-            _register_exit_at_once(128 + signum)  # runs first at exit, once everything is written
-            raise SweepInterrupted(signum)
+        if self._signum is None:  # the first signal stops the sweep
+            self._signum = signum
+            exit_at_once_when_done(128 + signum)  # runs first at exit, once everything is written
+            threading.Thread(target=self._redeliver, name="rt2-sweep-stop", daemon=True).start()
+        if self._stop_seen.is_set():  # the workers are being stopped and the partial output written: a
+            return  # second signal (or a late re-delivery) must not interrupt that
+        raise SweepInterrupted(self._signum)  # again for a re-delivery: the first one may have been swallowed
+
+    def _redeliver(self) -> None:
+        """Watchdog started by the first signal: while a task runs in this process, send the signal again to
+        the main thread until the sweep acts on it (module docstring: an exception raised in a signal handler
+        can be dropped by the code it lands in). Outside a task, ``map``'s polls raise it again."""
+        main = threading.main_thread()
+        while not self._stop_seen.wait(_REDELIVER_S) and main.is_alive():
+            with self._stop_lock:
+                if not self._stop_seen.is_set() and self._task_here:
+                    signal.pthread_kill(main.ident, self._signum)
+
+    def _acknowledge_stop(self) -> None:
+        """The sweep acts on the signal: no more re-delivery, later signals are ignored."""
+        with self._stop_lock:
+            self._stop_seen.set()
+
+    def _check_signal(self) -> None:
+        """Raise the pending :class:`SweepInterrupted` if a signal came and the sweep has not acted on it."""
+        if self._signum is not None and not self._stop_seen.is_set():
+            raise SweepInterrupted(self._signum)
 
     def close(self, *, kill: bool = False) -> None:
         """Stop the workers: at once (``kill``) or after their current tasks."""
+        if self._signum is not None:
+            self._acknowledge_stop()
         if self._pool is not None:
             if kill:
                 self._kill_local()
@@ -263,12 +307,25 @@ class Executor:
     def _kill_local(self) -> None:
         pool, self._pool = self._pool, None
         procs = list((getattr(pool, "_processes", None) or {}).values())
+        results = getattr(pool, "_result_queue", None)  # shutdown() forgets it
         for p in procs:
             if p.is_alive():
                 p.kill()
         pool.shutdown(wait=False, cancel_futures=True)
         for p in procs:
             p.join(timeout=1.0)
+        # A worker killed while it wrote a result leaves half a message in the result pipe: the pool's manager
+        # thread then waits in recv() for the rest forever (this process holds the pipe's write end too, so no
+        # end of file comes), and the interpreter's exit joins that thread: the process never ends (seen when
+        # a worker died, or on an error in a task). With every worker gone, closing our copy of the write end
+        # gives the reader its end of file: the manager thread marks the pool broken and ends (not waited for
+        # here: a stop by a signal leaves at once, and the interpreter's exit joins it otherwise).
+        writer = getattr(results, "_writer", None)
+        if writer is not None and not any(p.is_alive() for p in procs):
+            try:
+                writer.close()
+            except OSError:
+                pass
 
     # -- running ----------------------------------------------------------------------------------
     def map(self, fn, tasks, *, initializer=None, initargs: tuple = (), init_key: str | None = None):
@@ -289,9 +346,12 @@ class Executor:
         done = 0
         try:
             for item in runner(key, fn, tasks, initializer, initargs):
+                self._check_signal()
                 done += 1
                 yield item
+                self._check_signal()  # a signal whose exception the caller's code swallowed
         except SweepInterrupted as exc:
+            self._acknowledge_stop()
             self.close(kill=True)
             raise SweepInterrupted(exc.signum, done=done, total=len(tasks)) from None
         except WorkerLost as exc:
@@ -303,7 +363,14 @@ class Executor:
 
     def _map_here(self, key, fn, tasks, initializer, initargs):
         for i, task in enumerate(tasks):
-            yield _run_task(key, initializer, initargs, fn, i, task)
+            self._check_signal()
+            self._task_here = True
+            try:
+                with _one_blas_thread():  # as in the workers; this process's own limits come back after it
+                    item = _run_task(key, initializer, initargs, fn, i, task)
+            finally:
+                self._task_here = False
+            yield item
 
     def _map_local(self, key, fn, tasks, initializer, initargs):
         # The initializer and its arguments go to each process once, when it starts (not with every task:
@@ -316,14 +383,28 @@ class Executor:
                                              initializer=_start_local_worker,
                                              initargs=(os.getpid(), key, initializer, initargs))
             self._pool_key = key
-        pending = {self._pool.submit(_run_task, key, None, (), fn, i, t) for i, t in enumerate(tasks)}
+        pending = {self._pool.submit(_run_task_in_worker, key, None, (), fn, i, t) for i, t in enumerate(tasks)}
+        dead_since: dict[int, float] = {}
         while pending:
+            self._check_signal()
             finished, pending = wait(pending, timeout=_POLL_S, return_when=FIRST_COMPLETED)
             for fut in finished:
                 try:
                     yield fut.result()
                 except BrokenProcessPool as exc:
                     raise WorkerLost(f"a worker process died or its start-up failed ({exc})") from None
+            if not finished:
+                self._check_workers(dead_since)
+
+    def _check_workers(self, dead_since: dict) -> None:
+        """Raise :class:`WorkerLost` for a worker dead for a second without the pool noticing: its manager thread
+        notices a dead worker at once, unless the worker died in the middle of writing a result, when that
+        thread waits for the rest of the message forever (see :meth:`_kill_local`)."""
+        now = time.monotonic()
+        for p in list((getattr(self._pool, "_processes", None) or {}).values()):
+            if p.exitcode is not None and now - dead_since.setdefault(p.pid, now) > 1.0:
+                raise WorkerLost(f"a worker process died or its start-up failed (process {p.pid} exited with "
+                                 f"code {p.exitcode})")
 
     def _connect_ray(self):
         ray = self._ray = _import_ray()
@@ -337,12 +418,13 @@ class Executor:
 
     def _map_ray(self, key, fn, tasks, initializer, initargs):
         ray = self._connect_ray()
-        remote = ray.remote(num_cpus=1, max_retries=0)(_run_task)
+        remote = ray.remote(num_cpus=1, max_retries=0)(_run_task_in_worker)
         init_ref = ray.put(initargs)  # shipped to each node once, not with every task
         refs = [remote.remote(key, initializer, init_ref, fn, i, t) for i, t in enumerate(tasks)]
         pending = list(refs)
         try:
             while pending:
+                self._check_signal()
                 ready, pending = ray.wait(pending, num_returns=1, timeout=_POLL_S)
                 for ref in ready:
                     try:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from checks.numba_cache import key_cache_on_callees
 
 __all__ = ["N_COEFFS", "coefficients", "propagate_nb", "propagate_np"]
 
@@ -287,3 +288,6 @@ def propagate_nb(x0, P0, t0, t_query, c):
         X[k] = x
         Ps[k] = P
     return X, Ps, n_b
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

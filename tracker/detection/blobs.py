@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from checks.numba_cache import key_cache_on_callees
 
 __all__ = ["BACKENDS", "Blobs", "find_blobs"]
 
@@ -208,3 +209,6 @@ def find_blobs(
         areas_px=arr[:, 7].astype(np.int64),
         n_grown=grown,
     )
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

@@ -132,9 +132,9 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
                                                   log_images=every or "none", image_format=image_format, overwrite=True,
                                                   flush_period_s=log_flush_s)
 
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
-    bar = tqdm(total=n, desc="accuracy", unit="frame", file=sys.stderr, disable=not progress, smoothing=0.05)
+    bar = progress_bar(total=n, desc="accuracy", unit="frame", file=sys.stderr, disable=not progress, smoothing=0.05)
     partial = None
     try:
         try:

@@ -146,7 +146,7 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
     from harness.experiments.accuracy.frames import warmup_range
 
     runners = sets["current"]
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     k_per = session.get("candidates_per_camera", {})
     records = {kind: TrackRecord.empty(n) for kind in config.trackers}
@@ -159,7 +159,7 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
     cam_index = {c: i for i, c in enumerate(names)}
     det_cams = {c + DETECTION_SUFFIX[k]: (k, cam_index[c]) for k in runners if k in DETECTION_SUFFIX for c in names}
     state = {"k": None, "images": {}, "dets": {}, "obs": {}, "gt": None, "segment": None, "last_image_frame": -1}
-    bar = tqdm(total=n, desc="reevaluate", unit="frame", file=sys.stderr, disable=not progress)
+    bar = progress_bar(total=n, desc="reevaluate", unit="frame", file=sys.stderr, disable=not progress)
 
     def flush():
         k = state["k"]

@@ -174,14 +174,14 @@ def select_ball_colour(labelled, colour: str, *, progress: bool = False):
     Balls of the other colour lose their boxes: for training they become background (an orange-ball
     model must not fire on white balls), for evaluation detections on them count as outliers.
     """
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     if colour not in BALL_COLOURS:
         raise ValueError(f"ball colour must be one of {BALL_COLOURS}, got {colour!r}")
     if colour == "any":
         return list(labelled)
     out = []
-    for li in tqdm(labelled, desc=f"selecting {colour} balls", unit="img", disable=not progress, leave=False):
+    for li in progress_bar(labelled, desc=f"selecting {colour} balls", unit="img", disable=not progress, leave=False):
         if li.n_balls == 0:
             out.append(li)
             continue
@@ -377,7 +377,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         validation scores there (ours and paper)
     """
     import torch  # training only
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     from harness.experiments.detector.scores import truth_of
 
@@ -394,7 +394,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     lut = transform_lut(opts.input_transform, opts.log_offset_dn).astype(np.float64)
 
     pos, neg = [], []
-    for li in tqdm(train_set, desc="sampling", unit="img", disable=not progress, leave=False):
+    for li in progress_bar(train_set, desc="sampling", unit="img", disable=not progress, leave=False):
         p, n = _sample_image(load_image(li), pixel_targets(li, opts.ring_px, opts.core_fraction), opts, rng)
         pos.append(p)
         neg.append(n)
@@ -415,7 +415,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     b = torch.zeros(1, dtype=torch.float64, requires_grad=True)
     history, best = [], None
     t_high, t_low, area = 0.5, 0.2, loose_area
-    bar = tqdm(range(opts.epochs), desc="train", unit="epoch", disable=not progress)
+    bar = progress_bar(range(opts.epochs), desc="train", unit="epoch", disable=not progress)
     for epoch in bar:
         if epoch > 0 and opts.hard_negatives_per_image > 0:  # mine our detector's current mistakes
             current = _to_model(w.detach().numpy(), b.item(), norm, opts)
@@ -441,7 +441,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             f"paper recall {100 * s_paper.recall:.2f}% outliers {100 * s_paper.outlier_rate:.2f}%"
         )
         if progress:
-            tqdm.write(line)
+            bar.write(line)
         else:
             log(line)
 

@@ -53,7 +53,7 @@ def bench_policy(balls: int = 10, seed: int = 0, *, tracker: str = "rt2", filter
                  progress: bool = True) -> dict:
     """{planner: {"first": ms list, "replan": ms list, "successes": int}} over ``balls`` balls of ``seed``."""
     from threadpoolctl import threadpool_limits
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     from harness.experiments.play.experiment import PlayConfig, _build, ball_seeds
     from harness.sim.launcher import BallLauncher
@@ -68,7 +68,7 @@ def bench_policy(balls: int = 10, seed: int = 0, *, tracker: str = "rt2", filter
         built["session"].policy = _TimedPolicy(built["session"].policy, out[planner])
         sessions[planner] = built
     seeds = ball_seeds(seed, balls)
-    for i in tqdm(range(balls), desc="bench policy", unit="ball", disable=not progress):
+    for i in progress_bar(range(balls), desc="bench policy", unit="ball", disable=not progress):
         serve_ss, session_ss = seeds[i]
         for planner in PLANNERS:  # the same ball with each planner, one after the other
             b = sessions[planner]

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from harness.common.progress import progress_bar
 
 from harness.common.executor import Executor, SweepOptions, SweepStopped
 from harness.experiments.play.profiles import PROFILES, TrackerProfile, profile_for
@@ -137,7 +137,7 @@ def run_configuration(config: PlayConfig, *, balls: int, seed: int, workers: int
         if on_ball is not None:
             on_ball(i, *item)
 
-    bar = tqdm(total=balls, desc=desc, file=sys.stderr, disable=not progress, leave=False)
+    bar = progress_bar(total=balls, desc=desc, file=sys.stderr, disable=not progress, leave=False)
     try:
         for _, (index, result, record, serve) in executor.map(_play_one, jobs):
             buffered[index] = (result, record, serve)

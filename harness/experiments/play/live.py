@@ -306,6 +306,9 @@ def play_live_local(*, balls: int, seed: int, profile, run_policy, batch: int = 
                                what="the synthetic tracker (rt2 play observe)")
         children.append(tracker)
         return run_policy(bridge.address, tracker.ready["rt2"], bridge.ready["world"])
-    finally:
+    finally:  # SIGTERM to every child first, then wait: they stop side by side, not one after the other
+        for child in children:
+            if child.proc.poll() is None:
+                child.proc.terminate()
         for child in reversed(children):
             child.stop()

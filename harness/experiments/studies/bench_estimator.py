@@ -82,7 +82,7 @@ def _time_calls(fn, frames, repeats: int, budget_s: float | None = None, warmup:
 
 def bench(cameras=CAMERAS, *, repeats: int = 2000, naive_budget_s: float = 3.0, seed: int = 0, progress: bool = True) -> list[dict]:
     """Rows {cameras, method, median_ms, calls} for paper, ours and naive at every camera count."""
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     from harness.sim.sim_rigs import load_sim_rig
     from tracker.synthetic import simulate_observations
@@ -91,7 +91,7 @@ def bench(cameras=CAMERAS, *, repeats: int = 2000, naive_budget_s: float = 3.0, 
     if repeats < 5:
         raise ValueError(f"--repeats must be >= 5, got {repeats}")
     rows = []
-    for c in tqdm(cameras, desc="bench estimator", unit="rig", disable=not progress):
+    for c in progress_bar(cameras, desc="bench estimator", unit="rig", disable=not progress):
         rig = load_sim_rig(c)
         _, uv, _ = simulate_observations(rig, 200, OUTLIER_RATE, np.random.default_rng([seed, c]))
         frames = list(uv)

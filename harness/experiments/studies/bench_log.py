@@ -165,7 +165,7 @@ def bench_format(fmt: str, session, folder: Path, *, repeats: int, live_seconds:
 
 def run(args) -> int:
     import cv2
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     from harness.common.outputs import atomic_write_text, check_output_file
 
@@ -192,7 +192,7 @@ def run(args) -> int:
         with tempfile.TemporaryDirectory(prefix="rt2-bench-log-") as tmp:
             folder = Path(args.keep) if args.keep else Path(tmp)
             folder.mkdir(parents=True, exist_ok=True)
-            with tqdm(total=len(formats) * args.repeats, desc="bench log", file=sys.stderr) as bar:
+            with progress_bar(total=len(formats) * args.repeats, desc="bench log", file=sys.stderr) as bar:
                 for fmt in formats:
                     rows.append(bench_format(fmt, session, folder, repeats=args.repeats, live_seconds=live, seed=args.seed,
                                              keep=bool(args.keep), progress=bar))

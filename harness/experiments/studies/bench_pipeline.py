@@ -98,7 +98,7 @@ def bench(rig, model, framesets, X_true, flight, *, workers_list=(1, 2), repeats
     median_error_m, roi_fraction, retries_per_frame, cpu_per_wall (process CPU time / wall time
     during the passes: about 1 per busy thread on an idle machine, less when other jobs take the cores),
     cpu_ms_per_set (process CPU time per frame set: what one frame set costs, whatever the load). Flights restart the tracker (``reset``)."""
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     from tracker import RTBlobOptions, Status, make_tracker
 
@@ -122,7 +122,7 @@ def bench(rig, model, framesets, X_true, flight, *, workers_list=(1, 2), repeats
     cpu = {c: 0.0 for c in configs}
     err = {c: [] for c in configs}
     ok = {c: 0 for c in configs}
-    bar = tqdm(total=repeats * len(configs), desc="bench pipeline", file=sys.stderr, disable=not progress)
+    bar = progress_bar(total=repeats * len(configs), desc="bench pipeline", file=sys.stderr, disable=not progress)
     for _ in range(repeats):
         for c in configs:
             trk = trackers[c]
@@ -179,7 +179,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     import cv2
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     from harness.common.outputs import atomic_write_json, check_output_file
     from harness.sim.render import Renderer
@@ -204,7 +204,7 @@ def run(args) -> int:
     renderer = Renderer(rig, seed=args.seed)
     framesets = [
         FrameSet(float(t), tuple(renderer.render(s)), i)
-        for i, (t, s) in enumerate(tqdm(list(zip(t_s, scenes)), desc="render frame sets", file=sys.stderr))
+        for i, (t, s) in enumerate(progress_bar(list(zip(t_s, scenes)), desc="render frame sets", file=sys.stderr))
     ]
     rows = bench(rig, model, framesets, X_true, flight, workers_list=args.workers, repeats=args.repeats)
     for r in rows:

@@ -66,7 +66,7 @@ def _time(renderer, scenes, budget_s: float | None) -> tuple[float, int]:
 def bench(rig="lab4_vga", *, frames: int = 200, seed: int = 0, progress: bool = True) -> list[dict]:
     """Rows {scene, method, frames_per_s, median_ms, frame_sets}; ``median_ms`` is per image."""
     import cv2
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     from harness.sim.render import Renderer, RenderOptions
     from harness.sim.rigs import resolve_rig
@@ -83,7 +83,7 @@ def bench(rig="lab4_vga", *, frames: int = 200, seed: int = 0, progress: bool = 
     renderers = {m: Renderer(rig, RenderOptions(method=m), seed=seed) for m in ("numba", "numpy")}
     plan = [("empty", "numba"), ("ball", "numba"), ("dataset", "numba"), ("crowded", "numba"), ("dataset", "numpy")]
     rows = []
-    for kind, method in tqdm(plan, desc="bench renderer", unit="scene type", disable=not progress):
+    for kind, method in progress_bar(plan, desc="bench renderer", unit="scene type", disable=not progress):
         scenes = _scenes(kind, frames, seed, workspace)
         ms_set, n = _time(renderers[method], scenes, 20.0 if method == "numpy" else None)
         ms = ms_set / len(rig)

@@ -38,7 +38,7 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
     model : ``BallSegmentationModel``; labelled : list of ``harness.experiments.detector.coco.LabelledImage``
     t_high, t_low : Algorithm 1's thresholds as probabilities (None = the model's recommended ones)
     """
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     from harness.experiments.detector.train import load_image
     from tracker import BallDetector, DetectorOptions
@@ -50,7 +50,7 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
     ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low))
     found = {m: [] for m in methods}
     centers, diameters = [], []
-    for li in tqdm(labelled, desc="eval detector", unit="img", disable=not progress, leave=False):
+    for li in progress_bar(labelled, desc="eval detector", unit="img", disable=not progress, leave=False):
         image = load_image(li)
         c, d = truth_of(li)
         centers.append(c)

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from harness.common.progress import progress_bar
 
 from checks.files import load_yaml_checked
 from policies.ball_model import DEFAULT_PARAMS_PATH, BallParams, TableGeometry, simulate
@@ -266,7 +266,7 @@ def run_study(seed: int, outlier_rate: float, *, n_sim: int = 0, real: bool = Tr
     rows = []
     rates = (0.0, outlier_rate) if outlier_rate > 0 else (0.0,)
     total = sum(len(g[:max_flights]) for g in groups) * len(rates) * len(filters)
-    bar = tqdm(total=total, desc="eval filters", unit="flight", file=sys.stderr, disable=not progress, leave=False)
+    bar = progress_bar(total=total, desc="eval filters", unit="flight", file=sys.stderr, disable=not progress, leave=False)
     for flights in groups:
         flights = flights[:max_flights]
         for rate in rates:

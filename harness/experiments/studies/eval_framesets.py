@@ -252,7 +252,7 @@ def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "
     stopped early (:class:`harness.common.executor.SweepStopped`) is appended to it and the scores of the chunks
     that finished are returned (else the stop propagates)
     """
-    from tqdm import tqdm
+    from harness.common.progress import progress_bar
 
     from tracker.pipeline import load_model
 
@@ -287,7 +287,7 @@ def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "
     setup = (rig, seed, tuple(trackers), ball_colour, tol_m, model, max_size_ratio, semi, (int(flight_frames), float(rate_hz)))
     size = CHUNK if flight_frames == 1 else flight_frames * max(1, CHUNK // flight_frames)  # a flight never straddles two chunks
     chunks = [(a, min(a + size, frames)) for a in range(0, frames, size)]
-    bar = tqdm(total=frames, desc="eval framesets", unit="frame set", disable=not progress, leave=False)
+    bar = progress_bar(total=frames, desc="eval framesets", unit="frame set", disable=not progress, leave=False)
     with bar:
         parts = run_sweep(sweep or SweepOptions(), _score_chunk, chunks, stopped=stopped, initializer=_init_worker,
                           initargs=setup, on_result=lambda i: bar.update(chunks[i][1] - chunks[i][0]))

@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
-from tqdm import tqdm
+from harness.common.progress import progress_bar
 
 from policies.ball_estimation import (
     BallEKF,
@@ -175,7 +175,7 @@ def fit_global(flights: list[Flight], model: str, *, max_nfev: int = 200, dt_s: 
     lb = np.concatenate([np.full(nf * ns, -np.inf), [v[1] for v in free.values()]])
     ub = np.concatenate([np.full(nf * ns, np.inf), [v[2] for v in free.values()]])
     sizes = [3 * len(f.t_s) for f in flights]
-    bar = tqdm(desc=f"fit {model}", unit="eval", file=sys.stderr, disable=not progress, leave=False)
+    bar = progress_bar(desc=f"fit {model}", unit="eval", file=sys.stderr, disable=not progress, leave=False)
 
     def residuals(x):
         params, table = _model_params(model, dict(zip(names, x[nf * ns:])))

@@ -7,7 +7,7 @@ import itertools
 import sys
 
 import numpy as np
-from tqdm import tqdm
+from harness.common.progress import progress_bar
 
 from robot_models import IkOptions, WamKinematics
 
@@ -37,7 +37,7 @@ def reachability(kin: WamKinematics, region_m, n_per_axis=(5, 7, 5), *, normal: 
     ok = np.zeros(len(pts), bool)
     pos_err = np.zeros(len(pts))
     ang_err = np.zeros(len(pts))
-    for i, p in enumerate(tqdm(pts, desc="IK", disable=not progress, file=sys.stderr, leave=False)):
+    for i, p in enumerate(progress_bar(pts, desc="IK", disable=not progress, file=sys.stderr, leave=False)):
         n = {"opponent": np.asarray(OPPONENT_TARGET_M) - p, "x": np.array([1.0, 0, 0]), "none": None}[normal]
         _, info = kin.ik(p, "racket", normal_world=n, options=options, rng=rng)
         ok[i], pos_err[i], ang_err[i] = info.success, info.pos_err_m, info.angle_err_rad

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
+from harness.common.progress import progress_bar
 
 from harness.experiments.detector.coco import ANNOTATIONS_FILE, LabelledImage, write_coco
 from harness.common.executor import Executor, SweepOptions
@@ -86,7 +86,7 @@ def _generate_in(rig, rig_obj, frames: int, seed: int, out: Path, workers: int, 
     chunks = [list(range(s, min(s + _CHUNK, frames))) for s in range(0, frames, _CHUNK)]
     tasks = [(rig_obj.to_dict(), seed, str(out), c) for c in chunks]
     results = []
-    bar = tqdm(total=frames, desc="rt2 sim dataset", unit="frame set", file=sys.stderr, disable=not progress)
+    bar = progress_bar(total=frames, desc="rt2 sim dataset", unit="frame set", file=sys.stderr, disable=not progress)
     try:
         if workers == 1:
             for task in tasks:

@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from harness.common.progress import progress_bar
 
 from harness.common.executor import SweepOptions, add_sweep_arguments, options_from_args, run_sweep
 from harness.experiments.studies.paper_tables import GROSS_ERROR_M, PAPER_TABLE1, failure_floor
@@ -102,7 +102,7 @@ def run_table1(cameras=CAMERAS, rates=OUTLIER_RATES, *, trials: int = 10_000, se
         raise ValueError(f"--seed must be >= 0, got {seed}")
     eps_px = RobustOptions(**({} if eps_px is None else {"eps_px": eps_px})).eps_px  # validates it
     tasks = _tasks(cameras, rates, trials, seed, eps_px)
-    bar = tqdm(total=len(tasks), desc="sim table1", unit="chunk", file=sys.stderr, disable=not progress)
+    bar = progress_bar(total=len(tasks), desc="sim table1", unit="chunk", file=sys.stderr, disable=not progress)
     with bar:
         done = run_sweep(sweep, _chunk_task, tasks, stopped=stopped, on_result=lambda i: bar.update())
     results = {tasks[i]: r for i, r in done.items()}

@@ -27,6 +27,7 @@ from harness.sim.render.primitives import (
     SHININESS,
 )
 from tracker.distortion import distort_point
+from checks.numba_cache import key_cache_on_callees
 
 assert SHININESS == 32, "the kernel computes ndh ** SHININESS by five squarings"
 
@@ -318,3 +319,6 @@ def draw_numba(frame, zbuf, rays, ppr, veil_a, veil_t, veil_rgb, vig, K, d8, R_w
                         r, g, bb = _veil(r, g, bb, veil_a[v, u], vr, vg, vb)
                     frame[v, u, 0], frame[v, u, 1], frame[v, u, 2] = _blend(1.0, r, g, bb, scale * vig[v, u], frame[v, u, 0], frame[v, u, 1], frame[v, u, 2])
                     zbuf[v, u] = t_near
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from checks.numba_cache import key_cache_on_callees
 
 __all__ = ["TRACKERS", "track_numba", "track_numpy"]
 
@@ -95,3 +96,6 @@ def track_numba(q0, qd0, q_ref, qd_ref, qdd_ref, omega, zeta, k_ff, qd_max, qdd_
 
 #: ``backend=`` choices of :class:`harness.sim.robot.SimulatedWam`.
 TRACKERS = {"numba": track_numba, "numpy": track_numpy}
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

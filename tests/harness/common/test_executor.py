@@ -4,7 +4,9 @@ of workers; bad options; ``--ray`` without Ray; seeds required where random numb
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -101,9 +103,37 @@ def test_framesets_on_ray_equal_local(ray_local, monkeypatch):
     assert _framesets(SweepOptions(ray_address="auto"), monkeypatch) == _framesets(SweepOptions(workers=1), monkeypatch)
 
 
+@pytest.mark.slow  # a Ray worker builds a playing session (~20 s on a loaded machine)
+def test_play_on_ray_writes_the_same_bytes_as_this_process(ray_local, tmp_path, capsys):
+    from harness.cli import main
+
+    def play(name, *extra):
+        out = tmp_path / name
+        assert main(["play", "--balls", "2", "--seed", "4", "--out", str(out), "--json", str(out / "play.json"),
+                     "--quiet", "--no-figure", "--no-log", *extra]) == 0
+        return (out / "play.json").read_bytes()
+
+    assert play("ray", "--ray", "auto") == play("here", "--workers", "1")
+
+
 def test_ray_task_error_reaches_the_caller(ray_local):
     with Executor(SweepOptions(ray_address="auto")) as ex, pytest.raises(ValueError, match="math domain error"):
         list(ex.map(_sqrt, [4.0, -1.0]))
+
+
+def _blas_threads(_task) -> list[int]:
+    from threadpoolctl import threadpool_info
+
+    return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_tasks_run_with_one_blas_thread_in_every_backend(workers):
+    before = _blas_threads(None)
+    with Executor(SweepOptions(workers=workers)) as ex:
+        seen = [threads for _, threads in ex.map(_blas_threads, range(3))]
+    assert seen and all(t == [1] * len(before) for t in seen)  # the same summation order everywhere
+    assert _blas_threads(None) == before  # this process gets its own limits back after the sweep
 
 
 # -- bad input ----------------------------------------------------------------------------------------------
@@ -144,3 +174,33 @@ def test_launcher_and_trajectories_need_a_seed():
     a = BallLauncher(seed=np.random.SeedSequence(4)).serve().state
     b = BallLauncher(rng=np.random.default_rng(np.random.SeedSequence(4))).serve().state
     np.testing.assert_array_equal(a, b)
+
+
+def _die_in_the_middle_of_a_result(x):
+    """In a worker: write the start of a result message into the pool's result pipe, then die (as a worker
+    killed while it hands back a large result)."""
+    import gc
+    import os
+    import struct
+    import time
+    from multiprocessing.queues import SimpleQueue
+
+    if x >= 0:
+        time.sleep(0.05)
+        return x
+    results = next(q for q in gc.get_objects() if isinstance(q, SimpleQueue))  # the pool's result queue
+    os.write(results._writer.fileno(), struct.pack("!i", 100_000) + b"x" * 10)  # 10 of 100,000 bytes
+    os._exit(9)
+
+
+def test_a_worker_dying_in_the_middle_of_a_result_is_a_lost_worker_not_a_hang():
+    """The pool's manager thread then waits for the rest of the message forever: the sweep used to hang in its
+    wait loop (and the process at exit)."""
+    code = ("import sys\nfrom tests.harness.common.test_executor import _die_in_the_middle_of_a_result as f\n"
+            "from harness.common.executor import Executor, SweepOptions, WorkerLost\n"
+            "try:\n    with Executor(SweepOptions(workers=2)) as ex:\n"
+            "        for _ in ex.map(f, [1.0, 2.0, -1.0] + [3.0] * 20):\n            pass\n"
+            "except WorkerLost as exc:\n    print('LOST', exc.done, exc.total, flush=True)\n")
+    root = Path(__file__).resolve().parents[3]
+    proc = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=90)
+    assert proc.returncode == 0 and proc.stdout.startswith("LOST"), proc.stdout + proc.stderr[-2000:]

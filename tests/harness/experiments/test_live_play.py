@@ -11,7 +11,6 @@ import math
 import os
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -55,14 +54,19 @@ def test_link_loss_mid_session_is_a_clear_error_and_the_log_is_closed(tmp_path):
 
     bridge, tracker = _services(3, 0)
     try:
-        cmd = [sys.executable, "-m", "harness.cli", "play", "--live", "--balls", "3", "--seed", "0", "--quiet",
+        cmd = [sys.executable, "-m", "harness.cli", "play", "--live", "--balls", "3", "--seed", "0",
                "--out", str(tmp_path), "--robot", bridge.address, "--tracker-stream", tracker.ready["rt2"],
                "--world-stream", bridge.ready["world"]]
         proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        time.sleep(8.0)  # connected, playing (or about to)
+        first = []
+        for line in proc.stdout:  # connected and playing: the first ball's line (an event, not a guessed sleep)
+            first.append(line)
+            if line.startswith("ball 0:"):
+                break
         bridge.kill()
         out, err = proc.communicate(timeout=60)
+        out = "".join(first) + out
     finally:
         tracker.stop()
         bridge.stop()
