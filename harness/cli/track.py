@@ -26,7 +26,7 @@ import threading
 import time
 from pathlib import Path
 
-from harness.live.run import open_service
+from harness.live.run import DEFAULT_MAX_BACKLOG, open_service
 
 __all__ = ["add_arguments", "add_source_arguments", "lab_truth_scene", "run"]
 
@@ -61,8 +61,12 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sim only: the rig the simulated cameras render with (default: --rig); e.g. the true lab when "
                              "--rig is an estimated calibration")
     parser.add_argument("--queue-s", type=float, default=0.25, metavar="S",
-                        help="frames and frame sets buffered before anything is dropped, in seconds of the frame rate "
-                             "(default 0.25: a hiccup of the machine that long costs latency, not frame sets)")
+                        help="frames buffered per camera before the oldest is dropped, in seconds of the frame rate "
+                             "(default 0.25: a hiccup of the machine that long costs latency, not frames)")
+    parser.add_argument("--max-backlog", type=int, default=DEFAULT_MAX_BACKLOG, metavar="N",
+                        help=f"frame sets that may wait for the tracker (default {DEFAULT_MAX_BACKLOG}): when a newer set comes, the oldest "
+                             "waiting one is skipped and counted, so positions are never more than N frame periods stale "
+                             "(a robot gains nothing from a stale position)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -18,7 +18,11 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-__all__ = ["check_output_paths", "open_frames", "open_service", "stream_addresses"]
+__all__ = ["DEFAULT_MAX_BACKLOG", "check_output_paths", "open_frames", "open_service", "stream_addresses"]
+
+#: frame sets that may wait for the tracker before the oldest is skipped (``--max-backlog``); chosen with
+#: ``rt2 bench live --max-backlog 1,2,3`` (README, "Latency-first queueing")
+DEFAULT_MAX_BACKLOG = 2
 
 
 def stream_addresses(args) -> tuple[str | None, str | None]:
@@ -76,6 +80,10 @@ def open_frames(args, rig, *, truth_scene=None):
     if not (math.isfinite(queue_s) and 0 < queue_s <= 10):
         raise ValueError(f"--queue-s must be in (0, 10] seconds, got {queue_s}")
     n_queue = max(8, math.ceil(queue_s * args.rate_hz))
+    backlog = getattr(args, "max_backlog", DEFAULT_MAX_BACKLOG)
+    if isinstance(backlog, bool) or not isinstance(backlog, int) or not 1 <= backlog <= n_queue:
+        raise ValueError(f"--max-backlog must be a whole number of frame sets in [1, {n_queue}] (--queue-s x --rate-hz), "
+                         f"got {backlog!r}")
     render_rig, clock, provider = rig, "host", None
     if spec.kind != "sim" and (getattr(args, "truth_stream", None) or getattr(args, "sim_rig", None)):
         raise ValueError(f"--truth-stream and --sim-rig apply to the sim source only, got --source {' '.join(args.source)}")
@@ -102,7 +110,7 @@ def open_frames(args, rig, *, truth_scene=None):
     try:
         if len(sources) != len(rig):
             raise ValueError(f"--source {' '.join(args.source)} gives {len(sources)} camera(s) but rig {args.rig!r} has {len(rig)}")
-        assembler = FrameSetAssembler(sources, AssemblyOptions(rate_hz=args.rate_hz, queue_len=n_queue, output_len=n_queue,
+        assembler = FrameSetAssembler(sources, AssemblyOptions(rate_hz=args.rate_hz, queue_len=n_queue, output_len=backlog,
                                                                clock=clock))
     except BaseException:
         for s in sources:

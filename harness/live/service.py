@@ -16,6 +16,7 @@ with the assembler's note, the tracker goes on with the others, and the figures 
 
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import threading
@@ -39,11 +40,14 @@ class ServiceOptions:
     ``get`` of an assembler waits before the loop checks for a stop or the end of the run;
     switch_interval_s : Python's thread switch interval while the service runs (``sys.setswitchinterval``;
     None = leave it): the camera, assembly, log and view threads share one interpreter lock, and the
-    default 5 ms would let any of them hold a frame set back that long"""
+    default 5 ms would let any of them hold a frame set back that long; gc_freeze : collect once and
+    ``gc.freeze()`` what is alive when the run starts (undone at its end), so the collections that the
+    per-frame-set allocations trigger never walk the tracker's, the rig's and the libraries' objects"""
 
     status_period_s: float = 1.0
     get_timeout_s: float = 0.1
     switch_interval_s: float | None = 0.0005
+    gc_freeze: bool = True
 
     def __post_init__(self):
         if not (isinstance(self.status_period_s, (int, float)) and 0 <= self.status_period_s < math.inf):
@@ -110,11 +114,12 @@ class TrackingService:
         """Track, publish, log and count one frame set; returns its ``BallObservation``."""
         if not isinstance(afs, AssembledFrameSet):
             raise ValueError(f"the service takes AssembledFrameSet objects, got {type(afs).__name__}")
+        t_taken = time.monotonic()
         obs, info = self.tracker.process_with_info(afs.frameset)
         num = self.num
         self.num += 1
         t_first = first_host_stamp(afs)
-        t_done = time.monotonic()
+        t_done = t_tracked = time.monotonic()
         if self.publisher is not None:  # a message only for a stream that is on (``--publish-rt2 none``)
             on = self.publisher.addresses
             rich = (rich_message(num, afs, obs, t_first_host_s=t_first, camera_names=self._names, info=info)  # stamped at the send
@@ -123,7 +128,9 @@ class TrackingService:
                         if "tennicam" in on else None)
             t_done = self.publisher.publish(tennicam, rich)
         latency = t_done - t_first
-        self.stats.add(afs, obs, latency, t_done)
+        t_asm = float(afs.t_assembled_s)
+        self.stats.add(afs, obs, latency, t_done,
+                       (t_asm - t_first, t_taken - t_asm, t_tracked - t_taken, t_done - t_tracked, math.nan))
         if self.log is not None and self.log_error is None:
             try:
                 self.log.write(num, self.log.log_time(t_first), afs, obs, info)
@@ -133,6 +140,7 @@ class TrackingService:
                     self.status(f"the session log failed at frame set {num}; tracking and publishing go on without it: {self.log_error}")
         if self.view is not None:
             self.view.update(num, afs, obs, info)
+        self.stats.stage("after", time.monotonic() - t_done)
         return obs
 
     # -- the loop -------------------------------------------------------------------------------
@@ -167,6 +175,10 @@ class TrackingService:
         old_switch = sys.getswitchinterval()
         if self.options.switch_interval_s is not None:
             sys.setswitchinterval(self.options.switch_interval_s)
+        froze = self.options.gc_freeze and not gc.get_freeze_count()
+        if froze:  # everything alive now (rig, tracker, model, sockets) leaves the collector's generations
+            gc.collect()
+            gc.freeze()
         try:
             for afs in self._frames(source, stop, deadline):
                 if afs is not None:
@@ -180,6 +192,8 @@ class TrackingService:
             raise
         finally:
             sys.setswitchinterval(old_switch)
+            if froze:
+                gc.unfreeze()
             self.finish(error=error, source=source)
         return self.summary()
 
@@ -197,6 +211,9 @@ class TrackingService:
             s["log"] = {"path": str(self.log.path), "dropped": self.log.dropped, "error": self.log_error}
         if self._assembly is not None:
             s["assembly"] = self._assembly
+            if isinstance(self._assembly, dict) and "dropped_framesets" in self._assembly:
+                s["skipped_framesets"] = self._assembly["dropped_framesets"]
+                s["max_backlog"] = self._assembly.get("backlog")
         return s
 
     _assembly = None
@@ -229,7 +246,8 @@ def _assembly_status(source) -> str:
     try:
         a = stats()
         drops = " ".join(f"{d}/{l}" for d, l in zip(a.dropped, a.late))
-        return f", sets dropped {a.dropped_framesets}, frames dropped/late per camera {drops}"
+        return (f", sets skipped {a.dropped_framesets} (backlog {a.backlog}), "
+                f"frames dropped/late per camera {drops}")
     except Exception:  # figures only
         return ""
 
