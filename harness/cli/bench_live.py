@@ -17,6 +17,7 @@ from pathlib import Path
 
 from harness.cli.track import add_source_arguments, lab_truth_scene
 from harness.live.bench import GOALS, bench_live, check_options
+from harness.live.stats import format_budget
 
 __all__ = ["add_arguments", "run", "GOALS"]
 
@@ -42,7 +43,7 @@ def run(args) -> int:
               f"max <= {GOALS['max_ms']:g} ms {'met' if goals['max'] else 'NOT met'}, "
               f"no drops by rt2 {'met' if goals['no_drops_by_rt2'] else 'NOT met'}")
     for r in doc["modes"]:
-        print("\n".join(format_budget(r)))
+        print("\n".join(format_budget(r["latency_budget_ms"], f"mode {r['mode']}")))
     if args.json:
         from harness.logs.codecs import to_json_value
 
@@ -68,14 +69,3 @@ def format_table(rows: list, args) -> str:
                  f"longest a tracked set waited for the tracker, in frame periods)")
     return "\n".join(lines)
 
-
-def format_budget(row: dict) -> list[str]:
-    """The mode's latency budget as lines: per stage p50 / p99 / max ms (rt2's part, warm-up left out)."""
-    out = [f"latency budget, mode {row['mode']} (ms)       p50      p99      max        n"]
-    what = {"assembly": "first frame -> set assembled", "backlog": "assembled -> taken by the tracker",
-            "tracker": "tracker", "publish": "messages encoded and sent", "after": "log, view, figures (delays the next set)",
-            "total": "first frame -> messages sent"}
-    for name, b in row["latency_budget_ms"].items():
-        if b.get("n"):
-            out.append(f"  {what.get(name, name):<35}{b['p50']:>9.2f}{b['p99']:>9.2f}{b['max']:>9.2f}{b['n']:>9d}")
-    return out

@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 from harness.live.run import DEFAULT_MAX_BACKLOG, open_service
+from harness.live.stats import format_budget
 
 __all__ = ["add_arguments", "add_source_arguments", "lab_truth_scene", "run"]
 
@@ -109,11 +110,14 @@ def _print_summary(s: dict) -> None:
     a = s.get("assembly")
     if isinstance(a, dict) and "dropped_framesets" in a:
         print(f"  assembly: {a.get('complete')} complete, {a.get('incomplete')} incomplete, "
-              f"{a.get('dropped_framesets')} frame sets dropped before the tracker (it did not take them in time), "
+              f"{a.get('dropped_framesets')} frame sets skipped (the tracker had not taken them before "
+              f"{a.get('backlog')} newer ones came: --max-backlog), "
               f"frames dropped per camera {list(a.get('dropped', ()))}, late {list(a.get('late', ()))}")
         for e in a.get("errors", ()) or ():
             if e:
                 print(f"  camera failed (not restarted): {e}")
+    if "latency_budget_ms" in s:
+        print("\n".join("  " + line for line in format_budget(s["latency_budget_ms"], "whole run")))
     if "published" in s:
         print(f"  published: {s['published']} on {s['addresses']}")
     if "log" in s:

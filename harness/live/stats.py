@@ -21,7 +21,7 @@ from collections import Counter
 
 import numpy as np
 
-__all__ = ["LiveStats", "STAGES"]
+__all__ = ["LiveStats", "STAGES", "format_budget"]
 
 #: the stages of the latency budget, in order (the module docstring)
 STAGES = ("assembly", "backlog", "tracker", "publish", "after")
@@ -90,6 +90,11 @@ class LiveStats:
     def latencies_s(self) -> np.ndarray:
         return self._lat[: min(self.n, len(self._lat))]
 
+    def stages_s(self) -> np.ndarray:
+        """(n, len(STAGES)) stage durations in seconds of the frame sets kept, in the order they were added
+        (NaN = not measured)."""
+        return self._stages[: min(self.n, len(self._lat))]
+
     def stage(self, name: str, value_s: float) -> None:
         """Set one stage of the frame set last added (seconds), e.g. ``after``, known only once it is done."""
         if self.n:
@@ -142,3 +147,17 @@ class LiveStats:
             "frame_id_gaps": self.frame_id_gaps,
             "notes": dict(self.notes.most_common(20)),
         }
+
+
+_STAGE_WHAT = {"assembly": "first frame -> set assembled", "backlog": "assembled -> taken by the tracker",
+               "tracker": "tracker", "publish": "messages encoded and sent",
+               "after": "log, view, figures (before the next set)", "total": "first frame -> messages sent"}
+
+
+def format_budget(budget: dict, what: str = "") -> list[str]:
+    """:meth:`LiveStats.budget_ms` as lines of text: per stage p50 / p99 / max ms and the count."""
+    out = [f"{'latency budget' + (', ' + what if what else '') + ' (ms)':<42}{'p50':>8}{'p99':>9}{'max':>9}{'n':>9}"]
+    for name, b in budget.items():
+        if b.get("n"):
+            out.append(f"  {_STAGE_WHAT.get(name, name):<40}{b['p50']:>8.2f}{b['p99']:>9.2f}{b['max']:>9.2f}{b['n']:>9d}")
+    return out

@@ -159,6 +159,32 @@ def test_status_line_and_summary(rig):
     assert set(summary["latency_ms"]) >= {"p50", "p99", "max"}
 
 
+def test_latency_budget_stages_add_up_to_the_latency_and_the_collector_is_frozen_only_while_running(rig):
+    import gc
+
+    from harness.live.stats import STAGES
+
+    frozen = []
+
+    class Counting:
+        def __iter__(self):
+            for afs in assembled(30):
+                frozen.append(gc.get_freeze_count())
+                yield afs
+
+    with Tracker(rig, "rt2") as tr:
+        service = TrackingService(rig, tr)
+        summary = service.run(Counting())
+        stages = service.stats.stages_s()
+        lat = service.stats.latencies_s()
+    assert min(frozen) > 0 and gc.get_freeze_count() == 0
+    assert stages.shape == (30, len(STAGES)) and np.isfinite(stages).all() and (stages >= 0).all()
+    # assembly + backlog + tracker + publish = first frame's arrival -> messages sent, per frame set
+    np.testing.assert_allclose(stages[:, :4].sum(axis=1), lat, atol=1e-9)
+    budget = summary["latency_budget_ms"]
+    assert budget["total"]["n"] == 30 and budget["tracker"]["max"] <= budget["total"]["max"] + 1e-9
+
+
 def test_a_failing_log_never_stops_tracking_or_publishing(rig, tmp_path):
     """The log's file fails mid-run (as a full disk would): the service says so once and goes on."""
     lines = []
