@@ -26,7 +26,7 @@ import threading
 import time
 from pathlib import Path
 
-from harness.live.run import DEFAULT_MAX_BACKLOG, open_service
+from harness.live.run import DEFAULT_MAX_BACKLOG, SIM_RENDER, open_service
 from harness.live.stats import format_budget
 
 __all__ = ["add_arguments", "add_source_arguments", "lab_truth_scene", "run"]
@@ -61,6 +61,11 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sim-rig", default=None, metavar="RIG",
                         help="sim only: the rig the simulated cameras render with (default: --rig); e.g. the true lab when "
                              "--rig is an estimated calibration")
+    parser.add_argument("--sim-render", default="auto", choices=SIM_RENDER,
+                        help="sim only: where the cameras are rendered: process (a child process on the other core, never "
+                             "holding the tracker's interpreter lock, as a camera driver's threads; ~1 s per camera to start), "
+                             "thread (in the service's process), auto (default: process, thread with --prerender or "
+                             "--truth-stream)")
     parser.add_argument("--queue-s", type=float, default=0.25, metavar="S",
                         help="frames buffered per camera before the oldest is dropped, in seconds of the frame rate "
                              "(default 0.25: a hiccup of the machine that long costs latency, not frames)")

@@ -18,11 +18,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-__all__ = ["DEFAULT_MAX_BACKLOG", "check_output_paths", "open_frames", "open_service", "stream_addresses"]
+__all__ = ["DEFAULT_MAX_BACKLOG", "SIM_RENDER", "check_output_paths", "open_frames", "open_service", "stream_addresses"]
 
 #: frame sets that may wait for the tracker before the oldest is skipped (``--max-backlog``); chosen with
 #: ``rt2 bench live --max-backlog 1,2,3`` (README, "Latency-first queueing")
 DEFAULT_MAX_BACKLOG = 2
+#: where the sim source renders (``--sim-render``): auto = a child process unless --prerender or --truth-stream
+SIM_RENDER = ("auto", "process", "thread")
 
 
 def stream_addresses(args) -> tuple[str | None, str | None]:
@@ -105,6 +107,15 @@ def open_frames(args, rig, *, truth_scene=None):
             raise ValueError(f"--max-behind must be in (0, 3600] seconds, got {args.max_behind}")
         extra["clock"], clock = "host", "device"  # exposure stamped on the host clock: take it as it is
         extra["max_behind_s"] = float(args.max_behind)
+    render = getattr(args, "sim_render", "auto")
+    if render not in SIM_RENDER:
+        raise ValueError(f"--sim-render must be one of {SIM_RENDER}, got {render!r}")
+    if render != "auto" and spec.kind != "sim":
+        raise ValueError(f"--sim-render applies to the sim source only, got --source {' '.join(args.source)}")
+    if render == "process" and ("prerender_s" in extra or provider is not None):
+        raise ValueError("--sim-render process cannot go with --prerender or --truth-stream (those render in the service's process)")
+    if spec.kind == "sim" and "prerender_s" not in extra and provider is None:
+        extra["render_process"] = render != "thread"  # "auto": a child process, as a camera driver's own threads
     sources = open_sources(spec, render_rig, rate_hz=args.rate_hz, seed=args.seed, queue_len=n_queue,
                            scene_provider=provider, **extra)
     try:
