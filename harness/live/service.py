@@ -61,8 +61,11 @@ class ServiceOptions:
 
 def warm_up(tracker, rig, *, n: int = 3) -> None:
     """Run ``tracker`` on ``n`` made-up frame sets (an orange disk where a ball at the centre of the
-    rig's workspace would be) and forget them, so the first real frame sets do not pay for compiled
-    kernels and first-call allocations."""
+    rig's workspace would be: the first a full-frame search, the next window searches), build and
+    encode their messages without sending them, and forget them, so the first real frame sets do not
+    pay for compiled kernels, first-call allocations and lazy imports."""
+    import json
+
     import cv2
 
     lo, hi = np.asarray(rig.workspace_m, float) if getattr(rig, "workspace_m", None) is not None else (np.zeros(3), np.ones(3))
@@ -74,8 +77,14 @@ def warm_up(tracker, rig, *, n: int = 3) -> None:
         if np.isfinite(u) and np.isfinite(v):
             cv2.circle(img, (int(round(u)), int(round(v))), 6, (255, 120, 0), -1)
         images.append(img)
+    n_cams = len(images)
     for k in range(n):
-        tracker.process(FrameSet(float(k) * 1e-3, tuple(images), k))
+        t = time.monotonic()
+        afs = AssembledFrameSet(FrameSet(float(k) * 1e-3, tuple(images), k), k, np.full(n_cams, t),
+                                np.full(n_cams, np.nan), t)
+        obs, info = tracker.process_with_info(afs.frameset)
+        json.dumps(rich_message(k, afs, obs, t_first_host_s=t, camera_names=rig.names, info=info), allow_nan=False)
+        json.dumps(tennicam_message(k, _time_ns(afs.frameset.t_s), 0.0, obs.position_m), allow_nan=False)
     tracker.reset(clear_stats=True)
 
 
