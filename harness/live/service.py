@@ -115,6 +115,7 @@ class TrackingService:
         self.status = status
         self.log_error: str | None = None  # the log failed (disk full, ...): tracking and publishing went on
         self.stats = LiveStats(rig.names)
+        self._gc_pauses = _GcPauses()
         self.num = 0
         self._names = rig.names
 
@@ -188,6 +189,7 @@ class TrackingService:
         if froze:  # everything alive now (rig, tracker, model, sockets) leaves the collector's generations
             gc.collect()
             gc.freeze()
+        gc.callbacks.append(self._gc_pauses.on_gc)
         try:
             for afs in self._frames(source, stop, deadline):
                 if afs is not None:
@@ -201,6 +203,7 @@ class TrackingService:
             raise
         finally:
             sys.setswitchinterval(old_switch)
+            gc.callbacks.remove(self._gc_pauses.on_gc)
             if froze:
                 gc.unfreeze()
             self.finish(error=error, source=source)
@@ -218,6 +221,7 @@ class TrackingService:
             s["view"] = {"port": self.view.port, "sent": dict(self.view.sent), "error": self.view.error}
         if self.log is not None:
             s["log"] = {"path": str(self.log.path), "dropped": self.log.dropped, "error": self.log_error}
+        s["gc"] = self._gc_pauses.summary()
         if self._assembly is not None:
             s["assembly"] = self._assembly
             if isinstance(self._assembly, dict) and "dropped_framesets" in self._assembly:
@@ -244,6 +248,30 @@ class TrackingService:
             except Exception as exc:  # reported in the summary (``log.error``); the run's figures stand
                 what = f"closing it: {type(exc).__name__}: {exc}"
                 self.log_error = what if self.log_error is None else f"{self.log_error}; {what}"
+
+
+class _GcPauses:
+    """The garbage collector's runs during a service run (``gc.callbacks``, any thread): count per
+    generation and the pauses (every thread waits for a collection)."""
+
+    def __init__(self):
+        self.runs = [0, 0, 0]
+        self.total_s = self.max_s = 0.0
+        self._t0 = None
+
+    def on_gc(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+        elif self._t0 is not None:
+            dt = time.perf_counter() - self._t0
+            self._t0 = None
+            self.runs[min(int(info.get("generation", 0)), 2)] += 1
+            self.total_s += dt
+            self.max_s = max(self.max_s, dt)
+
+    def summary(self) -> dict:
+        return {"collections_per_generation": list(self.runs), "pause_total_ms": self.total_s * 1e3,
+                "pause_max_ms": self.max_s * 1e3}
 
 
 def _assembly_status(source) -> str:
