@@ -163,6 +163,13 @@ def test_other_bad_values_are_one_line(capsys, tmp_path):
     assert "no-such-rig" in _bad(capsys, tmp_path, "--rig", "no-such-rig")
     assert "unknown camera source" in _bad(capsys, tmp_path, "--publish", "none", "--source", "webcam")
     assert "--duration" in _bad(capsys, tmp_path, "--duration", "-3")
+    assert "--max-backlog must be a whole number of frame sets in [1, 50]" in _bad(capsys, tmp_path, "--max-backlog", "0")
+    assert "--max-backlog must be a whole number of frame sets in [1, 8]" in _bad(
+        capsys, tmp_path, "--max-backlog", "20", "--queue-s", "0.01")
+    assert "--sim-render process cannot go with --prerender" in _bad(
+        capsys, tmp_path, "--publish", "none", "--sim-render", "process", "--prerender", "0.1")
+    assert "--sim-render applies to the sim source only" in _bad(
+        capsys, tmp_path, "--publish", "none", "--sim-render", "thread", "--source", "replay", str(tmp_path / "x.mcap"))
     existing = tmp_path / "there.mcap"
     existing.write_bytes(b"keep me")
     rc = rt2(["track", "--log", str(existing)])
