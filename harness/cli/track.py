@@ -47,6 +47,9 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sim only: render S seconds of the scene up front and loop them, so rendering takes no CPU "
                              "while tracking (benchmarks; memory 3.7 MB per frame set of 4 VGA cameras)")
     parser.add_argument("--tracker", default="rt2", choices=_TRACKERS, help="tracker kind (default rt2)")
+    parser.add_argument("--workers", type=int, default=1, metavar="N",
+                        help="rt2 kinds: threads running the detector on the cameras of one frame set (default 1); 2 halves "
+                             "a full-frame search (a new ball, a lost one) when a second core is free (rt2 bench live)")
     parser.add_argument("--truth-stream", default=None, metavar="ADDR",
                         help="sim only: render the lab from a lab truth stream (e.g. rt2 robot serve --sim --truth-stream ADDR): "
                              "each frame is exposed on the host clock, rendered once the truth at that instant has arrived, "

@@ -152,7 +152,10 @@ def open_service(args, *, status=print, tracker_overrides: dict | None = None, t
     rig = resolve_rig(args.rig)
     closers = []
     try:
-        tracker = Tracker(rig, args.tracker, **(tracker_overrides or {}))
+        workers = getattr(args, "workers", 1)
+        if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 64:
+            raise ValueError(f"--workers must be a whole number in [1, 64], got {workers!r}")
+        tracker = Tracker(rig, args.tracker, **({"workers": workers} if workers != 1 else {}), **(tracker_overrides or {}))
         closers.append(tracker.close)
         warm_up(tracker, rig)
         publisher = None

@@ -166,6 +166,8 @@ def test_other_bad_values_are_one_line(capsys, tmp_path):
     assert "--max-backlog must be a whole number of frame sets in [1, 50]" in _bad(capsys, tmp_path, "--max-backlog", "0")
     assert "--max-backlog must be a whole number of frame sets in [1, 8]" in _bad(
         capsys, tmp_path, "--max-backlog", "20", "--queue-s", "0.01")
+    assert "--workers must be a whole number in [1, 64], got 0" in _bad(capsys, tmp_path, "--workers", "0")
+    assert "workers must be 1, got 2" in _bad(capsys, tmp_path, "--workers", "2", "--tracker", "rtblob")
     assert "--sim-render process cannot go with --prerender" in _bad(
         capsys, tmp_path, "--publish", "none", "--sim-render", "process", "--prerender", "0.1")
     assert "--sim-render applies to the sim source only" in _bad(
