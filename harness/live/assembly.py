@@ -63,7 +63,7 @@ class AssemblyOptions:
         full, the oldest waiting set is skipped and counted (``dropped_framesets``): the newest frame set
         wins, and a consumer that falls behind gets a set at most ``output_len`` sets behind the newest
         rather than every set late (a robot gains nothing from a stale position, loses little with one
-        frame set fewer). ``rt2 track --max-backlog`` sets it (default 2, chosen by ``rt2 bench live``)
+        frame set fewer). ``rt2 track --max-backlog`` sets it (default 1, chosen with ``rt2 bench live``)
     read_timeout_s : how long a reader thread blocks in ``source.read`` before checking for close
     clock_window : frames per camera in the clock-offset window
     clock : capture times on the ``"host"`` clock (device stamps mapped by each camera's estimated

@@ -22,7 +22,7 @@ __all__ = ["DEFAULT_MAX_BACKLOG", "SIM_RENDER", "check_output_paths", "open_fram
 
 #: frame sets that may wait for the tracker before the oldest is skipped (``--max-backlog``); chosen with
 #: ``rt2 bench live --max-backlog 1`` and ``3`` against the default (README, "Latency first")
-DEFAULT_MAX_BACKLOG = 2
+DEFAULT_MAX_BACKLOG = 1
 #: where the sim source renders (``--sim-render``): auto = a child process unless --prerender or --truth-stream
 SIM_RENDER = ("auto", "process", "thread")
 
