@@ -45,6 +45,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("learn", "promp"): ("harness.experiments.studies.learn_promp", "learn the WAM hitting ProMP from the scripted teacher (MAP vs ML, held-out fit)"),
     ("play",): ("harness.cli.play", "playing sessions: served balls, tracker, filter, ProMP hitting policy, simulated WAM; success rates (`rt2 play compare`)"),
     ("track",): ("harness.cli.track", "the tracker as a real-time service: cameras -> tracker -> tennicam-compatible ZeroMQ stream, live view, session log"),
+    ("bench", "replay"): ("harness.experiments.studies.bench_replay", "re-tracking a recorded rt2 track session from its JPEG images: frame sets/s with the images decoded in the tracker's thread vs by decoding threads"),
     ("bench", "live"): ("harness.cli.bench_live", "end-to-end latency (frame arrival -> message at a subscriber in another process) and sustained rate of rt2 track"),
     ("calib", "intrinsics"): ("harness.cli.calib_intrinsics", "one camera's K and distortion from ChArUco images or a video (per-view errors, coverage, std devs)"),
     ("calib", "wand"): ("harness.cli.calib_wand", "all cameras' poses by bundle adjustment of a wand (known ball spacings) or a ball moved through the volume"),

@@ -26,7 +26,8 @@ import threading
 import time
 from pathlib import Path
 
-from harness.live.run import open_service
+from harness.live.run import DEFAULT_MAX_BACKLOG, SIM_RENDER, open_service
+from harness.live.stats import format_budget
 
 __all__ = ["add_arguments", "add_source_arguments", "lab_truth_scene", "run"]
 
@@ -46,6 +47,9 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sim only: render S seconds of the scene up front and loop them, so rendering takes no CPU "
                              "while tracking (benchmarks; memory 3.7 MB per frame set of 4 VGA cameras)")
     parser.add_argument("--tracker", default="rt2", choices=_TRACKERS, help="tracker kind (default rt2)")
+    parser.add_argument("--workers", type=int, default=1, metavar="N",
+                        help="rt2 kinds: threads running the detector on the cameras of one frame set (default 1); 2 halves "
+                             "a full-frame search (a new ball, a lost one) when a second core is free (rt2 bench live)")
     parser.add_argument("--truth-stream", default=None, metavar="ADDR",
                         help="sim only: render the lab from a lab truth stream (e.g. rt2 robot serve --sim --truth-stream ADDR): "
                              "each frame is exposed on the host clock, rendered once the truth at that instant has arrived, "
@@ -60,9 +64,18 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sim-rig", default=None, metavar="RIG",
                         help="sim only: the rig the simulated cameras render with (default: --rig); e.g. the true lab when "
                              "--rig is an estimated calibration")
+    parser.add_argument("--sim-render", default="auto", choices=SIM_RENDER,
+                        help="sim only: where the cameras are rendered: process (a child process on the other core, never "
+                             "holding the tracker's interpreter lock, as a camera driver's threads; ~1 s per camera to start), "
+                             "thread (in the service's process), auto (default: process, thread with --prerender or "
+                             "--truth-stream)")
     parser.add_argument("--queue-s", type=float, default=0.25, metavar="S",
-                        help="frames and frame sets buffered before anything is dropped, in seconds of the frame rate "
-                             "(default 0.25: a hiccup of the machine that long costs latency, not frame sets)")
+                        help="frames buffered per camera before the oldest is dropped, in seconds of the frame rate "
+                             "(default 0.25: a hiccup of the machine that long costs latency, not frames)")
+    parser.add_argument("--max-backlog", type=int, default=DEFAULT_MAX_BACKLOG, metavar="N",
+                        help=f"frame sets that may wait for the tracker (default {DEFAULT_MAX_BACKLOG}): when a newer set comes, the oldest "
+                             "waiting one is skipped and counted, so positions are never more than N frame periods stale "
+                             "(a robot gains nothing from a stale position)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -105,11 +118,14 @@ def _print_summary(s: dict) -> None:
     a = s.get("assembly")
     if isinstance(a, dict) and "dropped_framesets" in a:
         print(f"  assembly: {a.get('complete')} complete, {a.get('incomplete')} incomplete, "
-              f"{a.get('dropped_framesets')} frame sets dropped before the tracker (it did not take them in time), "
+              f"{a.get('dropped_framesets')} frame sets skipped (the tracker had not taken them before "
+              f"{a.get('backlog')} newer ones came: --max-backlog), "
               f"frames dropped per camera {list(a.get('dropped', ()))}, late {list(a.get('late', ()))}")
         for e in a.get("errors", ()) or ():
             if e:
                 print(f"  camera failed (not restarted): {e}")
+    if "latency_budget_ms" in s:
+        print("\n".join("  " + line for line in format_budget(s["latency_budget_ms"], "whole run")))
     if "published" in s:
         print(f"  published: {s['published']} on {s['addresses']}")
     if "log" in s:

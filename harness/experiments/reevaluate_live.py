@@ -29,8 +29,9 @@ from tracker import BallSegmentationModel, CandidateEstimator, FrameSet, Status
 __all__ = ["reevaluate_track", "run_reevaluate"]
 
 
-def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
-    """Figures of a re-run on a ``track`` log (a :class:`~harness.logs.SessionLogReader`)."""
+def reevaluate_track(reader, *, eps_px=None, source: str = "auto", decode_workers: int = 0) -> dict:
+    """Figures of a re-run on a ``track`` log (a :class:`~harness.logs.SessionLogReader`); decode_workers :
+    threads decoding the images ahead of the tracker (``SessionLogReader.messages(workers=)``: same figures)."""
     where = str(reader.path)
     session = reader.metadata("session")
     kind = session.get("tracker")
@@ -108,7 +109,7 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto") -> dict:
                 same = d <= 1e-9
             counts["identical"] += bool(same)
 
-        for m in reader.messages(topics):
+        for m in reader.messages(topics, workers=decode_workers):
             if m.sequence != state["seq"]:
                 flush()
                 state.update(seq=m.sequence, obs=None, items={})
@@ -139,7 +140,7 @@ def run_reevaluate(reader, args) -> int:
         raise ValueError(f"{reader.path}: this session ran tracker {reader.metadata('session').get('tracker')!r} only, "
                          f"got --tracker {args.tracker}")
     src = args.source if args.source != "auto" else "auto"
-    r = reevaluate_track(reader, eps_px=args.eps_px, source=src)
+    r = reevaluate_track(reader, eps_px=args.eps_px, source=src, decode_workers=getattr(args, "decode_workers", 0))
     n = r["frame_sets"]
     print(f"rt2 reevaluate {reader.path}: live tracking session ({r['tracker']}), {n} frame sets; {r['how']}"
           + (f", eps_px {r['eps_px']:g}" if r["eps_px"] is not None else ""))

@@ -58,7 +58,12 @@ class AssemblyOptions:
         (one period plus the scheduling jitter of Python threads on a loaded machine)
     stall_s : a camera is not waited for once the others are this far ahead of its last frame (in
         frame ids x period, or capture time); None = ten periods
-    queue_len : frames buffered per camera; output_len : assembled sets waiting for ``get``
+    queue_len : frames buffered per camera
+    output_len : the backlog bound: assembled sets waiting for ``get`` at most. When a new set finds it
+        full, the oldest waiting set is skipped and counted (``dropped_framesets``): the newest frame set
+        wins, and a consumer that falls behind gets a set at most ``output_len`` sets behind the newest
+        rather than every set late (a robot gains nothing from a stale position, loses little with one
+        frame set fewer). ``rt2 track --max-backlog`` sets it (default 1, chosen with ``rt2 bench live``)
     read_timeout_s : how long a reader thread blocks in ``source.read`` before checking for close
     clock_window : frames per camera in the clock-offset window
     clock : capture times on the ``"host"`` clock (device stamps mapped by each camera's estimated
@@ -114,8 +119,10 @@ class AssemblyStats:
     """Counters since start; per-camera tuples are in source (rig) order.
 
     framesets : sets assembled; complete / incomplete : of which every camera / not every camera had a frame
-    delivered : sets handed out by ``get``; dropped_framesets : sets dropped from a full output queue
-        (the consumer was slower than the cameras)
+    delivered : sets handed out by ``get``; dropped_framesets : sets skipped because the backlog was full
+        (the consumer was slower than the cameras; a newer set took the place of the oldest waiting one)
+    waiting : sets assembled and waiting for ``get`` now; backlog : the bound on ``waiting`` (``output_len``).
+        ``framesets == delivered + dropped_framesets + waiting`` at every moment
     frames : frames received; late : frames that arrived after their set had been emitted (discarded)
     dropped : frames dropped from a full per-camera queue (the assembler fell behind)
     missing : sets emitted without this camera's frame
@@ -142,6 +149,8 @@ class AssemblyStats:
     clock_offsets: tuple
     sources: tuple = ()
     clamped_times: int = 0
+    waiting: int = 0
+    backlog: int = 0
 
 
 @dataclass
@@ -351,15 +360,15 @@ class FrameSetAssembler:
                                 time.monotonic(), tuple(notes))
         self._emitted_order = max(self._emitted_order, p.order)
         self._set_number += 1
-        self._framesets += 1
+        while self.options.lossless and len(self._output) >= self.options.output_len and not self._stop.is_set():
+            self._cond.wait(0.1)  # releases the lock: get() can take a set
+        self._framesets += 1  # counted with the append, so framesets = delivered + skipped + waiting holds
         if len(present) == self._n:
             self._complete += 1
         for i, f in enumerate(p.frames):
             if f is None:
                 self._missing[i] += 1
-        while self.options.lossless and len(self._output) >= self.options.output_len and not self._stop.is_set():
-            self._cond.wait(0.1)  # releases the lock: get() can take a set
-        if len(self._output) >= self.options.output_len:
+        if len(self._output) >= self.options.output_len:  # the newest wins: skip the oldest waiting set
             self._output.popleft()
             self._dropped_sets += 1
         self._output.append(out)
@@ -430,7 +439,7 @@ class FrameSetAssembler:
                 late=tuple(self._late), dropped=tuple(self._dropped), missing=tuple(self._missing),
                 ended=tuple(self._ended), errors=tuple(self._errors),
                 clock_offsets=tuple(c.estimate() if has else None for c, has in zip(self._clocks, self._has_device)),
-                sources=own, clamped_times=self._clamped)
+                sources=own, clamped_times=self._clamped, waiting=len(self._output), backlog=self.options.output_len)
 
 
 def _source_stats(source):

@@ -17,8 +17,12 @@ time: the machine, not the tracker). The sim source pre-renders ``--prerender`` 
 and loops them, so rendering takes no CPU while measuring (the ball jumps back at each loop, as when
 a new ball is served: the window search then falls back to the full frame once).
 
-Goals on the 2-core machine: 4 VGA cameras at 200 Hz with the ROI, no frame set dropped by rt2 and
-p99 latency <= 10 ms; full frame: what it sustains is reported.
+Goals on the idle 2-core machine (:data:`GOALS`): 4 VGA cameras at 200 Hz with the ROI, no frame set
+dropped by rt2, p99 latency <= 5 ms and max <= 10 ms; full frame: what it sustains is reported, at a
+low latency: frame sets the tracker cannot take in time are skipped (``skipped_framesets``), never
+queued beyond ``--max-backlog`` (``backlog_wait_periods``: how long the sets it took had waited, in
+frame periods). ``latency_budget_ms`` splits rt2's part of the latency into stages
+(:data:`harness.live.stats.STAGES`), warm-up left out.
 """
 
 from __future__ import annotations
@@ -41,8 +45,8 @@ from harness.live.run import open_service
 __all__ = ["GOALS", "MODES", "bench_live", "check_options", "measure_mode"]
 
 MODES = {"roi": {}, "full": {"roi": False}}
-#: the service's goals at 4 VGA cameras, 200 Hz, with the ROI (mode "roi")
-GOALS = {"rate_hz": 200.0, "p99_ms": 10.0, "dropped_by_rt2": 0}
+#: the service's goals at 4 VGA cameras, 200 Hz, with the ROI (mode "roi"), on the idle 2-core machine
+GOALS = {"rate_hz": 200.0, "p99_ms": 5.0, "max_ms": 10.0, "dropped_by_rt2": 0}
 
 
 def check_options(args) -> list[str]:
@@ -77,9 +81,11 @@ def bench_live(args, modes: list[str], *, progress=None, truth_scene=None) -> di
     if roi is not None:
         goals = {"rate": roi["rate_hz"] >= 0.98 * GOALS["rate_hz"] if args.rate_hz >= GOALS["rate_hz"] else None,
                  "p99": roi["latency_ms"]["p99"] <= GOALS["p99_ms"],
+                 "max": roi["latency_ms"]["max"] <= GOALS["max_ms"],
                  "no_drops_by_rt2": roi["dropped_by_rt2_total"] == 0}
     return {"date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "cpus": os.cpu_count(),
             "source": list(args.source), "rig": args.rig, "rate_hz": args.rate_hz, "tracker": args.tracker,
+            "workers": getattr(args, "workers", 1), "max_backlog": getattr(args, "max_backlog", None),
             "duration_s": args.duration, "warmup_s": args.warmup, "prerender_s": args.prerender,
             "goals": GOALS, "goals_met": goals, "modes": rows}
 
@@ -141,6 +147,9 @@ def measure_mode(args, mode: str, tmp: str, *, truth_scene=None) -> dict:
     published = int(summary["published"]["rt2"] - probes["rt2"])
     lost_to_sub = published - len(num)
     dropped_sets = int(a.get("dropped_framesets", 0) or 0)
+    period_ms = 1e3 / float(args.rate_hz)
+    budget = service.stats.budget_ms(first=int(np.count_nonzero(t_first < t_start + args.warmup)))
+    wait = budget["backlog"]
     dropped_frames = [int(v) for v in a.get("dropped", ()) or ()]
     return {
         "mode": mode,
@@ -154,6 +163,10 @@ def measure_mode(args, mode: str, tmp: str, *, truth_scene=None) -> dict:
         "dropped_by_rt2": {"frame_sets_not_taken_in_time": dropped_sets, "frames_dropped_per_camera": dropped_frames,
                            "messages_lost_to_subscriber": lost_to_sub},
         "dropped_by_rt2_total": dropped_sets + sum(dropped_frames) + max(lost_to_sub, 0),
+        "skipped_framesets": dropped_sets,
+        "max_backlog": int(a.get("backlog", 0) or 0),
+        "backlog_wait_periods": {k: wait[k] / period_ms for k in ("p50", "p99", "max") if k in wait},
+        "latency_budget_ms": budget,
         "by_the_source": {"late_frames_per_camera": [int(v) for v in a.get("late", ()) or ()],
                           "incomplete_frame_sets": int(a.get("incomplete", 0) or 0)},
         "status": summary["status"],

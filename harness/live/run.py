@@ -18,7 +18,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-__all__ = ["check_output_paths", "open_frames", "open_service", "stream_addresses"]
+__all__ = ["DEFAULT_MAX_BACKLOG", "SIM_RENDER", "check_output_paths", "open_frames", "open_service", "stream_addresses"]
+
+#: frame sets that may wait for the tracker before the oldest is skipped (``--max-backlog``); chosen with
+#: ``rt2 bench live --max-backlog 1`` and ``3`` against the default (README, "Latency first")
+DEFAULT_MAX_BACKLOG = 1
+#: where the sim source renders (``--sim-render``): auto = a child process unless --prerender or --truth-stream
+SIM_RENDER = ("auto", "process", "thread")
 
 
 def stream_addresses(args) -> tuple[str | None, str | None]:
@@ -76,6 +82,10 @@ def open_frames(args, rig, *, truth_scene=None):
     if not (math.isfinite(queue_s) and 0 < queue_s <= 10):
         raise ValueError(f"--queue-s must be in (0, 10] seconds, got {queue_s}")
     n_queue = max(8, math.ceil(queue_s * args.rate_hz))
+    backlog = getattr(args, "max_backlog", DEFAULT_MAX_BACKLOG)
+    if isinstance(backlog, bool) or not isinstance(backlog, int) or not 1 <= backlog <= n_queue:
+        raise ValueError(f"--max-backlog must be a whole number of frame sets in [1, {n_queue}] (--queue-s x --rate-hz), "
+                         f"got {backlog!r}")
     render_rig, clock, provider = rig, "host", None
     if spec.kind != "sim" and (getattr(args, "truth_stream", None) or getattr(args, "sim_rig", None)):
         raise ValueError(f"--truth-stream and --sim-rig apply to the sim source only, got --source {' '.join(args.source)}")
@@ -97,12 +107,21 @@ def open_frames(args, rig, *, truth_scene=None):
             raise ValueError(f"--max-behind must be in (0, 3600] seconds, got {args.max_behind}")
         extra["clock"], clock = "host", "device"  # exposure stamped on the host clock: take it as it is
         extra["max_behind_s"] = float(args.max_behind)
+    render = getattr(args, "sim_render", "auto")
+    if render not in SIM_RENDER:
+        raise ValueError(f"--sim-render must be one of {SIM_RENDER}, got {render!r}")
+    if render != "auto" and spec.kind != "sim":
+        raise ValueError(f"--sim-render applies to the sim source only, got --source {' '.join(args.source)}")
+    if render == "process" and ("prerender_s" in extra or provider is not None):
+        raise ValueError("--sim-render process cannot go with --prerender or --truth-stream (those render in the service's process)")
+    if spec.kind == "sim" and "prerender_s" not in extra and provider is None:
+        extra["render_process"] = render != "thread"  # "auto": a child process, as a camera driver's own threads
     sources = open_sources(spec, render_rig, rate_hz=args.rate_hz, seed=args.seed, queue_len=n_queue,
                            scene_provider=provider, **extra)
     try:
         if len(sources) != len(rig):
             raise ValueError(f"--source {' '.join(args.source)} gives {len(sources)} camera(s) but rig {args.rig!r} has {len(rig)}")
-        assembler = FrameSetAssembler(sources, AssemblyOptions(rate_hz=args.rate_hz, queue_len=n_queue, output_len=n_queue,
+        assembler = FrameSetAssembler(sources, AssemblyOptions(rate_hz=args.rate_hz, queue_len=n_queue, output_len=backlog,
                                                                clock=clock))
     except BaseException:
         for s in sources:
@@ -133,7 +152,10 @@ def open_service(args, *, status=print, tracker_overrides: dict | None = None, t
     rig = resolve_rig(args.rig)
     closers = []
     try:
-        tracker = Tracker(rig, args.tracker, **(tracker_overrides or {}))
+        workers = getattr(args, "workers", 1)
+        if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 64:
+            raise ValueError(f"--workers must be a whole number in [1, 64], got {workers!r}")
+        tracker = Tracker(rig, args.tracker, **({"workers": workers} if workers != 1 else {}), **(tracker_overrides or {}))
         closers.append(tracker.close)
         warm_up(tracker, rig)
         publisher = None

@@ -16,6 +16,7 @@ with the assembler's note, the tracker goes on with the others, and the figures 
 
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import threading
@@ -39,11 +40,14 @@ class ServiceOptions:
     ``get`` of an assembler waits before the loop checks for a stop or the end of the run;
     switch_interval_s : Python's thread switch interval while the service runs (``sys.setswitchinterval``;
     None = leave it): the camera, assembly, log and view threads share one interpreter lock, and the
-    default 5 ms would let any of them hold a frame set back that long"""
+    default 5 ms would let any of them hold a frame set back that long; gc_freeze : collect once and
+    ``gc.freeze()`` what is alive when the run starts (undone at its end), so the collections that the
+    per-frame-set allocations trigger never walk the tracker's, the rig's and the libraries' objects"""
 
     status_period_s: float = 1.0
     get_timeout_s: float = 0.1
     switch_interval_s: float | None = 0.0005
+    gc_freeze: bool = True
 
     def __post_init__(self):
         if not (isinstance(self.status_period_s, (int, float)) and 0 <= self.status_period_s < math.inf):
@@ -57,8 +61,11 @@ class ServiceOptions:
 
 def warm_up(tracker, rig, *, n: int = 3) -> None:
     """Run ``tracker`` on ``n`` made-up frame sets (an orange disk where a ball at the centre of the
-    rig's workspace would be) and forget them, so the first real frame sets do not pay for compiled
-    kernels and first-call allocations."""
+    rig's workspace would be: the first a full-frame search, the next window searches), build and
+    encode their messages without sending them, and forget them, so the first real frame sets do not
+    pay for compiled kernels, first-call allocations and lazy imports."""
+    import json
+
     import cv2
 
     lo, hi = np.asarray(rig.workspace_m, float) if getattr(rig, "workspace_m", None) is not None else (np.zeros(3), np.ones(3))
@@ -70,8 +77,14 @@ def warm_up(tracker, rig, *, n: int = 3) -> None:
         if np.isfinite(u) and np.isfinite(v):
             cv2.circle(img, (int(round(u)), int(round(v))), 6, (255, 120, 0), -1)
         images.append(img)
+    n_cams = len(images)
     for k in range(n):
-        tracker.process(FrameSet(float(k) * 1e-3, tuple(images), k))
+        t = time.monotonic()
+        afs = AssembledFrameSet(FrameSet(float(k) * 1e-3, tuple(images), k), k, np.full(n_cams, t),
+                                np.full(n_cams, np.nan), t)
+        obs, info = tracker.process_with_info(afs.frameset)
+        json.dumps(rich_message(k, afs, obs, t_first_host_s=t, camera_names=rig.names, info=info), allow_nan=False)
+        json.dumps(tennicam_message(k, _time_ns(afs.frameset.t_s), 0.0, obs.position_m), allow_nan=False)
     tracker.reset(clear_stats=True)
 
 
@@ -102,6 +115,7 @@ class TrackingService:
         self.status = status
         self.log_error: str | None = None  # the log failed (disk full, ...): tracking and publishing went on
         self.stats = LiveStats(rig.names)
+        self._gc_pauses = _GcPauses()
         self.num = 0
         self._names = rig.names
 
@@ -110,11 +124,12 @@ class TrackingService:
         """Track, publish, log and count one frame set; returns its ``BallObservation``."""
         if not isinstance(afs, AssembledFrameSet):
             raise ValueError(f"the service takes AssembledFrameSet objects, got {type(afs).__name__}")
+        t_taken = time.monotonic()
         obs, info = self.tracker.process_with_info(afs.frameset)
         num = self.num
         self.num += 1
         t_first = first_host_stamp(afs)
-        t_done = time.monotonic()
+        t_done = t_tracked = time.monotonic()
         if self.publisher is not None:  # a message only for a stream that is on (``--publish-rt2 none``)
             on = self.publisher.addresses
             rich = (rich_message(num, afs, obs, t_first_host_s=t_first, camera_names=self._names, info=info)  # stamped at the send
@@ -123,7 +138,9 @@ class TrackingService:
                         if "tennicam" in on else None)
             t_done = self.publisher.publish(tennicam, rich)
         latency = t_done - t_first
-        self.stats.add(afs, obs, latency, t_done)
+        t_asm = float(afs.t_assembled_s)
+        self.stats.add(afs, obs, latency, t_done,
+                       (t_asm - t_first, t_taken - t_asm, t_tracked - t_taken, t_done - t_tracked, math.nan))
         if self.log is not None and self.log_error is None:
             try:
                 self.log.write(num, self.log.log_time(t_first), afs, obs, info)
@@ -133,6 +150,7 @@ class TrackingService:
                     self.status(f"the session log failed at frame set {num}; tracking and publishing go on without it: {self.log_error}")
         if self.view is not None:
             self.view.update(num, afs, obs, info)
+        self.stats.stage("after", time.monotonic() - t_done)
         return obs
 
     # -- the loop -------------------------------------------------------------------------------
@@ -167,6 +185,11 @@ class TrackingService:
         old_switch = sys.getswitchinterval()
         if self.options.switch_interval_s is not None:
             sys.setswitchinterval(self.options.switch_interval_s)
+        froze = self.options.gc_freeze and not gc.get_freeze_count()
+        if froze:  # everything alive now (rig, tracker, model, sockets) leaves the collector's generations
+            gc.collect()
+            gc.freeze()
+        gc.callbacks.append(self._gc_pauses.on_gc)
         try:
             for afs in self._frames(source, stop, deadline):
                 if afs is not None:
@@ -180,6 +203,9 @@ class TrackingService:
             raise
         finally:
             sys.setswitchinterval(old_switch)
+            gc.callbacks.remove(self._gc_pauses.on_gc)
+            if froze:
+                gc.unfreeze()
             self.finish(error=error, source=source)
         return self.summary()
 
@@ -195,8 +221,12 @@ class TrackingService:
             s["view"] = {"port": self.view.port, "sent": dict(self.view.sent), "error": self.view.error}
         if self.log is not None:
             s["log"] = {"path": str(self.log.path), "dropped": self.log.dropped, "error": self.log_error}
+        s["gc"] = self._gc_pauses.summary()
         if self._assembly is not None:
             s["assembly"] = self._assembly
+            if isinstance(self._assembly, dict) and "dropped_framesets" in self._assembly:
+                s["skipped_framesets"] = self._assembly["dropped_framesets"]
+                s["max_backlog"] = self._assembly.get("backlog")
         return s
 
     _assembly = None
@@ -220,6 +250,30 @@ class TrackingService:
                 self.log_error = what if self.log_error is None else f"{self.log_error}; {what}"
 
 
+class _GcPauses:
+    """The garbage collector's runs during a service run (``gc.callbacks``, any thread): count per
+    generation and the pauses (every thread waits for a collection)."""
+
+    def __init__(self):
+        self.runs = [0, 0, 0]
+        self.total_s = self.max_s = 0.0
+        self._t0 = None
+
+    def on_gc(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+        elif self._t0 is not None:
+            dt = time.perf_counter() - self._t0
+            self._t0 = None
+            self.runs[min(int(info.get("generation", 0)), 2)] += 1
+            self.total_s += dt
+            self.max_s = max(self.max_s, dt)
+
+    def summary(self) -> dict:
+        return {"collections_per_generation": list(self.runs), "pause_total_ms": self.total_s * 1e3,
+                "pause_max_ms": self.max_s * 1e3}
+
+
 def _assembly_status(source) -> str:
     """The assembler's drops for the status line: frame sets the tracker did not take in time, and
     per camera frames dropped from its queue / arrived too late (nothing where the source has no stats)."""
@@ -229,7 +283,8 @@ def _assembly_status(source) -> str:
     try:
         a = stats()
         drops = " ".join(f"{d}/{l}" for d, l in zip(a.dropped, a.late))
-        return f", sets dropped {a.dropped_framesets}, frames dropped/late per camera {drops}"
+        return (f", sets skipped {a.dropped_framesets} (backlog {a.backlog}), "
+                f"frames dropped/late per camera {drops}")
     except Exception:  # figures only
         return ""
 

@@ -3,6 +3,13 @@
 Latency of a frame set = from the first host arrival stamp of its frames (``time.monotonic()``)
 to the moment its messages were handed to the sockets. Everything is kept in preallocated
 arrays (no growth per frame set beyond a fixed ring), so a long run's memory stays flat.
+
+The latency budget splits each frame set's latency into stages (:data:`STAGES`, seconds between
+consecutive stamps on the host's monotonic clock): ``assembly`` (first frame's arrival -> the set is
+complete or timed out), ``backlog`` (-> the service takes it), ``tracker`` (-> the observation),
+``publish`` (-> the messages handed to the sockets); ``after`` is the work of the loop after the
+messages left (the log's and the view's hand-over, the figures): not part of this set's latency, it
+delays the next one.
 """
 
 from __future__ import annotations
@@ -14,7 +21,10 @@ from collections import Counter
 
 import numpy as np
 
-__all__ = ["LiveStats"]
+__all__ = ["LiveStats", "STAGES", "format_budget"]
+
+#: the stages of the latency budget, in order (the module docstring)
+STAGES = ("assembly", "backlog", "tracker", "publish", "after")
 
 _NUMBER = re.compile(r"(?<![A-Za-z_])[-+]?\d[\d.e+-]*")
 
@@ -38,6 +48,7 @@ class LiveStats:
         self.t_last: float | None = None
         self._lat = np.zeros(keep)
         self._proc = np.zeros(keep)
+        self._stages = np.full((keep, len(STAGES)), np.nan)
         self.window = int(window)
         self.missing = np.zeros(len(self.names), np.int64)  # frame sets without this camera's frame
         self.status = Counter()
@@ -49,11 +60,14 @@ class LiveStats:
         self._mark = (self.t_start, 0)
         self.first_missing_after: dict[str, int] = {}
 
-    def add(self, afs, obs, latency_s: float, t_done_s: float) -> None:
-        """One frame set: its assembled set, observation, host-stamp-to-publication latency (s)."""
+    def add(self, afs, obs, latency_s: float, t_done_s: float, stages_s=None) -> None:
+        """One frame set: its assembled set, observation, host-stamp-to-publication latency (s), and
+        optionally its stage durations in the order of :data:`STAGES` (s; NaN = not measured)."""
         i = self.n % len(self._lat)
         self._lat[i] = latency_s
         self._proc[i] = obs.latency_s
+        if stages_s is not None:
+            self._stages[i] = stages_s
         self.n += 1
         self.max_latency_s = max(self.max_latency_s, latency_s)
         if self.t_first is None:
@@ -75,6 +89,30 @@ class LiveStats:
 
     def latencies_s(self) -> np.ndarray:
         return self._lat[: min(self.n, len(self._lat))]
+
+    def stages_s(self) -> np.ndarray:
+        """(n, len(STAGES)) stage durations in seconds of the frame sets kept, in the order they were added
+        (NaN = not measured)."""
+        return self._stages[: min(self.n, len(self._lat))]
+
+    def stage(self, name: str, value_s: float) -> None:
+        """Set one stage of the frame set last added (seconds), e.g. ``after``, known only once it is done."""
+        if self.n:
+            self._stages[(self.n - 1) % len(self._lat), STAGES.index(name)] = value_s
+
+    def budget_ms(self, first: int = 0) -> dict:
+        """The latency budget: per stage of :data:`STAGES` (and ``total``) n, p50, p99, max in ms, over the
+        frame sets from the ``first``-th on (a benchmark leaves its warm-up out)."""
+        k = min(self.n, len(self._lat))
+        first = min(max(int(first), 0), k)
+        out = {}
+        for j, name in enumerate((*STAGES, "total")):
+            v = self._lat[first:k] if name == "total" else self._stages[first:k, j]
+            v = v[np.isfinite(v)] * 1e3
+            out[name] = {"n": int(v.size)} if v.size == 0 else {
+                "n": int(v.size), "p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)),
+                "max": float(v.max())}
+        return out
 
     def status_line(self) -> str:
         """One line: rate since the last call, latency p50/p99 over the last ``window`` frame sets,
@@ -102,9 +140,24 @@ class LiveStats:
             "latency_ms": {"p50": _pct_ms(lat, 50), "p99": _pct_ms(lat, 99), "max": self.max_latency_s * 1e3,
                            "what": "first frame's host arrival stamp to the messages handed to the sockets"},
             "tracker_ms": {"p50": _pct_ms(self._proc[: len(lat)], 50), "p99": _pct_ms(self._proc[: len(lat)], 99)},
+            "latency_budget_ms": self.budget_ms(),
             "status": dict(self.status),
             "with_position": self.with_position,
             "missing_frames": dict(zip(self.names, self.missing.tolist())),
             "frame_id_gaps": self.frame_id_gaps,
             "notes": dict(self.notes.most_common(20)),
         }
+
+
+_STAGE_WHAT = {"assembly": "first frame -> set assembled", "backlog": "assembled -> taken by the tracker",
+               "tracker": "tracker", "publish": "messages encoded and sent",
+               "after": "log, view, figures (before the next set)", "total": "first frame -> messages sent"}
+
+
+def format_budget(budget: dict, what: str = "") -> list[str]:
+    """:meth:`LiveStats.budget_ms` as lines of text: per stage p50 / p99 / max ms and the count."""
+    out = [f"{'latency budget' + (', ' + what if what else '') + ' (ms)':<42}{'p50':>8}{'p99':>9}{'max':>9}{'n':>9}"]
+    for name, b in budget.items():
+        if b.get("n"):
+            out.append(f"  {_STAGE_WHAT.get(name, name):<40}{b['p50']:>8.2f}{b['p99']:>9.2f}{b['max']:>9.2f}{b['n']:>9d}")
+    return out

@@ -25,7 +25,13 @@ from harness.logs import codecs
 from harness.logs._index import DECODE_ERRORS, FileIndex, RecoveryReport, build_index, load_chunk, scan, summary_start
 from harness.logs.topics import LogError
 
-__all__ = ["SessionLogReader", "LogMessage", "LogSummary", "TopicStats"]
+__all__ = ["MAX_DECODE_WORKERS", "SessionLogReader", "LogMessage", "LogSummary", "TopicStats"]
+
+#: the most image-decoding threads ``SessionLogReader.messages(workers=)`` takes
+MAX_DECODE_WORKERS = 64
+#: images decoded ahead of the caller per worker thread (memory: ~1 MB per VGA image)
+DECODE_AHEAD_PER_WORKER = 4
+_IMAGE_SCHEMAS = frozenset({"foxglove.CompressedImage", "foxglove.RawImage"})
 
 
 @dataclass(frozen=True)
@@ -255,19 +261,64 @@ class SessionLogReader:
         return chosen
 
     def messages(self, topics=None, start_s: float | None = None, end_s: float | None = None, *,
-                 decode: bool = True) -> Iterator[LogMessage]:
+                 decode: bool = True, workers: int = 0) -> Iterator[LogMessage]:
         """Messages with ``start_s <= t < end_s`` on ``topics`` (names or glob patterns such as
         ``"/camera/*/image"``; None = all), in log-time order (ties in file order).
+
+        workers : images are decoded by this many threads ahead of the reader (OpenCV's JPEG and PNG
+            decoders release the interpreter lock, so they run on every core); the messages and their
+            order are exactly those of ``workers=0`` (decoding in the caller's thread)
         """
         wanted = self._select(topics)  # validated here, before the first message is asked for
         for name, v in (("start_s", start_s), ("end_s", end_s)):
             if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise LogError(f"{name} must be a finite number of seconds or None, got {v!r}")
+        if isinstance(workers, bool) or not isinstance(workers, int) or not 0 <= workers <= MAX_DECODE_WORKERS:
+            raise LogError(f"workers must be a whole number in [0, {MAX_DECODE_WORKERS}], got {workers!r}")
         lo = None if start_s is None else int(round(start_s * 1e9))
         hi = None if end_s is None else int(round(end_s * 1e9))
-        return self._merge(wanted, lo, hi, decode)
+        if decode and workers:
+            return self._decoded_ahead(self._merge(wanted, lo, hi), workers)
+        return (self._message(msg, decode) for msg in self._merge(wanted, lo, hi))
 
-    def _merge(self, wanted: set, lo, hi, decode: bool) -> Iterator[LogMessage]:
+    def _decoded_ahead(self, raw: Iterator[Message], workers: int) -> Iterator[LogMessage]:
+        """``raw`` records decoded in order: images by a pool of ``workers`` threads, at most
+        ``DECODE_AHEAD_PER_WORKER * workers`` messages ahead of the caller, the rest in the caller's thread."""
+        from collections import deque
+        from concurrent.futures import ThreadPoolExecutor
+
+        ahead: deque = deque()  # futures (images) and records (decoded when their turn comes)
+        limit = DECODE_AHEAD_PER_WORKER * workers
+        pool = ThreadPoolExecutor(workers, thread_name_prefix="log decode")
+        try:
+            for msg in raw:
+                ahead.append(pool.submit(self._message, msg, True) if self._is_image(msg) else msg)
+                while ahead and (len(ahead) > limit or isinstance(ahead[0], Message)):
+                    first = ahead.popleft()
+                    yield self._message(first, True) if isinstance(first, Message) else first.result()
+            while ahead:
+                first = ahead.popleft()
+                yield self._message(first, True) if isinstance(first, Message) else first.result()
+        finally:  # the caller stopped early or a decode failed: drop what was asked ahead
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    def _is_image(self, msg: Message) -> bool:
+        """Whether ``msg`` is an image; its channel's decoder is made here, in the caller's thread (the
+        protobuf classes are built once per channel, never by two threads at once)."""
+        ch = self._index.channels[msg.channel_id]
+        schema = self._index.schemas.get(ch.schema_id)
+        if schema is None or schema.name not in _IMAGE_SCHEMAS or ch.message_encoding != "protobuf":
+            return False
+        self._decoder(ch, schema)
+        return True
+
+    def _decoder(self, ch, schema):
+        dec = self._decoders.get(ch.id)
+        if dec is None:
+            dec = self._decoders[ch.id] = self._protobuf.decoder_for("protobuf", schema)
+        return dec
+
+    def _merge(self, wanted: set, lo, hi) -> Iterator[Message]:
         chunks = [c for c in self._index.chunks
                   if (c.channel_ids is None or c.channel_ids & wanted)
                   and (lo is None or c.end_ns >= lo) and (hi is None or c.start_ns < hi)]
@@ -282,7 +333,7 @@ class SessionLogReader:
             if not heap:
                 return
             t, _, _, msg = heapq.heappop(heap)
-            yield self._message(msg, decode)
+            yield msg
 
     def _push_chunk(self, heap, info, order, wanted, lo, hi) -> None:
         try:
@@ -325,10 +376,7 @@ class SessionLogReader:
                 return doc["figures"]
             return doc
         if ch.message_encoding == "protobuf" and schema is not None:
-            dec = self._decoders.get(ch.id)
-            if dec is None:
-                dec = self._decoders[ch.id] = self._protobuf.decoder_for("protobuf", schema)
-            pb = dec(msg.data)
+            pb = self._decoder(ch, schema)(msg.data)
             if name in ("foxglove.CompressedImage", "foxglove.RawImage"):
                 return codecs.decode_image(pb)
             if name == "foxglove.FrameTransforms":

@@ -134,6 +134,50 @@ def test_bad_options_raise(kw, match):
         HypothesisOptions(**kw)
 
 
+def _random_scene(rng, n_steps: int = 240):
+    """Per frame set, the positions seen: up to five balls (served, held, rolling, tossed, static) that come
+    and go, in a shuffled order, with noise; some frame sets see nothing."""
+    balls = []
+    for _ in range(int(rng.integers(1, 6))):
+        X0 = rng.uniform([-1.5, -0.8, 0.0], [1.5, 0.8, 1.5])
+        v = rng.choice([0.0, 0.3, 2.0, 5.0]) * rng.normal(size=3)
+        a, b = sorted(rng.integers(0, n_steps, 2))
+        balls.append((X0, v, a, b + 10))
+    steps = []
+    for k in range(n_steps):
+        t = DT_S * k
+        seen = [X0 + v * (t - DT_S * a) + rng.normal(0, 2e-3, 3) for X0, v, a, b in balls if a <= k < b and rng.random() > 0.1]
+        rng.shuffle(seen)
+        steps.append(np.array(seen).reshape(-1, 3))
+    return steps
+
+
+def _state(h: BallHypotheses) -> tuple:
+    w = h._withhold_since_s
+    return (h.lead, h.switched, None if np.isnan(w) else w, h._count.tolist(), h._in_play.tolist(), h._other.tolist())
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_compiled_and_numpy_hypotheses_agree(seed):
+    opts = HypothesisOptions(max_hypotheses=int(np.random.default_rng(seed).integers(2, 5)))
+    a, b = BallHypotheses(opts, backend="numba"), BallHypotheses(opts, backend="numpy")
+    rng = np.random.default_rng(seed)
+    for k, X in enumerate(_random_scene(rng)):
+        t = DT_S * k
+        full = a.wants_full_frame(t)
+        assert full == b.wants_full_frame(t), k
+        if full:
+            a.searched_full_frame(t)
+            b.searched_full_frame(t)
+        assert a.update(t, X) == b.update(t, X), k
+        assert _state(a) == _state(b), k
+        np.testing.assert_array_equal(a._t_s, b._t_s)
+        np.testing.assert_array_equal(a._X_m, b._X_m)
+        np.testing.assert_array_equal(a.positions(), b.positions())
+    with pytest.raises(ValueError, match=r"unknown BallHypotheses backend 'torch'; valid: \['numba', 'numpy'\]"):
+        BallHypotheses(opts, backend="torch")
+
+
 def test_bad_tracker_option_raises():
     with pytest.raises(ValueError, match="TrackerOptions.hypotheses"):
         TrackerOptions(hypotheses={"max_hypotheses": 4})

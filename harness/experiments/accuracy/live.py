@@ -315,6 +315,8 @@ def run_live_local(config: AccuracyConfig, out_dir, *, log: bool = True, status=
                           "accuracy" if scene == "default" else f"accuracy-{scene}", "--rig", str(rig_file),
                           "--sim-rig", str(config.rig), "--rate-hz", f"{config.rate_hz:g}", "--seed", str(config.seed),
                           "--tracker", config.trackers[0], "--max-behind", f"{max_behind_s:g}", "--status-period", "0",
+                          # every frame set counts here, not its latency: a 0.25 s backlog, as before latency first
+                          "--max-backlog", str(max(8, math.ceil(0.25 * config.rate_hz))),
                           timeout_s=start_timeout_s) as track:
             status(f"bridge {bridge.address} (truth {bridge.ready['truth']}, pid {bridge.ready['pid']}), rt2 track stream "
                    f"{track.streams['rt2']} (pid {track.ready['pid']})")

@@ -79,7 +79,8 @@ def _pick_source(source: str, session: dict, environment: dict) -> str:
     return source
 
 
-def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "auto", progress: bool = True) -> Reevaluation:
+def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "auto", progress: bool = True,
+                        decode_workers: int = 0) -> Reevaluation:
     """Re-run ``trackers`` (default: every tracker of the log) on an accuracy log (a SessionLogReader)."""
     if source not in SOURCES:
         raise ValueError(f"unknown source {source!r}; valid: {list(SOURCES)}")
@@ -121,7 +122,8 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
                     how[k] = "estimator, size test and support hand-over re-run on the logged detections"
                 else:
                     how[k] = "logged observations scored as recorded (no estimator to re-run without images)"
-        records = _stream(reader, config, session, src, {"current": runners, "spare": spare}, names, n, progress)
+        records = _stream(reader, config, session, src, {"current": runners, "spare": spare}, names, n, progress,
+                          decode_workers)
         if records.pop("_no_areas", False):
             notes.append("the log has no blob areas (written before they were logged): rt2's 3D size test was not re-run")
     for r in [*runners.values(), *spare.values()]:
@@ -137,7 +139,7 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
     return Reevaluation(rows, figures, {k: errors[k] for k in wanted}, live_rows, src, how, config, notes)
 
 
-def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
+def _stream(reader, config, session, src, sets, names, n, progress, decode_workers: int = 0) -> dict:
     """Read the log frame set by frame set; returns {tracker: TrackRecord, "_gt": (gt_world, present)}.
 
     sets : {"current": {kind: runner}, "spare": {kind: tracker} or {}}: with images, the spare trackers are
@@ -217,7 +219,7 @@ def _stream(reader, config, session, src, sets, names, n, progress) -> dict:
             if kind in records and (kind not in runners):
                 records[kind].put(k, obs)
 
-    for m in reader.messages(topics):
+    for m in reader.messages(topics, workers=decode_workers):
         if m.sequence != state["k"]:
             flush()
             state.update(k=m.sequence, images={}, dets={}, obs={}, gt=None, gt_t=None)

@@ -61,6 +61,9 @@ def _serve(inp, out) -> None:
             pass
         renderer = Renderer(Rig.from_dict(rig_dict), render_options, seed=seed)
         views = _views(shm.buf, shapes, slots)
+        warm = provider(0.0)  # the first render compiles and allocates: paid before "ready", not by frame set 0
+        if isinstance(warm, Scene):
+            renderer.render(dataclasses.replace(warm, frame_index=0))  # noise is a function of (seed, frame index)
         send(("ready",))
         while True:
             try:

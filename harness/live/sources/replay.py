@@ -9,6 +9,7 @@ only the frame sets that were recorded.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from harness.live.sources._feed import FeedItem, PacedFeed
@@ -21,14 +22,22 @@ def _log_cameras(reader) -> list[str]:
             if t.startswith("/camera/") and t.endswith("/image")]
 
 
-def open_replay(path, rig, *, speed: float | None = 1.0, queue_len: int = 8):
+def open_replay(path, rig, *, speed: float | None = 1.0, queue_len: int = 8, decode_workers: int | None = None):
     """One :class:`~._feed.FeedCamera` per rig camera replaying ``path``. Returns ``(sources, feed)``.
+
+    decode_workers : threads decoding the images ahead (``SessionLogReader.messages(workers=)``: the
+    same images in the same order); None = one per core, 0 = in the feed's own thread
 
     Raises FileNotFoundError if the log is missing, ValueError if it is not a session log or lacks
     images of a rig camera.
     """
     from harness.logs import SessionLogReader
 
+    from harness.logs.reader import MAX_DECODE_WORKERS
+
+    workers = (os.cpu_count() or 1) if decode_workers is None else decode_workers
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 0 <= workers <= MAX_DECODE_WORKERS:
+        raise ValueError(f"replay: decode_workers must be a whole number in [0, {MAX_DECODE_WORKERS}], got {workers!r}")
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"replay: no session log at {path}")
@@ -46,7 +55,7 @@ def open_replay(path, rig, *, speed: float | None = 1.0, queue_len: int = 8):
         t0 = None
         with SessionLogReader(path) as reader:
             pending, seq, t_set = [None] * n, None, 0.0
-            for m in reader.messages(topics):
+            for m in reader.messages(topics, workers=workers):
                 if seq is not None and m.sequence != seq:
                     yield FeedItem((seq,) * n, t_set - t0, (t_set,) * n, tuple(pending))
                     pending = [None] * n

@@ -254,3 +254,31 @@ def test_bad_use():
         asm.get(0.0)
     with pytest.raises(ValueError, match="window"):
         ClockOffsetEstimator(window=1)
+
+
+@pytest.mark.parametrize("backlog", [1, 2])
+def test_slow_consumer_never_sees_a_set_older_than_the_backlog_and_skips_add_up(backlog):
+    # Cameras at 200 Hz, a consumer that takes ~3 periods per set: the newest sets win, every set it gets
+    # is at most `backlog` sets behind the newest assembled one, and framesets = delivered + skipped + waiting.
+    period = 0.005
+    start = _Start()
+    script = [(k * period, k, None) for k in range(120)]
+    sources = [ScriptedCamera(0, script, start), ScriptedCamera(1, script, start)]
+    opts = AssemblyOptions(rate_hz=1 / period, output_len=backlog, queue_len=64)
+    got = []
+    with FrameSetAssembler(sources, opts) as asm:
+        while not asm.finished:
+            before = asm.stats()  # framesets can only grow between this and the get
+            s = asm.get(0.5)
+            if s is None:
+                continue
+            assert s.frameset.index >= before.framesets - backlog, (s.frameset.index, before.framesets)
+            got.append(s.frame_id)
+            st = asm.stats()
+            assert st.framesets == st.delivered + st.dropped_framesets + st.waiting
+            assert st.waiting <= backlog and st.backlog == backlog
+            time.sleep(3 * period)
+        st = asm.stats()
+    assert got == sorted(got) and got[-1] == 119  # capture order kept, the newest delivered
+    assert st.framesets == 120 and st.waiting == 0
+    assert st.delivered == len(got) and st.dropped_framesets == 120 - len(got) > 0

@@ -50,7 +50,13 @@ def test_bench_live_from_python_gives_one_row_per_mode():
     row = doc["modes"][0]
     assert row["frame_sets_published"] > 0 and row["frame_sets_measured"] > 0
     assert row["dropped_by_rt2_total"] >= 0 and set(row["latency_ms"]) == {"p50", "p90", "p99", "max"}
-    assert set(doc["goals_met"]) == {"rate", "p99", "no_drops_by_rt2"} and doc["prerender_s"] == 0.1
+    assert set(doc["goals_met"]) == {"rate", "p99", "max", "no_drops_by_rt2"} and doc["prerender_s"] == 0.1
+    # the skipped sets are what the assembler counted, within the bound of the default backlog
+    assert row["max_backlog"] == 1 and 0 <= row["skipped_framesets"] <= row["dropped_by_rt2_total"]
+    budget = row["latency_budget_ms"]
+    assert list(budget) == ["assembly", "backlog", "tracker", "publish", "after", "total"]
+    assert all(b["n"] == budget["total"]["n"] > 0 for b in budget.values())
+    assert budget["tracker"]["p50"] <= budget["total"]["p50"] and set(row["backlog_wait_periods"]) == {"p50", "p99", "max"}
 
 
 def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
@@ -99,6 +105,9 @@ def test_check_options_names_the_option():
     (["--modes", ","], "--modes must list some of"),
     (["--duration", "1", "--warmup", "2"], "need --duration > --warmup"),
     (["--rate-hz", "0"], "--rate-hz must be a positive number"),
+    (["--max-backlog", "0"], "--max-backlog must be a whole number of frame sets in [1, 50]"),
+    (["--max-backlog", "51"], "--max-backlog must be a whole number of frame sets in [1, 50]"),
+    (["--max-backlog", "9", "--queue-s", "0.01"], "--max-backlog must be a whole number of frame sets in [1, 8]"),
 ])
 def test_rt2_bench_live_bad_input_is_one_line(argv, message, capsys):
     assert rt2(["bench", "live", "--duration", "1", "--warmup", "0", *argv]) == 2

@@ -163,6 +163,15 @@ def test_other_bad_values_are_one_line(capsys, tmp_path):
     assert "no-such-rig" in _bad(capsys, tmp_path, "--rig", "no-such-rig")
     assert "unknown camera source" in _bad(capsys, tmp_path, "--publish", "none", "--source", "webcam")
     assert "--duration" in _bad(capsys, tmp_path, "--duration", "-3")
+    assert "--max-backlog must be a whole number of frame sets in [1, 50]" in _bad(capsys, tmp_path, "--max-backlog", "0")
+    assert "--max-backlog must be a whole number of frame sets in [1, 8]" in _bad(
+        capsys, tmp_path, "--max-backlog", "20", "--queue-s", "0.01")
+    assert "--workers must be a whole number in [1, 64], got 0" in _bad(capsys, tmp_path, "--workers", "0")
+    assert "workers must be 1, got 2" in _bad(capsys, tmp_path, "--workers", "2", "--tracker", "rtblob")
+    assert "--sim-render process cannot go with --prerender" in _bad(
+        capsys, tmp_path, "--publish", "none", "--sim-render", "process", "--prerender", "0.1")
+    assert "--sim-render applies to the sim source only" in _bad(
+        capsys, tmp_path, "--publish", "none", "--sim-render", "thread", "--source", "replay", str(tmp_path / "x.mcap"))
     existing = tmp_path / "there.mcap"
     existing.write_bytes(b"keep me")
     rc = rt2(["track", "--log", str(existing)])
@@ -214,12 +223,14 @@ def _check_soak(r: dict):
     assert s["published"]["rt2"] == s["frame_sets"] == a["delivered"]
     assert r["received"] == list(range(s["frame_sets"]))
     assert s["latency_ms"]["p50"] > 0 and s["latency_ms"]["p99"] > 0
-    # frame sets the tracker did not take in time are counted, never silent; none at all while the
-    # machine has a core to spare (other jobs on the 2-core machine can starve any process: then the
-    # count is the figure, and `rt2 bench live` is the measurement)
-    assert a["delivered"] + a["dropped_framesets"] <= a["framesets"]
+    # frame sets the tracker did not take in time are skipped and counted, never silent; while the machine
+    # has a core to spare no frame is dropped and at most 1 % of the sets is skipped (latency first: the
+    # full-frame searches when the looped clip restarts may take longer than a period; other jobs on the
+    # 2-core machine can starve any process: then the count is the figure, and `rt2 bench live` measures)
+    assert a["delivered"] + a["dropped_framesets"] + a["waiting"] == a["framesets"]
+    assert s["skipped_framesets"] == a["dropped_framesets"] and s["max_backlog"] == a["backlog"] == 1
     if r["load"] < os.cpu_count() - 0.5:
-        assert a["dropped_framesets"] == 0 and sum(a["dropped"]) == 0, a
+        assert a["dropped_framesets"] <= 0.01 * a["framesets"] and sum(a["dropped"]) == 0, a
 
 
 def test_soak_20s_at_200hz_with_a_subscriber(tmp_path):
