@@ -62,6 +62,8 @@ COLOUR_SATURATION_CUT = 0.4
 THRESHOLD_CHOICES = ("auto", "split", "cv")
 #: "auto" holds out a validation split only when it would hold at least this many images with a ball
 AUTO_SPLIT_MIN_VAL_IMAGES = 40
+#: when fine-tuning, cross-validation's thresholds replace the base model's only if they score better by more than this many balls
+PRIOR_MARGIN_BALLS = 2
 
 
 @dataclass(frozen=True)
@@ -82,6 +84,10 @@ class TrainOptions:
     seed : seeds the split, the sampling, the augmentation and torch
     augment_copies : augmented copies of every training image (:mod:`harness.experiments.detector.augment`:
         colour, exposure, gamma, blur, noise, JPEG, scale, flips); 0 = none
+    verifier : also train a candidate verifier (:mod:`harness.experiments.detector.verifier_train`) on the
+        filter's candidates, its threshold by cross-validation, and store it in the model
+    finetune_l2 : weight of the L2 penalty towards the base model's weights when fine-tuning (replaces ``l2``;
+        stronger, so a few labelled images adjust the base rather than replace it)
     threshold_choice : "auto", "split" or "cv" (see :func:`train`)
     cv_folds : folds of the "cv" threshold choice
     """
@@ -102,6 +108,8 @@ class TrainOptions:
     ball_colour: str = "any"
     seed: int = 0
     augment_copies: int = 0
+    verifier: bool = False
+    finetune_l2: float = 1e-2
     threshold_choice: str = "auto"
     cv_folds: int = 4
 
@@ -111,8 +119,8 @@ class TrainOptions:
         for name in ("epochs", "random_negatives_per_image", "max_positives_per_image", "lbfgs_iters"):
             if getattr(self, name) < 1:
                 raise ValueError(f"TrainOptions.{name} must be >= 1, got {getattr(self, name)!r}")
-        if self.hard_negatives_per_image < 0 or self.ring_px < 0 or self.l2 < 0:
-            raise ValueError("TrainOptions: hard_negatives_per_image, ring_px and l2 must be >= 0")
+        if self.hard_negatives_per_image < 0 or self.ring_px < 0 or self.l2 < 0 or not self.finetune_l2 >= 0:
+            raise ValueError("TrainOptions: hard_negatives_per_image, ring_px, l2 and finetune_l2 must be >= 0")
         if not 0.0 < self.core_fraction <= 1.0:
             raise ValueError(f"TrainOptions.core_fraction must be in (0, 1], got {self.core_fraction!r}")
         if not 0.0 <= self.hard_weight < 1.0:
@@ -385,6 +393,18 @@ def choose_thresholds(val_logits, truth, loose_area, opts: TrainOptions):
     return t_high, t_low, area, s_ours, score("paper", paper, t_high)
 
 
+def score_thresholds(val_logits, truth, t_high: float, t_low: float, area, opts: TrainOptions):
+    """(ours, paper) scores of fixed thresholds and area range on validation logits (best candidate per image)."""
+    from harness.experiments.detector.scores import score_detections
+
+    opt = DetectorOptions()
+    blob_kw = dict(max_seeds=opt.max_seeds, min_area_px=area[0], max_area_px=area[1], min_fill_ratio=opt.min_fill_ratio, max_aspect=opt.max_aspect)
+    paper, ours = _top1_per_threshold(val_logits, t_low, t_high, blob_kw)
+    found = lambda results: [c[None] if c is not None else np.zeros((0, 2)) for _, c in results]  # noqa: E731
+    return (score_detections("ours", *truth, found(ours), min_diameter_px=opts.min_diameter_px),
+            score_detections("paper", *truth, found(paper), min_diameter_px=opts.min_diameter_px))
+
+
 def _features(patches, lut, norm) -> np.ndarray:
     scale, offset = norm
     return lut[patches] * np.tile(scale, 25) + np.tile(offset, 25)
@@ -474,7 +494,8 @@ class _Fitter:
                 hard = [_hard_negatives(current, im, tg, opts.hard_negatives_per_image, t_high, t_low, kw) for (im, _), tg in zip(items, targets)]
                 xh = np.concatenate([xh, _features(np.concatenate(hard), lut, norm)])
             h = opts.hard_weight if len(xh) else 0.0
-            loss = _fit(torch, w, b, [(xp, 1, 0.5), (xn, 0, 0.5 * (1 - h)), (xh, 0, 0.5 * h)], opts, prior)
+            fit_opts = opts if self.base is None else dataclasses.replace(opts, l2=opts.finetune_l2)
+            loss = _fit(torch, w, b, [(xp, 1, 0.5), (xn, 0, 0.5 * (1 - h)), (xh, 0, 0.5 * h)], fit_opts, prior)
             j = -epoch  # without validation: the last epoch
             if val is None:
                 line = f"epoch {epoch + 1}/{opts.epochs}{label}: loss {loss:.4f}  hard negatives {len(xh)}"
@@ -529,7 +550,10 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     and keeps the best epoch there; "cv" trains on every image and chooses ``T_h``, ``T_l`` and the
     area range on the pooled out-of-fold logits of ``cv_folds`` models, each trained without one
     time-contiguous fold (:func:`cv_folds`); "auto" is "split" when the split would hold at least
-    ``AUTO_SPLIT_MIN_VAL_IMAGES`` images with a ball, else "cv".
+    ``AUTO_SPLIT_MIN_VAL_IMAGES`` images with a ball, else "cv". When fine-tuning with "cv", the base
+    model's thresholds and area range are the prior: cross-validation's choice replaces them only if it
+    scores better on the out-of-fold logits by more than ``PRIOR_MARGIN_BALLS`` balls' worth, and the
+    area range never narrows below the base's.
     info : dict with the split sizes, per-epoch history, the chosen epoch and thresholds and the
         validation (or cross-validation) scores there (ours and paper)
     """
@@ -577,7 +601,17 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         if not any(len(c) for c in oof_truth_c):
             raise ValueError("cross-validation: no held-out fold holds a ball box; label more images with balls")
         loose_area = (min(a for a, _ in loose), max(b for _, b in loose))
-        t_high, t_low, area, s_ours, s_paper = choose_thresholds(oof_logits, (oof_truth_c, oof_truth_d), loose_area, opts)
+        oof_truth = (oof_truth_c, oof_truth_d)
+        t_high, t_low, area, s_ours, s_paper = choose_thresholds(oof_logits, oof_truth, loose_area, opts)
+        if base is not None:  # the base model's thresholds are the prior: leave them only on clear evidence
+            area = (min(area[0], float(base.area_range_px[0])), max(area[1], float(base.area_range_px[1])))
+            b_ours, b_paper = score_thresholds(oof_logits, oof_truth, base.t_high, base.t_low, tuple(base.area_range_px), opts)
+            n = max(s_ours.n_balls, 1)
+            gain = (np.nan_to_num(s_ours.recall) - s_ours.outlier_rate) - (np.nan_to_num(b_ours.recall) - b_ours.outlier_rate)
+            if gain <= PRIOR_MARGIN_BALLS / n:
+                log(f"thresholds: the base model's (T_h={base.t_high:g}, T_l={base.t_low:g}) kept; cross-validation's choice gains "
+                    f"{100 * gain:.1f} points of recall - outliers on {n} balls, not more than {PRIOR_MARGIN_BALLS} balls' worth")
+                t_high, t_low, area, s_ours, s_paper = base.t_high, base.t_low, tuple(float(v) for v in base.area_range_px), b_ours, b_paper
         msg = (f"cross-validation over {len(folds)} time-contiguous folds of {len(labelled)} images: T_h={t_high:g}, T_l={t_low:g}: "
                f"ours recall {100 * s_ours.recall:.2f}% outliers {100 * s_ours.outlier_rate:.2f}% median {s_ours.median_center_error_px:.3f} px | "
                f"paper recall {100 * s_paper.recall:.2f}% outliers {100 * s_paper.outlier_rate:.2f}%")
@@ -597,9 +631,24 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     desc += (f"{opts.ball_colour} balls, {opts.input_transform} input, {origin}, {n_train} train / {n_val} val images "
              f"(+{opts.augment_copies} augmented copies each), thresholds by {how}, seed {opts.seed}; {summary}")
     model = _to_model(r["w"], r["b"], r["norm"], opts, t_high, t_low, area, desc)
+    v_info = None
+    if opts.verifier:
+        from harness.experiments.detector.augment import augment
+        from harness.experiments.detector.verifier_train import VerifierOptions, train_verifier
+
+        vrng = np.random.default_rng([opts.seed, 11])
+        originals = [(load_image(li), li) for li in labelled]
+        augmented = [(i, *augment(im, li, vrng)) for _ in range(opts.augment_copies) for i, (im, li) in enumerate(originals)]
+        verifier, v_info = train_verifier(model, originals, augmented, cv_folds(labelled, opts.cv_folds),
+                                          VerifierOptions(cv_folds=opts.cv_folds), seed=opts.seed, log=log, progress=progress)
+        s_v = v_info["cv"]
+        model = dataclasses.replace(model, verifier=verifier, description=desc + (
+            f"; verifier ({verifier.crop_px}x{verifier.crop_px} crops, {verifier.n_hidden} hidden units, threshold {verifier.threshold:g}): "
+            f"{len(labelled)}-image cv recall {100 * s_v.recall:.2f}%, outliers {100 * s_v.outlier_rate:.2f}%, "
+            f"median {s_v.median_center_error_px:.3f} px; candidates reach {100 * v_info['candidate_recall']:.1f}% of the balls"))
     info = dict(n_train=n_train, n_val=n_val, n_pos=r["n_pos"], n_neg=r["n_neg"], n_hard=r["n_hard"], history=r["history"],
                 best_epoch=epoch, t_high=t_high, t_low=t_low, area_range_px=area, val_ours=s_ours, val_paper=s_paper,
-                threshold_choice=choice)
+                threshold_choice=choice, verifier=v_info)
     return model, info
 
 
@@ -638,6 +687,9 @@ def add_arguments(parser) -> None:
                         help="how T_h, T_l and the area range are chosen: 'split' (a held-out validation split), 'cv' (cross-validation "
                              f"over time-contiguous folds of all images), 'auto' (default: split when it holds >= {AUTO_SPLIT_MIN_VAL_IMAGES} "
                              "images with a ball, else cv)")
+    parser.add_argument("--verifier", action="store_true",
+                        help="also train a small classifier on the candidates' crops (a second stage beyond the paper's filter; "
+                             "numpy at run time) and store it in the model")
     parser.add_argument("--cv-folds", type=int, default=TrainOptions.cv_folds, help="folds of --thresholds cv (default 4)")
     parser.add_argument("--time-range", default=None,
                         help="use only images START:STOP in time order (file names sorted as frame numbers), e.g. 0:58; "
@@ -685,8 +737,9 @@ def run(args) -> int:
     for seed in seeds:
         opts = TrainOptions(epochs=args.epochs, seed=seed, val_fraction=args.val_fraction, input_transform=args.input_transform,
                             ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
-                            threshold_choice=args.thresholds, cv_folds=args.cv_folds)
-        model, info = train(labelled, opts, description=f"trained by `{cmd}` from {origin}", base=base)
+                            threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier)
+        sources = f"data {', '.join(map(str, args.data))}" + (f" (time range {args.time_range})" if args.time_range else "")
+        model, info = train(labelled, opts, description=f"trained by `{cmd}` from {origin}; {sources}", base=base)
         results.append((seed, model, info))
     if len(results) > 1:
         print(f"{'seed':>5} {'recall':>8} {'outliers':>9} {'median px':>10}  ({results[0][2]['threshold_choice']} figures, ours)")
