@@ -193,3 +193,22 @@ def test_eval_ball_free_counts_false_alarms(synthetic_ball_coco, cv_trained, tmp
     rows = json.loads((tmp_path / "bf.json").read_text())
     assert [r["method"] for r in rows] == ["paper", "ours", "topk"]
     assert all(r["recall"] is None for r in rows)
+
+
+# -- the candidate verifier ------------------------------------------------------------------------------
+def test_verifier_training_is_seeded_and_keeps_the_balls(synthetic_ball_coco, tmp_path):
+    from harness.experiments.studies.eval_detector import evaluate
+
+    opts = TrainOptions(**{**QUICK_CV.__dict__, "verifier": True})
+    model, info = train(read_coco(synthetic_ball_coco(16, 0)), opts, progress=False, log=lambda s: None)
+    v = model.verifier
+    assert v is not None and 0 < v.threshold < 1
+    assert info["verifier"]["candidate_recall"] >= 0.9 and info["verifier"]["n_ball"] > 0
+    assert "verifier (16x16 crops" in model.description
+    again, _ = train(read_coco(synthetic_ball_coco(16, 0)), opts, progress=False, log=lambda s: None)
+    np.testing.assert_array_equal(again.verifier.w1, v.w1)
+    assert again.verifier.threshold == v.threshold
+    back = BallSegmentationModel.load(model.save(tmp_path / "v.npz"))
+    held_out = read_coco(synthetic_ball_coco(20, 7))
+    with_v = {s.method: s for s in evaluate(back, held_out, progress=False)}
+    assert with_v["ours"].recall >= 0.85
