@@ -519,13 +519,14 @@ class _Fitter:
                     history=history, n_pos=len(xp), n_neg=len(xn), n_hard=len(xh), loose_area=loose_area)
 
 
-def _items(labelled, opts: TrainOptions, rng, progress: bool, augment_opts=None):
-    """Images in memory, with ``opts.augment_copies`` augmented copies of each (:mod:`.augment`)."""
+def _items(labelled, opts: TrainOptions, rng, progress: bool, augment_opts=None, backgrounds=()):
+    """Images in memory (and the ball-free ``backgrounds``), with ``opts.augment_copies`` augmented copies of each (:mod:`.augment`)."""
     from tqdm import tqdm
 
     from harness.experiments.detector.augment import AugmentOptions, augment
 
     items = [(load_image(li), li) for li in tqdm(labelled, desc="reading", unit="img", disable=not progress, leave=False)]
+    items += list(backgrounds)
     if opts.augment_copies:
         aug = AugmentOptions() if augment_opts is None else augment_opts
         items = items + [augment(im, li, rng, aug) for _ in range(opts.augment_copies) for im, li in items]
@@ -540,12 +541,15 @@ def _resolve_threshold_choice(labelled, opts: TrainOptions) -> str:
 
 
 def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = True, log=print, description: str = "",
-          base: BallSegmentationModel | None = None):
+          base: BallSegmentationModel | None = None, backgrounds=()):
     """Fit a :class:`BallSegmentationModel` to labelled images; returns ``(model, info)``.
 
     labelled : list of ``harness.experiments.detector.coco.LabelledImage`` (boxes of balls; images without boxes = background)
     base : a model to fine-tune (its input scaling, its weights as the start and as the prior the L2
         penalty pulls towards, its thresholds as the start); None trains from scratch
+    backgrounds : ``(image, labelled without boxes)`` pairs of ball-free real frames
+        (:func:`harness.experiments.detector.backgrounds.read_backgrounds`), added to every fit's
+        training images (augmented like them), never to validation
     Threshold choice (``opts.threshold_choice``): "split" holds out ``val_fraction`` of the frame sets
     and keeps the best epoch there; "cv" trains on every image and chooses ``T_h``, ``T_l`` and the
     area range on the pooled out-of-fold logits of ``cv_folds`` models, each trained without one
@@ -574,7 +578,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             raise ValueError(f"no ball boxes among the {len(val_set)} validation images (val_fraction {opts.val_fraction:g}, "
                              f"seed {opts.seed}): the thresholds and the recall cannot be measured; label more images "
                              "with balls, raise the validation fraction or change the seed (or use --thresholds cv)")
-        r = fitter.fit(_items(train_set, opts, rng, progress), [(load_image(li), li) for li in val_set], log=log)
+        r = fitter.fit(_items(train_set, opts, rng, progress, backgrounds=backgrounds), [(load_image(li), li) for li in val_set], log=log)
         n_train, n_val, how = len(train_set), len(val_set), "val"
     else:
         if not any(li.n_balls for li in labelled):
@@ -589,7 +593,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             rest = [li for i, li in enumerate(labelled) if i not in inside]
             if not any(li.n_balls for li in rest):
                 continue
-            r_f = fitter.fit(_items(rest, opts, rng, False), None, log=log, label=f" (fold {f + 1}/{len(folds)})")
+            r_f = fitter.fit(_items(rest, opts, rng, False, backgrounds=backgrounds), None, log=log, label=f" (fold {f + 1}/{len(folds)})")
             m_f = _to_model(r_f["w"], r_f["b"], r_f["norm"], opts)
             loose.append(r_f["loose_area"])
             for i in fold:
@@ -616,7 +620,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
                f"ours recall {100 * s_ours.recall:.2f}% outliers {100 * s_ours.outlier_rate:.2f}% median {s_ours.median_center_error_px:.3f} px | "
                f"paper recall {100 * s_paper.recall:.2f}% outliers {100 * s_paper.outlier_rate:.2f}%")
         log(msg)
-        r = fitter.fit(_items(labelled, opts, rng, progress), None, log=log, label=" (all images)")
+        r = fitter.fit(_items(labelled, opts, rng, progress, backgrounds=backgrounds), None, log=log, label=" (all images)")
         r.update(t_high=t_high, t_low=t_low, area=area, ours=s_ours, paper=s_paper)
         n_train, n_val, how = len(labelled), 0, f"{len(folds)}-fold cv"
     epoch, t_high, t_low, area, s_ours, s_paper = r["epoch"], r["t_high"], r["t_low"], r["area"], r["ours"], r["paper"]
@@ -628,6 +632,8 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     log(summary)
     desc = f"{description}; " if description else ""
     origin = "fine-tuned from a base model" if base is not None else "trained from scratch"
+    if backgrounds:
+        origin += f", {len(backgrounds)} ball-free background images"
     desc += (f"{opts.ball_colour} balls, {opts.input_transform} input, {origin}, {n_train} train / {n_val} val images "
              f"(+{opts.augment_copies} augmented copies each), thresholds by {how}, seed {opts.seed}; {summary}")
     model = _to_model(r["w"], r["b"], r["norm"], opts, t_high, t_low, area, desc)
@@ -690,6 +696,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--verifier", action="store_true",
                         help="also train a small classifier on the candidates' crops (a second stage beyond the paper's filter; "
                              "numpy at run time) and store it in the model")
+    parser.add_argument("--backgrounds", nargs="+", default=(),
+                        help="ball-free real images added to training as background: videos (frames spread over each), COCO sets "
+                             "(balls painted out; PATH@START:STOP takes those images in time order) or folders of images")
+    parser.add_argument("--background-frames", type=int, default=8, help="frames taken from each --backgrounds video (default 8)")
     parser.add_argument("--cv-folds", type=int, default=TrainOptions.cv_folds, help="folds of --thresholds cv (default 4)")
     parser.add_argument("--time-range", default=None,
                         help="use only images START:STOP in time order (file names sorted as frame numbers), e.g. 0:58; "
@@ -730,16 +740,22 @@ def run(args) -> int:
     if args.max_images is not None:
         labelled = labelled[: args.max_images]
     augment = args.augment if args.augment is not None else (3 if base is not None else 0)
+    from harness.experiments.detector.backgrounds import read_backgrounds
+
+    backgrounds = read_backgrounds(args.backgrounds, args.background_frames) if args.backgrounds else []
     seeds = args.seeds if args.seeds else [args.seed]
     cmd = "rt2 " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else "rt2 train"
-    print(f"training from {origin} on {len(labelled)} images, {augment} augmented copies each, seeds {seeds}")
+    print(f"training from {origin} on {len(labelled)} images" + (f" + {len(backgrounds)} ball-free backgrounds" if backgrounds else "")
+          + f", {augment} augmented copies each, seeds {seeds}")
     results = []
     for seed in seeds:
         opts = TrainOptions(epochs=args.epochs, seed=seed, val_fraction=args.val_fraction, input_transform=args.input_transform,
                             ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
                             threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier)
         sources = f"data {', '.join(map(str, args.data))}" + (f" (time range {args.time_range})" if args.time_range else "")
-        model, info = train(labelled, opts, description=f"trained by `{cmd}` from {origin}; {sources}", base=base)
+        if backgrounds:
+            sources += f"; backgrounds {', '.join(map(str, args.backgrounds))} ({len(backgrounds)} ball-free images)"
+        model, info = train(labelled, opts, description=f"trained by `{cmd}` from {origin}; {sources}", base=base, backgrounds=backgrounds)
         results.append((seed, model, info))
     if len(results) > 1:
         print(f"{'seed':>5} {'recall':>8} {'outliers':>9} {'median px':>10}  ({results[0][2]['threshold_choice']} figures, ours)")

@@ -174,6 +174,8 @@ def test_cli_from_model_seeds_and_time_range(synthetic_ball_coco, cv_trained, tm
     (["--from", "missing.npz"], "does not exist"),
     (["--time-range", "x"], "--time-range must be START:STOP"),
     (["--time-range", "100:"], "selects no image"),
+    (["--backgrounds", "missing.mp4"], "no such file"),
+    (["--backgrounds", "x.mp4@0:3"], "no such file"),
 ])
 def test_cli_hostile_few_label_options(synthetic_ball_coco, tmp_path, capsys, args, message):
     code = main(["train", "--data", str(synthetic_ball_coco(16, 0)), "--out", str(tmp_path / "m.npz"), "--epochs", "1", *args])
@@ -212,3 +214,57 @@ def test_verifier_training_is_seeded_and_keeps_the_balls(synthetic_ball_coco, tm
     held_out = read_coco(synthetic_ball_coco(20, 7))
     with_v = {s.method: s for s in evaluate(back, held_out, progress=False)}
     assert with_v["ours"].recall >= 0.85
+
+
+# -- ball-free backgrounds ------------------------------------------------------------------------------
+def test_backgrounds_from_video_coco_and_folder(synthetic_ball_coco, tmp_path):
+    import cv2
+
+    from harness.experiments.detector.backgrounds import read_backgrounds
+
+    video = tmp_path / "v.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    for k in range(20):
+        writer.write(np.full((48, 64, 3), 10 * k, np.uint8))
+    writer.release()
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a.png"), np.zeros((10, 12, 3), np.uint8))
+    coco = synthetic_ball_coco(16, 0)
+    got = read_backgrounds([str(video), f"{coco}@0:5", str(folder)], frames_per_video=4)
+    assert len(got) == 4 + 5 + 1
+    assert all(li.n_balls == 0 and im.shape[:2] == (li.height, li.width) for im, li in got)
+    frames = [im.mean() for im, _ in got[:4]]
+    assert frames == sorted(frames) and frames[-1] > frames[0] + 100  # spread over the whole video
+    balls = [li for li in take_range(read_coco(coco), "0:5") if li.n_balls]
+    assert balls  # and those balls are painted out in the backgrounds
+    li = balls[0]
+    u, v = np.rint(li.centers_px[0]).astype(int)
+    idx = [i for i, l2 in enumerate(take_range(read_coco(coco), "0:5")) if l2.path == li.path][0]
+    assert np.abs(got[4 + idx][0][v, u].astype(int) - load_image(li)[v, u].astype(int)).max() > 0
+
+
+@pytest.mark.parametrize("source, match", [("missing.mp4", "no such file"), ("{tmp}/v.txt", "expected a video"),
+                                            ("{tmp}/empty", "holds no image"), ("{tmp}/bad.mp4", "cannot read this video")])
+def test_backgrounds_hostile(tmp_path, source, match):
+    from harness.experiments.detector.backgrounds import read_backgrounds
+
+    (tmp_path / "v.txt").write_text("x")
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "bad.mp4").write_bytes(b"not a video")
+    with pytest.raises(ValueError, match=match):
+        read_backgrounds([source.format(tmp=tmp_path)])
+    with pytest.raises(ValueError, match="background-frames"):
+        read_backgrounds([], frames_per_video=0)
+
+
+def test_backgrounds_join_training_only(synthetic_ball_coco):
+    from harness.experiments.detector.backgrounds import read_backgrounds
+
+    coco = synthetic_ball_coco(16, 0)
+    bg = read_backgrounds([f"{coco}@0:4"])
+    _, plain = train(read_coco(coco), QUICK_CV, progress=False, log=lambda s: None)
+    model, with_bg = train(read_coco(coco), QUICK_CV, progress=False, log=lambda s: None, backgrounds=bg)
+    assert with_bg["n_neg"] > plain["n_neg"] and with_bg["n_pos"] == plain["n_pos"]
+    assert with_bg["val_ours"].n_images == plain["val_ours"].n_images == 16  # scored on the labelled images only
+    assert "4 ball-free background images" in model.description
