@@ -151,6 +151,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--time-range", default=None,
                         help="evaluate only images START:STOP in time order (file names sorted as frame numbers), e.g. 58: for a "
                              "video's later frames that training did not see")
+    parser.add_argument("--no-verifier", action="store_true",
+                        help="run 'ours' and 'topk' with the model's 5x5 filter alone, without its candidate verifier (if it has one)")
     parser.add_argument("--ball-free", action="store_true",
                         help="paint every labelled ball out first (OpenCV inpainting of its box + 4 px) and count every detection "
                              "as a false alarm: false alarms on real scenes without ball-free frames")
@@ -166,6 +168,10 @@ def run(args) -> int:
     check_output_file(args.json, "--json")  # before the evaluation, not after
     check_output_file(args.figure, "--figure")
     model = BallSegmentationModel.load(args.model)
+    if getattr(args, "no_verifier", False) and model.verifier is not None:
+        import dataclasses
+
+        model = dataclasses.replace(model, verifier=None)
     labelled = [li for path in args.data for li in read_coco(path)]
     if getattr(args, "time_range", None) is not None:
         from harness.experiments.detector.subsets import take_range
@@ -189,7 +195,7 @@ def run(args) -> int:
     scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low,
                       ball_free_margin_px=ball_free_margin)
     print(
-        f"model {args.model}: T_h={t_high:g}, T_l={t_low:g}; {len(labelled)} images; "
+        f"model {args.model}{' (with its candidate verifier)' if model.verifier is not None else ''}: T_h={t_high:g}, T_l={t_low:g}; {len(labelled)} images; "
         f"{colour} balls >= {args.min_diameter_px:g} px"
         + (f" (the model's own colour; --ball-colour any scores every ball)" if args.ball_colour == "model" and colour != "any" else "")
     )

@@ -198,7 +198,7 @@ def test_eval_ball_free_counts_false_alarms(synthetic_ball_coco, cv_trained, tmp
 
 
 # -- the candidate verifier ------------------------------------------------------------------------------
-def test_verifier_training_is_seeded_and_keeps_the_balls(synthetic_ball_coco, tmp_path):
+def test_verifier_training_is_seeded_and_keeps_the_balls(synthetic_ball_coco, tmp_path, capsys):
     from harness.experiments.studies.eval_detector import evaluate
 
     opts = TrainOptions(**{**QUICK_CV.__dict__, "verifier": True})
@@ -214,6 +214,12 @@ def test_verifier_training_is_seeded_and_keeps_the_balls(synthetic_ball_coco, tm
     held_out = read_coco(synthetic_ball_coco(20, 7))
     with_v = {s.method: s for s in evaluate(back, held_out, progress=False)}
     assert with_v["ours"].recall >= 0.85
+    # rt2 eval detector runs the verifier, and --no-verifier the filter alone
+    data = synthetic_ball_coco(20, 7)
+    for flag, expect in (([], "(with its candidate verifier)"), (["--no-verifier"], None)):
+        assert main(["eval", "detector", "--data", str(data), "--model", str(tmp_path / "v.npz"), *flag]) == 0
+        out = capsys.readouterr().out
+        assert (expect in out) if expect else "(with its candidate verifier)" not in out
 
 
 # -- ball-free backgrounds ------------------------------------------------------------------------------
