@@ -141,6 +141,16 @@ def train_verifier(model, originals, augmented, folds, opts: VerifierOptions, *,
     folds : lists of indices into ``originals`` (time-contiguous folds)
     """
     import torch  # training only
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # a tiny network: threads only wait for each other (badly so on a shared machine)
+    try:
+        return _train_verifier(torch, model, originals, augmented, folds, opts, seed=seed, log=log, progress=progress)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _train_verifier(torch, model, originals, augmented, folds, opts: VerifierOptions, *, seed: int, log, progress: bool):
     from tqdm import tqdm
 
     from harness.experiments.detector.scores import truth_of
