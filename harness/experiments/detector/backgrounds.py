@@ -52,12 +52,15 @@ def _video_frames(path: Path, n: int) -> list:
         cap.release()
 
 
-def read_backgrounds(sources, frames_per_video: int = 8) -> list:
-    """``[(image (H, W, 3) uint8 RGB, LabelledImage without boxes)]`` from the sources (module docstring)."""
+def read_backgrounds(sources, frames_per_video: int = 8, *, load_image) -> list:
+    """``[(image (H, W, 3) uint8 RGB, LabelledImage without boxes)]`` from the sources (module docstring).
+
+    load_image : ``LabelledImage -> (H, W, 3) uint8 RGB`` for COCO sets (training's
+        :func:`harness.experiments.detector.train.load_image`, which checks the size against the label)
+    """
     from harness.experiments.detector.ballfree import ball_free
     from harness.experiments.detector.coco import read_coco
     from harness.experiments.detector.subsets import take_range
-    from harness.experiments.detector.train import load_image
 
     if isinstance(frames_per_video, bool) or not isinstance(frames_per_video, int) or frames_per_video < 1:
         raise ValueError(f"--background-frames must be a positive integer, got {frames_per_video!r}")

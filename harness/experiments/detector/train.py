@@ -742,7 +742,7 @@ def run(args) -> int:
     augment = args.augment if args.augment is not None else (3 if base is not None else 0)
     from harness.experiments.detector.backgrounds import read_backgrounds
 
-    backgrounds = read_backgrounds(args.backgrounds, args.background_frames) if args.backgrounds else []
+    backgrounds = read_backgrounds(args.backgrounds, args.background_frames, load_image=load_image) if args.backgrounds else []
     seeds = args.seeds if args.seeds else [args.seed]
     cmd = "rt2 " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else "rt2 train"
     print(f"training from {origin} on {len(labelled)} images" + (f" + {len(backgrounds)} ball-free backgrounds" if backgrounds else "")

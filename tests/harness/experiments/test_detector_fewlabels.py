@@ -161,12 +161,13 @@ def test_cli_from_model_seeds_and_time_range(synthetic_ball_coco, cv_trained, tm
     base = cv_trained[0].save(tmp_path / "base.npz")
     out = tmp_path / "tuned.npz"
     code = main(["train", "--data", str(synthetic_ball_coco(16, 0)), "--out", str(out), "--epochs", "1", "--from", str(base),
-                 "--seeds", "0", "1", "--augment", "0", "--time-range", "0:12", "--cv-folds", "3"])
+                 "--seeds", "0", "1", "--augment", "0", "--time-range", "0:12", "--cv-folds", "3",
+                 "--backgrounds", f"{synthetic_ball_coco(16, 0)}@12:"])
     assert code == 0
     text = capsys.readouterr().out
-    assert f"training from {base} on 12 images" in text and "spread over 2 seeds: recall" in text
+    assert f"training from {base} on 12 images + 4 ball-free backgrounds" in text and "spread over 2 seeds: recall" in text
     model = BallSegmentationModel.load(out)
-    assert "kept seed" in model.description and str(base) in model.description
+    assert "kept seed" in model.description and str(base) in model.description and "(4 ball-free images)" in model.description
 
 
 @pytest.mark.parametrize("args, message", [
@@ -237,7 +238,7 @@ def test_backgrounds_from_video_coco_and_folder(synthetic_ball_coco, tmp_path):
     folder.mkdir()
     cv2.imwrite(str(folder / "a.png"), np.zeros((10, 12, 3), np.uint8))
     coco = synthetic_ball_coco(16, 0)
-    got = read_backgrounds([str(video), f"{coco}@0:5", str(folder)], frames_per_video=4)
+    got = read_backgrounds([str(video), f"{coco}@0:5", str(folder)], frames_per_video=4, load_image=load_image)
     assert len(got) == 4 + 5 + 1
     assert all(li.n_balls == 0 and im.shape[:2] == (li.height, li.width) for im, li in got)
     frames = [im.mean() for im, _ in got[:4]]
@@ -259,16 +260,16 @@ def test_backgrounds_hostile(tmp_path, source, match):
     (tmp_path / "empty").mkdir()
     (tmp_path / "bad.mp4").write_bytes(b"not a video")
     with pytest.raises(ValueError, match=match):
-        read_backgrounds([source.format(tmp=tmp_path)])
+        read_backgrounds([source.format(tmp=tmp_path)], load_image=load_image)
     with pytest.raises(ValueError, match="background-frames"):
-        read_backgrounds([], frames_per_video=0)
+        read_backgrounds([], frames_per_video=0, load_image=load_image)
 
 
 def test_backgrounds_join_training_only(synthetic_ball_coco):
     from harness.experiments.detector.backgrounds import read_backgrounds
 
     coco = synthetic_ball_coco(16, 0)
-    bg = read_backgrounds([f"{coco}@0:4"])
+    bg = read_backgrounds([f"{coco}@0:4"], load_image=load_image)
     _, plain = train(read_coco(coco), QUICK_CV, progress=False, log=lambda s: None)
     model, with_bg = train(read_coco(coco), QUICK_CV, progress=False, log=lambda s: None, backgrounds=bg)
     assert with_bg["n_neg"] > plain["n_neg"] and with_bg["n_pos"] == plain["n_pos"]
