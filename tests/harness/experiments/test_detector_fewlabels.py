@@ -275,3 +275,11 @@ def test_backgrounds_join_training_only(synthetic_ball_coco):
     assert with_bg["n_neg"] > plain["n_neg"] and with_bg["n_pos"] == plain["n_pos"]
     assert with_bg["val_ours"].n_images == plain["val_ours"].n_images == 16  # scored on the labelled images only
     assert "4 ball-free background images" in model.description
+
+
+@pytest.mark.parametrize("args, message", [(["--time-range", "1-3"], "--time-range must be START:STOP"),
+                                            (["--time-range", "50:"], "selects no image")])
+def test_eval_hostile_time_range(synthetic_ball_coco, cv_trained, tmp_path, capsys, args, message):
+    model = cv_trained[0].save(tmp_path / "m.npz")
+    assert main(["eval", "detector", "--data", str(synthetic_ball_coco(16, 0)), "--model", str(model), *args]) == 2
+    assert message in capsys.readouterr().err
