@@ -286,7 +286,7 @@ def test_validation_split_without_balls_is_refused_before_training(tmp_path):
                 if not any(li.n_balls for li in split_groups(labelled, 0.3, np.random.default_rng(s))[1]))
     with pytest.raises(ValueError, match=rf"no ball boxes among the 1 validation images \(val_fraction 0.3, seed {seed}\): "
                                          "the thresholds and the recall cannot be measured"):
-        train(labelled, TrainOptions(epochs=1, seed=seed, val_fraction=0.3), progress=False)
+        train(labelled, TrainOptions(epochs=1, seed=seed, val_fraction=0.3, threshold_choice="split"), progress=False)
 
 
 # -- output paths ------------------------------------------------------------------------------------

@@ -3,5 +3,6 @@
 from tracker.detection.blobs import Blobs, find_blobs
 from tracker.detection.detector import METHODS, BallDetector, DetectorOptions, Detections
 from tracker.detection.model import BallSegmentationModel, check_image
+from tracker.detection.verifier import CandidateVerifier
 
-__all__ = ["BallDetector", "BallSegmentationModel", "Blobs", "DetectorOptions", "Detections", "METHODS", "check_image", "find_blobs"]
+__all__ = ["BallDetector", "BallSegmentationModel", "Blobs", "CandidateVerifier", "DetectorOptions", "Detections", "METHODS", "check_image", "find_blobs"]

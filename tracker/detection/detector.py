@@ -10,7 +10,11 @@ Methods (``DetectorOptions.method``):
   ``T_l``; one candidate, no shape test.
 * ``"ours"`` — the top-K variant: up to ``max_candidates`` blobs (each a connected component of
   ``{B > T_l}`` with peak ``>= T_h``, best first), each passing a shape test (area, fill ratio,
-  aspect). The robust estimator then picks the candidate the other cameras agree with.
+  aspect). The robust estimator then picks the candidate the other cameras agree with. When the
+  model carries a :class:`~tracker.detection.verifier.CandidateVerifier` (and ``verify`` is on),
+  every accepted blob among the first ``max_seeds`` is scored by it on its crop; candidates below
+  its threshold are dropped, the rest are ordered by its probability (which becomes the score) and
+  their centres refined, and the first ``max_candidates`` are reported.
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ class DetectorOptions:
     min_fill_ratio : accepted blob area / box area ("ours"; a disk fills pi/4 ~ 0.79 of its box)
     max_aspect : accepted box long side / short side ("ours"; motion blur stretches the ball)
     backend : flood-fill implementation, "numba" or "python" (reference)
+    verify : run the model's candidate verifier ("ours" only; ignored when the model has none)
     """
 
     method: str = "ours"
@@ -57,6 +62,7 @@ class DetectorOptions:
     min_fill_ratio: float = 0.3
     max_aspect: float = 4.0
     backend: str = "numba"
+    verify: bool = True
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -81,6 +87,8 @@ class DetectorOptions:
             raise ValueError(f"DetectorOptions.min_fill_ratio must be in [0, 1], got {self.min_fill_ratio!r}")
         if not self.max_aspect >= 1.0:
             raise ValueError(f"DetectorOptions.max_aspect must be >= 1, got {self.max_aspect!r}")
+        if not isinstance(self.verify, bool):
+            raise ValueError(f"DetectorOptions.verify must be True or False, got {self.verify!r}")
         if self.backend not in ("numba", "python"):
             raise ValueError(f"DetectorOptions.backend must be 'numba' or 'python', got {self.backend!r}")
 
@@ -154,6 +162,9 @@ class BallDetector:
                 max_aspect=options.max_aspect,
             )
         self._blob_kw["backend"] = options.backend
+        self.verifier = model.verifier if options.method == "ours" and options.verify else None
+        if self.verifier is not None:  # every accepted blob goes to the verifier, which picks the K best
+            self._blob_kw["max_blobs"] = options.max_seeds
 
     def __repr__(self) -> str:
         return f"BallDetector(method={self.options.method!r}, t_high={self.t_high}, t_low={self.t_low})"
@@ -181,7 +192,16 @@ class BallDetector:
     def _detect_full(self, image) -> Detections:
         logits = self.model._logits(image)
         blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, **self._blob_kw)
-        return _to_detections(blobs, 0, 0, False)
+        return self._verified(image, _to_detections(blobs, 0, 0, False))
+
+    def _verified(self, image, det: Detections) -> Detections:
+        """The verifier's choice among the candidates (unchanged without a verifier)."""
+        if self.verifier is None or len(det) == 0:
+            return det
+        prob, uv = self.verifier.verify(image, det.uv_px, det.boxes_xywh[:, 2:].max(axis=1))
+        keep = np.flatnonzero(prob >= self.verifier.threshold)
+        keep = keep[np.argsort(-prob[keep], kind="stable")][: self.options.max_candidates]
+        return Detections(uv[keep], prob[keep], det.boxes_xywh[keep], det.areas_px[keep], det.used_roi)
 
     def _detect_roi(self, image, roi) -> Detections:
         h, w = image.shape[:2]
@@ -195,11 +215,15 @@ class BallDetector:
         blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, **self._blob_kw)
         if len(blobs) == 0:
             return self._detect_full(image)
-        bx0, by0, bx1, by1 = blobs.boxes[0]
+        det = self._verified(image, _to_detections(blobs, x0, y0, True))
+        if len(det) == 0:
+            return self._detect_full(image)
+        bx, by, bw, bh = det.boxes_xywh[0] - np.array([x0, y0, 0, 0])
+        bx0, by0, bx1, by1 = bx, by, bx + bw - 1, by + bh - 1
         truncated = (bx0 == 0 and x0 > 0) or (by0 == 0 and y0 > 0) or (bx1 == x1 - x0 - 1 and x1 < w) or (by1 == y1 - y0 - 1 and y1 < h)
         if truncated:
             return self._detect_full(image)
-        return _to_detections(blobs, x0, y0, True)
+        return det
 
     # -- a frame set -----------------------------------------------------------------------------
     def detect_frameset(self, images, roi_centers_px=None):

@@ -32,6 +32,7 @@ import numpy as np
 
 from checks.arrays import describe
 from checks.files import load_npz_checked
+from tracker.detection.verifier import CandidateVerifier
 
 __all__ = ["BallSegmentationModel", "INPUT_TRANSFORMS", "KERNEL_SIZE", "MODEL_FORMAT", "MODEL_VERSION", "check_image", "logit", "sigmoid", "transform_lut"]
 
@@ -100,6 +101,8 @@ class BallSegmentationModel:
         ``t_low``; nearly the same at every ball size): the pipeline's 3D size test adds it to every
         blob's width (``TrackerOptions.blob_edge_px``). Measured on rendered frame sets for the shipped
         model (2.8; ``rt2 eval framesets`` prints the fit, docs/pipeline.md step 8); 0 for files written before the field existed and for the hand-made model
+    verifier : optional :class:`~tracker.detection.verifier.CandidateVerifier`, the classifier our
+        detector runs on its candidates' crops (None: the filter alone decides, as in the paper)
     """
 
     kernel: np.ndarray
@@ -115,6 +118,7 @@ class BallSegmentationModel:
     description: str = ""
     ball_colour: str = "any"
     edge_loss_px: float = 0.0
+    verifier: "CandidateVerifier | None" = None
     # Derived at construction: the kernel for T(uint8 RGB channels) with the scaling folded in.
     _kernels_rgb: tuple = field(init=False, repr=False, compare=False)
     _bias_eff: float = field(init=False, repr=False, compare=False)
@@ -158,6 +162,8 @@ class BallSegmentationModel:
         if isinstance(edge, bool) or not isinstance(edge, (int, float, np.floating, np.integer)) or not (math.isfinite(edge) and edge >= 0):
             raise ValueError(f"{where}: edge_loss_px must be a number of pixels >= 0, got {edge!r}")
         object.__setattr__(self, "edge_loss_px", float(edge))
+        if self.verifier is not None and not isinstance(self.verifier, CandidateVerifier):
+            raise ValueError(f"{where}: verifier must be a CandidateVerifier or None, got {describe(self.verifier)}")
         area = np.asarray(self.area_range_px, dtype=np.float64).reshape(-1)
         if area.shape != (2,) or not np.isfinite(area).all() or not 1 <= area[0] <= area[1]:
             raise ValueError(f"{where}: area_range_px must be [min, max] with 1 <= min <= max, got {self.area_range_px!r}")
@@ -265,6 +271,7 @@ class BallSegmentationModel:
             description=np.array(self.description),
             ball_colour=np.array(self.ball_colour),
             edge_loss_px=np.array(self.edge_loss_px),
+            **({} if self.verifier is None else self.verifier.to_fields()),
         )
         return path
 
@@ -301,6 +308,8 @@ class BallSegmentationModel:
                 # optional: files written before the field existed say nothing of their balls' colour
                 ball_colour=_scalar(data, "ball_colour", str, src) if "ball_colour" in data else "any",
                 edge_loss_px=_scalar(data, "edge_loss_px", float, src) if "edge_loss_px" in data else 0.0,
+                # optional: the candidate verifier (files without it: the filter alone decides)
+                verifier=CandidateVerifier.from_fields(data, src),
             )
         except ValueError as exc:
             raise ValueError(f"{src}: {exc}") from None

@@ -40,10 +40,12 @@ from tracker.detection.model import BALL_COLOURS, INPUT_TRANSFORMS, logit, trans
 
 __all__ = [
     "BALL_COLOURS",
+    "THRESHOLD_CHOICES",
     "TrainOptions",
     "add_arguments",
     "ball_colour",
     "choose_thresholds",
+    "cv_folds",
     "load_image",
     "pixel_targets",
     "run",
@@ -56,6 +58,12 @@ __all__ = [
 T_HIGH_GRID = tuple(float(round(1.0 / (1.0 + math.exp(-x)), 6)) for x in np.arange(0.0, 7.01, 0.25))
 T_LOW_GRID = (0.02, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5)
 COLOUR_SATURATION_CUT = 0.4
+#: how ``rt2 train`` chooses the thresholds (see :func:`train`)
+THRESHOLD_CHOICES = ("auto", "split", "cv")
+#: "auto" holds out a validation split only when it would hold at least this many images with a ball
+AUTO_SPLIT_MIN_VAL_IMAGES = 40
+#: when fine-tuning, cross-validation's thresholds replace the base model's only if they score better by more than this many balls
+PRIOR_MARGIN_BALLS = 2
 
 
 @dataclass(frozen=True)
@@ -73,7 +81,15 @@ class TrainOptions:
     lbfgs_iters : L-BFGS iterations per epoch
     min_diameter_px : recall on validation counts balls at least this wide
     ball_colour : train for balls of this colour only ("any", "orange", "white"); the others are background
-    seed : seeds the split, the sampling and torch
+    seed : seeds the split, the sampling, the augmentation and torch
+    augment_copies : augmented copies of every training image (:mod:`harness.experiments.detector.augment`:
+        colour, exposure, gamma, blur, noise, JPEG, scale, flips); 0 = none
+    verifier : also train a candidate verifier (:mod:`harness.experiments.detector.verifier_train`) on the
+        filter's candidates, its threshold by cross-validation, and store it in the model
+    finetune_l2 : weight of the L2 penalty towards the base model's weights when fine-tuning (replaces ``l2``;
+        stronger, so a few labelled images adjust the base rather than replace it)
+    threshold_choice : "auto", "split" or "cv" (see :func:`train`)
+    cv_folds : folds of the "cv" threshold choice
     """
 
     epochs: int = 6
@@ -91,6 +107,11 @@ class TrainOptions:
     min_diameter_px: float = 6.0
     ball_colour: str = "any"
     seed: int = 0
+    augment_copies: int = 0
+    verifier: bool = False
+    finetune_l2: float = 1e-2
+    threshold_choice: str = "auto"
+    cv_folds: int = 4
 
     def __post_init__(self):
         if not 0.0 < self.val_fraction < 1.0:
@@ -98,8 +119,8 @@ class TrainOptions:
         for name in ("epochs", "random_negatives_per_image", "max_positives_per_image", "lbfgs_iters"):
             if getattr(self, name) < 1:
                 raise ValueError(f"TrainOptions.{name} must be >= 1, got {getattr(self, name)!r}")
-        if self.hard_negatives_per_image < 0 or self.ring_px < 0 or self.l2 < 0:
-            raise ValueError("TrainOptions: hard_negatives_per_image, ring_px and l2 must be >= 0")
+        if self.hard_negatives_per_image < 0 or self.ring_px < 0 or self.l2 < 0 or not self.finetune_l2 >= 0:
+            raise ValueError("TrainOptions: hard_negatives_per_image, ring_px, l2 and finetune_l2 must be >= 0")
         if not 0.0 < self.core_fraction <= 1.0:
             raise ValueError(f"TrainOptions.core_fraction must be in (0, 1], got {self.core_fraction!r}")
         if not 0.0 <= self.hard_weight < 1.0:
@@ -108,6 +129,12 @@ class TrainOptions:
             raise ValueError(f"TrainOptions.ball_colour must be one of {BALL_COLOURS}, got {self.ball_colour!r}")
         if self.input_transform not in INPUT_TRANSFORMS:
             raise ValueError(f"TrainOptions.input_transform must be one of {INPUT_TRANSFORMS}, got {self.input_transform!r}")
+        if self.threshold_choice not in THRESHOLD_CHOICES:
+            raise ValueError(f"TrainOptions.threshold_choice must be one of {THRESHOLD_CHOICES}, got {self.threshold_choice!r}")
+        if isinstance(self.augment_copies, bool) or not isinstance(self.augment_copies, int) or self.augment_copies < 0:
+            raise ValueError(f"TrainOptions.augment_copies must be an integer >= 0, got {self.augment_copies!r}")
+        if isinstance(self.cv_folds, bool) or not isinstance(self.cv_folds, int) or self.cv_folds < 2:
+            raise ValueError(f"TrainOptions.cv_folds must be an integer >= 2, got {self.cv_folds!r}")
 
 
 # -- data ------------------------------------------------------------------------------------------
@@ -272,17 +299,19 @@ def _to_model(w, b, norm, opts: TrainOptions, t_high=0.5, t_low=0.2, area_range_
     )
 
 
-def _fit(torch, w, b, sets, opts: TrainOptions) -> float:
+def _fit(torch, w, b, sets, opts: TrainOptions, prior=None) -> float:
     """Class-balanced BCE + L2 by full-batch L-BFGS, in place on ``w`` (75,) and ``b`` (1,).
 
     sets : (features, label, weight) triples; the weights of the ball and background sets sum to 1/2 each
+    prior : (75,) weights the L2 penalty pulls towards (a base model's, when fine-tuning); None = zero
     """
     bce = torch.nn.functional.binary_cross_entropy_with_logits
     opt = torch.optim.LBFGS([w, b], lr=1.0, max_iter=opts.lbfgs_iters, line_search_fn="strong_wolfe")
     terms = [(torch.from_numpy(x), torch.full((len(x),), float(y), dtype=torch.float64), wt) for x, y, wt in sets if len(x) and wt > 0]
 
     def loss_fn():
-        return sum(wt * bce(x @ w + b, y) for x, y, wt in terms) + opts.l2 * (w * w).sum()
+        d = w if prior is None else w - prior  # fine-tuning pulls towards the base model's weights
+        return sum(wt * bce(x @ w + b, y) for x, y, wt in terms) + opts.l2 * (d * d).sum()
 
     def closure():
         opt.zero_grad()
@@ -364,103 +393,279 @@ def choose_thresholds(val_logits, truth, loose_area, opts: TrainOptions):
     return t_high, t_low, area, s_ours, score("paper", paper, t_high)
 
 
+def score_thresholds(val_logits, truth, t_high: float, t_low: float, area, opts: TrainOptions):
+    """(ours, paper) scores of fixed thresholds and area range on validation logits (best candidate per image)."""
+    from harness.experiments.detector.scores import score_detections
+
+    opt = DetectorOptions()
+    blob_kw = dict(max_seeds=opt.max_seeds, min_area_px=area[0], max_area_px=area[1], min_fill_ratio=opt.min_fill_ratio, max_aspect=opt.max_aspect)
+    paper, ours = _top1_per_threshold(val_logits, t_low, t_high, blob_kw)
+    found = lambda results: [c[None] if c is not None else np.zeros((0, 2)) for _, c in results]  # noqa: E731
+    return (score_detections("ours", *truth, found(ours), min_diameter_px=opts.min_diameter_px),
+            score_detections("paper", *truth, found(paper), min_diameter_px=opts.min_diameter_px))
+
+
 def _features(patches, lut, norm) -> np.ndarray:
     scale, offset = norm
     return lut[patches] * np.tile(scale, 25) + np.tile(offset, 25)
 
 
-def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = True, log=print, description: str = ""):
+def _group_key(li) -> str:
+    return str(Path(li.path).parent / re.sub(r"_cam\d+$", "", Path(li.path).stem))
+
+
+def cv_folds(labelled, n_folds: int) -> list[list[int]]:
+    """Indices of ``labelled`` in ``n_folds`` folds of whole frame sets, contiguous in time order
+    (:func:`harness.experiments.detector.subsets.time_order`): near-copies of a video's consecutive
+    frames stay in one fold, so a fold's figures are those of frames its model did not see."""
+    from harness.experiments.detector.subsets import time_key
+
+    groups: dict[str, list[int]] = {}
+    for i, li in enumerate(labelled):
+        groups.setdefault(_group_key(li), []).append(i)
+    keys = sorted(groups, key=lambda k: (str(Path(k).parent), time_key(k)))
+    n = min(n_folds, len(keys))
+    if n < 2:
+        raise ValueError(f"cross-validation needs images from at least 2 frame sets, got {len(keys)}")
+    bounds = np.linspace(0, len(keys), n + 1).round().astype(int)
+    return [[i for k in keys[bounds[f] : bounds[f + 1]] for i in groups[k]] for f in range(n)]
+
+
+class _Fitter:
+    """One fit of the filter (sampling, hard negatives per epoch, L-BFGS) on in-memory ``(image, labelled)`` items."""
+
+    def __init__(self, torch, opts: TrainOptions, base: BallSegmentationModel | None, rng, progress: bool):
+        self.torch, self.opts, self.base, self.rng, self.progress = torch, opts, base, rng, progress
+        self.lut = transform_lut(opts.input_transform, opts.log_offset_dn).astype(np.float64)
+
+    def fit(self, items, val=None, log=print, label: str = ""):
+        """Fit on ``items``; with ``val`` items, choose thresholds there after every epoch and keep the best epoch.
+
+        Returns dict(w, b, norm, t_high, t_low, area, ours, paper, epoch, history, n_pos, n_neg, n_hard, loose_area).
+        """
+        from tqdm import tqdm
+
+        from harness.common.progress import progress_bar
+        from harness.experiments.detector.scores import truth_of
+
+        torch, opts, rng = self.torch, self.opts, self.rng
+        if not any(li.n_balls for _, li in items):
+            raise ValueError(f"no ball boxes among the {len(items)} training images: nothing to learn")
+        targets = [pixel_targets(li, opts.ring_px, opts.core_fraction) for _, li in items]
+        pos, neg = [], []
+        for (im, _), tg in zip(items, targets):
+            p, n = _sample_image(im, tg, opts, rng)
+            pos.append(p)
+            neg.append(n)
+        pos, neg = np.concatenate(pos), np.concatenate(neg)
+        lut = self.lut
+        if self.base is not None:  # fine-tune: the base model's input scaling, weights as the start and the prior
+            norm = (np.asarray(self.base.input_scale, np.float64), np.asarray(self.base.input_offset, np.float64))
+            w0 = np.asarray(self.base.kernel, np.float64).reshape(75)
+            b0 = float(self.base.bias)
+        else:
+            # Standardise each transformed channel (the two classes' means and spreads averaged, like the loss).
+            tp, tn = lut[pos.reshape(-1, 3)], lut[neg.reshape(-1, 3)]
+            mean = 0.5 * (tp.mean(0) + tn.mean(0))
+            std = np.sqrt(0.5 * (tp.var(0) + tn.var(0))) + 1e-3
+            norm = (1.0 / std, -mean / std)
+            w0, b0 = np.zeros(75), 0.0
+        xp, xn = _features(pos, lut, norm), _features(neg, lut, norm)
+        xh = np.zeros((0, 75))
+        loose_area = _area_range([li for _, li in items if li.n_balls])
+        if self.base is not None:
+            base_area = tuple(float(v) for v in self.base.area_range_px)
+            loose_area = (min(loose_area[0], base_area[0]), max(loose_area[1], base_area[1]))
+        w = torch.tensor(w0, dtype=torch.float64, requires_grad=True)
+        b = torch.tensor([b0], dtype=torch.float64, requires_grad=True)
+        prior = torch.tensor(w0, dtype=torch.float64)
+        history, best = [], None
+        t_high, t_low = (self.base.t_high, self.base.t_low) if self.base is not None else (0.5, 0.2)
+        area = loose_area
+        s_ours = s_paper = None
+        if val is not None:
+            val_images = [im for im, _ in val]
+            truth = ([truth_of(li)[0] for _, li in val], [truth_of(li)[1] for _, li in val])
+        bar = progress_bar(range(opts.epochs), desc=f"train{label}", unit="epoch", disable=not self.progress, leave=False)
+        for epoch in bar:
+            if (epoch > 0 or self.base is not None) and opts.hard_negatives_per_image > 0:  # mine our detector's current mistakes
+                current = _to_model(w.detach().numpy(), b.item(), norm, opts)
+                opt = DetectorOptions()
+                kw = dict(max_seeds=opt.max_seeds, min_area_px=area[0], max_area_px=area[1], min_fill_ratio=opt.min_fill_ratio, max_aspect=opt.max_aspect)
+                hard = [_hard_negatives(current, im, tg, opts.hard_negatives_per_image, t_high, t_low, kw) for (im, _), tg in zip(items, targets)]
+                xh = np.concatenate([xh, _features(np.concatenate(hard), lut, norm)])
+            h = opts.hard_weight if len(xh) else 0.0
+            fit_opts = opts if self.base is None else dataclasses.replace(opts, l2=opts.finetune_l2)
+            loss = _fit(torch, w, b, [(xp, 1, 0.5), (xn, 0, 0.5 * (1 - h)), (xh, 0, 0.5 * h)], fit_opts, prior)
+            j = -epoch  # without validation: the last epoch
+            if val is None:
+                line = f"epoch {epoch + 1}/{opts.epochs}{label}: loss {loss:.4f}  hard negatives {len(xh)}"
+                tqdm.write(line) if self.progress else log(line)
+            else:
+                current = _to_model(w.detach().numpy(), b.item(), norm, opts)
+                t_high, t_low, area, s_ours, s_paper = choose_thresholds([current.logits(im) for im in val_images], truth, loose_area, opts)
+                j = np.nan_to_num(s_ours.recall) - s_ours.outlier_rate
+                bar.set_postfix(loss=f"{loss:.4f}", recall=f"{s_ours.recall:.3f}", outliers=f"{s_ours.outlier_rate:.3f}")
+                line = (
+                    f"epoch {epoch + 1}/{opts.epochs}{label}: loss {loss:.4f}  hard negatives {len(xh)}  val at T_h={t_high:g}, T_l={t_low:g}: "
+                    f"ours recall {100 * s_ours.recall:.2f}% outliers {100 * s_ours.outlier_rate:.2f}% median {s_ours.median_center_error_px:.3f} px | "
+                    f"paper recall {100 * s_paper.recall:.2f}% outliers {100 * s_paper.outlier_rate:.2f}%"
+                )
+                tqdm.write(line) if self.progress else log(line)
+            history.append(dict(epoch=epoch + 1, loss=loss, n_hard=len(xh), t_high=t_high, t_low=t_low, area_range_px=area, ours=s_ours, paper=s_paper))
+            if best is None or j > best[0] or val is None:
+                best = (j, epoch, w.detach().numpy().copy(), b.item(), t_high, t_low, area, s_ours, s_paper)
+        _, epoch, w_best, b_best, t_high, t_low, area, s_ours, s_paper = best
+        return dict(w=w_best, b=b_best, norm=norm, t_high=t_high, t_low=t_low, area=area, ours=s_ours, paper=s_paper, epoch=epoch + 1,
+                    history=history, n_pos=len(xp), n_neg=len(xn), n_hard=len(xh), loose_area=loose_area)
+
+
+def _items(labelled, opts: TrainOptions, rng, progress: bool, augment_opts=None, backgrounds=()):
+    """Images in memory (and the ball-free ``backgrounds``), with ``opts.augment_copies`` augmented copies of each (:mod:`.augment`)."""
+    from harness.common.progress import progress_bar
+    from harness.experiments.detector.augment import AugmentOptions, augment
+
+    items = [(load_image(li), li) for li in progress_bar(labelled, desc="reading", unit="img", disable=not progress, leave=False)]
+    items += list(backgrounds)
+    if opts.augment_copies:
+        aug = AugmentOptions() if augment_opts is None else augment_opts
+        items = items + [augment(im, li, rng, aug) for _ in range(opts.augment_copies) for im, li in items]
+    return items
+
+
+def _resolve_threshold_choice(labelled, opts: TrainOptions) -> str:
+    if opts.threshold_choice != "auto":
+        return opts.threshold_choice
+    n_val_balls = opts.val_fraction * sum(li.n_balls > 0 for li in labelled)
+    return "split" if n_val_balls >= AUTO_SPLIT_MIN_VAL_IMAGES else "cv"
+
+
+def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = True, log=print, description: str = "",
+          base: BallSegmentationModel | None = None, backgrounds=()):
     """Fit a :class:`BallSegmentationModel` to labelled images; returns ``(model, info)``.
 
     labelled : list of ``harness.experiments.detector.coco.LabelledImage`` (boxes of balls; images without boxes = background)
+    base : a model to fine-tune (its input scaling, its weights as the start and as the prior the L2
+        penalty pulls towards, its thresholds as the start); None trains from scratch
+    backgrounds : ``(image, labelled without boxes)`` pairs of ball-free real frames
+        (:func:`harness.experiments.detector.backgrounds.read_backgrounds`), added to every fit's
+        training images (augmented like them), never to validation
+    Threshold choice (``opts.threshold_choice``): "split" holds out ``val_fraction`` of the frame sets
+    and keeps the best epoch there; "cv" trains on every image and chooses ``T_h``, ``T_l`` and the
+    area range on the pooled out-of-fold logits of ``cv_folds`` models, each trained without one
+    time-contiguous fold (:func:`cv_folds`); "auto" is "split" when the split would hold at least
+    ``AUTO_SPLIT_MIN_VAL_IMAGES`` images with a ball, else "cv". When fine-tuning with "cv", the base
+    model's thresholds and area range are the prior: cross-validation's choice replaces them only if it
+    scores better on the out-of-fold logits by more than ``PRIOR_MARGIN_BALLS`` balls' worth, and the
+    area range never narrows below the base's.
     info : dict with the split sizes, per-epoch history, the chosen epoch and thresholds and the
-        validation scores there (ours and paper)
+        validation (or cross-validation) scores there (ours and paper)
     """
     import torch  # training only
-    from harness.common.progress import progress_bar
-
-    from harness.experiments.detector.scores import truth_of
 
     torch.manual_seed(opts.seed)
     rng = np.random.default_rng(opts.seed)
+    if base is not None and base.input_transform != opts.input_transform:
+        opts = dataclasses.replace(opts, input_transform=base.input_transform, log_offset_dn=base.log_offset_dn)
     labelled = select_ball_colour(labelled, opts.ball_colour, progress=progress)
-    train_set, val_set = split_groups(labelled, opts.val_fraction, rng)
-    if not any(li.n_balls for li in train_set):
-        raise ValueError(f"no ball boxes among the {len(train_set)} training images: nothing to learn")
-    if not any(li.n_balls for li in val_set):
-        raise ValueError(f"no ball boxes among the {len(val_set)} validation images (val_fraction {opts.val_fraction:g}, "
-                         f"seed {opts.seed}): the thresholds and the recall cannot be measured; label more images "
-                         "with balls, raise the validation fraction or change the seed")
-    lut = transform_lut(opts.input_transform, opts.log_offset_dn).astype(np.float64)
+    choice = _resolve_threshold_choice(labelled, opts)
+    fitter = _Fitter(torch, opts, base, rng, progress)
+    if choice == "split":
+        train_set, val_set = split_groups(labelled, opts.val_fraction, rng)
+        if not any(li.n_balls for li in train_set):
+            raise ValueError(f"no ball boxes among the {len(train_set)} training images: nothing to learn")
+        if not any(li.n_balls for li in val_set):
+            raise ValueError(f"no ball boxes among the {len(val_set)} validation images (val_fraction {opts.val_fraction:g}, "
+                             f"seed {opts.seed}): the thresholds and the recall cannot be measured; label more images "
+                             "with balls, raise the validation fraction or change the seed (or use --thresholds cv)")
+        r = fitter.fit(_items(train_set, opts, rng, progress, backgrounds=backgrounds), [(load_image(li), li) for li in val_set], log=log)
+        n_train, n_val, how = len(train_set), len(val_set), "val"
+    else:
+        if not any(li.n_balls for li in labelled):
+            raise ValueError(f"no ball boxes among the {len(labelled)} images: nothing to learn")
+        folds = cv_folds(labelled, opts.cv_folds)
+        originals = [(load_image(li), li) for li in labelled]
+        oof_logits, oof_truth_c, oof_truth_d, loose = [], [], [], []
+        from harness.experiments.detector.scores import truth_of
 
-    pos, neg = [], []
-    for li in progress_bar(train_set, desc="sampling", unit="img", disable=not progress, leave=False):
-        p, n = _sample_image(load_image(li), pixel_targets(li, opts.ring_px, opts.core_fraction), opts, rng)
-        pos.append(p)
-        neg.append(n)
-    pos, neg = np.concatenate(pos), np.concatenate(neg)
-    # Standardise each transformed channel (the two classes' means and spreads averaged, like the loss).
-    tp, tn = lut[pos.reshape(-1, 3)], lut[neg.reshape(-1, 3)]
-    mean = 0.5 * (tp.mean(0) + tn.mean(0))
-    std = np.sqrt(0.5 * (tp.var(0) + tn.var(0))) + 1e-3
-    norm = (1.0 / std, -mean / std)
-    xp, xn = _features(pos, lut, norm), _features(neg, lut, norm)
-    xh = np.zeros((0, 75))
-    loose_area = _area_range([li for li in train_set if li.n_balls])
-
-    val_images = [load_image(li) for li in val_set]
-    truth = ([truth_of(li)[0] for li in val_set], [truth_of(li)[1] for li in val_set])
-
-    w = torch.zeros(75, dtype=torch.float64, requires_grad=True)
-    b = torch.zeros(1, dtype=torch.float64, requires_grad=True)
-    history, best = [], None
-    t_high, t_low, area = 0.5, 0.2, loose_area
-    bar = progress_bar(range(opts.epochs), desc="train", unit="epoch", disable=not progress)
-    for epoch in bar:
-        if epoch > 0 and opts.hard_negatives_per_image > 0:  # mine our detector's current mistakes
-            current = _to_model(w.detach().numpy(), b.item(), norm, opts)
-            opt = DetectorOptions()
-            kw = dict(max_seeds=opt.max_seeds, min_area_px=area[0], max_area_px=area[1], min_fill_ratio=opt.min_fill_ratio, max_aspect=opt.max_aspect)
-            hard = [
-                _hard_negatives(current, load_image(li), pixel_targets(li, opts.ring_px, opts.core_fraction), opts.hard_negatives_per_image, t_high, t_low, kw)
-                for li in train_set
-            ]
-            xh = np.concatenate([xh, _features(np.concatenate(hard), lut, norm)])
-        h = opts.hard_weight if len(xh) else 0.0
-        loss = _fit(torch, w, b, [(xp, 1, 0.5), (xn, 0, 0.5 * (1 - h)), (xh, 0, 0.5 * h)], opts)
-        current = _to_model(w.detach().numpy(), b.item(), norm, opts)
-        t_high, t_low, area, s_ours, s_paper = choose_thresholds([current.logits(im) for im in val_images], truth, loose_area, opts)
-        j = np.nan_to_num(s_ours.recall) - s_ours.outlier_rate
-        history.append(dict(epoch=epoch + 1, loss=loss, n_hard=len(xh), t_high=t_high, t_low=t_low, area_range_px=area, ours=s_ours, paper=s_paper))
-        if best is None or j > best[0]:
-            best = (j, epoch, w.detach().numpy().copy(), b.item(), t_high, t_low, area, s_ours, s_paper)
-        bar.set_postfix(loss=f"{loss:.4f}", recall=f"{s_ours.recall:.3f}", outliers=f"{s_ours.outlier_rate:.3f}")
-        line = (
-            f"epoch {epoch + 1}/{opts.epochs}: loss {loss:.4f}  hard negatives {len(xh)}  val at T_h={t_high:g}, T_l={t_low:g}: "
-            f"ours recall {100 * s_ours.recall:.2f}% outliers {100 * s_ours.outlier_rate:.2f}% median {s_ours.median_center_error_px:.3f} px | "
-            f"paper recall {100 * s_paper.recall:.2f}% outliers {100 * s_paper.outlier_rate:.2f}%"
-        )
-        if progress:
-            bar.write(line)
-        else:
-            log(line)
-
-    _, epoch, w_best, b_best, t_high, t_low, area, s_ours, s_paper = best
+        for f, fold in enumerate(folds):
+            inside = set(fold)
+            rest = [li for i, li in enumerate(labelled) if i not in inside]
+            if not any(li.n_balls for li in rest):
+                continue
+            r_f = fitter.fit(_items(rest, opts, rng, False, backgrounds=backgrounds), None, log=log, label=f" (fold {f + 1}/{len(folds)})")
+            m_f = _to_model(r_f["w"], r_f["b"], r_f["norm"], opts)
+            loose.append(r_f["loose_area"])
+            for i in fold:
+                im, li = originals[i]
+                oof_logits.append(m_f.logits(im))
+                c, d = truth_of(li)
+                oof_truth_c.append(c)
+                oof_truth_d.append(d)
+        if not any(len(c) for c in oof_truth_c):
+            raise ValueError("cross-validation: no held-out fold holds a ball box; label more images with balls")
+        loose_area = (min(a for a, _ in loose), max(b for _, b in loose))
+        oof_truth = (oof_truth_c, oof_truth_d)
+        t_high, t_low, area, s_ours, s_paper = choose_thresholds(oof_logits, oof_truth, loose_area, opts)
+        if base is not None:  # the base model's thresholds are the prior: leave them only on clear evidence
+            area = (min(area[0], float(base.area_range_px[0])), max(area[1], float(base.area_range_px[1])))
+            b_ours, b_paper = score_thresholds(oof_logits, oof_truth, base.t_high, base.t_low, tuple(base.area_range_px), opts)
+            n = max(s_ours.n_balls, 1)
+            gain = (np.nan_to_num(s_ours.recall) - s_ours.outlier_rate) - (np.nan_to_num(b_ours.recall) - b_ours.outlier_rate)
+            if gain <= PRIOR_MARGIN_BALLS / n:
+                log(f"thresholds: the base model's (T_h={base.t_high:g}, T_l={base.t_low:g}) kept; cross-validation's choice gains "
+                    f"{100 * gain:.1f} points of recall - outliers on {n} balls, not more than {PRIOR_MARGIN_BALLS} balls' worth")
+                t_high, t_low, area, s_ours, s_paper = base.t_high, base.t_low, tuple(float(v) for v in base.area_range_px), b_ours, b_paper
+        msg = (f"cross-validation over {len(folds)} time-contiguous folds of {len(labelled)} images: T_h={t_high:g}, T_l={t_low:g}: "
+               f"ours recall {100 * s_ours.recall:.2f}% outliers {100 * s_ours.outlier_rate:.2f}% median {s_ours.median_center_error_px:.3f} px | "
+               f"paper recall {100 * s_paper.recall:.2f}% outliers {100 * s_paper.outlier_rate:.2f}%")
+        log(msg)
+        r = fitter.fit(_items(labelled, opts, rng, progress, backgrounds=backgrounds), None, log=log, label=" (all images)")
+        r.update(t_high=t_high, t_low=t_low, area=area, ours=s_ours, paper=s_paper)
+        n_train, n_val, how = len(labelled), 0, f"{len(folds)}-fold cv"
+    epoch, t_high, t_low, area, s_ours, s_paper = r["epoch"], r["t_high"], r["t_low"], r["area"], r["ours"], r["paper"]
     summary = (
-        f"best epoch {epoch + 1}; val at T_h={t_high:g}, T_l={t_low:g}, area {area[0]:.0f}-{area[1]:.0f} px: ours recall {100 * s_ours.recall:.2f}%, "
-        f"outliers {100 * s_ours.outlier_rate:.2f}%, median {s_ours.median_center_error_px:.3f} px; "
+        f"{'best epoch ' + str(epoch) + '; ' if choice == 'split' else ''}{how} at T_h={t_high:g}, T_l={t_low:g}, area {area[0]:.0f}-{area[1]:.0f} px: "
+        f"ours recall {100 * s_ours.recall:.2f}%, outliers {100 * s_ours.outlier_rate:.2f}%, median {s_ours.median_center_error_px:.3f} px; "
         f"paper recall {100 * s_paper.recall:.2f}%, outliers {100 * s_paper.outlier_rate:.2f}%"
     )
     log(summary)
     desc = f"{description}; " if description else ""
-    desc += f"{opts.ball_colour} balls, {opts.input_transform} input, {len(train_set)} train / {len(val_set)} val images, seed {opts.seed}; {summary}"
-    model = _to_model(w_best, b_best, norm, opts, t_high, t_low, area, desc)
-    info = dict(n_train=len(train_set), n_val=len(val_set), n_pos=len(xp), n_neg=len(xn), n_hard=len(xh), history=history,
-                best_epoch=epoch + 1, t_high=t_high, t_low=t_low, area_range_px=area, val_ours=s_ours, val_paper=s_paper)
+    origin = "fine-tuned from a base model" if base is not None else "trained from scratch"
+    if backgrounds:
+        origin += f", {len(backgrounds)} ball-free background images"
+    desc += (f"{opts.ball_colour} balls, {opts.input_transform} input, {origin}, {n_train} train / {n_val} val images "
+             f"(+{opts.augment_copies} augmented copies each), thresholds by {how}, seed {opts.seed}; {summary}")
+    model = _to_model(r["w"], r["b"], r["norm"], opts, t_high, t_low, area, desc)
+    v_info = None
+    if opts.verifier:
+        from harness.experiments.detector.augment import augment
+        from harness.experiments.detector.verifier_train import VerifierOptions, train_verifier
+
+        vrng = np.random.default_rng([opts.seed, 11])
+        originals = [(load_image(li), li) for li in labelled]
+        augmented = [(i, *augment(im, li, vrng)) for _ in range(opts.augment_copies) for i, (im, li) in enumerate(originals)]
+        verifier, v_info = train_verifier(model, originals, augmented, cv_folds(labelled, opts.cv_folds),
+                                          VerifierOptions(cv_folds=opts.cv_folds), seed=opts.seed, log=log, progress=progress)
+        s_v = v_info["cv"]
+        model = dataclasses.replace(model, verifier=verifier, description=desc + (
+            f"; verifier ({verifier.crop_px}x{verifier.crop_px} crops, {verifier.n_hidden} hidden units, threshold {verifier.threshold:g}): "
+            f"{len(labelled)}-image cv recall {100 * s_v.recall:.2f}%, outliers {100 * s_v.outlier_rate:.2f}%, "
+            f"median {s_v.median_center_error_px:.3f} px; candidates reach {100 * v_info['candidate_recall']:.1f}% of the balls"))
+    info = dict(n_train=n_train, n_val=n_val, n_pos=r["n_pos"], n_neg=r["n_neg"], n_hard=r["n_hard"], history=r["history"],
+                best_epoch=epoch, t_high=t_high, t_low=t_low, area_range_px=area, val_ours=s_ours, val_paper=s_paper,
+                threshold_choice=choice, verifier=v_info)
     return model, info
 
 
 # -- command line ----------------------------------------------------------------------------------
+SHIPPED_MODELS = {
+    "orange": Path(__file__).resolve().parents[3] / "data" / "models" / "ball_seg_default.npz",
+    "any": Path(__file__).resolve().parents[3] / "data" / "models" / "ball_seg_default.npz",
+    "white": Path(__file__).resolve().parents[3] / "data" / "models" / "ball_seg_white.npz",
+}
+
+
 def add_arguments(parser) -> None:
     from harness.experiments.detector.labels import LABEL_FORMATS
 
@@ -470,6 +675,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, help="weights file to write (.npz)")
     parser.add_argument("--epochs", type=int, default=TrainOptions.epochs)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seeds", type=int, nargs="+", default=None,
+                        help="train once per seed, print the spread of the (cross-)validation figures and write the best seed's model "
+                             "(default: --seed only)")
     parser.add_argument("--val-fraction", type=float, default=TrainOptions.val_fraction)
     parser.add_argument("--input-transform", choices=INPUT_TRANSFORMS, default=TrainOptions.input_transform,
                         help="per-channel input transform: 'log' (default; exposure-invariant colour) or 'linear' (the paper's raw RGB)")
@@ -478,6 +686,43 @@ def add_arguments(parser) -> None:
     parser.add_argument("--ball-colour", choices=BALL_COLOURS, default="any",
                         help="learn balls of this colour only; the others become background (default: any)")
     parser.add_argument("--max-images", type=int, default=None, help="use only the first N images (quick runs)")
+    parser.add_argument("--from", dest="from_model", default="shipped",
+                        help="fine-tune from this weights file (.npz); 'shipped' (default) = the shipped model of --ball-colour "
+                             "(data/models/ball_seg_default.npz for orange/any, ball_seg_white.npz for white; scratch if absent); "
+                             "'none' = train from scratch")
+    parser.add_argument("--augment", type=int, default=None,
+                        help="augmented copies of every training image (colour, exposure, gamma, blur, noise, JPEG, scale, flips); "
+                             "default: 3 when fine-tuning, 0 from scratch")
+    parser.add_argument("--thresholds", choices=THRESHOLD_CHOICES, default="auto",
+                        help="how T_h, T_l and the area range are chosen: 'split' (a held-out validation split), 'cv' (cross-validation "
+                             f"over time-contiguous folds of all images), 'auto' (default: split when it holds >= {AUTO_SPLIT_MIN_VAL_IMAGES} "
+                             "images with a ball, else cv)")
+    parser.add_argument("--verifier", action="store_true",
+                        help="also train a small classifier on the candidates' crops (a second stage beyond the paper's filter; "
+                             "numpy at run time) and store it in the model")
+    parser.add_argument("--backgrounds", nargs="+", default=(),
+                        help="ball-free real images added to training as background: videos (frames spread over each), COCO sets "
+                             "(balls painted out; PATH@START:STOP takes those images in time order) or folders of images")
+    parser.add_argument("--background-frames", type=int, default=8, help="frames taken from each --backgrounds video (default 8)")
+    parser.add_argument("--cv-folds", type=int, default=TrainOptions.cv_folds, help="folds of --thresholds cv (default 4)")
+    parser.add_argument("--time-range", default=None,
+                        help="use only images START:STOP in time order (file names sorted as frame numbers), e.g. 0:58; "
+                             "keeps later frames out of training")
+
+
+def resolve_base(from_model: str, colour: str) -> tuple[BallSegmentationModel | None, str]:
+    """``--from`` -> (base model or None, what it is, for the log and the weights file's description)."""
+    if from_model == "none":
+        return None, "scratch"
+    if from_model == "shipped":
+        path = SHIPPED_MODELS[colour]
+        if not path.is_file():
+            return None, f"scratch (no shipped {colour} model at {path})"
+        return BallSegmentationModel.load(path), f"the shipped model {path.name}"
+    path = Path(from_model)
+    if path.suffix != ".npz":
+        raise ValueError(f"--from must be a .npz weights file, 'shipped' or 'none', got {from_model!r}")
+    return BallSegmentationModel.load(path), str(path)
 
 
 def run(args) -> int:
@@ -485,6 +730,7 @@ def run(args) -> int:
     import sys
 
     from harness.experiments.detector.labels import read_labels
+    from harness.experiments.detector.subsets import take_range
 
     from harness.common.outputs import atomic_path, check_output_file
 
@@ -492,14 +738,45 @@ def run(args) -> int:
     if out.suffix != ".npz":
         raise ValueError(f"--out must end in .npz, got {args.out!r}")
     check_output_file(out, "--out")  # before the training, not after
+    base, origin = resolve_base(args.from_model, args.ball_colour)
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
+    labelled = take_range(labelled, args.time_range)
     if args.max_images is not None:
         labelled = labelled[: args.max_images]
-    opts = TrainOptions(epochs=args.epochs, seed=args.seed, val_fraction=args.val_fraction, input_transform=args.input_transform,
-                        ball_colour=args.ball_colour, core_fraction=args.core_fraction)
+    augment = args.augment if args.augment is not None else (3 if base is not None else 0)
+    from harness.experiments.detector.backgrounds import read_backgrounds
+
+    backgrounds = read_backgrounds(args.backgrounds, args.background_frames, load_image=load_image) if args.backgrounds else []
+    seeds = args.seeds if args.seeds else [args.seed]
     cmd = "rt2 " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else "rt2 train"
-    model, info = train(labelled, opts, description=f"trained by `{cmd}`")
+    print(f"training from {origin} on {len(labelled)} images" + (f" + {len(backgrounds)} ball-free backgrounds" if backgrounds else "")
+          + f", {augment} augmented copies each, seeds {seeds}")
+    results = []
+    for seed in seeds:
+        opts = TrainOptions(epochs=args.epochs, seed=seed, val_fraction=args.val_fraction, input_transform=args.input_transform,
+                            ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
+                            threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier)
+        sources = f"data {', '.join(map(str, args.data))}" + (f" (time range {args.time_range})" if args.time_range else "")
+        if backgrounds:
+            sources += f"; backgrounds {', '.join(map(str, args.backgrounds))} ({len(backgrounds)} ball-free images)"
+        model, info = train(labelled, opts, description=f"trained by `{cmd}` from {origin}; {sources}", base=base, backgrounds=backgrounds)
+        results.append((seed, model, info))
+    if len(results) > 1:
+        print(f"{'seed':>5} {'recall':>8} {'outliers':>9} {'median px':>10}  ({results[0][2]['threshold_choice']} figures, ours)")
+        for seed, _, info in results:
+            s = info["val_ours"]
+            print(f"{seed:5d} {100 * s.recall:7.2f}% {100 * s.outlier_rate:8.2f}% {s.median_center_error_px:10.3f}")
+        rec = np.array([np.nan_to_num(i["val_ours"].recall) for _, _, i in results])
+        out_r = np.array([i["val_ours"].outlier_rate for _, _, i in results])
+        print(f"spread over {len(results)} seeds: recall {100 * rec.min():.2f}-{100 * rec.max():.2f}%, outliers {100 * out_r.min():.2f}-{100 * out_r.max():.2f}%")
+    best = max(results, key=lambda r: (np.nan_to_num(r[2]["val_ours"].recall) - r[2]["val_ours"].outlier_rate, -r[0]))
+    seed, model, info = best
+    if len(results) > 1:
+        spread = ", ".join(f"seed {sd}: recall {100 * np.nan_to_num(i['val_ours'].recall):.1f}% outliers {100 * i['val_ours'].outlier_rate:.1f}%"
+                           for sd, _, i in results)
+        model = dataclasses.replace(model, description=model.description + f"; kept seed {seed} of [{spread}]")
     with atomic_path(out, "--out") as tmp:  # never a half-written model
         model.save(tmp)
-    print(f"wrote {out}: T_h={model.t_high:g}, T_l={model.t_low:g} ({info['n_train']} train / {info['n_val']} val images)")
+    print(f"wrote {out}: T_h={model.t_high:g}, T_l={model.t_low:g} ({info['n_train']} train / {info['n_val']} val images"
+          f"{', thresholds by cross-validation' if info['threshold_choice'] == 'cv' else ''}{f', seed {seed}' if len(results) > 1 else ''})")
     return 0

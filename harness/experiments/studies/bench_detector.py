@@ -5,6 +5,9 @@ Rows (all in one process, one thread each, same image, same weights):
 * ``full / cv2`` — the production path: ``BallDetector.detect`` on the whole frame (three
   ``cv2.filter2D`` calls for the logits, Algorithm 1 with top-K candidates, numba flood fill).
 * ``roi / cv2`` — the same in a window of side ``2 * roi_half_size_px`` around a predicted pixel.
+* ``full / cv2 without verifier``, ``roi / cv2 without verifier`` (models with a candidate verifier
+  only) — the same detector with the filter alone, so the verifier's cost is the difference; a
+  breakdown row times the verifier on the frame's candidates.
 * ``full / torch``, ``roi / torch`` — the same model as ``torch.nn.Conv2d`` (reflect padding) +
   sigmoid + argmax in torch (Algorithm 1 line 1 only, no flood fill), from the same uint8 image.
 
@@ -105,8 +108,19 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
     tdet = _torch_path(model, torch)
     lg = model.logits(image)
     th, tl = det._th_logit, det._tl_logit
+    extra_full, extra_roi = {}, {}
+    if model.verifier is not None:  # the same detector with the filter alone, and the verifier's own share
+        plain = BallDetector(model, DetectorOptions(roi_half_size_px=roi_half_size_px, verify=False))
+        cand = BallDetector(model, DetectorOptions(roi_half_size_px=roi_half_size_px, verify=False, max_candidates=det.options.max_seeds)).detect(image)
+        sides = cand.boxes_xywh[:, 2:].max(axis=1)
+        extra_full = {
+            ("full", "cv2 without verifier"): lambda: plain.detect(image),
+            ("full", f"cv2: verifier on {len(cand)} candidates' crops"): lambda: model.verifier.verify(image, cand.uv_px, sides),
+        }
+        extra_roi = {("roi", "cv2 without verifier"): lambda: plain.detect(image, roi_center_px)}
     full = _median_ms(
         {
+            **extra_full,
             ("full", "cv2"): lambda: det.detect(image),
             ("full", "torch"): lambda: tdet(image),
             ("full", "cv2: logits only (3 x filter2D)"): lambda: model.logits(image),
@@ -114,9 +128,12 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
         },
         repeats,
     )
-    roi = _median_ms({("roi", "cv2"): lambda: det.detect(image, roi_center_px), ("roi", "torch"): lambda: tdet(image, window)}, repeats * 10)
+    roi = _median_ms({("roi", "cv2"): lambda: det.detect(image, roi_center_px), ("roi", "torch"): lambda: tdet(image, window), **extra_roi},
+                     repeats * 10)
     timed = {**full, **roi}
     main = [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")]
+    if model.verifier is not None:
+        main += [("full", "cv2 without verifier"), ("roi", "cv2 without verifier")]
     rows = [dict(mode=m, backend=b, median_ms=timed[m, b]) for m, b in main]
     breakdown = [dict(mode=m, backend=b, median_ms=t) for (m, b), t in timed.items() if (m, b) not in main]
     return rows, breakdown
@@ -152,6 +169,9 @@ def run(args) -> int:
     by = {(r["mode"], r["backend"]): r["median_ms"] for r in rows}
     for mode in ("full", "roi"):
         print(f"{mode}: torch / cv2 = {by[(mode, 'torch')] / by[(mode, 'cv2')]:.2f}x")
+    if model.verifier is not None:
+        for mode in ("full", "roi"):
+            print(f"{mode}: with verifier / without = {by[(mode, 'cv2')] / by[(mode, 'cv2 without verifier')]:.2f}x")
     print("goals: full frame <= 2 ms, ROI <= 0.2 ms (cv2 path)")
     if args.json:
         atomic_write_json(args.json, rows, "--json")

@@ -29,14 +29,19 @@ __all__ = ["DEFAULT_MODEL", "EVAL_METHODS", "add_arguments", "evaluate", "run"]
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[3] / "data" / "models" / "ball_seg_default.npz"
 EVAL_METHODS = ("paper", "ours", "topk")
+BALL_FREE_MARGIN_PX = 4.0  #: --ball-free grows each box by this before inpainting
 GOALS = {"recall": 0.99, "outlier_rate": 0.01, "median_center_error_px": 0.5}
 
 
-def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None, progress=True):
+def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None, progress=True,
+             ball_free_margin_px: float | None = None):
     """Run each method on every labelled image; returns a list of :class:`~harness.experiments.detector.scores.DetectorScores`.
 
     model : ``BallSegmentationModel``; labelled : list of ``harness.experiments.detector.coco.LabelledImage``
     t_high, t_low : Algorithm 1's thresholds as probabilities (None = the model's recommended ones)
+    ball_free_margin_px : when set, every labelled ball is inpainted out first (boxes grown by this
+        margin, :mod:`harness.experiments.detector.ballfree`) and the images count as ball-free:
+        every detection is a false alarm
     """
     from harness.common.progress import progress_bar
 
@@ -52,6 +57,10 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
     centers, diameters = [], []
     for li in progress_bar(labelled, desc="eval detector", unit="img", disable=not progress, leave=False):
         image = load_image(li)
+        if ball_free_margin_px is not None:
+            from harness.experiments.detector.ballfree import ball_free
+
+            image, li = ball_free(image, li, ball_free_margin_px)
         c, d = truth_of(li)
         centers.append(c)
         diameters.append(d)
@@ -156,6 +165,14 @@ def add_arguments(parser) -> None:
     parser.add_argument("--max-images", type=int, default=None, help="evaluate only the first N images")
     parser.add_argument("--figure", default=None, help="also draw the probability-image figure (image, B, detection) to this PNG, "
                                                         "and the contact sheet of misses and false alarms beside it (NAME_failures.png)")
+    parser.add_argument("--time-range", default=None,
+                        help="evaluate only images START:STOP in time order (file names sorted as frame numbers), e.g. 58: for a "
+                             "video's later frames that training did not see")
+    parser.add_argument("--no-verifier", action="store_true",
+                        help="run 'ours' and 'topk' with the model's 5x5 filter alone, without its candidate verifier (if it has one)")
+    parser.add_argument("--ball-free", action="store_true",
+                        help="paint every labelled ball out first (OpenCV inpainting of its box + 4 px) and count every detection "
+                             "as a false alarm: false alarms on real scenes without ball-free frames")
 
 
 def run(args) -> int:
@@ -170,7 +187,15 @@ def run(args) -> int:
     sheet = None if args.figure is None else str(Path(args.figure).with_name(Path(args.figure).stem + "_failures.png"))
     check_output_file(sheet, "--figure")
     model = BallSegmentationModel.load(args.model)
+    if getattr(args, "no_verifier", False) and model.verifier is not None:
+        import dataclasses
+
+        model = dataclasses.replace(model, verifier=None)
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
+    if getattr(args, "time_range", None) is not None:
+        from harness.experiments.detector.subsets import take_range
+
+        labelled = take_range(labelled, args.time_range)
     if args.max_images is not None:
         labelled = labelled[: args.max_images]
     if not labelled:
@@ -185,12 +210,16 @@ def run(args) -> int:
     t_low = model.t_low if args.t_low is None else args.t_low
     if not t_low < t_high:
         raise ValueError(f"need T_l < T_h, got T_l={t_low:g} and T_h={t_high:g} (--t-low/--t-high and the model's defaults combined)")
-    scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low)
+    ball_free_margin = BALL_FREE_MARGIN_PX if getattr(args, "ball_free", False) else None
+    scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low,
+                      ball_free_margin_px=ball_free_margin)
     print(
-        f"model {args.model}: T_h={t_high:g}, T_l={t_low:g}; {len(labelled)} images; "
+        f"model {args.model}{' (with its candidate verifier)' if model.verifier is not None else ''}: T_h={t_high:g}, T_l={t_low:g}; {len(labelled)} images; "
         f"{colour} balls >= {args.min_diameter_px:g} px"
         + (f" (the model's own colour; --ball-colour any scores every ball)" if args.ball_colour == "model" and colour != "any" else "")
     )
+    if ball_free_margin is not None:
+        print(f"ball-free: every labelled ball painted out (box + {ball_free_margin:g} px); every detection is a false alarm")
     print(format_table(scores))
     goals = f"goals: recall >= {100 * GOALS['recall']:.0f}%, outliers <= {100 * GOALS['outlier_rate']:.0f}%, median error <= {GOALS['median_center_error_px']} px"
     print(goals + " (topk's outlier rate counts every extra candidate; the robust estimator rejects them)")

@@ -24,7 +24,7 @@ from harness.experiments.detector.train import (
 from tracker import BallDetector, BallSegmentationModel, DetectorOptions
 from tracker.detection.synthetic import ORANGE_RGB, WHITE_RGB, draw_disk, synthetic_scene
 
-QUICK = TrainOptions(epochs=2, lbfgs_iters=25, random_negatives_per_image=200, hard_negatives_per_image=40)
+QUICK = TrainOptions(epochs=2, lbfgs_iters=25, random_negatives_per_image=200, hard_negatives_per_image=40, threshold_choice="split")
 
 
 @pytest.fixture(scope="module")
@@ -130,7 +130,7 @@ def test_same_seed_same_model(synthetic_ball_coco, trained):
 # -- command line ------------------------------------------------------------------------------------
 def test_cli_writes_a_loadable_model(synthetic_ball_coco, tmp_path, capsys):
     out = tmp_path / "m.npz"
-    code = main(["train", "--data", str(synthetic_ball_coco(30, 0)), "--out", str(out), "--epochs", "1"])
+    code = main(["train", "--data", str(synthetic_ball_coco(30, 0)), "--out", str(out), "--epochs", "1", "--from", "none", "--thresholds", "split"])
     assert code == 0
     model = BallSegmentationModel.load(out)
     assert "rt2 train" in model.description and "val images" in model.description

@@ -1,0 +1,66 @@
+"""The detector's training and evaluation tools on the real rally frames (../shared/data/real/phone_rally):
+the time split that keeps a video's later frames out of training, ball-free frames for false alarms,
+and a few-label run with cross-validated thresholds on real 1920x1080 JPEGs. Skipped, with the reason,
+where the shared data is absent."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from harness.cli import main
+from harness.experiments.detector.ballfree import ball_free
+from harness.experiments.detector.coco import read_coco
+from harness.experiments.detector.subsets import take_range
+from harness.experiments.detector.train import load_image
+from tests.conftest import REAL
+from tracker import BallSegmentationModel
+
+RALLY = REAL / "phone_rally"
+pytestmark = pytest.mark.skipif(not (RALLY / "annotations.json").is_file(), reason=f"real rally frames not found at {RALLY}")
+EARLY, LATE = "0:58", "58:"  # the split the README's figures use: frames 0-79 for training, 80-110 held out
+
+
+def _frame(li) -> int:
+    return int(re.search(r"MOV-(\d+)", li.path.name).group(1))
+
+
+def test_time_split_keeps_the_later_frames_out():
+    labelled = read_coco(RALLY)
+    early, late = take_range(labelled, EARLY), take_range(labelled, LATE)
+    assert (len(early), len(late)) == (58, 25) and len(labelled) == 83
+    assert max(map(_frame, early)) < min(map(_frame, late))
+    assert [_frame(li) for li in early] == sorted(map(_frame, early))
+
+
+def test_ball_free_frames_lose_the_ball_and_keep_the_scene():
+    li = take_range(read_coco(RALLY), "58:59")[0]
+    image = load_image(li)
+    out, empty = ball_free(image, li)
+    x, y, w, h = li.boxes_xywh[0]
+    inside = out[int(y) + 2 : int(y + h) - 2, int(x) + 2 : int(x + w) - 2].astype(float)
+    before = image[int(y) + 2 : int(y + h) - 2, int(x) + 2 : int(x + w) - 2].astype(float)
+    assert np.abs(inside - before).mean() > 10  # the white ball's pixels are replaced
+    far = np.ones(image.shape[:2], bool)
+    far[max(int(y) - 12, 0) : int(y + h) + 12, max(int(x) - 12, 0) : int(x + w) + 12] = False
+    np.testing.assert_array_equal(out[far], image[far])
+    assert empty.n_balls == 0
+
+
+def test_few_label_run_on_real_frames(tmp_path, capsys):
+    out = tmp_path / "white.npz"
+    args = ["train", "--data", str(RALLY), "--time-range", "0:6", "--ball-colour", "white", "--from", "none", "--thresholds", "cv",
+            "--cv-folds", "2", "--epochs", "1", "--augment", "0", "--seed", "0", "--out", str(out)]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "cross-validation over 2 time-contiguous folds of 6 images" in text
+    model = BallSegmentationModel.load(out)
+    assert model.ball_colour == "white" and "(time range 0:6)" in model.description and "2-fold cv" in model.description
+    assert main(["eval", "detector", "--data", str(RALLY), "--time-range", LATE, "--ball-free", "--model", str(out),
+                 "--json", str(tmp_path / "bf.json")]) == 0
+    assert "25 images" in capsys.readouterr().out
+    rows = json.loads((tmp_path / "bf.json").read_text())
+    assert [r["method"] for r in rows] == ["paper", "ours", "topk"]
