@@ -52,7 +52,7 @@ class RobotConfig:
     #: robot's table end, base x towards the opponent (docs/robot.md, "Mount")
     mount_xyz_m: tuple = (-1.75, 0.0, 0.70)
     mount_rpy_rad: tuple = (0.0, 0.0, 0.0)
-    #: measured on a table-tennis WAM (issue 5); Barrett publishes none
+    #: measured on a table-tennis WAM; Barrett publishes none
     qdot_max_rad_s: tuple = (3.2, 6.3, 10.0, 10.0, 24.0, 19.0, 27.0)
     qddot_max_rad_s2: tuple = (6.8, 11.5, 17.0, 21.5, 84.0, 110.0, 100.0)
     #: ready posture: racket near (-1.35, 0, 1.1) m facing the opponent (+x)

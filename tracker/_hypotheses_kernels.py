@@ -15,6 +15,8 @@ import math
 import numba
 import numpy as np
 
+from checks.numba_cache import key_cache_on_callees
+
 __all__ = ["OPTION_FIELDS", "update_kernel", "wants_full_frame_kernel"]
 
 #: the HypothesisOptions fields in the order of the kernels' ``o`` array
@@ -209,3 +211,6 @@ def wants_full_frame_kernel(t, T, count, in_play, other, lead, withhold, last_fu
         if i != lead and count[i] > 0 and count[i] < o[5] and not other[i] and t - T[i, 0] <= o[4]:
             return True
     return t - last_full >= o[9]
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

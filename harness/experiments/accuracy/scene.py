@@ -36,7 +36,7 @@ from harness.experiments.accuracy.distractors import DistractorSchedule
 
 __all__ = ["DISTRACTORS", "SCENES", "SHIRTS", "SceneOptions", "SessionScene"]
 
-#: shirt colours (issue 5: "orange/white shirt"); None in SceneOptions draws one with the seed
+#: shirt colours ("orange/white shirt" distractors); None in SceneOptions draws one with the seed
 SHIRTS = ("white", "orange")
 #: distractor objects by name: (shape, colour, where)
 DISTRACTORS = {

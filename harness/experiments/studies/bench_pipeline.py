@@ -30,7 +30,7 @@ import numpy as np
 
 __all__ = ["GOALS", "add_arguments", "bench", "run", "tracking_sequence"]
 
-#: mode -> (min frame sets/s, max p99 ms) from issue 5 section 4
+#: mode -> (min frame sets/s, max p99 ms): the per-frame path's speed goals (docs/pipeline.md)
 GOALS = {"full": (250.0, 5.0), "roi": (1000.0, None)}
 _G = np.array([0.0, 0.0, -9.81])
 
