@@ -47,6 +47,9 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sim only: render S seconds of the scene up front and loop them, so rendering takes no CPU "
                              "while tracking (benchmarks; memory 3.7 MB per frame set of 4 VGA cameras)")
     parser.add_argument("--tracker", default="rt2", choices=_TRACKERS, help="tracker kind (default rt2)")
+    parser.add_argument("--model", default=None, metavar="MODEL.npz",
+                        help="rt2 kinds: the ball segmentation model (default: the shipped data/models/ball_seg_default.npz); "
+                             "one you trained with `rt2 train` on your own labels")
     parser.add_argument("--workers", type=int, default=1, metavar="N",
                         help="rt2 kinds: threads running the detector on the cameras of one frame set (default 1); 2 halves "
                              "a full-frame search (a new ball, a lost one) when a second core is free (rt2 bench live)")

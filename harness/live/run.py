@@ -155,7 +155,13 @@ def open_service(args, *, status=print, tracker_overrides: dict | None = None, t
         workers = getattr(args, "workers", 1)
         if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 64:
             raise ValueError(f"--workers must be a whole number in [1, 64], got {workers!r}")
-        tracker = Tracker(rig, args.tracker, **({"workers": workers} if workers != 1 else {}), **(tracker_overrides or {}))
+        model = getattr(args, "model", None)
+        if model is not None and args.tracker == "rtblob":
+            raise ValueError("--model applies to the rt2 kinds only (rtblob matches a colour and a template, it has no model)")
+        if model is not None and not Path(model).is_file():
+            raise ValueError(f"--model {str(model)!r}: no such file (train one with `rt2 train --out MODEL.npz`)")
+        kw = {"model": model} if model is not None else {}
+        tracker = Tracker(rig, args.tracker, **kw, **({"workers": workers} if workers != 1 else {}), **(tracker_overrides or {}))
         closers.append(tracker.close)
         warm_up(tracker, rig)
         publisher = None

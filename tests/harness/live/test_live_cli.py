@@ -255,3 +255,38 @@ def test_pylon_camera_emulator_through_rt2_track(tmp_path):
     s = json.loads(stats.read_text())
     assert s["frame_sets"] >= 20 and s["published"] == {"tennicam": s["frame_sets"], "rt2": s["frame_sets"]}
     assert s["assembly"]["complete"] >= s["frame_sets"] - 1 and s["with_position"] == 0
+
+
+# -- --model: a model you trained, used by the live service -------------------------------------------------------
+def test_model_option_is_the_model_the_service_runs(tmp_path, capsys):
+    """The same sim run with the shipped model and with a copy whose bias is far below every pixel's logit (a
+    model that finds nothing): positions with one, none with the other, so the file passed is the one tracking."""
+    import dataclasses
+
+    from tracker.pipeline import load_model
+
+    blind = tmp_path / "blind.npz"
+    dataclasses.replace(load_model(), bias=-1e4).save(blind)
+    figures = {}
+    for name, extra in (("shipped", []), ("blind", ["--model", str(blind)])):
+        out = tmp_path / f"{name}.json"
+        rc = rt2(["track", "--duration", "2", "--publish", "none", "--status-period", "0", "--json", str(out), *extra])
+        assert rc == 0, capsys.readouterr().err
+        figures[name] = json.loads(out.read_text())
+    assert figures["shipped"]["with_position"] > 0, figures["shipped"]["status"]
+    assert figures["blind"]["with_position"] == 0, figures["blind"]["status"]
+
+
+@pytest.mark.parametrize("make, expected", [
+    (lambda d: d / "missing.npz", "no such file"),
+    (lambda d: (d / "notes.npz").write_text("not a model") and d / "notes.npz", "notes.npz"),
+    (lambda d: d, "no such file"),  # a folder
+])
+def test_bad_model_is_one_line(capsys, tmp_path, make, expected):
+    path = make(tmp_path)
+    assert expected in _bad(capsys, tmp_path, "--publish", "none", "--model", str(path))
+
+
+def test_model_with_rtblob_is_one_line(capsys, tmp_path):
+    assert "--model applies to the rt2 kinds only" in _bad(
+        capsys, tmp_path, "--publish", "none", "--tracker", "rtblob", "--model", str(tmp_path / "m.npz"))
