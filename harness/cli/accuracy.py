@@ -16,7 +16,7 @@ from pathlib import Path
 
 from harness.experiments.accuracy.config import DEFAULT_FRAMES, DEFAULT_LOG_IMAGES, QUICK_FRAMES, AccuracyConfig
 from harness.experiments.accuracy.scene import SCENES
-from harness.experiments.accuracy.stats import TRACKER_KINDS, check_goals, fmt, format_goals, format_table
+from harness.experiments.accuracy.stats import BASELINE_WORDS, TRACKER_KINDS, check_baseline, fmt, format_goals, format_table, rt2_goals
 from harness.common.executor import add_sweep_arguments, options_from_args
 from harness.logs.codecs import IMAGE_FORMATS
 
@@ -104,8 +104,12 @@ def format_report(figures: dict, rows: list, *, header: str = "") -> str:
     for kind, m in figures["modes"].items():
         vals = " ".join("       -" if v is None else f"{100 * v:7.2f}%" for v in m.values())
         lines.append(f"  {kind:10} {vals}")
-    lines.append("\ngoals (tracker accuracy):")
-    lines.append(format_goals(check_goals(rows)))
+    lines.append("\ngoals (rt2's accuracy):")
+    lines.append(format_goals(rt2_goals(rows)))
+    baseline = check_baseline(rows)
+    if baseline:
+        lines.append("\nthe baseline's published failure mode (RTBlob, paper Sec. 3.2; shown by cluttered scenes, not a goal):")
+        lines.append(format_goals(baseline, BASELINE_WORDS))
     faults = figures.get("faults", {})
     if faults.get("injected"):
         lines.append("\ninjected faults:")

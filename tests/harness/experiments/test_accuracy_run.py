@@ -115,7 +115,11 @@ def test_cli_runs_and_writes_json(accuracy_session, tmp_path, capsys):
                  "--model", str(out / "model.npz"), "--trackers", "rt2", "rtblob", "--out", str(tmp_path / "o"), "--json", str(js)])
     text = capsys.readouterr().out
     assert code == 0
-    assert "registration (rt2 OK positions" in text and "goals (tracker accuracy)" in text and "accuracy_hist.png" in text
+    assert "registration (rt2 OK positions" in text and "goals (rt2's accuracy)" in text and "accuracy_hist.png" in text
+    # the baseline's failure mode is reported as an observation of the scene, never as a goal rt2 missed
+    goals, _, baseline = text.partition("the baseline's published failure mode")
+    assert "rtblob" not in goals.split("goals (rt2's accuracy)")[1] and "rtblob failure mode visible" in baseline
+    assert "] rtblob" in baseline and "met]" not in baseline.split("\n\n")[0]
     rows = json.loads(js.read_text())
     assert [r["tracker"] for r in rows] == ["rt2", "rtblob"] and all(list(r) == list(JSON_KEYS) for r in rows)
 
@@ -165,7 +169,7 @@ def test_demo_runs_the_quick_experiment(tmp_path, capsys):
         pytest.skip(f"the default model {DEFAULT_MODEL} is not there (rt2 train)")
     code = main(["demo", "--out", str(tmp_path)])
     text = capsys.readouterr().out
-    assert code == 0 and "goals (tracker accuracy)" in text and "rt2 reevaluate" in text
+    assert code == 0 and "goals (rt2's accuracy)" in text and "rt2 reevaluate" in text
     rows = json.loads((tmp_path / "accuracy.json").read_text())
     assert [r["tracker"] for r in rows] == ["rt2", "rt2-paper", "rtblob"]
     assert (tmp_path / "accuracy_hist.png").is_file() and (tmp_path / "session.mcap").is_file()
