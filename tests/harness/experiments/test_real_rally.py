@@ -77,6 +77,7 @@ def test_shape_study_is_seeded():
     assert [r["threshold"] for r in a["verifier"]] == [0.5, 0.9, 0.95, 0.98]
 
 
+@pytest.mark.slow  # the full split trains for ~2-3 min: a study's figure, run by `pytest -m slow`, not by `make test`
 def test_shape_study_proposes_the_held_out_white_ball():
     """The README's figure: the ball-scale proposer trained on frames 0:58 has the held-out ball among its
     first 32 candidates in >= 90 % of the 25 held-out frames (a 5x5 filter: at most 9 of 25)."""
