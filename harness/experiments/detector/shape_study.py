@@ -16,7 +16,7 @@ the proposals:
    Adam): ball logit and centre offset. Positives: jittered crops at the labelled balls; negatives: the
    proposer's candidates away from the ball and on the same frames with the balls painted out.
 3. **Figures** on the held-out frames: how often the ball is among the first 1 / 4 / 16 / 32 candidates;
-   for verifier thresholds, recall (the ball among the kept top-4 within two radii, as in
+   for the verifier seeing the first 16 or all 32 candidates and for its thresholds, recall (the ball among the kept top-4 within two radii, as in
    ``rt2 eval detector``), outlier rate (kept candidates off the ball / all kept), median centre error
    and false alarms on the same frames with the balls painted out.
 
@@ -44,6 +44,7 @@ __all__ = ["run_study"]
 
 BOXES_PX = ((3, 7), (5, 11), (7, 15), (11, 23))  #: (inner, outer) box sides at the small scale
 THRESHOLDS = (0.5, 0.9, 0.95, 0.98)
+VERIFIED = (16, 32)  #: the verifier sees the first 16, or all 32, candidates
 
 
 def _features(image, scale: float) -> np.ndarray:
@@ -132,7 +133,7 @@ class _Proposer:
 
 
 def run_study(data, train_range: str = "0:58", test_range: str = "58:", *, seed: int = 0, scale: float = 4.0,
-              nms_px: int = 9, n_candidates: int = 32, crop_side_px: float = 80.0, epochs: int = 150) -> dict:
+              nms_px: int = 9, n_candidates: int = max(VERIFIED), crop_side_px: float = 80.0, epochs: int = 150) -> dict:
     """The figures of the module docstring as a dict (JSON-ready). ``data``: a COCO file or folder."""
     import torch
 
@@ -205,22 +206,23 @@ def run_study(data, train_range: str = "0:58", test_range: str = "58:", *, seed:
         order = np.argsort(-prob, kind="stable")[:4]
         return prob[order], (pts + o[:, 1:] * crop_side_px)[order]
 
-    kept = [verify(images[i], cands[i]) for i in range(n_tr, len(images))]
-    alarms = [verify(free[i], cands_free[i])[0].max() for i in range(n_tr, len(images))]
     rows = []
-    for th in THRESHOLDS:
-        n_det = n_off = n_hit = 0
-        errors = []
-        for (prob, uv), c, s in zip(kept, centers[n_tr:], sizes[n_tr:]):
-            d = np.hypot(*(uv[prob >= th] - c).T)
-            n_det += len(d)
-            n_off += int((d >= s).sum())
-            if (d < s).any():
-                n_hit += 1
-                errors.append(float(d[d < s].min()))
-        rows.append(dict(threshold=th, recall=n_hit / len(kept), outlier_rate=n_off / max(n_det, 1),
-                         median_center_error_px=float(np.median(errors)) if errors else float("nan"),
-                         ball_free_alarm_rate=float(np.mean(np.array(alarms) >= th))))
+    for n_verified in VERIFIED:  # the verifier sees the first n_verified candidates
+        kept = [verify(images[i], cands[i][:n_verified]) for i in range(n_tr, len(images))]
+        alarms = [verify(free[i], cands_free[i][:n_verified])[0].max() for i in range(n_tr, len(images))]
+        for th in THRESHOLDS:
+            n_det = n_off = n_hit = 0
+            errors = []
+            for (prob, uv), c, s in zip(kept, centers[n_tr:], sizes[n_tr:]):
+                d = np.hypot(*(uv[prob >= th] - c).T)
+                n_det += len(d)
+                n_off += int((d >= s).sum())
+                if (d < s).any():
+                    n_hit += 1
+                    errors.append(float(d[d < s].min()))
+            rows.append(dict(verified=n_verified, threshold=th, recall=n_hit / len(kept), outlier_rate=n_off / max(n_det, 1),
+                             median_center_error_px=float(np.median(errors)) if errors else float("nan"),
+                             ball_free_alarm_rate=float(np.mean(np.array(alarms) >= th))))
     n = len(ranks)
     reach = {str(k): sum(r is not None and r < k for r in ranks) / n for k in (1, 4, 16, n_candidates)}
     return dict(data=str(data), train_range=train_range, test_range=test_range, seed=seed, n_train=n_tr, n_test=n,
@@ -244,9 +246,9 @@ def main(argv=None) -> int:
         return 2
     reach = "  ".join(f"top-{k} {100 * v:.0f}%" for k, v in res["candidate_reach"].items())
     print(f"{res['n_train']} training frames, {res['n_test']} held out; ball among the proposer's candidates: {reach}")
-    print(f"{'threshold':>9} {'recall':>7} {'outliers':>9} {'median px':>10} {'ball-free alarms':>17}")
+    print(f"{'verified':>8} {'threshold':>9} {'recall':>7} {'outliers':>9} {'median px':>10} {'ball-free alarms':>17}")
     for r in res["verifier"]:
-        print(f"{r['threshold']:9.2f} {100 * r['recall']:6.0f}% {100 * r['outlier_rate']:8.0f}% {r['median_center_error_px']:10.2f} "
+        print(f"{r['verified']:8d} {r['threshold']:9.2f} {100 * r['recall']:6.0f}% {100 * r['outlier_rate']:8.0f}% {r['median_center_error_px']:10.2f} "
               f"{100 * r['ball_free_alarm_rate']:16.0f}%")
     if args.json:
         with open(args.json, "w") as fh:

@@ -74,7 +74,7 @@ def test_shape_study_is_seeded():
     a, b = run_study(RALLY, **kw), run_study(RALLY, **kw)
     assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
     assert a["n_train"] == 10 and a["n_test"] == 4 and len(a["candidate_ranks"]) == 4
-    assert [r["threshold"] for r in a["verifier"]] == [0.5, 0.9, 0.95, 0.98]
+    assert [(r["verified"], r["threshold"]) for r in a["verifier"]] == [(n, t) for n in (16, 32) for t in (0.5, 0.9, 0.95, 0.98)]
 
 
 @pytest.mark.slow  # the full split trains for ~2-3 min: a study's figure, run by `pytest -m slow`, not by `make test`
