@@ -40,7 +40,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import sys
 import threading
 import time
 import uuid
@@ -50,6 +49,7 @@ from dataclasses import dataclass
 from multiprocessing import get_context
 
 from harness.common.fast_exit import exit_at_once_when_done
+from harness.common.spawn import die_with_parent
 
 __all__ = ["Executor", "SweepInterrupted", "SweepOptions", "SweepStopped", "WorkerLost", "add_sweep_arguments",
            "in_task_order", "options_from_args", "run_sweep"]
@@ -210,23 +210,7 @@ def _start_local_worker(parent_pid: int, key: str, initializer, initargs) -> Non
 def _die_with_parent(parent_pid: int) -> None:
     """Local worker start-up: exit when the parent goes away, whatever way it dies."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group: the parent decides
-    if sys.platform.startswith("linux"):
-        try:
-            import ctypes
-
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG: the kernel kills us with the parent
-        except (OSError, AttributeError):
-            pass  # the watcher below still works
-    if os.getppid() != parent_pid:  # the parent died before we got here
-        os._exit(1)
-
-    def watch():  # portable fallback (and for a parent whose spawning thread ended)
-        while os.getppid() == parent_pid:
-            time.sleep(_POLL_S)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="rt2-parent-watch", daemon=True).start()
+    die_with_parent(parent_pid, signal.SIGKILL, grace_s=0.0)  # a worker holds nothing to shut down cleanly
 
 
 # ------------------------------------------------------------------------------------------ parent side

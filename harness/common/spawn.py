@@ -36,9 +36,10 @@ PARENT_GONE_GRACE_S = 1.0  #: a child still alive this long after its parent die
 _WATCH_S = 0.1
 
 
-def die_with_parent(parent_pid: int, sig: int = signal.SIGTERM) -> None:
+def die_with_parent(parent_pid: int, sig: int = signal.SIGTERM, grace_s: float = PARENT_GONE_GRACE_S) -> None:
     """In a child: get ``sig`` when the parent dies (Linux ``PR_SET_PDEATHSIG``), and exit (status 1)
-    :data:`PARENT_GONE_GRACE_S` after the parent is gone in any case; exit at once if it is gone already."""
+    ``grace_s`` after the parent is gone in any case; exit at once if it is gone already. Child services take
+    SIGTERM and a grace for a clean shutdown; the sweep workers (``executor.py``) SIGKILL and none."""
     if sys.platform.startswith("linux"):
         try:
             import ctypes
@@ -52,7 +53,7 @@ def die_with_parent(parent_pid: int, sig: int = signal.SIGTERM) -> None:
     def watch():
         while os.getppid() == parent_pid:
             time.sleep(_WATCH_S)
-        time.sleep(PARENT_GONE_GRACE_S)  # time for a clean shutdown on the signal
+        time.sleep(grace_s)  # time for a clean shutdown on the signal
         os._exit(1)
 
     threading.Thread(target=watch, name="rt2-parent-watch", daemon=True).start()
