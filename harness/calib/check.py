@@ -86,7 +86,7 @@ def render_wand_detections(truth: Rig, balls_m: np.ndarray, seed: int) -> np.nda
 
 
 def run_check(cfg: CheckConfig) -> dict:
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     truth = resolve_rig(cfg.rig)
     rng = np.random.default_rng(cfg.seed)

@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from tracker import Camera, Rig
-from harness.sim.rigs import read_anipose_toml  # the reader lives with the rig resolver (--rig accepts .toml)
+from tracker.rig_files import read_anipose_toml  # the reader lives with the rig resolver (--rig accepts .toml)
 
 __all__ = ["add_export_arguments", "read_anipose_toml", "save_calibration", "write_anipose_toml", "write_exports", "write_opencv_files"]
 

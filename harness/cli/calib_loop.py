@@ -32,7 +32,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from harness.experiments.accuracy.experiment import run_accuracy
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     if args.frames < 100:
         raise ValueError(f"--frames must be >= 100 (the robot registration needs them), got {args.frames}")

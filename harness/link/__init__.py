@@ -6,11 +6,11 @@ watchdog), ``bridge_sim`` (the robot side for the simulated WAM: ``rt2 robot ser
 (``WamClient``: the WAM interface over the link), ``clock`` (clock-offset estimates). Protocol and the
 bridge a lab writes for its controller: docs/robot_link.md.
 
-Names are loaded on first use (PEP 562), so that ``bridge_ros`` imports under a Python that has neither
-the simulator nor the client's dependencies.
+Names are loaded on first use (PEP 562), so that ``python3 -m harness.link.bridge_ros``, which runs this
+file first, imports under a Python that has neither the simulator nor the client's dependencies.
 """
 
-from harness.common.lazy import lazy_attributes
+from checks.lazy import lazy_attributes
 
 _WHERE = {
     "BridgeOptions": "bridge_core", "SimBridge": "bridge_sim", "LinkLostError": "client", "WamClient": "client",

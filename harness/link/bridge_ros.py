@@ -42,7 +42,7 @@ import rospy
 import zmq
 from sensor_msgs.msg import JointState as RosJointState
 
-from harness.sim.robot import PiecewiseReference
+from robot_models.joint_reference import PiecewiseReference
 from harness.link.bridge_core import BridgeCore, check_endpoint
 from harness.link.ros_msgs import WamRosTypes, load_wam_types
 from robot_models.limits import JointLimits

@@ -90,7 +90,7 @@ def open_frames(args, rig, *, truth_scene=None):
     if spec.kind != "sim" and (getattr(args, "truth_stream", None) or getattr(args, "sim_rig", None)):
         raise ValueError(f"--truth-stream and --sim-rig apply to the sim source only, got --source {' '.join(args.source)}")
     if getattr(args, "sim_rig", None):
-        from harness.sim.rigs import resolve_rig
+        from tracker.rig_files import resolve_rig
 
         render_rig = resolve_rig(args.sim_rig)
         if render_rig.names != rig.names:
@@ -140,7 +140,7 @@ def open_service(args, *, status=print, tracker_overrides: dict | None = None, t
     truth_scene : the scene provider's builder for ``--truth-stream`` (:func:`open_frames`)"""
     from harness.live.publish import Publisher
     from harness.live.service import ServiceOptions, TrackingService, warm_up
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
     from tracker import Tracker
 
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):

@@ -30,7 +30,7 @@ import numpy as np
 from checks.files import MAX_CONFIG_BYTES, read_text_capped
 from harness.sim.render.composite import draw_ball, edge_blur_px
 from harness.sim.render.scene import Ball
-from harness.sim.rigs import read_anipose_toml
+from tracker.rig_files import read_anipose_toml
 from policies.ball_model import simulate
 from tracker import Camera, Rig
 from tracker.calibration.poses import rigid_fit, rotation_angle_deg

@@ -73,9 +73,10 @@ def test_bad_limits_and_urdf_name_the_problem(tmp_path):
 
 def test_bridge_modules_import_without_heavy_dependencies():
     code = ("import sys; import harness.link.bridge_core, harness.link.ros_msgs, robot_models.limits, "
-            "robot_models.robot_interface; from harness.sim.robot import PiecewiseReference; "
-            "print(sorted({m.split('.')[0] for m in sys.modules} & {'pinocchio', 'numba', 'cv2', 'torch'}))")
+            "robot_models.robot_interface; from robot_models.joint_reference import PiecewiseReference; "
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'pinocchio', 'numba', 'cv2', 'torch'}), "
+            "sorted(m for m in sys.modules if m.startswith('harness.sim')))")
     run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120,
                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
     assert run.returncode == 0, run.stderr
-    assert run.stdout.strip() == "[]"
+    assert run.stdout.strip() == "[] []"  # no heavy dependency, and nothing of the simulator

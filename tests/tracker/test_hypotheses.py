@@ -188,7 +188,7 @@ def test_bad_tracker_option_raises():
 # -- the tracker on drawn frame sets ---------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def rig():
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     return resolve_rig("lab4_vga")
 

@@ -29,7 +29,7 @@ N_ALL, N_TWO = 15, 15  # frame sets with all four cameras, then with cam1 and ca
 @pytest.fixture(scope="module")
 def rigs():
     from harness.experiments.accuracy.rig_error import estimated_rig
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     true = resolve_rig("lab4_vga")
     est, info = estimated_rig(true, seed=0)

@@ -40,7 +40,7 @@ class AccuracyConfig:
 
     seed : seeds the trajectory, the robot's bias and noise, the scene and the sensor noise
     n_frames, rate_hz : camera frame sets and their rate (Hz); the run lasts n_frames / rate_hz seconds
-    rig : rig name or path (``harness.sim.rigs.resolve_rig``)
+    rig : rig name or path (``tracker.rig_files.resolve_rig``)
     model : segmentation model (.npz) of the rt2 trackers; None = ``data/models/ball_seg_default.npz``
     trackers : kinds run on the same frames, a subset of ("rt2", "rt2-paper", "rtblob")
     eps_px : the rt2 estimators' consistency threshold (None = RobustOptions' default)

@@ -39,7 +39,7 @@ from harness.experiments.accuracy.stats import check_goals
 from harness.common.executor import Executor, SweepOptions, SweepStopped, in_task_order
 from harness.logs import check_log_images
 from harness.common.outputs import atomic_write_json, check_output_dir
-from harness.sim.rigs import resolve_rig
+from tracker.rig_files import resolve_rig
 from harness.sim.robot import SimWamOptions
 from robot_models import WamKinematics, load_robot_config
 

@@ -45,7 +45,7 @@ from harness.experiments.accuracy.scene import SCENES, SessionScene
 from harness.experiments.accuracy.session_log import AccuracyLogWriter
 from harness.experiments.accuracy.rig_error import estimated_rig
 from harness.common.outputs import check_output_dir
-from harness.sim.rigs import resolve_rig
+from tracker.rig_files import resolve_rig
 from harness.link.clock import ClockEstimate, pair_joint_states
 from harness.logs.codecs import to_json_value
 from robot_models import WamKinematics, load_robot_config

@@ -212,7 +212,7 @@ def estimated_rig(rig: Rig, options: CalibrationErrorOptions = CalibrationErrorO
         raise ValueError(f"the calibration error is measured in a workspace box: rig {rig.description!r} has none; pass workspace_m")
     draw_rng, point_rng = (np.random.default_rng(s) for s in np.random.SeedSequence([int(seed), CALIBRATION_STREAM]).spawn(2))
     if options.rig_file is not None:  # a real calibration (rt2 calib): measure its error, draw nothing
-        from harness.sim.rigs import resolve_rig
+        from tracker.rig_files import resolve_rig
 
         est = resolve_rig(options.rig_file)
         if est.names != rig.names:

@@ -72,7 +72,7 @@ def _build(config: PlayConfig):
 
     from harness.experiments.play.session import PlaySession, SessionOptions
     from harness.experiments.play.sources import make_source
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
     from policies.ball_model import BallParams
     from policies.filters import make_filter
     from policies.hitting import HittingOptions

@@ -53,7 +53,7 @@ class ObservationService:
 
     def __init__(self, truth_addr: str, world_addr: str, profile: TrackerProfile, *, seed: int, publish_addr: str,
                  tennicam_addr: str | None = None, rig: str = "lab4_vga"):
-        from harness.sim.rigs import resolve_rig
+        from tracker.rig_files import resolve_rig
 
         self.profile, self.seed = profile, int(seed)
         self.rig = resolve_rig(rig)

@@ -185,7 +185,7 @@ def run(args) -> int:
     from harness.sim.render import Renderer
 
     check_output_file(args.json, "--json")  # before the benchmark, not after
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
     from tracker import FrameSet
     from tracker.pipeline import load_model
 

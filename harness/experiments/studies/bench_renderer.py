@@ -69,7 +69,7 @@ def bench(rig="lab4_vga", *, frames: int = 200, seed: int = 0, progress: bool = 
     from harness.common.progress import progress_bar
 
     from harness.sim.render import Renderer, RenderOptions
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 10:
         raise ValueError(f"--frames must be an integer >= 10, got {frames!r}")

@@ -55,7 +55,7 @@ def make_track_log(path: Path, *, framesets: int, distinct: int, seed: int, rate
     from harness.live.service import ServiceOptions, TrackingService
     from harness.live.session_log import LiveLog
     from harness.live.sources import open_sources
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
     from tracker import Tracker
 
     rig = resolve_rig("lab4_vga")

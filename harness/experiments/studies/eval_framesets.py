@@ -465,7 +465,7 @@ def _semireal_options(args):
 
 def run(args) -> int:
     from harness.common.outputs import atomic_write_json, check_output_file
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     check_output_file(args.json, "--json")  # before the frame sets are rendered, not after
     if args.frames < 1:

@@ -57,7 +57,7 @@ def generate(rig, frames: int, seed: int, out, *, workers: int = 1, overwrite: b
 
     rig : a :class:`tracker.Rig`, a rig name in ``data/rigs`` or a rig file
     """
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     _check(frames, seed, workers)
     rig_obj = resolve_rig(rig)

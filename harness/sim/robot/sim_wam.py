@@ -24,7 +24,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy.signal import lfilter
 
-from harness.sim.robot._reference import PiecewiseReference
+from robot_models.joint_reference import PiecewiseReference
 from harness.sim.robot._tracking import TRACKERS
 from robot_models.robot_interface import JointSamples, JointState, check_joint_trajectory
 

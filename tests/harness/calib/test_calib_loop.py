@@ -8,7 +8,7 @@ import pytest
 
 from harness.experiments.accuracy.rig_error import CalibrationErrorOptions, estimated_rig
 from harness.cli import main
-from harness.sim.rigs import resolve_rig, rig_path
+from tracker.rig_files import resolve_rig, rig_path
 from tracker import Camera, Rig
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from harness.calib.compare import compare_to_truth
 from harness.cli import main
-from harness.sim.rigs import resolve_rig
+from tracker.rig_files import resolve_rig
 from tracker import Camera, Rig
 from tracker.calibration.extrinsics import WandOptions, calibrate_wand, order_wand_points
 

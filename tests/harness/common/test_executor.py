@@ -24,7 +24,7 @@ def _table1(sweep):
 
 
 def _framesets(sweep, monkeypatch):
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     monkeypatch.setattr(eval_framesets, "CHUNK", 2)  # 3 tasks of 2 frame sets
     scores = eval_framesets.evaluate(resolve_rig("lab4_vga_v1"), 6, 2, progress=False, sweep=sweep)

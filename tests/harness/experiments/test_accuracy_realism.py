@@ -15,7 +15,7 @@ from harness.experiments.accuracy.motion import MotionOptions, simulate_motion
 from harness.experiments.accuracy.rig_error import (CalibrationErrorOptions, calibration_residuals, estimated_rig, perturb_rig,
                                         reprojection_residuals)
 from harness.experiments.accuracy.scene import SCENES
-from harness.sim.rigs import resolve_rig
+from tracker.rig_files import resolve_rig
 from tracker import Rig
 
 NO_ERROR = CalibrationErrorOptions(rotation_deg=0, position_m=0, focal_frac=0, principal_px=0, radial=0, tangential=0,

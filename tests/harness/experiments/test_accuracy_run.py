@@ -49,7 +49,7 @@ def test_session_log_holds_what_reevaluation_and_viewers_need(accuracy_session):
         assert set(session["rig_attachments"]) == {"rig.yaml", "rig_true.yaml"}
         import yaml
 
-        from harness.sim.rigs import resolve_rig
+        from tracker.rig_files import resolve_rig
         from tracker import Rig
 
         true_rig = Rig.from_dict(yaml.safe_load(log.attachment("rig_true.yaml")))

@@ -36,7 +36,7 @@ def test_retracking_with_decoding_threads_gives_the_same_figures_byte_for_byte(t
 
 def test_the_replay_source_keeps_the_order_with_decoding_threads(track_log):
     from harness.live.sources.replay import open_replay
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     rig = resolve_rig("lab4_vga")
     frames = {}

@@ -77,7 +77,7 @@ def test_cameras_with_ball_counts_candidates_within_a_diameter():
 
 @pytest.fixture(scope="module")
 def small_run():
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     rig = resolve_rig("lab4_vga_v1")
     return rig, evaluate(rig, 12, 2, progress=False)

@@ -56,7 +56,7 @@ def test_scene_presets():
 def test_bad_input():
     with pytest.raises(ValueError, match="RTBlob needs at least 2 cameras"):
         choose_pairs(lab.lab4_vga_rig().subset(["cam0"]), lab.LAB4_WORKSPACE_M)
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     with pytest.raises(ValueError, match="at most 8 cameras, the rig has 15"):
         choose_pairs(resolve_rig("sim_c15"), lab.LAB4_WORKSPACE_M)

@@ -77,7 +77,7 @@ def test_flights_follow_the_ball_physics_and_the_trackers_follow_them(folder, se
 
 
 def test_the_real_calibration_error_of_a_second_calibration(folder):
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     rig = session_rig(folder)
     other, diff = aligned_rig(resolve_rig("caliscope_4cam_rt2"), rig)

@@ -20,7 +20,7 @@ RIG = "lab4_vga"  # data/rigs/lab4_vga.yaml, whatever the working directory
 
 @functools.lru_cache(maxsize=1)
 def lab_rig():
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     return resolve_rig(RIG)
 

@@ -14,7 +14,7 @@ pytest.importorskip("harvesters.core", reason="harvesters is not installed (pip 
 from harness.live.assembly import AssemblyOptions, FrameSetAssembler  # noqa: E402
 from harness.live.sources import SourceUnavailable, open_sources  # noqa: E402
 from harness.live.sources.genicam import default_producers  # noqa: E402
-from harness.sim.rigs import resolve_rig  # noqa: E402
+from tracker.rig_files import resolve_rig  # noqa: E402
 from tracker import Rig  # noqa: E402
 
 

@@ -14,7 +14,7 @@ pylon = pytest.importorskip("pypylon.pylon", reason="pypylon is not installed (p
 from harness.live.assembly import AssemblyOptions, FrameSetAssembler  # noqa: E402
 from harness.live.sources import SourceUnavailable, open_sources  # noqa: E402
 from harness.sim.render import Ball, Renderer, Scene  # noqa: E402
-from harness.sim.rigs import resolve_rig  # noqa: E402
+from tracker.rig_files import resolve_rig  # noqa: E402
 
 BALL_M = np.array([-1.0, 0.05, 1.25])  # over the robot's half, seen by all four lab cameras
 

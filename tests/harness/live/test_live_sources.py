@@ -328,7 +328,7 @@ def test_opencv_reads_through_videocapture(rig, tmp_path):
 def test_sim_launcher_flights_tracked_on_the_lab_rig():
     """The default demo path: launcher flights rendered on lab4_vga, assembled, tracked in 3D."""
     from harness.live.sources.sim import LauncherFlights
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
     from tracker import Tracker
 
     lab = resolve_rig("lab4_vga")
@@ -368,7 +368,7 @@ def test_video_of_a_real_four_webcam_session_matched_by_time(real_data, tmp_path
         (tmp_path / f"cam_{c}.mp4").symlink_to(src / f"cam_{c}.mp4")
         lines = [f"{sync},{t!r}" for t, sync in sorted(per_cam[c])]
         (tmp_path / f"cam_{c}.csv").write_text("frame_id,t_s\n" + "\n".join(lines) + "\n")
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     data = resolve_rig("lab4_vga").to_dict()  # only names and sizes matter to the source
     for c, cam in enumerate(data["cameras"]):

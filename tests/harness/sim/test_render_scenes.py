@@ -9,7 +9,7 @@ from harness.sim import lab
 from harness.sim.render import Ball, Scene
 from harness.sim.render.primitives import pack_scene
 from harness.sim.render.scenes import SceneOptions, person, random_scene, robot_arm
-from harness.sim.rigs import RIGS_DIR, available_rigs, resolve_rig
+from tracker.rig_files import RIGS_DIR, available_rigs, resolve_rig
 from tracker import Rig
 
 

@@ -1,4 +1,5 @@
-"""Find a rig by name or path: what every ``--rig`` option of the ``rt2`` commands accepts.
+"""Find a rig file by name or path (what every ``--rig`` option of the ``rt2`` commands accepts), and read
+aniposelib / caliscope ``.toml`` calibrations as a :class:`~tracker.rig.Rig`.
 
 ``resolve_rig("lab4_vga")`` loads ``data/rigs/lab4_vga.yaml``; a path (absolute, relative, with or
 without ``.yaml``) loads that file. Unknown names raise a ``ValueError`` listing the rigs available.
@@ -13,12 +14,13 @@ import cv2
 import numpy as np
 
 from checks.files import MAX_CONFIG_BYTES, read_text_capped
-from tracker import Camera, Rig
+from tracker.camera import Camera
+from tracker.rig import Rig
 
 __all__ = ["RIGS_DIR", "available_rigs", "read_anipose_toml", "resolve_rig", "rig_path"]
 
 #: the project's rig files
-RIGS_DIR = Path(__file__).resolve().parents[2] / "data" / "rigs"
+RIGS_DIR = Path(__file__).resolve().parents[1] / "data" / "rigs"
 
 
 def available_rigs() -> list[str]:

@@ -1,7 +1,11 @@
 """Package attributes loaded on first use (PEP 562), for packages whose modules need different dependencies.
 
-``harness.sim.robot`` and ``harness.link`` use it so that the robot link's ROS bridge imports them under a
-system Python that has neither numba nor the simulator's dependencies (docs/robot_link.md).
+In ``checks/`` (the lowest layer) because every package uses it: ``tracker`` (a type such as ``FrameSet``
+does not import the pipeline, OpenCV or numba), ``robot_models`` (``config``, ``limits``, ``robot_interface``
+and ``joint_reference`` import without Pinocchio) and ``harness.link`` (its documented names, such as
+``from harness.link import WamClient``, load on first use, so that ``python3 -m harness.link.bridge_ros``,
+which runs the package's ``__init__`` first, imports under a system Python that has neither numba nor the
+simulator's or the client's dependencies; docs/robot_link.md).
 """
 
 from __future__ import annotations
