@@ -13,7 +13,7 @@ file first, imports under a Python that has neither the simulator nor the client
 from checks.lazy import lazy_attributes
 
 _WHERE = {
-    "BridgeOptions": "bridge_core", "SimBridge": "bridge_sim", "LinkLostError": "client", "WamClient": "client",
+    "BridgeOptions": "bridge_sim", "SimBridge": "bridge_sim", "LinkLostError": "client", "WamClient": "client",
     "ClockEstimate": "clock", "RoundTripClock": "clock", "pair_joint_states": "clock",
     "VERSION": "protocol", "ProtocolError": "protocol",
 }

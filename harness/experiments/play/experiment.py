@@ -66,8 +66,12 @@ def ball_seeds(seed: int, balls: int) -> list[tuple[np.random.SeedSequence, np.r
 _WORKER: dict = {}
 
 
-def _build(config: PlayConfig):
-    """The session objects of one configuration (once per worker process)."""
+def build_session(config: PlayConfig, *, wrap_source=None) -> dict:
+    """The session objects of one configuration (once per worker process): ``{"config", "session",
+    "launcher_params"}``, for :func:`play_ball`.
+
+    wrap_source : callable(source) -> source, applied to the observation source before the session is
+    built (``rt2 play profile`` records every observation through it); default: the source itself."""
     from threadpoolctl import threadpool_limits
 
     from harness.experiments.play.session import PlaySession, SessionOptions
@@ -93,24 +97,33 @@ def _build(config: PlayConfig):
     else:
         kwargs = {}
     source = make_source(config.source, rig, profile, **kwargs)
+    if wrap_source is not None:
+        source = wrap_source(source)
     session = PlaySession(kin, promp, source, lambda: make_filter(config.filter), profile,
                           policy_options=HittingOptions(**config.policy),
                           options=SessionOptions(plan_latency_s=config.plan_latency_s))
     return {"config": config, "session": session, "launcher_params": BallParams.load()}
 
 
+def play_ball(built: dict, seed: int, index: int):
+    """Ball ``index`` of a run seeded ``seed`` on the objects of :func:`build_session`:
+    ``(index, BallResult, record, serve)``. The same ball whatever process plays it."""
+    from harness.sim.launcher import BallLauncher
+
+    config = built["config"]
+    serve_ss, session_ss = ball_seeds(seed, index + 1)[index]
+    serve = BallLauncher(built["launcher_params"], rng=np.random.default_rng(serve_ss)).serve()
+    result, record = built["session"].run(serve, session_ss, ball=index, record=config.record,
+                                          record_images_every=config.record_images_every)
+    return index, result, record, serve
+
+
 def _play_one(args):
     config, seed, index = args
     if _WORKER.get("config") != config:
         _WORKER.clear()
-        _WORKER.update(_build(config))
-    from harness.sim.launcher import BallLauncher
-
-    serve_ss, session_ss = ball_seeds(seed, index + 1)[index]
-    serve = BallLauncher(_WORKER["launcher_params"], rng=np.random.default_rng(serve_ss)).serve()
-    result, record = _WORKER["session"].run(serve, session_ss, ball=index, record=config.record,
-                                            record_images_every=config.record_images_every)
-    return index, result, record, serve
+        _WORKER.update(build_session(config))
+    return play_ball(_WORKER, seed, index)
 
 
 def run_configuration(config: PlayConfig, *, balls: int, seed: int, workers: int = 1, progress: bool = True,

@@ -19,13 +19,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 
 import numpy as np
 
+from harness.common.progress import progress_bar
 from harness.sim.lab import coverage
-from harness.experiments.play.experiment import PlayConfig, run_configuration
+from harness.experiments.play.experiment import PlayConfig, build_session, play_ball
 
-__all__ = ["RecordingSource", "measure_profile", "run_profile"]
+__all__ = ["RecordingSource", "measure_profile", "record_balls", "run_profile"]
 
 OUTLIER_M = 0.10
 WILD_M = 1.0
@@ -75,19 +77,24 @@ def measure_profile(samples, rig) -> dict:
             "error_p99_mm": float(1e3 * np.percentile(d, 99)) if len(d) else float("nan")}
 
 
-def run_profile(args, profiles) -> int:
-    from harness.experiments.play import experiment
+def record_balls(config: PlayConfig, *, balls: int, seed: int, progress: bool = True) -> RecordingSource:
+    """Play ``balls`` balls of ``config`` in this process (the same balls as :func:`run_configuration` plays),
+    recording every observation of its source; returns the recording."""
+    built = build_session(config, wrap_source=RecordingSource)
+    bar = progress_bar(total=balls, desc=f"profile {config.tracker}", file=sys.stderr, disable=not progress, leave=False)
+    with bar:
+        for index in range(balls):
+            play_ball(built, seed, index)
+            bar.update(1)
+    return built["session"].source
 
+
+def run_profile(args, profiles) -> int:
     out = {}
     for tracker in args.trackers:
         config = PlayConfig(tracker, "raw", "vision", profiles[tracker], str(args.promp), scene=args.scene)
-        experiment._WORKER.clear()
-        experiment._WORKER.update(experiment._build(config))
-        rec = RecordingSource(experiment._WORKER["session"].source)
-        experiment._WORKER["session"].source = rec
-        run_configuration(config, balls=args.balls, seed=args.seed, workers=1, progress=not args.quiet)
+        rec = record_balls(config, balls=args.balls, seed=args.seed, progress=not args.quiet)
         out[tracker] = measure_profile(rec.samples, rec.rig)
-        experiment._WORKER.clear()
     print(f"rt2 play profile: vision source, {args.balls} balls per tracker, seed {args.seed}")
     print(f"{'tracker':<10} {'frames':>7} {'noise mm':>9} {'p_miss':>8} {'p_outlier':>10} {'p_wild':>8} {'err med mm':>11} "
           f"{'p99 mm':>8}  outlier offset (p10-p90)")

@@ -89,6 +89,21 @@ def _torch_path(model, torch):
     return detect
 
 
+def blob_arguments(det) -> tuple[float, float, dict]:
+    """``(t_high logit, t_low logit, keyword arguments)`` with which ``find_blobs`` runs Algorithm 1 as the
+    full-frame search of ``det`` (a :class:`tracker.BallDetector`, method "ours") does, read from its public
+    settings; a test holds the two to the same candidates."""
+    from tracker.detection.model import logit
+
+    if det.options.method != "ours":
+        raise ValueError(f"the Algorithm 1 breakdown times the method 'ours', got {det.options.method!r}")
+    o = det.options
+    kw = dict(max_blobs=o.max_seeds if det.verifier is not None else o.max_candidates, max_seeds=o.max_seeds,
+              min_area_px=det.area_range_px[0], max_area_px=det.area_range_px[1], min_fill_ratio=o.min_fill_ratio,
+              max_aspect=o.max_aspect, backend=o.backend)
+    return logit(det.t_high), logit(det.t_low), kw
+
+
 def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: int = 32):
     """Return (rows for --json, breakdown rows): dicts with mode, backend, median_ms."""
     import cv2
@@ -107,7 +122,7 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
     window = (max(cu - roi_half_size_px, 0), max(cv - roi_half_size_px, 0), min(cu + roi_half_size_px, w), min(cv + roi_half_size_px, h))
     tdet = _torch_path(model, torch)
     lg = model.logits(image)
-    th, tl = det._th_logit, det._tl_logit
+    th, tl, blob_kw = blob_arguments(det)
     extra_full, extra_roi = {}, {}
     if model.verifier is not None:  # the same detector with the filter alone, and the verifier's own share
         plain = BallDetector(model, DetectorOptions(roi_half_size_px=roi_half_size_px, verify=False))
@@ -124,7 +139,7 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
             ("full", "cv2"): lambda: det.detect(image),
             ("full", "torch"): lambda: tdet(image),
             ("full", "cv2: logits only (3 x filter2D)"): lambda: model.logits(image),
-            ("full", "cv2: Algorithm 1 top-K on given logits"): lambda: find_blobs(lg, th, tl, **det._blob_kw),
+            ("full", "cv2: Algorithm 1 top-K on given logits"): lambda: find_blobs(lg, th, tl, **blob_kw),
         },
         repeats,
     )

@@ -46,6 +46,35 @@ def test_bench_times_the_detector_on_a_frame_where_it_finds_the_ball():
         bench(model, empty, (300.0, 200.0), repeats=2)
 
 
+@pytest.mark.parametrize("shipped", [False, True])
+def test_bench_runs_algorithm_1_as_the_detector_does(shipped):
+    # The breakdown's "Algorithm 1 on given logits" row reads the detector's public settings
+    # (bench_detector.blob_arguments): the same candidates as the detector's own full-frame search.
+    from harness.experiments.studies.bench_detector import blob_arguments
+    from tracker import BallDetector, BallSegmentationModel, DetectorOptions
+    from tracker.detection.blobs import find_blobs
+    from tracker.detection.synthetic import draw_disk
+    from tracker.pipeline import DEFAULT_MODEL
+
+    if shipped:  # the bench's own default frame: a rendered lab scene (ball, person, robot, distractors)
+        from harness.experiments.studies.bench_detector import _bench_image
+
+        model, image = BallSegmentationModel.load(DEFAULT_MODEL), _bench_image(None, 0)[0]
+    else:
+        model, image = hand_made_model(), np.full((480, 640, 3), 100, np.uint8)
+        for k, (u, v) in enumerate([(300.0, 200.0), (100.0, 400.0), (500.0, 90.0)]):
+            draw_disk(image, (u, v), 8.0 + 3 * k, (245, 120, 20))
+    for verify in (False, True):
+        det = BallDetector(model, DetectorOptions(verify=verify))
+        th, tl, kw = blob_arguments(det)
+        blobs = find_blobs(model.logits(image), th, tl, **kw)
+        seen = BallDetector(model, DetectorOptions(verify=False, max_candidates=kw["max_blobs"])).detect(image)
+        assert len(seen) > 0 and np.array_equal(blobs.centers_px, seen.uv_px)
+        assert np.array_equal(blobs.areas_px, seen.areas_px)
+    with pytest.raises(ValueError, match="the Algorithm 1 breakdown times the method 'ours', got 'paper'"):
+        blob_arguments(BallDetector(model, DetectorOptions(method="paper")))
+
+
 def test_bench_frame_from_a_coco_set(tmp_path, synthetic_ball_coco, capsys):
     model = hand_made_model().save(tmp_path / "hand.npz")
     out = tmp_path / "bench.json"
