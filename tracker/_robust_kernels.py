@@ -254,26 +254,6 @@ def _refine(cam, uv, sel, X0, X1, X2, max_iter, tol_m, h):
 
 
 @njit(cache=True)
-def _collect(cam, uv, valid, K, k_use, obs, X0, X1, X2, eps2, out_sel):
-    """Nearest candidate per camera at X: out_sel[m] = its index if within eps else -1.
-    Returns (support, MSAC cost = sum over observing cameras of min(err^2, eps^2))."""
-    s = 0
-    cost = 0.0
-    for m in range(obs.shape[0]):
-        out_sel[m] = -1
-        if obs[m] == 0:
-            continue
-        e2best, cbest = _nearest(cam, uv, valid, K, k_use, m, X0, X1, X2)
-        if e2best < eps2:
-            s += 1
-            cost += e2best
-            out_sel[m] = cbest
-        else:
-            cost += eps2
-    return s, cost
-
-
-@njit(cache=True)
 def _nearest(cam, uv, valid, K, k_use, m, X0, X1, X2):
     """Smallest squared pixel error over camera m's candidates (inf if behind), and its index."""
     u, v, z = _project(cam, m, X0, X1, X2)
@@ -331,27 +311,35 @@ def _score_one(camT, U, V, obs, X0, X1, X2, eps2, e2v, cur):
 
 
 @njit(cache=True)
-def _score_many(cam, uv, valid, K, obs, n_obs, X0, X1, X2, eps2, tie, best_s, best_cost, cur):
-    """Support and MSAC cost of X with up to K candidates per camera (nearest one counts). Stops
-    early (pruned=True) once X can no longer beat the best set: exact, never changes the result."""
+def _score_nearest(cam, uv, valid, K, k_use, obs, n_obs, X0, X1, X2, eps2, prune, tie, best_s, best_cost, out_sel):
+    """Support and MSAC cost (sum over observing cameras of min(err^2, eps^2)) of X, the nearest of each
+    camera's first ``k_use`` candidates counting: ``out_sel[m]`` = its index if within eps, else -1 (also for
+    a camera without observations). Returns ``(support, cost, pruned)``.
+
+    The one scoring loop of the estimator: Algorithm 2's consensus of a candidate X (``prune``) and the
+    re-collection around the refined point (no ``prune``). With ``prune`` it stops early (pruned=True) once X
+    can no longer beat the best set so far (``best_s``, ``best_cost``; ``tie``: a lower cost breaks equal
+    support): exact, never changes the result."""
     s, cost, remaining = 0, 0.0, n_obs
     for m in range(obs.shape[0]):
         if obs[m] == 0:
+            out_sel[m] = -1
             continue
         remaining -= 1
-        e2, cb = _nearest(cam, uv, valid, K, K, m, X0, X1, X2)
+        e2, cb = _nearest(cam, uv, valid, K, k_use, m, X0, X1, X2)
         if e2 < eps2:
             s += 1
             cost += e2
-            cur[m] = cb
+            out_sel[m] = cb
         else:
             cost += eps2
-            cur[m] = -1
-        if tie:
-            if s + remaining < best_s or (s + remaining == best_s and cost >= best_cost):
+            out_sel[m] = -1
+        if prune:
+            if tie:
+                if s + remaining < best_s or (s + remaining == best_s and cost >= best_cost):
+                    return s, cost, True
+            elif s + remaining <= best_s:
                 return s, cost, True
-        elif s + remaining <= best_s:
-            return s, cost, True
     return s, cost, False
 
 
@@ -434,7 +422,8 @@ def estimate_one(uv, cam, camT, fopt, iopt, fw, iw, fout, iout):
                     if k_use == 1:
                         s, cost, pruned = _score_one(camT, U, V, obs, X0, X1, X2, eps2, e2v, cur)
                     else:
-                        s, cost, pruned = _score_many(cam, uv, valid, K, obs, n_obs, X0, X1, X2, eps2, tie, best_s, best_cost, cur)
+                        s, cost, pruned = _score_nearest(cam, uv, valid, K, k_use, obs, n_obs, X0, X1, X2, eps2, True, tie,
+                                                          best_s, best_cost, cur)
                     if pruned:
                         continue
                     # lines 12-14: keep the largest set; first found wins (paper) or lower cost (ours)
@@ -459,7 +448,8 @@ def estimate_one(uv, cam, camT, fopt, iopt, fw, iw, fout, iout):
             X0, X1, X2 = _refine(cam, uv, best, X0, X1, X2, max_iter, tol, h)
         if iopt[I_RECOLLECT] != 0:
             for _ in range(iopt[I_ROUNDS]):
-                s_new, _c = _collect(cam, uv, valid, K, k_use, obs, X0, X1, X2, eps2, tmp)
+                s_new, _c, _p = _score_nearest(cam, uv, valid, K, k_use, obs, n_obs, X0, X1, X2, eps2, False, tie,
+                                               best_s, best_cost, tmp)
                 same = True
                 for m in range(n):
                     if tmp[m] != best[m]:

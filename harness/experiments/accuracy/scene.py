@@ -11,7 +11,8 @@ builds frame ``k``'s :class:`harness.sim.render.Scene` from the robot's TRUE lin
 * a person standing beside the table near the robot (white or orange shirt, skin-coloured arms),
   the right hand moving smoothly (a sum of seeded sinusoids) over the table's corner next to the
   robot, holding a white ball (``harness.sim.render.scenes.person``, the same build every frame);
-* distractors from :data:`DISTRACTORS` (white and orange cups and boxes, a near-orange juggling ball)
+* distractors from :data:`DISTRACTORS` (white and orange cups and boxes, a near-orange juggling ball), placed as
+  :data:`harness.sim.render.placed_distractors.ACCURACY` says
   on the table's robot half and on the floor around the robot, placed by the seed;
 * distractors that come and go (:mod:`harness.experiments.accuracy.distractors`): now and then the person holds or
   tosses a second, orange ball instead of the white one, and stray orange balls roll across the floor.
@@ -30,7 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.sim import lab
-from harness.sim.render.scene import Ball, Box, Capsule, Exposure, Scene, Sphere, colour_rgb
+from harness.sim.render.placed_distractors import ACCURACY, DISTRACTORS, place_distractor
+from harness.sim.render.scene import Ball, Capsule, Exposure, Scene, Sphere, colour_rgb
 from harness.sim.render.scenes import ball_in_hand, person
 from harness.experiments.accuracy.distractors import DistractorSchedule
 
@@ -38,14 +40,6 @@ __all__ = ["DISTRACTORS", "SCENES", "SHIRTS", "SceneOptions", "SessionScene"]
 
 #: shirt colours ("orange/white shirt" distractors); None in SceneOptions draws one with the seed
 SHIRTS = ("white", "orange")
-#: distractor objects by name: (shape, colour, where)
-DISTRACTORS = {
-    "white_cup": ("cup", "white", "table"),
-    "white_box": ("box", "white", "floor"),
-    "orange_cup": ("cup", "orange", "table"),
-    "orange_box": ("box", "orange", "floor"),
-    "orange_sphere": ("sphere", (0.95, 0.5, 0.12), "table"),  # a juggling ball, 10-14 cm across
-}
 _SKINS = ("skin_light", "skin_medium", "skin_tan", "skin_dark")
 
 
@@ -139,31 +133,9 @@ class SessionScene:
         self.hand_freq_hz = rng.uniform(0.1, 0.35, size=(2, 3))
         self.hand_phase = rng.uniform(0, 2 * np.pi, size=(2, 3))
         self.person_seed = int(rng.integers(2**31))
-        self.distractors = tuple(self._distractor(rng, name) for name in options.distractors)
+        self.distractors = tuple(place_distractor(rng, name, ACCURACY) for name in options.distractors)
         self.exposure = Exposure(options.exposure_s, options.gain, options.light_level)
         self.events = DistractorSchedule(options, np.random.SeedSequence([int(seed), 6]))
-
-    @staticmethod
-    def _distractor(rng, name: str):
-        """One object of :data:`DISTRACTORS`: on the table's robot half, or on the floor 0.6-1.4 m from the robot."""
-        shape, colour, where = DISTRACTORS[name]
-        if where == "table":
-            xy = rng.uniform([-1.25, -0.65], [-0.2, 0.65])
-            z0 = lab.TABLE_TOP_Z_M
-        else:
-            ang = rng.uniform(0, 2 * np.pi)
-            xy = lab.ROBOT_BASE_M[:2] + rng.uniform(0.6, 1.4) * np.array([np.cos(ang), np.sin(ang)])
-            z0 = 0.0
-        yaw = rng.uniform(0, np.pi)
-        R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]])
-        if shape == "sphere":
-            r = rng.uniform(0.05, 0.07)
-            return Sphere([xy[0], xy[1], z0 + r], r, colour, 0.2)
-        if shape == "cup":
-            size = np.array([0.07, 0.07, rng.uniform(0.09, 0.12)])
-        else:
-            size = np.array([rng.uniform(0.25, 0.4), rng.uniform(0.2, 0.3), rng.uniform(0.15, 0.3)])
-        return Box([xy[0], xy[1], z0 + size[2] / 2 + 1e-3], size, R, colour, 0.1 if shape == "cup" else 0.05)
 
     def hand_target_m(self, t_s: float) -> np.ndarray:
         """(3,) where the person's right hand reaches at time ``t_s``, world."""

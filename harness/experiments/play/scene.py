@@ -12,7 +12,8 @@ table, the distractor objects, the exposure) from its seed, as the accuracy expe
 * a person beside the table on the robot's half (``harness.sim.render.scenes.person``), the right hand
   moving slowly over the table corner and holding a ball at the fingertips (white, or orange with
   ``p_orange_held_ball``);
-* distractors from :data:`DISTRACTORS` on the table and the floor, placed by the seed.
+* distractors from :data:`DISTRACTORS` on the table and the floor, placed by the seed as
+  :data:`harness.sim.render.placed_distractors.PLAY` says.
 
 :data:`SCENES` names the presets of ``rt2 play --scene``:
 
@@ -36,44 +37,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.sim import lab
-from harness.sim.render.scene import Ball, Box, Capsule, Disk, Exposure, Scene, Sphere, colour_rgb
+from harness.sim.render.placed_distractors import DISTRACTORS, PLAY, place_distractor
+from harness.sim.render.scene import Ball, Capsule, Disk, Exposure, Scene, Sphere, colour_rgb
 from harness.sim.render.scenes import ball_in_hand, person
 
 __all__ = ["DISTRACTORS", "SCENES", "PlayScene", "PlaySceneOptions"]
 
 _SKINS = ("skin_light", "skin_medium", "skin_tan", "skin_dark")
-_NEAR_ORANGE = (0.95, 0.5, 0.12)
-
-#: distractor objects by name: (shape, colour, where); "table": the robot's half of the table,
-#: "floor": around the robot's pedestal
-DISTRACTORS = {
-    "white_cup": ("cup", "white", "table"),
-    "white_box": ("box", "white", "floor"),
-    "orange_cup": ("cup", "orange", "table"),
-    "orange_box": ("box", "orange", "floor"),
-    "orange_sphere": ("sphere", _NEAR_ORANGE, "table"),  # a juggling ball, 6-9 cm across
-}
-
-
-def _distractor(rng, name: str):
-    """One distractor of :data:`DISTRACTORS`, placed and sized by ``rng``."""
-    shape, colour, where = DISTRACTORS[name]
-    on_table = where == "table"
-    xy = rng.uniform([-1.25, -0.65], [-0.2, 0.65]) if on_table else (
-        lab.ROBOT_BASE_M[:2] + rng.uniform(0.7, 1.4) * np.array([np.cos(a := rng.uniform(0, 2 * np.pi)), np.sin(a)]))
-    z0 = lab.TABLE_TOP_Z_M if on_table else 0.0
-    yaw = rng.uniform(0, np.pi)
-    R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]])
-    if shape == "sphere":
-        r = rng.uniform(0.03, 0.045)
-        return Sphere([xy[0], xy[1], z0 + r], r, colour, 0.2)
-    if shape == "cup":
-        size = [0.07, 0.07, rng.uniform(0.09, 0.12)]
-    elif colour == "white":
-        size = [rng.uniform(0.2, 0.35), rng.uniform(0.15, 0.25), 0.15]
-    else:
-        size = [rng.uniform(0.25, 0.4), rng.uniform(0.2, 0.3), rng.uniform(0.15, 0.3)]
-    return Box([xy[0], xy[1], z0 + size[2] / 2 + 1e-3], size, R, colour, 0.05)
 
 
 @dataclass(frozen=True)
@@ -138,7 +108,7 @@ class PlayScene:
         self.hand_freq_hz = rng.uniform(0.2, 0.6, size=3)
         self.hand_phase = rng.uniform(0, 2 * np.pi, size=3)
         self.person_seed = int(rng.integers(2**31))
-        self.distractors = tuple(_distractor(rng, name) for name in options.distractors)
+        self.distractors = tuple(place_distractor(rng, name, PLAY) for name in options.distractors)
         self.held_ball = "orange" if rng.random() < options.p_orange_held_ball else "white"
         self.exposure = Exposure(options.exposure_s, options.gain, options.light_level)
         self._fid = kinematics.frame_id("racket")

@@ -138,3 +138,30 @@ def test_scene_statistics_follow_the_options():
     assert brightness.min() >= 0.5 * opts.brightness[0] and np.median(brightness) == pytest.approx(np.mean(opts.brightness), rel=0.2)
     never = _scenes(50, seed=2, options=SceneOptions(p_no_ball=1.0))
     assert all(len(s.balls) == 0 for s in never)
+
+
+def test_the_two_distractor_placements_are_the_documented_ones():
+    from harness.sim.render.placed_distractors import ACCURACY, DISTRACTORS, PLAY, place_distractor
+    from harness.sim.render.scene import Box, Sphere
+
+    for placement, ring, radius in ((ACCURACY, (0.6, 1.4), (0.05, 0.07)), (PLAY, (0.7, 1.4), (0.03, 0.045))):
+        rng = np.random.default_rng(0)
+        for _ in range(200):
+            for name, (shape, colour, where) in DISTRACTORS.items():
+                obj = place_distractor(rng, name, placement)
+                assert isinstance(obj, Sphere if shape == "sphere" else Box)
+                if where == "floor":
+                    d = np.linalg.norm(obj.centre_m[:2] - lab.ROBOT_BASE_M[:2])
+                    assert ring[0] <= d <= ring[1] and obj.centre_m[2] < 0.5
+                else:
+                    assert -1.25 <= obj.centre_m[0] <= -0.2 and obj.centre_m[2] > lab.TABLE_TOP_Z_M
+                if shape == "sphere":
+                    assert radius[0] <= obj.radius_m <= radius[1]
+                if name == "white_box" and placement is PLAY:
+                    assert obj.size_m[2] == 0.15
+        again = place_distractor(np.random.default_rng(5), "white_box", placement)
+        assert np.array_equal(again.centre_m, place_distractor(np.random.default_rng(5), "white_box", placement).centre_m)
+    # the same seed puts a floor object elsewhere under the two placements (distance and angle drawn in turn)
+    a = place_distractor(np.random.default_rng(1), "orange_box", ACCURACY).centre_m
+    b = place_distractor(np.random.default_rng(1), "orange_box", PLAY).centre_m
+    assert not np.allclose(a, b)
