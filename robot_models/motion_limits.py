@@ -75,7 +75,7 @@ DEFAULT_RULE = MotionRule()
 
 def _spline_slopes(t: np.ndarray, Q: np.ndarray) -> np.ndarray:
     """(N, n) velocities at the samples of the not-a-knot cubic spline through ``Q`` (the robot's interpolation
-    of a trajectory without ``qdot``: ``harness.sim.robot._reference``, the ROS bridge)."""
+    of a trajectory without ``qdot``: ``robot_models.joint_reference``, the ROS bridge)."""
     if t.shape[0] == 2:
         return np.repeat(np.diff(Q, axis=0) / np.diff(t)[0], 2, 0)
     from scipy.interpolate import CubicSpline

@@ -15,7 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from harness.experiments.accuracy.config import DEFAULT_FRAMES, DEFAULT_LOG_IMAGES, QUICK_FRAMES, AccuracyConfig
-from harness.experiments.accuracy.scene import SCENES
+from harness.experiments.accuracy.session_scene import SCENES
 from harness.experiments.accuracy.stats import BASELINE_WORDS, TRACKER_KINDS, check_baseline, fmt, format_goals, format_table, rt2_goals
 from harness.common.executor import add_sweep_arguments, options_from_args
 from harness.logs.codecs import IMAGE_FORMATS

@@ -12,7 +12,7 @@ import argparse
 import json
 
 from harness.link.flood import measure_flood
-from harness.link.spawn import SimBridgeProcess
+from harness.link.spawn_bridge import SimBridgeProcess
 
 __all__ = ["add_arguments", "run"]
 

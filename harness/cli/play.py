@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="observations: synthetic (noise + outliers of the tracker's profile, fast) or vision "
                              "(rendered cameras + the real tracker)")
     parser.add_argument("--scene", default="default",
-                        help="vision source: what else the cameras see, a preset of harness.experiments.play.scene.SCENES: default "
+                        help="vision source: what else the cameras see, a preset of harness.experiments.play.play_scene.SCENES: default "
                              "(a person, white clutter), second_ball (the person holds an orange ball), harsh (orange "
                              "clutter), clean (the arm and the ball)")
     add_sweep_arguments(parser)
@@ -112,7 +112,7 @@ def _check(args) -> None:
     for f in ([args.filter] if args.mode == "play" else args.filters):
         if f not in FILTER_NAMES:
             raise ValueError(f"unknown filter {f!r}; valid: {list(FILTER_NAMES)}")
-    from harness.experiments.play.scene import SCENES
+    from harness.experiments.play.play_scene import SCENES
 
     if args.scene not in SCENES:
         raise ValueError(f"unknown --scene {args.scene!r}; valid: {sorted(SCENES)}")

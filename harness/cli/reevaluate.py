@@ -1,9 +1,9 @@
 """``rt2 reevaluate LOG.mcap``: re-run a tracker on a recorded session and get its figures again, no robot needed.
 
 The log's ``session`` metadata says what kind of session it is; :data:`REEVALUATORS` maps the kind to
-the function that re-evaluates it (``accuracy``: :func:`harness.experiments.accuracy.reevaluate.reevaluate_accuracy`,
-printed by ``_accuracy``; ``play``: :func:`harness.experiments.play.reevaluate.run_reevaluate`; ``track`` (``rt2 track``
-logs): :func:`harness.experiments.reevaluate_live.run_reevaluate`). Unknown kinds raise
+the function that re-evaluates it (``accuracy``: :func:`harness.experiments.accuracy.reevaluate_accuracy.reevaluate_accuracy`,
+printed by ``_accuracy``; ``play``: :func:`harness.experiments.play.reevaluate_play.run_reevaluate`; ``track`` (``rt2 track``
+logs): :func:`harness.live.reevaluate_track.run_reevaluate`). Unknown kinds raise
 and list the known ones.
 
     rt2 reevaluate out/accuracy/session.mcap                       # every tracker, same settings
@@ -74,7 +74,7 @@ def run(args) -> int:
 def _accuracy(reader, args) -> int:
     from harness.cli.accuracy import format_report
     from harness.experiments.accuracy.figure import plot_histogram
-    from harness.experiments.accuracy.reevaluate import reevaluate_accuracy
+    from harness.experiments.accuracy.reevaluate_accuracy import reevaluate_accuracy
 
     r = reevaluate_accuracy(reader, trackers=args.tracker, eps_px=args.eps_px, source=args.source,
                             progress=not args.no_progress, decode_workers=args.decode_workers)
@@ -100,13 +100,13 @@ def _accuracy(reader, args) -> int:
 
 
 def _play(reader, args) -> int:
-    from harness.experiments.play.reevaluate import run_reevaluate
+    from harness.experiments.play.reevaluate_play import run_reevaluate
 
     return run_reevaluate(reader, args)
 
 
 def _track(reader, args) -> int:
-    from harness.experiments.reevaluate_live import run_reevaluate
+    from harness.live.reevaluate_track import run_reevaluate
 
     return run_reevaluate(reader, args)
 

@@ -17,7 +17,7 @@ import sys
 from harness.link.bridge_core import check_endpoint
 from harness.common.fast_exit import exit_at_once_when_done
 from harness.link.bridge_sim import BridgeOptions, SimBridge
-from harness.sim.robot.sim_wam import SimulatedWam, SimWamOptions
+from harness.sim.robot.simulated_wam import SimulatedWam, SimWamOptions
 from robot_models import DEFAULT_CONFIG_PATH, WamKinematics, load_robot_config
 
 __all__ = ["add_arguments", "run"]

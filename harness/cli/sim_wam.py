@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from harness.experiments.studies.sim_wam import simulate
+from harness.experiments.studies.wam_errors import simulate
 
 __all__ = ["add_arguments", "run"]
 

@@ -26,7 +26,7 @@ import numpy as np
 import zmq
 
 from harness.link.bridge_core import BridgeCore, check_endpoint, default_state_bind
-from harness.sim.robot.sim_wam import SimulatedWam
+from harness.sim.robot.simulated_wam import SimulatedWam
 from robot_models.motion_limits import check_motion, stop_ramp
 from robot_models.robot_interface import check_joint_trajectory
 

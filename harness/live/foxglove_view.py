@@ -39,7 +39,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from harness.live.ws_subprotocols import SubprotocolFront
 from harness.common.ratelimit import RateLimitedLogs
-from harness.logs import codecs, scene, topics
+from harness.logs import codecs, foxglove_scene, topics
 
 __all__ = ["LiveView", "ViewOptions", "ball_scene"]
 
@@ -51,7 +51,7 @@ _JSON_OBS = {"type": "object", "properties": {"num": {"type": "integer"}, "statu
 def ball_scene(log_ns: int, kind: str, position_m, trail_m: np.ndarray, *, diameter_m: float = 0.04) -> bytes:
     """SceneUpdate: the ball (sphere, deleted when there is no position) and its recent track
     ``trail_m`` (n, 3) world frame metres as a line strip."""
-    msg = SceneUpdate.FromString(scene.scene_balls(log_ns, None, [(kind, position_m)], diameter_m=diameter_m))
+    msg = SceneUpdate.FromString(foxglove_scene.scene_balls(log_ns, None, [(kind, position_m)], diameter_m=diameter_m))
     e = msg.entities.add(frame_id=topics.WORLD_FRAME, id=f"track/{kind}")
     e.timestamp.CopyFrom(codecs.timestamp(log_ns))
     if len(trail_m) >= 2:
@@ -59,7 +59,7 @@ def ball_scene(log_ns: int, kind: str, position_m, trail_m: np.ndarray, *, diame
         ln.pose.orientation.w = 1.0
         for x, y, z in np.asarray(trail_m, float).tolist():
             ln.points.add(x=x, y=y, z=z)
-        ln.color.r, ln.color.g, ln.color.b, ln.color.a = (*scene.tracker_color(0), 0.8)
+        ln.color.r, ln.color.g, ln.color.b, ln.color.a = (*foxglove_scene.tracker_color(0), 0.8)
     return msg.SerializeToString()
 
 
@@ -202,14 +202,14 @@ class LiveView:
     def _send_static(self) -> None:
         ns = time.time_ns()
         if self._static.has_sinks():
-            self._static.log(scene.scene_static(ns, self.rig), log_time=ns)
+            self._static.log(foxglove_scene.scene_static(ns, self.rig), log_time=ns)
         if self._tf_static.has_sinks():
             T = [c.cam_to_world for c in self.rig]
             self._tf_static.log(codecs.encode_transforms(ns, [topics.WORLD_FRAME] * len(T), list(self.names), np.stack(T)),
                                 log_time=ns)
         for chan, cam in zip(self._cal, self.rig):
             if chan.has_sinks():
-                chan.log(scene.camera_calibration(ns, cam), log_time=ns)
+                chan.log(foxglove_scene.camera_calibration(ns, cam), log_time=ns)
 
     def _send_scene(self, ns: int, num: int, obs) -> None:
         if self._balls.has_sinks():

@@ -22,7 +22,7 @@ from foxglove_schemas_protobuf.JointStates_pb2 import JointStates as PbJointStat
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
-from harness.logs import codecs, scene, topics
+from harness.logs import codecs, foxglove_scene, topics
 from harness.logs._mcap_writer import LaneSpec, LaneWriter
 from harness.logs._provenance import environment, utc_now
 from harness.logs.topics import LogError
@@ -263,12 +263,12 @@ class SessionLogWriter:
     def write_scene_static(self, t_s: float, rig=None) -> None:
         """Table and net; with a ``tracker.Rig`` also camera frustums, camera frames (/tf_static) and calibrations."""
         log_ns = self._time(t_s)
-        self._put(topics.SCENE_STATIC, "foxglove.SceneUpdate", log_ns, scene.scene_static(log_ns, rig))
+        self._put(topics.SCENE_STATIC, "foxglove.SceneUpdate", log_ns, foxglove_scene.scene_static(log_ns, rig))
         if rig is not None:
             T = np.stack([c.cam_to_world for c in rig])
             self.write_transforms(t_s, [(topics.WORLD_FRAME, c.name, T[i]) for i, c in enumerate(rig)], topic=topics.TF_STATIC)
             for cam in rig:
-                self._put(topics.calibration_topic(cam.name), "foxglove.CameraCalibration", log_ns, scene.camera_calibration(log_ns, cam))
+                self._put(topics.calibration_topic(cam.name), "foxglove.CameraCalibration", log_ns, foxglove_scene.camera_calibration(log_ns, cam))
 
     def write_scene_arm(self, t_s: float, X_world) -> None:
         """X_world : (n, 3) origins of the arm's link frames (base to racket), world frame, metres."""
@@ -276,7 +276,7 @@ class SessionLogWriter:
         X = np.asarray(X_world, float)
         if X.ndim != 2 or X.shape[1] != 3 or len(X) < 2 or not np.isfinite(X).all():
             raise LogError(f"X_world must be a finite (n >= 2, 3) array of link origins, got shape {X.shape}")
-        self._put(topics.SCENE_ARM, "foxglove.SceneUpdate", log_ns, scene.scene_arm(log_ns, X))
+        self._put(topics.SCENE_ARM, "foxglove.SceneUpdate", log_ns, foxglove_scene.scene_arm(log_ns, X))
 
     def write_scene_balls(self, t_s: float, true_ball_m=None, tracked: dict | None = None) -> None:
         """Spheres for the true ball (3,) and for each tracker's ball {tracker: (3,) or None}."""
@@ -285,7 +285,7 @@ class SessionLogWriter:
         items = [(topics.check_name(k, "tracker"), None if v is None else self._vector(v, f"tracked[{k!r}]", 3))
                  for k, v in (tracked or {}).items()]
         self._put(topics.SCENE_BALLS, "foxglove.SceneUpdate", log_ns,
-                  scene.scene_balls(log_ns, true, items, diameter_m=self.options.ball_diameter_m))
+                  foxglove_scene.scene_balls(log_ns, true, items, diameter_m=self.options.ball_diameter_m))
 
     # -- once per session -----------------------------------------------------------------------
     def write_figures(self, name: str, figures: dict, t_s: float | None = None) -> None:

@@ -29,7 +29,7 @@ import numpy as np
 
 from checks.files import MAX_CONFIG_BYTES, read_text_capped
 from harness.sim.render.composite import draw_ball, edge_blur_px
-from harness.sim.render.scene import Ball
+from harness.sim.render.scene_state import Ball
 from tracker.rig_files import read_anipose_toml
 from policies.ball_model import simulate
 from tracker import Camera, Rig
@@ -102,7 +102,7 @@ def aligned_rig(other: Rig, session: Rig) -> tuple[Rig, dict]:
 class SemiRealOptions:
     """How the ball is drawn into the real frames.
 
-    ball_colour : "orange" or "white" (the scene's reflectances, :data:`harness.sim.render.scene.COLOURS`)
+    ball_colour : "orange" or "white" (the scene's reflectances, :data:`harness.sim.render.scene_state.COLOURS`)
     speed_mps : (lo, hi) launch speed range, m/s (uniform; direction uniform on the sphere)
     spin_rps : spin sigma per axis, revolutions per second (Magnus)
     exposure : one of ``EXPOSURES``; tracking_exposure_s : the shutter of "tracking", seconds

@@ -232,7 +232,7 @@ def test_real_flight_is_fitted_to_millimetres(real_data):
 def test_table_geometry_is_the_one_definition_of_table_and_net():
     from harness.sim import lab
     from harness.calib.check import TABLE_CORNERS_M
-    from harness.logs.scene import TABLE as LOGGED_TABLE
+    from harness.logs.foxglove_scene import TABLE as LOGGED_TABLE
     from harness.sim.physics import WorldOptions
 
     t = TableGeometry()

@@ -290,7 +290,7 @@ def test_tossed_and_rolling_balls_of_the_accuracy_scene_are_not_reported(rig):
     while the robot's ball moves slowly (0.3 m/s): every reported position is the robot's ball."""
     from dataclasses import replace
 
-    from harness.experiments.accuracy.scene import SCENES, SessionScene
+    from harness.experiments.accuracy.session_scene import SCENES, SessionScene
     from harness.sim.render import Renderer
     from harness.sim.render.scenes import ball_in_hand, person
     from robot_models import WamKinematics

@@ -316,7 +316,7 @@ def test_size_test_counts_the_edge_loss_so_a_ball_sized_sphere_is_rejected(rig):
 
 
 def test_logged_candidates_and_areas_reproduce_the_size_test(rig, model):
-    # What re-evaluation from a log's detections does (harness.experiments.accuracy.reevaluate): the estimator and
+    # What re-evaluation from a log's detections does (harness.experiments.accuracy.reevaluate_accuracy): the estimator and
     # the size test on the candidates and areas the live tracker reported give its position exactly.
     X_ball, X_big = X0_M, X0_M + np.array([0.3, -0.5, 0.2])
     obs, info = Tracker(rig, model=model, roi=False).process_with_info(_wide_object_and_ball(rig, X_big, X_ball))

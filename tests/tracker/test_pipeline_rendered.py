@@ -82,7 +82,7 @@ def test_rendered_ball_sized_sphere_is_rejected_and_the_ball_kept(rig, renderer)
     # The same on rendered frames with the shipped model: an orange sphere of 30 mm radius on the
     # table, where the wrong OK positions of `rt2 eval framesets --rig lab4_vga` were.
     from harness.sim.render import Ball, Scene
-    from harness.sim.render.scene import Sphere
+    from harness.sim.render.scene_state import Sphere
 
     X_sphere = np.array([0.5, 0.3, 0.79])
     sphere = Sphere(X_sphere, 0.03, "orange", 0.2)

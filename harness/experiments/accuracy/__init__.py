@@ -15,7 +15,7 @@ from harness.experiments.accuracy.faults import FaultPlan
 from harness.experiments.accuracy.motion import MotionOptions, RobotMotion, simulate_motion
 from harness.experiments.accuracy.registration import RegistrationInfo, RegistrationOptions, fit_rigid, register_rigid
 from harness.experiments.accuracy.rig_error import CalibrationErrorOptions, estimated_rig
-from harness.experiments.accuracy.scene import SceneOptions, SessionScene
+from harness.experiments.accuracy.session_scene import SceneOptions, SessionScene
 from harness.experiments.accuracy.stats import JSON_KEYS, error_stats
 
 __all__ = [

@@ -62,7 +62,7 @@ def calibrate_rtblob(config, rig, renderer, session_scene, motion, *, n_frames: 
     for ``RTBlobOptions`` (see the module docstring).
 
     renderer : a :class:`harness.sim.render.Renderer` of ``rig``; session_scene : the session's
-    :class:`harness.experiments.accuracy.scene.SessionScene`; motion : its :class:`RobotMotion`.
+    :class:`harness.experiments.accuracy.session_scene.SessionScene`; motion : its :class:`RobotMotion`.
     """
     from harness.experiments.play.rtblob_setup import tune_colour
 

@@ -15,7 +15,7 @@ import numpy as np
 from harness.experiments.accuracy.motion import MotionOptions
 from harness.experiments.accuracy.registration import RegistrationOptions
 from harness.experiments.accuracy.rig_error import CalibrationErrorOptions
-from harness.experiments.accuracy.scene import SceneOptions
+from harness.experiments.accuracy.session_scene import SceneOptions
 from harness.experiments.accuracy.stats import TRACKER_KINDS
 
 __all__ = ["AccuracyConfig", "DEFAULT_FRAMES", "DEFAULT_LOG_IMAGES", "QUICK_FRAMES", "REGISTER_LAYOUTS", "RTBLOB_SETUPS"]

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from harness.sim import lab
-from harness.sim.render.scene import Ball
+from harness.sim.render.scene_state import Ball
 
 __all__ = ["DistractorSchedule", "GRAVITY_MPS2", "ROLL_DECEL_MPS2"]
 
@@ -41,7 +41,7 @@ ROLL_DECEL_MPS2 = 0.1
 class DistractorSchedule:
     """The episodes of one session (see the module docstring).
 
-    options : :class:`harness.experiments.accuracy.scene.SceneOptions` (fields ``orange_ball_gap_s``,
+    options : :class:`harness.experiments.accuracy.session_scene.SceneOptions` (fields ``orange_ball_gap_s``,
     ``orange_ball_hold_s``, ``p_toss``, ``rolling_ball_gap_s``, ``rolling_speed_mps``)
     seed_sequence : a ``numpy.random.SeedSequence`` of this session's schedule
     """

@@ -32,9 +32,9 @@ from harness.experiments.accuracy.figure import plot_histogram
 from harness.experiments.accuracy.frames import FrameProducer, calibrate, init_worker, run_segment
 from harness.experiments.accuracy.motion import simulate_motion
 from harness.experiments.accuracy.registration import register_rigid
-from harness.experiments.accuracy.scene import SessionScene
+from harness.experiments.accuracy.session_scene import SessionScene
 from harness.experiments.accuracy.rig_error import estimated_rig
-from harness.experiments.accuracy.session_log import AccuracyLogWriter
+from harness.experiments.accuracy.accuracy_log import AccuracyLogWriter
 from harness.experiments.accuracy.stats import check_goals
 from harness.common.executor import Executor, SweepOptions, SweepStopped, in_task_order
 from harness.logs import check_log_images

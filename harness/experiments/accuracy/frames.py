@@ -22,7 +22,7 @@ import numpy as np
 
 from harness.experiments.accuracy.calibration import calibrate_rtblob
 from harness.experiments.accuracy.evaluate import fault_plan_of
-from harness.experiments.accuracy.scene import SessionScene
+from harness.experiments.accuracy.session_scene import SessionScene
 from harness.experiments.accuracy.trackers import build_trackers
 from harness.sim.render import RenderOptions, Renderer
 from tracker import FrameSet

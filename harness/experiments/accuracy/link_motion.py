@@ -125,7 +125,7 @@ def link_motion_source(address: str):
     def source(kin, config) -> RobotMotion:
         if address != "sim":
             return run_on(address, kin, config)
-        from harness.link.spawn import SimBridgeProcess
+        from harness.link.spawn_bridge import SimBridgeProcess
 
         # --batch 5: the bridge wakes every 10 ms (same stamps, less CPU; the motion is commanded ahead of time)
         with SimBridgeProcess("--seed", str(robot_seed_of(config.seed)), "--publish-truth", "--batch", "5") as bridge:

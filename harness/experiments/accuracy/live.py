@@ -41,8 +41,8 @@ from harness.experiments.accuracy.frames import FrameResult
 from harness.experiments.accuracy.live_stream import (StreamSilent, TrackerStream, camera_offsets, candidates_from_message,
                                           latency_budget, motion_onset_ms, observation_from_message, wait_first)
 from harness.experiments.accuracy.motion import RobotMotion, plan_motion
-from harness.experiments.accuracy.scene import SCENES, SessionScene
-from harness.experiments.accuracy.session_log import AccuracyLogWriter
+from harness.experiments.accuracy.session_scene import SCENES, SessionScene
+from harness.experiments.accuracy.accuracy_log import AccuracyLogWriter
 from harness.experiments.accuracy.rig_error import estimated_rig
 from harness.common.outputs import check_output_dir
 from tracker.rig_files import resolve_rig
@@ -168,7 +168,7 @@ def run_live_accuracy(config: AccuracyConfig, out_dir, *, robot: str, tracker_st
                          T_base_to_world=np.array(kin.T_base_to_world), bias_rad=np.zeros(7), info=motion_info)
     # -- observations, scoring ------------------------------------------------------------------------------
     records = {kind: TrackRecord.empty(n)}
-    from harness.experiments.accuracy.session_log import candidates_per_camera
+    from harness.experiments.accuracy.accuracy_log import candidates_per_camera
 
     k_cand = candidates_per_camera(kind)
     frames = []
@@ -292,9 +292,9 @@ def run_live_local(config: AccuracyConfig, out_dir, *, log: bool = True, status=
     cores and a heartbeat thread can be held back longer than 0.3 s (a real robot keeps wam_node's 0.3 s)."""
     import yaml
 
-    from harness.live.spawn import TrackProcess
+    from harness.live.spawn_track import TrackProcess
     from harness.experiments.accuracy.link_motion import robot_seed_of
-    from harness.link.spawn import SimBridgeProcess
+    from harness.link.spawn_bridge import SimBridgeProcess
 
     _check_config(config)
     out = check_output_dir(out_dir, "--out")

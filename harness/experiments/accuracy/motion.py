@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from harness.sim.robot.sim_wam import SimulatedWam, SimWamOptions
+from harness.sim.robot.simulated_wam import SimulatedWam, SimWamOptions
 from harness.sim.trajectories import BALL_BOX_WORLD_M, TrajectoryOptions, random_via_trajectory
 
 __all__ = ["GT_SAMPLINGS", "MotionOptions", "MotionPlan", "RobotMotion", "plan_motion", "seed_streams", "simulate_motion", "world_to_base"]

@@ -1,13 +1,13 @@
 """The scene that ``rt2 track --source sim --truth-stream ADDR`` renders: the lab at an exposure time on
 the host clock, from the lab truth stream (:mod:`harness.sim.lab_truth`) and the accuracy experiment's
-scene presets (:mod:`harness.experiments.accuracy.scene`).
+scene presets (:mod:`harness.experiments.accuracy.session_scene`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from harness.experiments.accuracy.scene import SCENES as PRESETS, SessionScene
+from harness.experiments.accuracy.session_scene import SCENES as PRESETS, SessionScene
 from harness.sim.lab_truth import TruthSubscriber
 
 __all__ = ["SCENES", "LabTruthScene"]
@@ -23,7 +23,7 @@ class LabTruthScene:
     The WAM at its TRUE joints from the truth stream at the exposure instant ``t_host_s`` (the ball on its
     end effector for the ``accuracy*`` scenes, with its velocity over +-``h_s`` for motion blur), the free
     balls of the stream, and the rest of the scene (person, clutter, distractor episodes) from the seed as
-    :class:`harness.experiments.accuracy.scene.SessionScene` builds it, at scene time = ``t_host_s`` minus the first
+    :class:`harness.experiments.accuracy.session_scene.SessionScene` builds it, at scene time = ``t_host_s`` minus the first
     exposure asked. ``play``: the arm (without the mounted ball) and the free balls only.
 
     address : the truth stream; scene : one of :data:`SCENES`; seed : the session seed of the scene;

@@ -37,7 +37,7 @@ class PlayConfig:
     profile: TrackerProfile | None = None
     promp_path: str = str(DEFAULT_PROMP)
     rig: str = "lab4_vga"
-    scene: str = "default"  #: vision source: a preset of harness.experiments.play.scene.SCENES
+    scene: str = "default"  #: vision source: a preset of harness.experiments.play.play_scene.SCENES
     record: bool = False
     record_images_every: int = 0
     policy: dict = field(default_factory=dict)
@@ -89,7 +89,7 @@ def build_session(config: PlayConfig, *, wrap_source=None) -> dict:
     rig = resolve_rig(config.rig)
     profile = config.resolved_profile()
     if config.source == "vision":
-        from harness.experiments.play.scene import SCENES
+        from harness.experiments.play.play_scene import SCENES
 
         if config.scene not in SCENES:
             raise ValueError(f"unknown play scene {config.scene!r}; valid: {sorted(SCENES)}")

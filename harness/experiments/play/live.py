@@ -292,7 +292,7 @@ def _finish_latencies(run: LiveRun, bwam: BallClockWam, cur: dict) -> None:
 def play_live_local(*, balls: int, seed: int, profile, run_policy, batch: int = 4, observe_args=()):
     """The one-command form: start the world+robot bridge and the tracker as children, call
     ``run_policy(robot_addr, tracker_addr, world_addr)``, and stop the children (also on errors and SIGINT)."""
-    from harness.link.spawn import ReadyProcess, SimBridgeProcess
+    from harness.link.spawn_bridge import ReadyProcess, SimBridgeProcess
 
     children = []
     try:

@@ -77,7 +77,7 @@ def calibration_samples(rig, renderer, kinematics, scene_options, box_m, *, n_fr
     """Still-ball calibration images: a list of (camera index, (H, W, 3) image, BallTruth) with the ball
     at least 0.9 visible, from ``n_frames`` frame sets of the play scene (robot at rest at ``q_home``)
     with the ball at random points of ``box_m`` (2, 3) that >= 2 cameras see."""
-    from harness.experiments.play.scene import PlayScene
+    from harness.experiments.play.play_scene import PlayScene
 
     box = np.asarray(box_m, float)
     rng = np.random.default_rng(seed)

@@ -7,7 +7,7 @@ latency (the session delivers it to the filter at ``t_s + latency_s``):
 * :class:`SyntheticSource` -- fast: true position + noise, misses and outliers of the tracker's
   :class:`~harness.experiments.play.profiles.TrackerProfile`, only where the rig's cameras see the ball;
 * :class:`VisionSource` -- the real thing: renders the rig's cameras (``harness.sim.render``; scene of
-  ``harness.experiments.play.scene``: the ball, the WAM and its racket, a person, distractors) and runs
+  ``harness.experiments.play.play_scene``: the ball, the WAM and its racket, a person, distractors) and runs
   ``tracker.Tracker`` of the chosen kind on the images (RTBlob set up first as its user would:
   ``harness.experiments.play.rtblob_setup.calibrate_rtblob``).
 
@@ -79,13 +79,13 @@ class VisionSource:
     """Rendered images through the real tracker (``tracker.make_tracker(kind, rig)``).
 
     renderer : :class:`harness.sim.render.Renderer` of ``rig`` (built once per worker, it caches the lab);
-    scene_options : :class:`harness.experiments.play.scene.PlaySceneOptions`
+    scene_options : :class:`harness.experiments.play.play_scene.PlaySceneOptions`
     """
 
     name = "vision"
 
     def __init__(self, rig, profile: TrackerProfile, *, kinematics, renderer=None, scene_options=None, tracker=None):
-        from harness.experiments.play.scene import PlayScene, PlaySceneOptions
+        from harness.experiments.play.play_scene import PlayScene, PlaySceneOptions
         from harness.sim.render import Renderer
         from tracker import make_tracker
 

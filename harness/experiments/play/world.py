@@ -40,7 +40,7 @@ from harness.sim.lab_truth import TruthError, TruthPublisher
 from harness.sim.physics import BallWorld, EventKind, RacketState
 from harness.experiments.play.session import SessionOptions, ball_over, lerp_racket, world_summary
 from harness.link.bridge_sim import BridgeOptions, SimBridge
-from harness.sim.robot.sim_wam import SimulatedWam, SimWamOptions
+from harness.sim.robot.simulated_wam import SimulatedWam, SimWamOptions
 
 __all__ = ["WorldBridge", "WorldOptions", "ball_robot_seed"]
 

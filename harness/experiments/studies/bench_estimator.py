@@ -84,7 +84,7 @@ def bench(cameras=CAMERAS, *, repeats: int = 2000, naive_budget_s: float = 3.0, 
     """Rows {cameras, method, median_ms, calls} for paper, ours and naive at every camera count."""
     from harness.common.progress import progress_bar
 
-    from harness.sim.sim_rigs import load_sim_rig
+    from harness.sim.study_rigs import load_sim_rig
     from tracker.synthetic import simulate_observations
     from tracker import RobustTriangulator
 

@@ -13,7 +13,7 @@ Per worker count it measures, in this process, medians of ``--repeats`` runs:
 
 * **decode**: every image message of the log read and decoded (``SessionLogReader.messages(workers=)``);
 * **re-track**: ``rt2 reevaluate LOG --from images`` as the command runs it
-  (:func:`harness.experiments.reevaluate_live.reevaluate_track`): read, decode, track every frame set.
+  (:func:`harness.live.reevaluate_track.reevaluate_track`): read, decode, track every frame set.
 
 Frame sets per second of wall time, and the ratio to ``--workers``' first entry (the baseline, run in the same
 process). The figures of every re-track must be those of the baseline, byte for byte (``same_figures``):
@@ -93,7 +93,7 @@ def _decode(path: Path, workers: int) -> tuple[float, int]:
 
 
 def _retrack(path: Path, workers: int) -> tuple[float, dict]:
-    from harness.experiments.reevaluate_live import reevaluate_track
+    from harness.live.reevaluate_track import reevaluate_track
     from harness.logs import SessionLogReader
 
     with SessionLogReader(path) as reader:

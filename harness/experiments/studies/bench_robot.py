@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from harness.sim.robot.sim_wam import SimulatedWam, SimWamOptions
+from harness.sim.robot.simulated_wam import SimulatedWam, SimWamOptions
 from robot_models import WamKinematics
 
 __all__ = ["bench_robot"]

@@ -305,7 +305,7 @@ def _init_worker(rig, seed, trackers, ball_colour, tol_m, model, max_size_ratio,
     """Per worker process: the renderer (or the semi-real session, ``semi`` = (folder, options)) and the
     trackers (reset before every frame set)."""
     from harness.sim.render import Renderer
-    from harness.sim.render.scene import colour_rgb
+    from harness.sim.render.scene_state import colour_rgb
     from tracker import RobustOptions
     from tracker.pipeline import Tracker
 

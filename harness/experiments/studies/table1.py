@@ -43,7 +43,7 @@ _RIGS: dict = {}  # per-process cache of loaded rigs
 def _chunk(c: int, p: float, n: int, seed: int, chunk: int, eps_px: float) -> dict:
     """One chunk of trials of one cell: per method the errors (n,) in metres (NaN = no position)
     and the status codes (n,)."""
-    from harness.sim.sim_rigs import load_sim_rig
+    from harness.sim.study_rigs import load_sim_rig
     from tracker.synthetic import simulate_observations
     from tracker import RobustTriangulator
 

@@ -6,7 +6,7 @@
 """
 
 from harness.sim.render.renderer import DRAW_METHODS, RenderOptions, Renderer
-from harness.sim.render.scene import COLOURS, Ball, Box, Capsule, Disk, Exposure, Scene, Sphere
+from harness.sim.render.scene_state import COLOURS, Ball, Box, Capsule, Disk, Exposure, Scene, Sphere
 from harness.sim.render.truth import VISIBLE_FRACTION, BallTruth
 
 __all__ = [

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from harness.sim.render.scene import Ball
+from harness.sim.render.scene_state import Ball
 from harness.sim.render.textured import _undistort_grid
 from harness.sim.render.truth import BallTruth, ball_truths
 from tracker import Camera

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness.sim import lab
-from harness.sim.render.scene import Box, Sphere
+from harness.sim.render.scene_state import Box, Sphere
 
 __all__ = ["ACCURACY", "DISTRACTORS", "NEAR_ORANGE", "PLAY", "DistractorPlacement", "place_distractor"]
 

@@ -1,6 +1,6 @@
 """Dynamic primitives as one float table, and the shading constants both draw kernels share.
 
-:func:`pack_scene` turns a :class:`~harness.sim.render.scene.Scene` into a ``(n, N_COLS)`` float64
+:func:`pack_scene` turns a :class:`~harness.sim.render.scene_state.Scene` into a ``(n, N_COLS)`` float64
 table in the world frame (capsules, spheres, disks and boxes first, balls last, so a ball's
 visibility is measured against everything else). The numba kernel (:mod:`._kernels`) and the
 numpy reference (:mod:`.reference`) both read this table, so they draw exactly the same thing.
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.sim.render.scene import Scene
+from harness.sim.render.scene_state import Scene
 
 __all__ = [
     "AMBIENT",

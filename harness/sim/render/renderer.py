@@ -16,7 +16,7 @@ import numpy as np
 from harness.sim.render._kernels import draw_numba
 from harness.sim.render.primitives import AMBIENT, DIFFUSE, DN_PER_RADIANCE, LIGHT_DIR_WORLD, SPECULAR_GAIN, pack_scene
 from harness.sim.render.reference import draw_numpy
-from harness.sim.render.scene import Scene
+from harness.sim.render.scene_state import Scene
 from harness.sim.render.sensor import NoiseBank, background_dn
 from harness.sim.render.static import Background, background
 from harness.sim.render.truth import BallTruth, ball_truths
@@ -32,7 +32,7 @@ SHADINGS = {"phong": (AMBIENT, DIFFUSE, SPECULAR_GAIN), "flat": (1.0, 0.0, 0.0)}
 
 @dataclass(frozen=True)
 class RenderOptions:
-    """Renderer settings (the scene's :class:`~harness.sim.render.scene.Exposure` varies per frame).
+    """Renderer settings (the scene's :class:`~harness.sim.render.scene_state.Exposure` varies per frame).
 
     reference_exposure_s : exposure at which the lab renders at nominal brightness
     noise_dn : read-noise sigma at gain 1, pixel values (scales with gain); 0 = no noise
@@ -66,7 +66,7 @@ class RenderOptions:
 
 
 class Renderer:
-    """Renders :class:`~harness.sim.render.scene.Scene` states through every camera of ``rig``.
+    """Renders :class:`~harness.sim.render.scene_state.Scene` states through every camera of ``rig``.
 
     rig : the cameras (any size and lens model of :class:`tracker.Camera`)
     options : :class:`RenderOptions`

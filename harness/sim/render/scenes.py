@@ -1,6 +1,6 @@
 """Seeded random scenes for labelled data sets: the ball among the things that fool a colour detector.
 
-:func:`random_scene` draws one frame's :class:`~harness.sim.render.scene.Scene` from a generator:
+:func:`random_scene` draws one frame's :class:`~harness.sim.render.scene_state.Scene` from a generator:
 
 * the ball (orange or white) somewhere in the workspace, flying at up to ``max_speed_mps`` or
   nearly still; often held by / next to a skin-coloured hand; sometimes just behind the net or
@@ -23,7 +23,7 @@ import numpy as np
 
 from harness.sim import lab
 from harness.sim.render.renderer import RenderOptions
-from harness.sim.render.scene import Ball, Box, Capsule, Disk, Exposure, Scene, Sphere
+from harness.sim.render.scene_state import Ball, Box, Capsule, Disk, Exposure, Scene, Sphere
 
 __all__ = ["SceneOptions", "ball_in_hand", "person", "random_scene", "robot_arm"]
 

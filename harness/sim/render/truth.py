@@ -72,7 +72,7 @@ def _silhouette(camera: Camera, centre_m: np.ndarray, radius_m: float) -> np.nda
 def ball_truths(camera: Camera, balls, exposure_s: float, coverage_px: np.ndarray) -> tuple[BallTruth, ...]:
     """Ground truth of ``balls`` in ``camera``.
 
-    balls : the scene's :class:`~harness.sim.render.scene.Ball` objects
+    balls : the scene's :class:`~harness.sim.render.scene_state.Ball` objects
     exposure_s : shutter time (for the smeared box)
     coverage_px : (n_balls,) visible coverage summed over pixels, from the draw kernel
     """

@@ -6,6 +6,6 @@ side follows (``PiecewiseReference``) beside it in robot_models/joint_reference.
 the simulator's error model and docs/robot_link.md the network protocol.
 """
 
-from harness.sim.robot.sim_wam import SimSamples, SimulatedWam, SimWamOptions
+from harness.sim.robot.simulated_wam import SimSamples, SimulatedWam, SimWamOptions
 
 __all__ = ["SimSamples", "SimWamOptions", "SimulatedWam"]

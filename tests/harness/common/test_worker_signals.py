@@ -241,7 +241,7 @@ def descendants(pid: int) -> list[int]:
 
 
 def test_sigterm_robot_serve_stops_within_2_s():
-    from harness.link.spawn import SimBridgeProcess
+    from harness.link.spawn_bridge import SimBridgeProcess
 
     bridge = SimBridgeProcess("--batch", "4")
     try:

@@ -1,6 +1,6 @@
 """The accuracy experiment's realism effects: the calibration error of the trackers' rig
 (harness.experiments.accuracy.rig_error), the camera-to-robot clock error (harness.experiments.accuracy.motion) and the
-distractors that come and go (harness.experiments.accuracy.distractors, harness.experiments.accuracy.scene)."""
+distractors that come and go (harness.experiments.accuracy.distractors, harness.experiments.accuracy.session_scene)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from harness.experiments.accuracy.distractors import GRAVITY_MPS2, DistractorSch
 from harness.experiments.accuracy.motion import MotionOptions, simulate_motion
 from harness.experiments.accuracy.rig_error import (CalibrationErrorOptions, calibration_residuals, estimated_rig, perturb_rig,
                                         reprojection_residuals)
-from harness.experiments.accuracy.scene import SCENES
+from harness.experiments.accuracy.session_scene import SCENES
 from tracker.rig_files import resolve_rig
 from tracker import Rig
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from harness.cli import main
-from harness.sim.sim_rigs import load_sim_rig
+from harness.sim.study_rigs import load_sim_rig
 from tracker.synthetic import simulate_observations
 from harness.experiments.studies.bench_estimator import bench, naive_estimate
 from tracker import RobustTriangulator

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from harness.cli import main as rt2
-from harness.experiments.reevaluate_live import reevaluate_track
+from harness.live.reevaluate_track import reevaluate_track
 from harness.experiments.studies.bench_replay import make_track_log
 from harness.logs import SessionLogReader
 

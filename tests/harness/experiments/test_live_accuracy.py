@@ -100,7 +100,7 @@ def _assert_close(live, ref):
 @pytest.mark.parametrize("skew_ms", [0.0, 5.0])
 def test_live_figures_match_the_in_process_run(tmp_path, in_process, skew_ms):
     from harness.experiments.accuracy.live import run_live_local
-    from harness.experiments.accuracy.reevaluate import reevaluate_accuracy
+    from harness.experiments.accuracy.reevaluate_accuracy import reevaluate_accuracy
     from harness.logs import SessionLogReader
 
     config = AccuracyConfig(seed=SEED, n_frames=100, rate_hz=100.0, trackers=("rt2",))

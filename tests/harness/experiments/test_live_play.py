@@ -16,7 +16,7 @@ import pytest
 
 from harness.cli import main
 from harness.common.spawn import ROOT, ReadyProcess
-from harness.link.spawn import SimBridgeProcess
+from harness.link.spawn_bridge import SimBridgeProcess
 
 
 @pytest.mark.parametrize("extra, needle", [
@@ -151,7 +151,7 @@ def test_the_world_bridge_plays_the_in_process_ball_world():
     from harness.experiments.play.session import SessionOptions, ball_over, lerp_racket, world_summary
     from harness.experiments.play.world import WorldBridge, WorldOptions, ball_robot_seed, draw_serve
     from harness.link.bridge_sim import BridgeOptions
-    from harness.sim.robot.sim_wam import SimulatedWam, SimWamOptions
+    from harness.sim.robot.simulated_wam import SimulatedWam, SimWamOptions
     from policies.ball_model import BallParams
     from robot_models import WamKinematics
 

@@ -1,4 +1,4 @@
-"""RTBlob set up for the playing sessions (harness/experiments/play/rtblob_setup.py) and the play scene presets (harness/experiments/play/scene.py)."""
+"""RTBlob set up for the playing sessions (harness/experiments/play/rtblob_setup.py) and the play scene presets (harness/experiments/play/play_scene.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from harness.sim import lab
 from harness.experiments.play.rtblob_setup import calibrate_rtblob, choose_pairs, tune_colour
-from harness.experiments.play.scene import DISTRACTORS, SCENES, PlayScene, PlaySceneOptions
+from harness.experiments.play.play_scene import DISTRACTORS, SCENES, PlayScene, PlaySceneOptions
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""``rt2 reevaluate`` (harness.cli.reevaluate, harness.experiments.accuracy.reevaluate): a recorded accuracy session re-run
+"""``rt2 reevaluate`` (harness.cli.reevaluate, harness.experiments.accuracy.reevaluate_accuracy): a recorded accuracy session re-run
 offline reproduces the live figures exactly, from the images and from the detections; other settings
 change them sensibly; a cut log is re-evaluated on what was recovered; bad input is one clear line.
 The session is the ``accuracy_session`` fixture of tests/conftest.py."""
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from harness.experiments.accuracy import AccuracyConfig
-from harness.experiments.accuracy.reevaluate import reevaluate_accuracy
+from harness.experiments.accuracy.reevaluate_accuracy import reevaluate_accuracy
 from harness.cli import main
 from harness.logs import SessionLogReader, SessionLogWriter
 

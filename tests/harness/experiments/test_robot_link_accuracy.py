@@ -11,7 +11,7 @@ from harness.experiments.accuracy import AccuracyConfig
 from harness.experiments.accuracy.evaluate import TrackRecord, evaluate
 from harness.experiments.accuracy.frames import FrameProducer
 from harness.experiments.accuracy.motion import simulate_motion
-from harness.sim.rigs import resolve_rig
+from tracker.rig_files import resolve_rig
 from harness.sim.robot import SimWamOptions
 from harness.link import WamClient
 from harness.experiments.accuracy.link_motion import link_motion_source, robot_seed_of

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from harness.cli import main
-from harness.sim.sim_rigs import SIM_CAMERA_COUNTS, load_sim_rig, make_sim_rig
+from harness.sim.study_rigs import SIM_CAMERA_COUNTS, load_sim_rig, make_sim_rig
 from tracker.synthetic import simulate_observations
 from harness.experiments.studies.paper_tables import PAPER_TABLE1, failure_floor
 from harness.experiments.studies.table1 import check_goals, format_table, run_table1

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from harness.common.spawn import ROOT
-from harness.link.spawn import SimBridgeProcess
+from harness.link.spawn_bridge import SimBridgeProcess
 
 __all__ = ["BridgeProcess", "ROOT"]
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.live.spawn import TrackProcess
+from harness.live.spawn_track import TrackProcess
 from harness.live.ws_subprotocols import CLASSIC, MAX_HEADER_BYTES, SDK, SubprotocolFront, offered, rename_protocol
 
 ROOT = Path(__file__).resolve().parents[3]

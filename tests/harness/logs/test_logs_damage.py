@@ -128,7 +128,7 @@ def test_log_without_only_its_summary_is_data_complete(finished_log, tmp_path):
 
 
 def test_reevaluating_a_log_without_only_its_summary_keeps_every_frame_set(accuracy_session, tmp_path):
-    from harness.experiments.accuracy.reevaluate import reevaluate_accuracy
+    from harness.experiments.accuracy.reevaluate_accuracy import reevaluate_accuracy
 
     result, out = accuracy_session
     data = (out / "session.mcap").read_bytes()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from harness.sim.render.composite import draw_ball, edge_blur_px, local_look, noise_sigma
-from harness.sim.render.scene import Ball
+from harness.sim.render.scene_state import Ball
 from tracker import Camera
 
 

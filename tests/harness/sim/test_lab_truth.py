@@ -104,7 +104,7 @@ def test_the_simulated_bridge_publishes_its_true_joints_on_the_host_clock():
     """`rt2 robot serve --sim --truth-stream` (its own process, robot clock skewed by 5 ms): the lab truth at a host
     time equals the true joints the robot reports in its states (--publish-truth) at robot time host + offset."""
     from harness.link import WamClient
-    from harness.link.spawn import SimBridgeProcess
+    from harness.link.spawn_bridge import SimBridgeProcess
 
     with SimBridgeProcess("--publish-truth", "--clock-skew-ms", "5", "--truth-stream", "tcp://127.0.0.1:*") as bridge:
         with TruthSubscriber(bridge.ready["truth"]) as sub, WamClient(bridge.address) as wam:
@@ -130,7 +130,7 @@ def test_sim_cameras_on_the_host_clock_stamp_the_exposure_and_arrive_later():
     provider(t_exposure, k) only once that instant has passed, stamped with it, and arrives after it."""
     from harness.live.sources.sim import SimOptions, open_sim
     from harness.sim.render import Scene
-    from harness.sim.rigs import resolve_rig
+    from tracker.rig_files import resolve_rig
 
     asked = []
 

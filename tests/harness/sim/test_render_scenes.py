@@ -142,7 +142,7 @@ def test_scene_statistics_follow_the_options():
 
 def test_the_two_distractor_placements_are_the_documented_ones():
     from harness.sim.render.placed_distractors import ACCURACY, DISTRACTORS, PLAY, place_distractor
-    from harness.sim.render.scene import Box, Sphere
+    from harness.sim.render.scene_state import Box, Sphere
 
     for placement, ring, radius in ((ACCURACY, (0.6, 1.4), (0.05, 0.07)), (PLAY, (0.7, 1.4), (0.03, 0.045))):
         rng = np.random.default_rng(0)

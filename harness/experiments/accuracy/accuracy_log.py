@@ -17,7 +17,7 @@ What is written, and why (docs/accuracy.md has the full list):
   strip, and the true ball with every tracker's ball in the 3D scene;
 * at the end: the figures (``/figures/accuracy``) and ``session_end``.
 
-Re-evaluation (:mod:`harness.experiments.accuracy.reevaluate`) needs only the metadata, the attachments, the images
+Re-evaluation (:mod:`harness.experiments.accuracy.reevaluate_accuracy`) needs only the metadata, the attachments, the images
 or detections, the observations (for the delivered timestamps) and the ground truth.
 """
 

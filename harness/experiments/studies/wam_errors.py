@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.sim.robot.sim_wam import SimulatedWam, SimWamOptions
+from harness.sim.robot.simulated_wam import SimulatedWam, SimWamOptions
 from harness.sim.trajectories import BALL_BOX_WORLD_M, TrajectoryOptions, random_via_trajectory
 from robot_models import DEFAULT_CONFIG_PATH, WamKinematics, load_robot_config
 

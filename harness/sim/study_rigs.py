@@ -8,7 +8,7 @@ barrel distortion. One pixel covers 4-6 mm at the workspace centre. The paper do
 geometry; the image size is the one calibrated parameter, chosen so that our run of the paper's
 own Algorithm 2 reproduces the paper's error for 4 cameras and 1 % outliers (0.72 vs 0.71 cm);
 every other cell is then a prediction. The geometry is documented in data/rigs/README.md; the
-files ``data/rigs/sim_c{c}.yaml`` are written by ``python -m harness.sim.sim_rigs`` and a test checks
+files ``data/rigs/sim_c{c}.yaml`` are written by ``python -m harness.sim.study_rigs`` and a test checks
 they equal this formula.
 
 The study's observations (Sec. 3.1) are :func:`tracker.synthetic.simulate_observations` on these rigs.
@@ -79,7 +79,7 @@ def make_sim_rig(n_cams: int) -> Rig:
         cams.append(Camera(f"sim{i:02d}", K, [k1, 0.02, 0.0, 0.0, 0.0], R, t, IMAGE_SIZE))
     desc = (
         f"simulation-study rig: {n_cams} cameras, radius {RADIUS_M} m around the workspace centre, "
-        f"elevation {ELEVATION_DEG[0]:g}-{ELEVATION_DEG[1]:g} deg, {w}x{h} px (harness/sim/sim_rigs.py)"
+        f"elevation {ELEVATION_DEG[0]:g}-{ELEVATION_DEG[1]:g} deg, {w}x{h} px (harness/sim/study_rigs.py)"
     )
     return Rig(cams, workspace_m=box, description=desc)
 
@@ -92,7 +92,7 @@ def load_sim_rig(n_cams: int) -> Rig:
     """Load ``data/rigs/sim_c{n_cams}.yaml``."""
     path = sim_rig_path(n_cams)
     if not path.is_file():
-        raise FileNotFoundError(f"no simulation rig {path}; write it with `python -m harness.sim.sim_rigs`")
+        raise FileNotFoundError(f"no simulation rig {path}; write it with `python -m harness.sim.study_rigs`")
     return Rig.load(path)
 
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from harness.sim import lab
 from harness.sim.render.placed_distractors import ACCURACY, DISTRACTORS, place_distractor
-from harness.sim.render.scene import Ball, Capsule, Exposure, Scene, Sphere, colour_rgb
+from harness.sim.render.scene_state import Ball, Capsule, Exposure, Scene, Sphere, colour_rgb
 from harness.sim.render.scenes import ball_in_hand, person
 from harness.experiments.accuracy.distractors import DistractorSchedule
 

@@ -2,7 +2,7 @@
 
 One :class:`PlayScene` per ball draws what stays fixed (the person's build, clothes and stance beside the
 table, the distractor objects, the exposure) from its seed, as the accuracy experiment's scenes do
-(``harness.experiments.accuracy.scene``); :meth:`PlayScene.scene_at` builds one frame set's
+(``harness.experiments.accuracy.session_scene``); :meth:`PlayScene.scene_at` builds one frame set's
 :class:`harness.sim.render.Scene` from the TRUE state at the capture time:
 
 * the WAM: a pedestal under the mount, one capsule per link between the frames of
@@ -38,7 +38,7 @@ import numpy as np
 
 from harness.sim import lab
 from harness.sim.render.placed_distractors import DISTRACTORS, PLAY, place_distractor
-from harness.sim.render.scene import Ball, Capsule, Disk, Exposure, Scene, Sphere, colour_rgb
+from harness.sim.render.scene_state import Ball, Capsule, Disk, Exposure, Scene, Sphere, colour_rgb
 from harness.sim.render.scenes import ball_in_hand, person
 
 __all__ = ["DISTRACTORS", "SCENES", "PlayScene", "PlaySceneOptions"]
