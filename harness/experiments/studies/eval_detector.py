@@ -19,6 +19,7 @@ counts as an outlier (these are what the robust estimator has to reject).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +35,7 @@ GOALS = {"recall": 0.99, "outlier_rate": 0.01, "median_center_error_px": 0.5}
 
 
 def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None, progress=True,
-             ball_free_margin_px: float | None = None):
+             ball_free_margin_px: float | None = None, area_px=None):
     """Run each method on every labelled image; returns a list of :class:`~harness.experiments.detector.scores.DetectorScores`.
 
     model : ``BallSegmentationModel``; labelled : list of ``harness.experiments.detector.coco.LabelledImage``
@@ -42,6 +43,8 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
     ball_free_margin_px : when set, every labelled ball is inpainted out first (boxes grown by this
         margin, :mod:`harness.experiments.detector.ballfree`) and the images count as ball-free:
         every detection is a false alarm
+    area_px : (min, max) accepted blob area of ``ours``, pixels (None = the model's ``area_range_px``;
+        :func:`area_from_diameters` turns a ball diameter range into one)
     """
     from harness.common.progress import progress_bar
 
@@ -52,7 +55,8 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
         if m not in EVAL_METHODS:
             raise ValueError(f"unknown method {m!r}; valid: {EVAL_METHODS}")
     paper = BallDetector(model, DetectorOptions(method="paper", t_high=t_high, t_low=t_low))
-    ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low))
+    area = {} if area_px is None else dict(min_area_px=int(area_px[0]), max_area_px=int(area_px[1]))
+    ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low, **area))
     found = {m: [] for m in methods}
     centers, diameters = [], []
     for li in progress_bar(labelled, desc="eval detector", unit="img", disable=not progress, leave=False):
@@ -73,6 +77,28 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
             if "topk" in methods:
                 found["topk"].append(uv)
     return [score_detections(m, centers, diameters, found[m], min_diameter_px=min_diameter_px) for m in methods]
+
+
+def area_from_diameters(model, diameter_px) -> tuple[int, int]:
+    """(min, max) accepted blob area, pixels, for balls of ``diameter_px`` (lo, hi) across: the rule the
+    tracker applies to a rig's ball sizes (:func:`tracker.ball_size.size_limits`, which widens the model's
+    own range and never narrows it), for images whose rig is not known."""
+    from tracker.ball_size import size_limits
+
+    lo, hi = (float(v) for v in diameter_px)
+    if not (0 < lo <= hi and np.isfinite(hi)):
+        raise ValueError(f"--ball-diameter-px must be LO:HI with 0 < LO <= HI, got {diameter_px!r}")
+    lim = size_limits([[lo, hi]], model.area_range_px, 32, edge_loss_px=model.edge_loss_px)
+    return int(math.floor(lim.area_px[0, 0])), int(math.ceil(lim.area_px[0, 1]))
+
+
+def too_large(model, labelled, min_diameter_px: float, area_px=None) -> tuple[int, int, float]:
+    """(labelled balls >= ``min_diameter_px`` whose disk is larger than the accepted blob area, such balls, that largest
+    area in pixels): a ball imaged larger than the model was trained for is rejected by the shape test whatever its colour."""
+    max_area = float(model.area_range_px[1] if area_px is None else area_px[1])
+    d = np.concatenate([np.minimum(li.boxes_xywh[:, 2], li.boxes_xywh[:, 3]) for li in labelled] or [np.zeros(0)])
+    d = d[d >= min_diameter_px]
+    return int((math.pi / 4 * (d - model.edge_loss_px) ** 2 > max_area).sum()), len(d), max_area
 
 
 def format_table(scores) -> str:
@@ -170,6 +196,10 @@ def add_arguments(parser) -> None:
                              "video's later frames that training did not see")
     parser.add_argument("--no-verifier", action="store_true",
                         help="run 'ours' and 'topk' with the model's 5x5 filter alone, without its candidate verifier (if it has one)")
+    parser.add_argument("--ball-diameter-px", default=None, metavar="LO:HI",
+                        help="the balls' diameter range on these images, pixels, when no rig says it: the accepted blob area "
+                             "follows from it (widening the model's own range, as the tracker does from a rig's ball sizes); "
+                             "default: the model's own area range")
     parser.add_argument("--ball-free", action="store_true",
                         help="paint every labelled ball out first (OpenCV inpainting of its box + 4 px) and count every detection "
                              "as a false alarm: false alarms on real scenes without ball-free frames")
@@ -211,13 +241,29 @@ def run(args) -> int:
     if not t_low < t_high:
         raise ValueError(f"need T_l < T_h, got T_l={t_low:g} and T_h={t_high:g} (--t-low/--t-high and the model's defaults combined)")
     ball_free_margin = BALL_FREE_MARGIN_PX if getattr(args, "ball_free", False) else None
+    area_px = None
+    if getattr(args, "ball_diameter_px", None) is not None:
+        text = str(args.ball_diameter_px)
+        try:
+            lo, hi = (float(t) for t in text.split(":"))
+        except ValueError:
+            raise ValueError(f"--ball-diameter-px must be LO:HI in pixels (e.g. 20:60), got {text!r}") from None
+        area_px = area_from_diameters(model, (lo, hi))
     scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low,
-                      ball_free_margin_px=ball_free_margin)
+                      ball_free_margin_px=ball_free_margin, area_px=area_px)
     print(
         f"model {args.model}{' (with its candidate verifier)' if model.verifier is not None else ''}: T_h={t_high:g}, T_l={t_low:g}; {len(labelled)} images; "
         f"{colour} balls >= {args.min_diameter_px:g} px"
         + (f" (the model's own colour; --ball-colour any scores every ball)" if args.ball_colour == "model" and colour != "any" else "")
     )
+    if area_px is not None:
+        print(f"accepted blob area {area_px[0]}-{area_px[1]} px (--ball-diameter-px {args.ball_diameter_px}; the model's own: "
+              f"{model.area_range_px[0]:.0f}-{model.area_range_px[1]:.0f} px)")
+    n_big, n_scored, max_area = too_large(model, labelled, args.min_diameter_px, area_px) if ball_free_margin is None else (0, 0, 0.0)
+    if n_big:
+        print(f"warning: {n_big} of {n_scored} labelled balls are larger than the accepted blob area (max {max_area:.0f} px, a ball "
+              f"~{2 * math.sqrt(max_area / math.pi) + model.edge_loss_px:.0f} px across): 'ours' rejects them whatever their colour; "
+              "pass --ball-diameter-px LO:HI (the balls' sizes on these images)")
     if ball_free_margin is not None:
         print(f"ball-free: every labelled ball painted out (box + {ball_free_margin:g} px); every detection is a false alarm")
     print(format_table(scores))

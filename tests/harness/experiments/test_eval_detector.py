@@ -149,3 +149,29 @@ def test_cli_thresholds_override_the_model(synthetic_ball_coco, tmp_path, capsys
     for args, message in ((["--t-high", "1.5"], "--t-high must be a probability in (0, 1), got 1.5"), (["--t-low", "0.99999999"], "need T_l < T_h")):
         assert main(["eval", "detector", "--data", data, "--model", str(model), *args]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_ball_diameter_widens_the_area_and_large_balls_are_named(synthetic_ball_coco, tmp_path, capsys):
+    """A model whose accepted blob area is smaller than the labelled balls rejects them whatever their colour:
+    the output says so, and --ball-diameter-px (the balls' sizes when no rig says them) lets them through."""
+    import dataclasses
+
+    from harness.experiments.studies.eval_detector import area_from_diameters
+
+    small = dataclasses.replace(hand_made_model(), area_range_px=np.array([2.0, 12.0]))  # balls of 6-14 px make larger blobs
+    path = small.save(tmp_path / "small.npz")
+    data = str(synthetic_ball_coco(30, 0))
+    narrow, wide = tmp_path / "narrow.json", tmp_path / "wide.json"
+    assert main(["eval", "detector", "--data", data, "--model", str(path), "--ball-colour", "any", "--json", str(narrow)]) == 0
+    out = capsys.readouterr().out
+    assert "labelled balls are larger than the accepted blob area (max 12 px" in out and "--ball-diameter-px" in out
+    assert main(["eval", "detector", "--data", data, "--model", str(path), "--ball-colour", "any", "--ball-diameter-px", "6:14",
+                 "--json", str(wide)]) == 0
+    assert "accepted blob area 2-154 px (--ball-diameter-px 6:14" in capsys.readouterr().out
+    n, w = json.loads(narrow.read_text()), json.loads(wide.read_text())
+    assert n[1]["method"] == "ours" and w[1]["recall"] > n[1]["recall"] + 0.5
+    assert n[0] == w[0]  # the paper's Algorithm 1 has no shape test
+    assert area_from_diameters(small, (1, 2)) == (1, 12)  # widens, never narrows
+    for bad in ("20", "a:b", "0:10", "30:20"):
+        assert main(["eval", "detector", "--data", data, "--model", str(path), "--ball-diameter-px", bad]) == 2
+        assert "--ball-diameter-px must be LO:HI" in capsys.readouterr().err
