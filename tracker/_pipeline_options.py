@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -17,18 +18,47 @@ from tracker.detection import BallSegmentationModel, DetectorOptions
 from tracker.hypotheses import HypothesisOptions
 from tracker.robust import RobustOptions
 
-__all__ = ["DEFAULT_MODEL", "KINDS", "TRACKER_KINDS", "PipelineInfo", "TrackerOptions", "TrackerStats", "detector_options_for", "estimator_options_for", "load_model", "with_overrides"]
+__all__ = ["DEFAULT_MODEL", "PipelineInfo", "TrackerEngine", "TrackerKind", "TrackerOptions", "TrackerStats", "detector_options_for", "estimator_options_for", "load_model", "with_overrides"]
 
 #: the shipped segmentation model (``rt2 train`` writes it)
 DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "data" / "models" / "ball_seg_default.npz"
 
-#: kind -> (detector method, estimator method, ROI by default); rtblob has neither
-KINDS = {
-    "rt2": ("ours", "ours", True),
-    "rt2-paper": ("paper", "paper", False),
-    "rtblob": (None, None, False),
-}
-TRACKER_KINDS = tuple(KINDS)
+
+@dataclass(frozen=True)
+class TrackerKind:
+    """One entry of the registry of tracker kinds (``tracker.pipeline.KINDS``).
+
+    engine : the class that does the kind's per-frame work (:class:`TrackerEngine`); built as
+        ``engine(rig, name, kind, options, stats, model=, detector_options=, estimator_options=, rtblob_options=)``
+    detector_method, estimator_method : ``DetectorOptions.method`` / ``RobustTriangulator`` method
+        (None: the kind has its own detector and estimator)
+    roi_default : searches a window around the predicted pixel unless ``TrackerOptions.roi`` says otherwise
+    extras : the steps beyond the paper apply: the 3D size test, the support hand-over, the ball hypotheses
+    """
+
+    engine: Callable
+    detector_method: str | None
+    estimator_method: str | None
+    roi_default: bool
+    extras: bool
+
+
+class TrackerEngine(Protocol):
+    """What a tracker kind's engine does behind :class:`tracker.Tracker`, which has already checked the
+    frame set, its time and its images (``usable``: cameras with a usable frame) and counted them."""
+
+    roi: bool
+    candidates_per_camera: int | None  #: k of the estimator's input (None: the kind has no candidates)
+
+    def process(self, t_s: float, frameset, usable: list[int], notes: list, t0: float) -> tuple:
+        """``(BallObservation, PipelineInfo)`` of one frame set (``t_s`` NaN when not finite; ``t0`` the
+        ``time.perf_counter()`` at the tracker's entry, for ``latency_s``)."""
+
+    def forget_motion(self) -> None:
+        """Forget what was learnt from earlier frame sets (a new rally, a time that went backwards)."""
+
+    def close(self) -> None:
+        """Stop what the engine started (threads)."""
 
 
 @dataclass(frozen=True)
@@ -162,6 +192,11 @@ class TrackerStats:
 
     def as_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def clear(self) -> None:
+        """Every counter back to 0 (in place: the tracker's engine counts into this object)."""
+        for f in fields(self):
+            setattr(self, f.name, 0)
 
     @property
     def dropped_cameras(self) -> int:

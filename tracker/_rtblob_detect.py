@@ -24,9 +24,10 @@ import scipy.fft
 
 from checks.arrays import describe
 from tracker._rtblob_options import AUTO_DIRECT_MAX_SIDE, RTBlobOptions
+from tracker.images import check_image
 from checks.numba_cache import key_cache_on_callees
 
-__all__ = ["RTBlobDetector", "disk_template", "image_problem", "likelihood_reference"]
+__all__ = ["RTBlobDetector", "disk_template", "likelihood_reference"]
 
 
 def disk_template(radius_px: float) -> np.ndarray:
@@ -81,26 +82,6 @@ def _chromaticity_likelihood(image, ref, inv_two_sigma2, out):
                 dg = third - ref[1]
                 db = third - ref[2]
             out[y, x] = np.exp(-(dr * dr + dg * dg + db * db) * inv_two_sigma2)
-
-
-def image_problem(image, image_size: tuple[int, int], name: str = "image"):
-    """Why ``image`` cannot be used, or None.
-
-    Returns None, ``("type", message)`` for anything that is not a non-empty (H, W, 3) uint8 array,
-    or ``("size", message)`` for a valid image of another size than ``image_size`` (width, height).
-    """
-    if not isinstance(image, np.ndarray):
-        return "type", f"{name} must be an (H, W, 3) uint8 RGB array, got {describe(image)}"
-    if image.ndim != 3 or image.shape[2] != 3:
-        return "type", f"{name} must be an (H, W, 3) uint8 RGB array, got shape {image.shape}"
-    if image.dtype != np.uint8:
-        return "type", f"{name} must have dtype uint8 (8-bit RGB), got dtype {image.dtype}"
-    if image.shape[0] == 0 or image.shape[1] == 0:
-        return "type", f"{name} is empty: shape {image.shape}"
-    w, h = image_size
-    if image.shape[:2] != (h, w):
-        return "size", f"{name} is {image.shape[1]}x{image.shape[0]} px but the camera is calibrated for {w}x{h}"
-    return None
 
 
 class RTBlobDetector:
@@ -208,9 +189,7 @@ class RTBlobDetector:
 
     # -- hot path (inputs trusted) ----------------------------------------------------------------
     def _check(self, image) -> None:
-        problem = image_problem(image, self.image_size)
-        if problem is not None:
-            raise ValueError(problem[1])
+        check_image(image, image_size=self.image_size)
 
     def _likelihood_into(self, image: np.ndarray, out: np.ndarray) -> None:
         if self.options.colour_space == "rgb":

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from tracker._pipeline_options import KINDS, TrackerOptions
+from tracker.pipeline import KINDS, TrackerOptions
 from tracker.handover import SupportHandover
 from tracker.observation import Status
 from tracker.robust import EstimateInfo, RobustOptions, RobustTriangulator
@@ -27,7 +27,7 @@ from tracker.size_test import SizeTest
 __all__ = ["CandidateEstimator", "ESTIMATOR_KINDS"]
 
 #: the tracker kinds with a robust estimator (``rtblob`` has its own fixed pairs)
-ESTIMATOR_KINDS = tuple(k for k, (_, method, _) in KINDS.items() if method is not None)
+ESTIMATOR_KINDS = tuple(k for k, spec in KINDS.items() if spec.estimator_method is not None)
 
 
 class CandidateEstimator:
@@ -46,12 +46,13 @@ class CandidateEstimator:
             raise ValueError(f"tracker {kind!r} has no robust estimator to re-run; valid: {sorted(ESTIMATOR_KINDS)}")
         self.kind = kind
         options = RobustOptions() if eps_px is None else RobustOptions(eps_px=float(eps_px))
-        self.estimator = RobustTriangulator(rig, options, method=KINDS[kind][1])
+        self.estimator = RobustTriangulator(rig, options, method=KINDS[kind].estimator_method)
         defaults = TrackerOptions()
-        self.size_test = SizeTest(rig, defaults.max_size_ratio if kind == "rt2" else None, defaults.ball_radius_m, edge_px)
+        extras = KINDS[kind].extras  # the size test's threshold and the hand-over: rt2's steps beyond the paper
+        self.size_test = SizeTest(rig, defaults.max_size_ratio if extras else None, defaults.ball_radius_m, edge_px)
         age = defaults.handover_max_age_s
         self.handover = (SupportHandover(self.estimator, len(rig), max_age_s=age)
-                         if kind == "rt2" and age is not None else None)
+                         if extras and age is not None else None)
 
     def estimate(self, t_s: float, uv_px: np.ndarray, areas_px: np.ndarray | None = None) -> tuple[np.ndarray | None, EstimateInfo]:
         """One frame set's position from its candidates.
@@ -61,9 +62,10 @@ class CandidateEstimator:
             when unknown (the size test is then skipped)
         returns (X_world (3,) metres or None, :class:`~tracker.robust.EstimateInfo`)
         """
-        X, info = self.estimator.estimate(uv_px)
-        if X is not None and areas_px is not None:
-            X, info, _, _ = self.size_test.apply(self.estimator, uv_px, areas_px, X, info)
+        if areas_px is None:
+            X, info = self.estimator.estimate(uv_px)
+        else:  # the size test as the consensus's last stage, as the tracker runs it
+            X, info, _, _ = self.estimator.estimate_checked(uv_px, self.size_test.stage(areas_px))
         if self.handover is not None:
             self.handover.step(t_s)
             if X is not None and math.isfinite(t_s):

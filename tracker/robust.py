@@ -14,6 +14,7 @@ literal choices so every study can show both side by side. See docs/estimator.md
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Mapping
 
@@ -249,6 +250,32 @@ class RobustTriangulator:
             int(iout[kern.O_NOBS]), int(iout[kern.O_NCAND]), self.method,
         )  # fmt: skip
         return (fout[:3] if iout[kern.O_STATUS] <= kern.ST_LOW_SUPPORT else None), info
+
+    def estimate_checked(self, uv, stage) -> tuple[np.ndarray | None, EstimateInfo, float, list]:
+        """The consensus with a last stage: :meth:`estimate`, then ``stage(X, info.candidate_index)`` ->
+        ``(value, passed)``; while a position fails, its candidates are dropped (from a copy of ``uv``
+        made at the first failure: ``uv`` itself is never changed) and the consensus is redone, until a
+        position passes or none is left. The rt2 pipeline's stage is the 3D size test
+        (:meth:`tracker.size_test.SizeTest.stage`).
+
+        Returns ``(X, info, value, failed)``: the final estimate, its stage value (NaN without a
+        position) and ``[(cameras, value), ...]`` of each failed position (cameras: indices with a
+        candidate in it).
+        """
+        X, info = self.estimate(uv)
+        value, failed = math.nan, []
+        while X is not None:
+            value, passed = stage(X, info.candidate_index)
+            if passed:
+                break
+            if not failed:
+                uv = uv.copy()  # the common case (nothing fails) allocates nothing
+            cams = np.flatnonzero(info.candidate_index >= 0)
+            failed.append((cams, value))
+            uv[cams, info.candidate_index[cams]] = np.nan
+            X, info = self.estimate(uv)
+            value = math.nan
+        return X, info, value, failed
 
     def estimate_many(self, uv) -> tuple[np.ndarray, EstimateBatch]:
         """Robust positions for many frames in one compiled call (for studies and logs).

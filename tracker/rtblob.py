@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from checks.arrays import describe
-from tracker._rtblob_detect import RTBlobDetector, image_problem, likelihood_reference
+from tracker._rtblob_detect import RTBlobDetector, likelihood_reference
+from tracker.images import image_problem
 from tracker._rtblob_options import CORRELATION_METHODS, RTBlobOptions
 from tracker._rtblob_pairs import pair_covariances, triangulate_fixed_pairs
 from tracker.observation import BallObservation, FrameSet, Status

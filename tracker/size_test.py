@@ -9,12 +9,13 @@ A position fixes each inlier camera's depth ``z``, so a ball there is ``2 r f / 
 ``sqrt(4 area / pi) + edge_px``; when the median over the inliers of measured width / ball width
 exceeds ``max_ratio``, the cameras agree on an orange object too big to be the ball: its candidates
 are dropped and the estimate is redone, until a position passes or none is left (docs/pipeline.md,
-step 8). Without the edge loss (``edge_px=0``) the ratio of a true ball falls with its distance
+step 8). The test is the last stage of the consensus (:meth:`SizeTest.stage` given to
+:meth:`tracker.robust.RobustTriangulator.estimate_checked`); it never calls the estimator itself. Without the edge loss (``edge_px=0``) the ratio of a true ball falls with its distance
 (0.45-0.95 over the lab's 6-13 px wide balls) and a far orange sphere 1.5 times the ball's radius
 looks ball-sized; with it a ball's ratio is ~1 at every distance.
 
 Kept apart from :mod:`tracker.pipeline` so that re-evaluation from logged detections
-(``harness.experiments.accuracy.reevaluate``) applies exactly the same test.
+(``harness.experiments.accuracy.reevaluate_accuracy``) applies exactly the same test.
 """
 
 from __future__ import annotations
@@ -74,32 +75,25 @@ class SizeTest:
                 terms.append((math.sqrt(4.0 / math.pi * float(areas_px[i, c])), a * x + b * y + d * z + t, self._ball_px_m[i]))
         return terms
 
-    def apply(self, estimator, uv, areas_px, X, info, notes: list | None = None):
-        """Test the estimate ``(X, info)`` of ``estimator`` on candidates ``uv``; while it fails, drop the
-        used candidates (from a copy made at the first rejection: ``uv`` itself is never changed) and
-        estimate again.
+    def check(self, X, candidate_index, areas_px) -> tuple[float, bool]:
+        """The test of one position: ``(ratio, passed)``; ``passed`` is always True without a threshold.
 
-        Returns ``(X, info, ratio, rejections)``: the final estimate, its ratio (NaN without a position)
-        and how many positions were rejected; each rejection appends a note to ``notes``.
+        X : (3,) position, world frame, metres; candidate_index : (n_cams,) int; areas_px : (n_cams, k)
+        blob areas, pixels
         """
-        ratio, rejections = math.nan, 0
-        while X is not None:
-            ratio = self.ratio(X, info.candidate_index, areas_px)
-            if self.max_ratio is None or not ratio > self.max_ratio:
-                break
-            if rejections == 0:
-                uv = uv.copy()  # the common case (nothing rejected) allocates nothing
-            rejections += 1
-            cams = np.flatnonzero(info.candidate_index >= 0)
-            if notes is not None:
-                notes.append(
-                    f"rejected the position seen by {', '.join(self.names[i] for i in cams)}: its blobs are {ratio:.2f} times as wide "
-                    f"as a ball at that depth (max_size_ratio {self.max_ratio:g}); estimated again without them"
-                )
-            uv[cams, info.candidate_index[cams]] = np.nan
-            X, info = estimator.estimate(uv)
-            ratio = math.nan
-        return X, info, ratio, rejections
+        ratio = self.ratio(X, candidate_index, areas_px)
+        return ratio, self.max_ratio is None or not ratio > self.max_ratio
+
+    def stage(self, areas_px):
+        """The test as the last stage of the consensus (:meth:`RobustTriangulator.estimate_checked`) on
+        the candidates whose blob areas are ``areas_px`` ((n_cams, k) pixels; read at each call, so a
+        workspace refilled every frame set needs one stage)."""
+        return lambda X, candidate_index: self.check(X, candidate_index, areas_px)
+
+    def rejection_note(self, cams, ratio: float) -> str:
+        """The note of a position seen by cameras ``cams`` (indices) that failed with ``ratio``."""
+        return (f"rejected the position seen by {', '.join(self.names[i] for i in cams)}: its blobs are {ratio:.2f} times as wide "
+                f"as a ball at that depth (max_size_ratio {self.max_ratio:g}); estimated again without them")
 
 
 @dataclass(frozen=True)

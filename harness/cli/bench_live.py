@@ -15,7 +15,7 @@ import json
 import os
 from pathlib import Path
 
-from harness.cli.track import add_source_arguments, lab_truth_scene
+from harness.cli.track import add_source_arguments, flag_errors, lab_truth_scene, track_config
 from harness.live.bench import GOALS, bench_live, check_options
 from harness.live.stats import format_budget
 
@@ -34,7 +34,9 @@ def run(args) -> int:
     modes = check_options(args)
     if args.json and Path(args.json).is_dir():
         raise ValueError(f"--json {args.json!r} is a folder; give a file name")
-    doc = bench_live(args, modes, progress=lambda line: print(line, flush=True), truth_scene=lab_truth_scene)
+    config = track_config(args)  # the service's options, checked once; each mode sets its streams and duration
+    with flag_errors():
+        doc = bench_live(args, modes, config, progress=lambda line: print(line, flush=True), truth_scene=lab_truth_scene)
     print(format_table(doc["modes"], args))
     goals = doc["goals_met"]
     if goals is not None:

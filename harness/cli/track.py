@@ -4,8 +4,9 @@
     rt2 track --source replay out/demo/session.mcap --log out/track.mcap --json out/track.json
     rt2 track --source opencv 0 1 2 3 --rig data/rigs/my_lab.yaml --foxglove
 
-Cameras (``--source``) -> frame-set assembly -> :class:`~harness.live.service.TrackingService`
-(built by :func:`harness.live.run.open_service`)
+The options become a :class:`~harness.live.config.TrackConfig` (:func:`track_config`; its errors are
+shown with these flags, :data:`FLAGS`). Cameras (``--source``) -> frame-set assembly ->
+:class:`~harness.live.service.TrackingService` (built by :func:`harness.live.run.open_service`)
 -> the tennicam-compatible ZeroMQ stream (port 7660), rt2's own stream (the next port), an
 optional Foxglove live view and an optional session log. A status line every second; a summary
 at the end (``--json`` writes it). SIGINT / SIGTERM stop the run and finish the log.
@@ -26,13 +27,58 @@ import threading
 import time
 from pathlib import Path
 
-from harness.live.run import DEFAULT_MAX_BACKLOG, SIM_RENDER, open_service
+from contextlib import contextmanager
+
+from harness.live.config import DEFAULT_MAX_BACKLOG, NEXT_PORT, SIM_RENDER, ConfigError, TrackConfig, check_output_path
+from harness.live.run import open_service
 from harness.live.stats import format_budget
 
-__all__ = ["add_arguments", "add_source_arguments", "lab_truth_scene", "run"]
+__all__ = ["FLAGS", "add_arguments", "add_source_arguments", "flag_errors", "lab_truth_scene", "run", "track_config"]
 
 DEFAULT_RIG = "lab4_vga"  # data/rigs/lab4_vga.yaml, found from any working directory
-_TRACKERS = ("rt2", "rt2-paper", "rtblob")
+_TRACKERS = ("rt2", "rt2-paper", "rtblob")  # for --help only; the kind is checked against tracker.TRACKER_KINDS
+
+#: the flag of each TrackConfig field (errors below the command line name fields; shown with these)
+FLAGS = {"rig": "--rig", "source": "--source", "rate_hz": "--rate-hz", "seed": "--seed", "prerender_s": "--prerender",
+         "truth_stream": "--truth-stream", "scene": "--scene", "max_behind_s": "--max-behind", "sim_rig": "--sim-rig",
+         "sim_render": "--sim-render", "queue_s": "--queue-s", "max_backlog": "--max-backlog", "tracker": "--tracker",
+         "model_path": "--model", "workers": "--workers", "publish": "--publish", "publish_rt2": "--publish-rt2",
+         "foxglove_port": "--foxglove", "foxglove_host": "--foxglove-host", "log_path": "--log", "log_overwrite": "--log-overwrite",
+         "log_images": "--log-images", "log_image_format": "--log-image-format", "duration_s": "--duration",
+         "status_period_s": "--status-period", "json": "--json"}
+
+
+@contextmanager
+def flag_errors():
+    """Show a :class:`ConfigError` raised inside with this command's flags (one line, exit 2)."""
+    try:
+        yield
+    except ConfigError as exc:
+        raise ValueError(exc.render(FLAGS)) from None
+
+
+def _off(value):
+    return None if value is not None and str(value).lower() == "none" else value
+
+
+def track_config(args, **fields) -> TrackConfig:
+    """The :class:`TrackConfig` of ``rt2 track``'s (or ``rt2 bench live``'s) parsed options; ``fields``
+    override single fields (``rt2 bench live``: its streams and duration). Errors name the flags."""
+    with flag_errors():
+        mine = dict(
+            rig=str(args.rig), source=tuple(args.source), rate_hz=args.rate_hz, seed=args.seed, prerender_s=args.prerender,
+            truth_stream=args.truth_stream, scene=args.scene, max_behind_s=args.max_behind, sim_rig=args.sim_rig,
+            sim_render=args.sim_render, queue_s=args.queue_s, max_backlog=args.max_backlog, tracker=args.tracker,
+            model_path=args.model, workers=args.workers,
+        )
+        if hasattr(args, "publish"):  # rt2 track's own options (rt2 bench live sets its streams itself)
+            mine.update(
+                publish=_off(args.publish), publish_rt2=NEXT_PORT if args.publish_rt2 is None else _off(args.publish_rt2),
+                foxglove_port=args.foxglove, foxglove_host=args.foxglove_host, log_path=args.log, log_overwrite=args.log_overwrite,
+                log_images=args.log_images, log_image_format=args.log_image_format, duration_s=args.duration,
+                status_period_s=args.status_period,
+            )
+        return TrackConfig(**{**mine, **fields})
 
 
 def add_source_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,7 +92,7 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--prerender", type=float, default=None, metavar="S",
                         help="sim only: render S seconds of the scene up front and loop them, so rendering takes no CPU "
                              "while tracking (benchmarks; memory 3.7 MB per frame set of 4 VGA cameras)")
-    parser.add_argument("--tracker", default="rt2", choices=_TRACKERS, help="tracker kind (default rt2)")
+    parser.add_argument("--tracker", default="rt2", metavar="KIND", help=f"tracker kind: {', '.join(_TRACKERS)} (default rt2)")
     parser.add_argument("--model", default=None, metavar="MODEL.npz",
                         help="rt2 kinds: the ball segmentation model (default: the shipped data/models/ball_seg_default.npz); "
                              "one you trained with `rt2 train` on your own labels")
@@ -146,33 +192,36 @@ def run(args) -> int:
         got.setdefault("t_s", time.monotonic())
         stop.set()
 
-    service, assembler, closers = open_service(args, status=lambda line: print(line, flush=True), truth_scene=lab_truth_scene)
-    where = [f"{k} stream on {v}" for k, v in (service.publisher.addresses if service.publisher else {}).items()]
-    if service.view is not None:
-        where.append(f"live view on ws://{args.foxglove_host}:{service.view.port}")
-    if service.log is not None:
-        where.append(f"log {service.log.path}")
-    if getattr(args, "ready_json", False):
-        ready = {"streams": dict(service.publisher.addresses if service.publisher else {}),
-                 "tracker": args.tracker, "rig": str(args.rig), "pid": os.getpid()}
+    config = track_config(args)
+    with flag_errors():
+        if args.json:
+            check_output_path("json", args.json)
+        live = open_service(config, status=lambda line: print(line, flush=True), truth_scene=lab_truth_scene)
+    with live:
+        service = live.service
+        where = [f"{k} stream on {v}" for k, v in (service.publisher.addresses if service.publisher else {}).items()]
         if service.view is not None:
-            ready["live_view"] = f"ws://{args.foxglove_host}:{service.view.port}"
-        print(json.dumps(ready), flush=True)
-    else:
-        print(f"rt2 track: {args.tracker} on {' '.join(args.source)} ({len(service.rig)} cameras, rig {args.rig}): "
-              + ("; ".join(where) or "nothing published"), flush=True)
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        assembler.start()
-        summary = service.run(assembler, stop=stop, duration_s=args.duration)
-        if "t_s" in got:  # run() has finished the log on its way out
-            summary["stop_to_log_closed_s"] = time.monotonic() - got["t_s"]
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-        service.finish()
-        for close in reversed(closers):
-            close()
+            where.append(f"live view on ws://{config.foxglove_host}:{service.view.port}")
+        if service.log is not None:
+            where.append(f"log {service.log.path}")
+        if args.ready_json:
+            ready = {"streams": dict(service.publisher.addresses if service.publisher else {}),
+                     "tracker": config.tracker, "rig": config.rig, "pid": os.getpid()}
+            if service.view is not None:
+                ready["live_view"] = f"ws://{config.foxglove_host}:{service.view.port}"
+            print(json.dumps(ready), flush=True)
+        else:
+            print(f"rt2 track: {config.tracker} on {' '.join(config.source)} ({len(service.rig)} cameras, rig {config.rig}): "
+                  + ("; ".join(where) or "nothing published"), flush=True)
+        old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            live.assembler.start()
+            summary = service.run(live.assembler, stop=stop, duration_s=config.duration_s)
+            if "t_s" in got:  # run() has finished the log on its way out
+                summary["stop_to_log_closed_s"] = time.monotonic() - got["t_s"]
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)
     errors = (summary.get("assembly") or {}).get("errors") or ()
     if summary["frame_sets"] == 0 and errors and all(errors):  # no camera ever delivered: nothing to keep
         if args.log:

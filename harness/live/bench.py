@@ -27,7 +27,6 @@ frame periods). ``latency_budget_ms`` splits rt2's part of the latency into stag
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -35,11 +34,13 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
+from harness.live.config import NEXT_PORT
 from harness.live.run import open_service
 
 __all__ = ["GOALS", "MODES", "bench_live", "check_options", "measure_mode"]
@@ -60,12 +61,14 @@ def check_options(args) -> list[str]:
     return modes
 
 
-def bench_live(args, modes: list[str], *, progress=None, truth_scene=None) -> dict:
+def bench_live(args, modes: list[str], config, *, progress=None, truth_scene=None) -> dict:
     """Measure every mode in turn; returns the figures as ``rt2 bench live --json`` writes them
     (``modes``: one row per mode; ``goals_met``: the roi mode against :data:`GOALS`, None without it).
 
     args : ``rt2 bench live``'s options (``rt2 track``'s source options, ``duration``, ``warmup``); the sim
     source pre-renders 0.5 s unless ``args.prerender`` says otherwise (set on ``args``, as the figures record it)
+    config : the service's :class:`~harness.live.config.TrackConfig` (``harness.cli.track.track_config``); each
+    mode runs it with its own streams, duration and ``MODES[mode]``
     progress : called with a line before each mode (None = quiet); truth_scene : as :func:`harness.live.run.open_service`"""
     if args.source and args.source[0] == "sim" and args.prerender is None:
         args.prerender = 0.5
@@ -75,7 +78,7 @@ def bench_live(args, modes: list[str], *, progress=None, truth_scene=None) -> di
             if progress is not None:
                 progress(f"rt2 bench live: mode {mode}, {args.duration:g} s ({args.warmup:g} s warm-up), source "
                          f"{' '.join(args.source)}, {args.rate_hz:g} Hz ...")
-            rows.append(measure_mode(args, mode, tmp, truth_scene=truth_scene))
+            rows.append(measure_mode(args, mode, tmp, config, truth_scene=truth_scene))
     roi = next((r for r in rows if r["mode"] == "roi"), None)
     goals = None
     if roi is not None:
@@ -85,7 +88,7 @@ def bench_live(args, modes: list[str], *, progress=None, truth_scene=None) -> di
                  "no_drops_by_rt2": roi["dropped_by_rt2_total"] == 0}
     return {"date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "cpus": os.cpu_count(),
             "source": list(args.source), "rig": args.rig, "rate_hz": args.rate_hz, "tracker": args.tracker,
-            "workers": getattr(args, "workers", 1), "max_backlog": getattr(args, "max_backlog", None),
+            "workers": config.workers, "max_backlog": config.max_backlog,
             "duration_s": args.duration, "warmup_s": args.warmup, "prerender_s": args.prerender,
             "goals": GOALS, "goals_met": goals, "modes": rows}
 
@@ -105,15 +108,14 @@ def _pct(a: np.ndarray, q: float) -> float:
     return float(np.percentile(a, q)) if len(a) else math.nan
 
 
-def measure_mode(args, mode: str, tmp: str, *, truth_scene=None) -> dict:
+def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict:
     """One mode's figures: the service of ``args`` (``rt2 track``'s source options, ``duration`` and
     ``warmup`` in seconds) with the tracker options of ``MODES[mode]``, measured at a subscriber process
     that writes its stamps under the folder ``tmp``. truth_scene : as :func:`harness.live.run.open_service`."""
-    ns = argparse.Namespace(**vars(args), publish="tcp://127.0.0.1:0", publish_rt2=None, foxglove=None,
-                            foxglove_host="127.0.0.1", log=None, log_overwrite=False, status_period=0.0)
-    ns.duration = float(args.duration)
-    service, assembler, closers = open_service(ns, status=None, tracker_overrides=MODES[mode],
-                                               truth_scene=truth_scene)
+    config = replace(config, publish="tcp://127.0.0.1:0", publish_rt2=NEXT_PORT, foxglove_port=None, log_path=None,
+                     status_period_s=0.0, duration_s=float(args.duration), prerender_s=args.prerender, **MODES[mode])
+    live = open_service(config, status=None, truth_scene=truth_scene)
+    service, assembler = live.service, live.assembler
     out = str(Path(tmp) / f"sub_{mode}.json")
     sub = None
     try:
@@ -121,13 +123,13 @@ def measure_mode(args, mode: str, tmp: str, *, truth_scene=None) -> dict:
         sub = _subscriber(pub.addresses["rt2"], out)
         t_end = time.monotonic() + 1.0  # PUB/SUB joins asynchronously: probes first
         while time.monotonic() < t_end:
-            pub.publish(None, {"num": -1, "t_first_host_s": 0.0, "t_publish_s": None})
+            pub.publish(None, {"num": -1, "t_first_host_s": 0.0, "t_publish_s": 0.0})
             time.sleep(0.01)
         probes = dict(pub.sent)
         load0 = os.getloadavg()
         assembler.start()
         t_start = time.monotonic()
-        summary = service.run(assembler, duration_s=ns.duration)
+        summary = service.run(assembler, duration_s=config.duration_s)
         for _ in range(20):
             pub.publish(None, {"end": True})
             time.sleep(0.01)
@@ -136,8 +138,7 @@ def measure_mode(args, mode: str, tmp: str, *, truth_scene=None) -> dict:
     finally:
         if sub is not None and sub.poll() is None:
             sub.kill()
-        for close in reversed(closers):
-            close()
+        live.close()
     rec = json.loads(Path(out).read_text())
     num, t_first, t_recv = (np.asarray(rec[k], float) for k in ("num", "t_first_host_s", "t_recv_s"))
     keep = t_first >= t_start + args.warmup

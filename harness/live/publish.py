@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-__all__ = ["TENNICAM_PORT", "Publisher", "parse_address", "rich_message", "tennicam_message"]
+__all__ = ["LATENCY", "TENNICAM_PORT", "Publisher", "parse_address", "rich_message", "tennicam_message"]
 
 #: tennicam's port (tennicam_client ``config/config.toml``: ``[server] port = 7660``)
 TENNICAM_PORT = 7660
@@ -71,12 +71,19 @@ def _num(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
+#: what both streams call latency (docs/live.md, "Output streams"): seconds from the first frame's
+#: arrival on this host (``t_first_host_s``) to the publication stamp ``t_publish_s``, taken once per
+#: frame set when the service has its observation and builds the messages, just before they are encoded
+#: and sent; tennicam's ``proc_time`` and rt2's ``latency_s`` are this same number
+LATENCY = "t_publish_s - t_first_host_s"
+
+
 def tennicam_message(num: int, time_ns: int, proc_time_s: float, position_m) -> dict:
     """The tennicam message (docs/live.md): ``position_m`` (3,) world frame metres, or None (no ball).
 
     num : running frame-set number; time_ns : the frame set's capture time on the host's
     CLOCK_MONOTONIC, nanoseconds (tennicam stamps with ``o80::time_now()``, a steady clock in ns);
-    proc_time_s : seconds from the first frame's arrival on the host to the publication
+    proc_time_s : the latency (:data:`LATENCY`), seconds
     """
     obs = None if position_m is None else [float(v) for v in np.asarray(position_m, float).reshape(3)]
     return {"num": int(num), "time": int(time_ns), "proc_time": float(proc_time_s), "obs": obs}
@@ -104,8 +111,8 @@ def rich_message(num: int, afs, obs, *, t_first_host_s: float, camera_names, t_p
 
     afs : the :class:`~harness.live.frames.AssembledFrameSet`; obs : its ``tracker.BallObservation``;
     t_first_host_s / t_publish_s : ``time.monotonic()`` seconds of the first frame's arrival and of
-    the publication (None: :meth:`Publisher.publish` stamps it, and ``latency_s``, just before the send)
-    info : the tracker's ``TrackInfo`` (``candidates``: what the estimator saw; None: not sent)
+    the publication, the one stamp both streams carry (:data:`LATENCY`; None: not stamped, ``latency_s`` null)
+    info : the tracker's ``PipelineInfo`` (``candidates``: what the estimator saw; None: not sent)
     """
     pos = None if obs.position_m is None else [float(v) for v in obs.position_m]
     cov = None if obs.covariance_m2 is None else np.asarray(obs.covariance_m2, float).tolist()
@@ -170,26 +177,20 @@ class Publisher:
             self.close()
             raise
 
-    def publish(self, tennicam: dict | None, rich: dict | None = None) -> float:
-        """Send one frame set's messages without blocking; returns ``time.monotonic()`` after sending.
-
-        ``rich`` may hold ``"t_publish_s": None``: it is then stamped here, just before its send."""
+    def publish(self, tennicam: dict | None, rich: dict | None = None) -> None:
+        """Send one frame set's messages, as they are (JSON), without blocking; a stream that is off or a
+        message that is None is skipped. The messages are complete when they come here (the service
+        stamps them): the transport neither stamps nor changes them."""
         zmq = self._zmq
-        t = time.monotonic()
         for name, msg in (("tennicam", tennicam), ("rt2", rich)):
             sock = self._sockets.get(name)
             if sock is None or msg is None:
                 continue
-            if name == "rt2" and msg.get("t_publish_s", 0.0) is None:
-                t = time.monotonic()
-                msg["t_publish_s"] = t
-                msg["latency_s"] = t - msg["t_first_host_s"]
             try:
                 sock.send(json.dumps(msg, allow_nan=False).encode(), zmq.NOBLOCK)
                 self.sent[name] += 1
             except zmq.Again:
                 self.failed[name] += 1
-        return t
 
     def close(self) -> None:
         for sock in self._sockets.values():

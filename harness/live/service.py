@@ -132,12 +132,14 @@ class TrackingService:
         t_done = t_tracked = time.monotonic()
         if self.publisher is not None:  # a message only for a stream that is on (``--publish-rt2 none``)
             on = self.publisher.addresses
-            rich = (rich_message(num, afs, obs, t_first_host_s=t_first, camera_names=self._names, info=info)  # stamped at the send
+            t_publish = time.monotonic()  # the one publication stamp of both streams (publish.LATENCY)
+            rich = (rich_message(num, afs, obs, t_first_host_s=t_first, camera_names=self._names, t_publish_s=t_publish, info=info)
                     if "rt2" in on else None)
-            tennicam = (tennicam_message(num, _time_ns(afs.frameset.t_s), time.monotonic() - t_first, obs.position_m)
+            tennicam = (tennicam_message(num, _time_ns(afs.frameset.t_s), t_publish - t_first, obs.position_m)
                         if "tennicam" in on else None)
-            t_done = self.publisher.publish(tennicam, rich)
-        latency = t_done - t_first
+            self.publisher.publish(tennicam, rich)  # complete messages: the transport only sends
+            t_done = time.monotonic()
+        latency = t_done - t_first  # the figures: to the messages handed to the sockets (the stages' sum)
         t_asm = float(afs.t_assembled_s)
         self.stats.add(afs, obs, latency, t_done,
                        (t_asm - t_first, t_taken - t_asm, t_tracked - t_taken, t_done - t_tracked, math.nan))

@@ -29,9 +29,7 @@ __all__ = ["LiveLog", "session_metadata"]
 
 
 def session_metadata(rig, tracker, *, source: str, seed: int | None, config: dict | None = None) -> dict:
-    k = None
-    if getattr(tracker, "_detector", None) is not None:
-        k = int(tracker._detector.options.k)
+    k = tracker.candidates_per_camera  # None for rtblob (one peak per camera, no candidates)
     return {"kind": "track", "tracker": tracker.kind, "source": source, "seed": seed,
             "camera_names": list(rig.names), "candidates_per_camera": k, "config": config or {}}
 
@@ -55,7 +53,7 @@ class LiveLog:
         self.path = writer.path
         self.names = rig.names
         self.kind = tracker.kind
-        self._detections = tracker.kind != "rtblob"
+        self._detections = tracker.candidates_per_camera is not None  # the kinds with a candidate detector
         writer.attach_rig(rig)
         if self._detections:
             from tracker.pipeline import DEFAULT_MODEL

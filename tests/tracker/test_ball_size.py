@@ -69,10 +69,10 @@ def test_shipped_simulated_rigs_keep_the_trained_limits(name):
     """On rigs whose balls the shipped model was trained on, rt2 keeps one detector with its own limits."""
     rig = shipped_rig(name)
     tr = Tracker(rig, "rt2")
-    assert all(d is tr._detector for d in tr._detectors)
+    assert all(d is tr.engine.detector for d in tr.engine.detectors)
     rt = Tracker(rig, "rtblob")
     ref = Tracker(rig, "rtblob", size_from_rig=False)
-    assert np.array_equal(rt._rtblob.radius_px, ref._rtblob.radius_px, equal_nan=True)
+    assert np.array_equal(rt.engine.rtblob.radius_px, ref.engine.rtblob.radius_px, equal_nan=True)
 
 
 def _model():
@@ -104,7 +104,7 @@ def test_near_rig_large_balls_found_with_rig_limits_dropped_with_trained_ones():
     X2 = X + [0.01, 0.0, 0.0]
     obs2, info = sized.process_with_info(_frameset(rig, X2, 0.005))
     assert info.used_roi.all() and not info.retried and np.linalg.norm(obs2.position_m - X2) < 0.005
-    assert all(d.options.roi_half_size_px >= 30 for d in sized._detectors)
+    assert all(d.options.roi_half_size_px >= 30 for d in sized.engine.detectors)
 
 
 def test_rtblob_template_raised_to_the_farthest_ball_on_a_near_rig():
@@ -112,8 +112,8 @@ def test_rtblob_template_raised_to_the_farthest_ball_on_a_near_rig():
     floor = rtblob_radius_floor_px(ball_diameter_range_px(rig))
     rt = Tracker(rig, "rtblob")
     published = Tracker(rig, "rtblob", size_from_rig=False)
-    assert np.allclose(published._rtblob.radius_px, 800 * 0.02 / 3.0)  # sized for 3 m
-    assert np.allclose(rt._rtblob.radius_px, floor) and (floor > 800 * 0.02 / 3.0).all()
+    assert np.allclose(published.engine.rtblob.radius_px, 800 * 0.02 / 3.0)  # sized for 3 m
+    assert np.allclose(rt.engine.rtblob.radius_px, floor) and (floor > 800 * 0.02 / 3.0).all()
     X = np.array([0.03, -0.02, 0.05])
     obs = rt.process(_frameset(rig, X))
     assert np.linalg.norm(obs.position_m - X) < 0.01
@@ -140,6 +140,6 @@ def test_rig_without_workspace_needs_a_box():
     with pytest.raises(ValueError, match="no workspace_m"):
         ball_diameter_range_px(rig)
     tr = Tracker(rig, "rt2")
-    assert all(d is tr._detector for d in tr._detectors)  # no box: the detector's own limits
+    assert all(d is tr.engine.detector for d in tr.engine.detectors)  # no box: the detector's own limits
     with pytest.raises(ValueError, match="rig must be a tracker.Rig"):
         ball_diameter_range_px("rig.yaml")

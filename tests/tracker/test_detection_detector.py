@@ -1,4 +1,5 @@
-"""BallDetector: detections on synthetic scenes, ROI mode and fallback, the frame-set layout, bad input."""
+"""BallDetector: detections on synthetic scenes, one window, the pipeline's window -> neighbourhood fallback
+(tracker._pipeline_search), bad input."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import numpy as np
 import pytest
 
 from tracker import BallDetector, DetectorOptions, Detections
+from tracker._pipeline_search import search_around, truncated
 from tracker.detection.synthetic import ORANGE_RGB, draw_disk, hand_made_model, synthetic_scene
 
 MODEL = hand_made_model(ORANGE_RGB)
@@ -57,23 +59,6 @@ def test_top_k_candidates_and_paper_single():
     np.testing.assert_allclose(paper.uv_px[0], ours.uv_px[0])
 
 
-def test_detect_frameset_layout():
-    imgs = [_scene(s)[0] for s in (2, 3)]
-    centers = [_scene(s)[1][0] for s in (2, 3)]
-    empty = _scene(4, n_balls=0)[0]
-    det = BallDetector(MODEL, DetectorOptions(max_candidates=3))
-    uv, scores, dets = det.detect_frameset([imgs[0], None, empty, imgs[1]])
-    assert uv.shape == (4, 3, 2) and scores.shape == (4, 3) and len(dets) == 4
-    assert np.isnan(uv[1]).all() and np.isnan(uv[2]).all() and np.isnan(scores[1]).all()
-    np.testing.assert_allclose(uv[0, 0], centers[0], atol=0.3)
-    np.testing.assert_allclose(uv[3, 0], centers[1], atol=0.3)
-    for i in (0, 3):  # NaN padding after the real candidates
-        m = len(dets[i])
-        assert np.isfinite(uv[i, :m]).all() and np.isnan(uv[i, m:]).all() and np.isnan(scores[i, m:]).all()
-    uv_p, scores_p, _ = BallDetector(MODEL, DetectorOptions(method="paper")).detect_frameset(imgs)
-    assert uv_p.shape == (2, 1, 2) and scores_p.shape == (2, 1)
-
-
 def test_area_range_defaults_to_the_model_and_options_override():
     import dataclasses
 
@@ -91,31 +76,43 @@ def test_roi_used_and_equal_to_full_frame():
     image, centers, _ = _scene(5, diameter_px=(10, 10))
     det = BallDetector(MODEL)
     full = det.detect(image)
-    roi = det.detect(image, roi_center_px=centers[0] + [7.0, -5.0])
+    roi = search_around(det, image, centers[0] + [7.0, -5.0])
     assert roi.used_roi and not full.used_roi
     np.testing.assert_allclose(roi.uv_px[0], full.uv_px[0], atol=1e-4)
     np.testing.assert_allclose(roi.boxes_xywh[0], full.boxes_xywh[0])
+
+
+def test_detect_searches_only_the_window():
+    image, centers, _ = _scene(6, diameter_px=(10, 10))
+    det = BallDetector(MODEL, DetectorOptions(roi_half_size_px=16))
+    u, v = (int(round(c)) for c in centers[0])
+    around = det.detect(image, (u - 16, v - 16, u + 16, v + 16))
+    assert around.used_roi and np.linalg.norm(around.uv_px[0] - centers[0]) < 0.3
+    x0 = u + 40 if u < 320 else u - 72  # a window beside the ball: nothing, and no search beyond it
+    assert len(det.detect(image, (x0, v - 16, x0 + 32, v + 16))) == 0
 
 
 def test_roi_falls_back_to_full_frame():
     image, centers, _ = _scene(6, diameter_px=(10, 10))
     det = BallDetector(MODEL, DetectorOptions(roi_half_size_px=16))
     far = centers[0] + [200.0 if centers[0][0] < 320 else -200.0, 0.0]
-    res = det.detect(image, roi_center_px=far)  # window without the ball
+    res = search_around(det, image, far)  # window without the ball
     assert not res.used_roi and np.linalg.norm(res.uv_px[0] - centers[0]) < 0.3
-    res = det.detect(image, roi_center_px=[-500.0, -500.0])  # prediction outside the image
-    assert not res.used_roi and len(res) >= 1
-    res = det.detect(image, roi_center_px=[np.nan, np.nan])  # no prediction
+    res = search_around(det, image, [-500.0, -500.0])  # prediction outside the image
     assert not res.used_roi and len(res) >= 1
     # the window edge cuts the ball: truncated blob -> full frame, centre unbiased
-    res = det.detect(image, roi_center_px=centers[0] + [16.0 + 2.0, 0.0])
+    cut = centers[0] + [16.0 + 2.0, 0.0]
+    cu, cv = (int(round(c)) for c in cut)
+    window = (cu - 16, cv - 16, cu + 16, cv + 16)
+    assert truncated(det.detect(image, window), window, image.shape[1], image.shape[0])
+    res = search_around(det, image, cut)
     assert not res.used_roi and np.linalg.norm(res.uv_px[0] - centers[0]) < 0.3
 
 
 def test_roi_at_image_border_is_not_truncation():
     image = np.full((100, 100, 3), 80, np.uint8)
     draw_disk(image, (3.0, 50.0), 8.0, ORANGE_RGB)  # cut by the image edge, not by the window
-    res = BallDetector(MODEL, DetectorOptions(min_fill_ratio=0.0)).detect(image, roi_center_px=(10.0, 50.0))
+    res = search_around(BallDetector(MODEL, DetectorOptions(min_fill_ratio=0.0)), image, (10.0, 50.0))
     assert res.used_roi and len(res) == 1
 
 
@@ -172,17 +169,18 @@ def test_bad_detector_arguments():
         BallDetector(MODEL, DetectorOptions(t_low=0.6))  # model's t_high is 0.5
 
 
-def test_bad_images_and_rois():
-    det = BallDetector(MODEL)
+def test_bad_images_are_refused_where_they_come_in():
+    """The detector trusts its inputs; the check it relied on is tracker.images' (the frame-set
+    boundary of Tracker, and the model's public logits)."""
+    from tracker.images import check_image, image_problem
+
     with pytest.raises(ValueError, match="image must have dtype uint8"):
-        det.detect(np.zeros((10, 10, 3), np.float64))
-    with pytest.raises(ValueError, match=r"images\[1\] must have shape \(H, W, 3\)"):
-        det.detect_frameset([np.zeros((10, 10, 3), np.uint8), np.zeros((10, 10), np.uint8)])
+        check_image(np.zeros((10, 10, 3), np.float64))
+    with pytest.raises(ValueError, match=r"images\[1\] must be an \(H, W, 3\) uint8 RGB array, got shape \(10, 10\)"):
+        check_image(np.zeros((10, 10), np.uint8), "images[1]")
     with pytest.raises(ValueError, match=r"images\[0\] is empty"):
-        det.detect_frameset([np.zeros((10, 0, 3), np.uint8)])
-    with pytest.raises(ValueError, match="at least one camera"):
-        det.detect_frameset([])
-    with pytest.raises(ValueError, match=r"roi_center_px must have shape \(2,\)"):
-        det.detect(np.zeros((10, 10, 3), np.uint8), roi_center_px=[1.0, 2.0, 3.0])
-    with pytest.raises(ValueError, match=r"roi_centers_px must have shape \(2, 2\)"):
-        det.detect_frameset([np.zeros((10, 10, 3), np.uint8)] * 2, roi_centers_px=np.zeros((3, 2)))
+        check_image(np.zeros((10, 0, 3), np.uint8), "images[0]")
+    with pytest.raises(ValueError, match="is 10x10 px but the camera is calibrated for 20x10"):
+        check_image(np.zeros((10, 10, 3), np.uint8), image_size=(20, 10))
+    assert image_problem(np.zeros((10, 10, 3), np.uint8), (10, 10)) is None
+    assert image_problem(None)[0] == "type" and image_problem(np.zeros((5, 5, 3), np.uint8), (4, 5))[0] == "size"

@@ -39,21 +39,34 @@ def test_shipped_model_prefers_the_orange_ball(model):
 
 def test_rendered_frames_to_robust_estimator(model):
     """Real-data stand-in: the lab renderer's 4-camera frames with arms, skin and orange/white
-    distractors; detect_frameset's (n_cams, k, 2) goes straight into RobustTriangulator.estimate."""
+    distractors; the tracker's full-frame candidates (n_cams, k, 2), NaN-padded, go straight into
+    RobustTriangulator.estimate. A camera without a frame is an all-NaN row."""
     from harness.sim.render.renderer import Renderer
     from harness.sim.render.scenes import SceneOptions, random_scene
-    from tracker import Rig
+    from tracker import FrameSet, Rig, Tracker
     from tracker.robust import RobustTriangulator
 
     rig = Rig.load(DATA / "rigs" / "lab4_vga.yaml")
     renderer = Renderer(rig, seed=0)
-    det = BallDetector(model)
+    k = BallDetector(model).options.max_candidates
+    tracker = Tracker(rig, "rt2", model=model, roi=False, size_from_rig=False, max_size_ratio=None, hypotheses=None,
+                      handover_max_age_s=None)
     est = RobustTriangulator(rig)
     errors = []
-    for i in range(24):
+    for i in range(25):
         scene = random_scene(np.random.default_rng([7, i]), options=SceneOptions(p_no_ball=0.0, p_white=0.0, p_second_ball=0.0), frame_index=i)
-        uv, scores, dets = det.detect_frameset(renderer.render(scene))
-        assert uv.shape == (len(rig), det.options.max_candidates, 2) and scores.shape == uv.shape[:2]
+        images = list(renderer.render(scene))
+        if i == 24:  # one more frame set without camera 1's frame: its row is all NaN
+            images[1] = None
+        _, pinfo = tracker.process_with_info(FrameSet(0.01 * i, tuple(images), i))
+        uv, scores = pinfo.uv_candidates_px, pinfo.scores
+        assert uv.shape == (len(rig), k, 2) and scores.shape == uv.shape[:2]
+        for c in range(len(rig)):  # NaN padding after the real candidates
+            m = int(np.isfinite(scores[c]).sum())
+            assert np.isfinite(uv[c, :m]).all() and np.isnan(uv[c, m:]).all()
+        if i == 24:
+            assert np.isnan(uv[1]).all() and np.isnan(scores[1]).all()
+            break
         X_world, info = est.estimate(uv)
         errors.append(np.inf if X_world is None else np.linalg.norm(X_world - scene.balls[0].position_m))
     errors = np.array(errors)

@@ -305,14 +305,19 @@ def test_size_test_counts_the_edge_loss_so_a_ball_sized_sphere_is_rejected(rig):
     now = SizeTest(rig, TrackerOptions().max_size_ratio, 0.02, edge_px=edge)
     assert now.ratio(X, info.candidate_index, areas) == pytest.approx(1.5, abs=0.02)
     X0, info0 = est.estimate(uv)
-    notes = []
-    X1, info1, ratio, rejected = now.apply(est, uv, areas, X0, info0, notes)
+    # the size test as the consensus's last stage: a failed position's candidates dropped, estimated again
+    X1, info1, ratio, rejected = est.estimate_checked(uv, now.stage(areas))
     assert np.linalg.norm(X1 - X_ball) < 1e-3 and info1.status is Status.OK and info1.support == len(rig)
-    assert ratio == pytest.approx(1.0, abs=0.02) and rejected == (np.linalg.norm(X0 - X_sphere) < 1e-3)
+    assert ratio == pytest.approx(1.0, abs=0.02) and len(rejected) == (np.linalg.norm(X0 - X_sphere) < 1e-3)
     assert np.isfinite(uv).all()  # the caller's candidates are never changed
     # the sphere alone: rejected, nothing left
-    X2, info2, ratio2, rejected2 = now.apply(est, uv[:, :1], areas[:, :1], X, info, notes)
-    assert X2 is None and rejected2 == 1 and np.isnan(ratio2) and "1.50 times as wide as a ball" in notes[-1]
+    X2, info2, ratio2, rejected2 = est.estimate_checked(uv[:, :1], now.stage(areas[:, :1]))
+    assert X2 is None and len(rejected2) == 1 and np.isnan(ratio2)
+    cams, r = rejected2[0]
+    assert list(cams) == list(range(len(rig))) and r == pytest.approx(1.5, abs=0.02)
+    assert "1.50 times as wide as a ball" in now.rejection_note(cams, r)
+    assert now.check(X, info.candidate_index, areas) == (pytest.approx(1.5, abs=0.02), False)
+    assert SizeTest(rig, None, 0.02, edge_px=edge).check(X, info.candidate_index, areas)[1]  # no threshold: never fails
 
 
 def test_logged_candidates_and_areas_reproduce_the_size_test(rig, model):
@@ -325,8 +330,8 @@ def test_logged_candidates_and_areas_reproduce_the_size_test(rig, model):
     uv = info.uv_candidates_px.copy()
     X, ei = ce.estimator.estimate(uv)
     assert np.linalg.norm(X - X_big) < 0.01  # the estimator alone picks the wide object
-    X2, ei2, ratio, rejected = ce.size_test.apply(ce.estimator, uv, info.areas_px, X, ei)
-    assert rejected == 1 and ratio == info.size_ratio
+    X2, ei2, ratio, rejected = ce.estimator.estimate_checked(uv, ce.size_test.stage(info.areas_px))
+    assert len(rejected) == 1 and ratio == info.size_ratio
     np.testing.assert_array_equal(X2, obs.position_m)
     # the public entry does the same in one call; without areas it keeps the wide object
     X3, ei3 = CandidateEstimator(rig, "rt2").estimate(obs.t_s, uv, info.areas_px)
@@ -511,9 +516,9 @@ def test_bad_construction_raises(rig, model):
 
 
 def test_eps_px_reaches_the_estimator(rig, model):
-    assert Tracker(rig, model=model, eps_px=3.5)._estimator.options.eps_px == 3.5
+    assert Tracker(rig, model=model, eps_px=3.5).engine.estimator.options.eps_px == 3.5
     trk = Tracker(rig, model=model, estimator_options=RobustOptions(eps_px=4.0, min_support=2))
-    assert trk._estimator.options.eps_px == 4.0 and trk._estimator.options.min_support == 2
+    assert trk.engine.estimator.options.eps_px == 4.0 and trk.engine.estimator.options.min_support == 2
 
 
 # -- consistency with the estimator -----------------------------------------------------------------

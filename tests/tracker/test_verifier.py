@@ -107,7 +107,9 @@ def test_detector_orders_by_the_verifier_and_roi_agrees():
     model = dataclasses.replace(orange_model(), verifier=_brightness_verifier())
     det = BallDetector(model).detect(image)
     assert len(det) >= 1 and abs(det.uv_px[0, 0] - 90.0) < 1.5
-    roi = BallDetector(model).detect(image, roi_center_px=(90.0, 40.0))
+    from tracker._pipeline_search import search_around
+
+    roi = search_around(BallDetector(model), image, (90.0, 40.0))
     assert roi.used_roi and np.allclose(roi.uv_px[0], det.uv_px[0])
     assert roi.scores[0] == pytest.approx(det.scores[0])
 

@@ -1,8 +1,10 @@
 """Ball detection per camera: the segmentation model + Algorithm 1, full frame or around a predicted pixel.
 
-``BallDetector.detect`` turns one RGB image into ball candidates; ``detect_frameset`` turns the
-images of a frame set into the ``(n_cams, k, 2)`` NaN-padded pixels and ``(n_cams, k)`` scores that
-the robust estimator takes (``RobustTriangulator.estimate(uv)``).
+``BallDetector.detect(image, window)`` turns one RGB image, or one box of it, into ball candidates.
+It trusts its inputs: images are checked once where a frame set comes in (:mod:`tracker.images`,
+:class:`~tracker.pipeline.Tracker`), and which box to search, and what to do when a box holds no
+ball, is the pipeline's decision (``tracker._pipeline_roi.search_around``). The pipeline packs the
+candidates of a frame set into the estimator's ``(n_cams, k, 2)`` layout.
 
 Methods (``DetectorOptions.method``):
 
@@ -25,7 +27,7 @@ import numpy as np
 
 from checks.arrays import describe
 from tracker.detection.blobs import find_blobs
-from tracker.detection.model import BallSegmentationModel, check_image, logit, sigmoid
+from tracker.detection.model import BallSegmentationModel, logit, sigmoid
 
 __all__ = ["BallDetector", "DetectorOptions", "Detections", "METHODS"]
 
@@ -94,7 +96,7 @@ class DetectorOptions:
 
     @property
     def k(self) -> int:
-        """Candidates per image in the ``detect_frameset`` layout."""
+        """Candidates per image in the estimator's ``(n_cams, k, 2)`` layout."""
         return 1 if self.method == "paper" else self.max_candidates
 
 
@@ -107,7 +109,7 @@ class Detections:
     boxes_xywh : (k, 4) boxes around each candidate's pixels, COCO convention ``[x, y, w, h]``
         (the top-left pixel spans [0, 1] x [0, 1]), so they compare directly with COCO labels
     areas_px : (k,) pixels per candidate
-    used_roi : True when the candidates come from the window around the predicted pixel
+    used_roi : True when the candidates come from a window (``detect(image, window)``), not the whole image
     """
 
     uv_px: np.ndarray
@@ -170,29 +172,23 @@ class BallDetector:
         return f"BallDetector(method={self.options.method!r}, t_high={self.t_high}, t_low={self.t_low})"
 
     # -- one image -------------------------------------------------------------------------------
-    def detect(self, image: np.ndarray, roi_center_px=None) -> Detections:
-        """Ball candidates in one image.
+    def detect(self, image: np.ndarray, window=None) -> Detections:
+        """Ball candidates in one image, or in one box of it.
 
-        image : (H, W, 3) uint8 RGB
-        roi_center_px : optional (2,) predicted ball pixel (u, v): search the window of half side
-            ``roi_half_size_px`` around it first; fall back to the full frame when the window has no
-            candidate or its best candidate touches the window's edge inside the image (truncated)
-        returns :class:`Detections`, best first
+        image : (H, W, 3) uint8 RGB, trusted (checked where it came in: :func:`tracker.images.check_image`)
+        window : None = the whole image; else ``(x0, y0, x1, y1)`` integers, a non-empty box inside the
+            image (``0 <= x0 < x1 <= W``, same for y): only its pixels are searched (the filter still
+            sees the image's pixels around it)
+        returns :class:`Detections` in the image's pixels, best first (``used_roi`` = a window was given)
         """
-        check_image(image)
-        if roi_center_px is None:
-            return self._detect_full(image)
-        roi = np.asarray(roi_center_px, dtype=float)
-        if roi.shape != (2,):
-            raise ValueError(f"roi_center_px must have shape (2,) (u, v), got {describe(roi_center_px)}")
-        if not np.isfinite(roi).all():
-            return self._detect_full(image)  # no prediction
-        return self._detect_roi(image, roi)
-
-    def _detect_full(self, image) -> Detections:
-        logits = self.model._logits(image)
+        if window is None:
+            x0 = y0 = 0
+            logits = self.model._logits(image)
+        else:
+            x0, y0, x1, y1 = window
+            logits = np.ascontiguousarray(self.model._logits_window(image, x0, y0, x1, y1))
         blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, **self._blob_kw)
-        return self._verified(image, _to_detections(blobs, 0, 0, False))
+        return self._verified(image, _to_detections(blobs, x0, y0, window is not None))
 
     def _verified(self, image, det: Detections) -> Detections:
         """The verifier's choice among the candidates (unchanged without a verifier)."""
@@ -202,61 +198,6 @@ class BallDetector:
         keep = np.flatnonzero(prob >= self.verifier.threshold)
         keep = keep[np.argsort(-prob[keep], kind="stable")][: self.options.max_candidates]
         return Detections(uv[keep], prob[keep], det.boxes_xywh[keep], det.areas_px[keep], det.used_roi)
-
-    def _detect_roi(self, image, roi) -> Detections:
-        h, w = image.shape[:2]
-        half = self.options.roi_half_size_px
-        cu, cv = int(round(roi[0])), int(round(roi[1]))
-        x0, x1 = max(cu - half, 0), min(cu + half, w)
-        y0, y1 = max(cv - half, 0), min(cv + half, h)
-        if x0 >= x1 or y0 >= y1:  # the prediction is outside the image
-            return self._detect_full(image)
-        logits = np.ascontiguousarray(self.model._logits_window(image, x0, y0, x1, y1))
-        blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, **self._blob_kw)
-        if len(blobs) == 0:
-            return self._detect_full(image)
-        det = self._verified(image, _to_detections(blobs, x0, y0, True))
-        if len(det) == 0:
-            return self._detect_full(image)
-        bx, by, bw, bh = det.boxes_xywh[0] - np.array([x0, y0, 0, 0])
-        bx0, by0, bx1, by1 = bx, by, bx + bw - 1, by + bh - 1
-        truncated = (bx0 == 0 and x0 > 0) or (by0 == 0 and y0 > 0) or (bx1 == x1 - x0 - 1 and x1 < w) or (by1 == y1 - y0 - 1 and y1 < h)
-        if truncated:
-            return self._detect_full(image)
-        return det
-
-    # -- a frame set -----------------------------------------------------------------------------
-    def detect_frameset(self, images, roi_centers_px=None):
-        """Detect in every camera's image of a frame set, in the robust estimator's layout.
-
-        images : sequence of n_cams (H, W, 3) uint8 RGB images, or None where a camera gave no frame
-        roi_centers_px : optional (n_cams, 2) predicted pixels; NaN rows = no prediction for that camera
-        returns ``uv (n_cams, k, 2)`` distorted pixels and ``scores (n_cams, k)``, NaN-padded where a
-            camera has fewer than k = ``options.k`` candidates, and the list of :class:`Detections`
-        """
-        images = list(images)
-        n = len(images)
-        if n == 0:
-            raise ValueError("images must hold at least one camera's image, got an empty sequence")
-        if roi_centers_px is not None:
-            rois = np.asarray(roi_centers_px, dtype=float)
-            if rois.shape != (n, 2):
-                raise ValueError(f"roi_centers_px must have shape ({n}, 2) for {n} images, got {describe(roi_centers_px)}")
-        k = self.options.k
-        uv = np.full((n, k, 2), np.nan)
-        scores = np.full((n, k), np.nan)
-        dets = []
-        for i, image in enumerate(images):
-            if image is None:
-                dets.append(Detections.empty())
-                continue
-            check_image(image, f"images[{i}]")
-            d = self.detect(image, None if roi_centers_px is None else rois[i])
-            m = len(d)
-            uv[i, :m] = d.uv_px
-            scores[i, :m] = d.scores
-            dets.append(d)
-        return uv, scores, dets
 
 
 def _to_detections(blobs, x0: int, y0: int, used_roi: bool) -> Detections:

@@ -33,8 +33,9 @@ import numpy as np
 from checks.arrays import describe
 from checks.files import load_npz_checked
 from tracker.detection.verifier import CandidateVerifier
+from tracker.images import check_image
 
-__all__ = ["BallSegmentationModel", "INPUT_TRANSFORMS", "KERNEL_SIZE", "MODEL_FORMAT", "MODEL_VERSION", "check_image", "logit", "sigmoid", "transform_lut"]
+__all__ = ["BallSegmentationModel", "INPUT_TRANSFORMS", "KERNEL_SIZE", "MODEL_FORMAT", "MODEL_VERSION", "logit", "sigmoid", "transform_lut"]
 
 KERNEL_SIZE = 5  #: the paper's 5x5 filter
 MODEL_FORMAT = "rt2-ball-segmentation"
@@ -66,19 +67,6 @@ def transform_lut(input_transform: str, log_offset_dn: float = 8.0) -> np.ndarra
     if input_transform == "log":
         return np.log(p + log_offset_dn).astype(np.float32)
     raise ValueError(f"input_transform must be one of {INPUT_TRANSFORMS}, got {input_transform!r}")
-
-
-def check_image(image, name: str = "image") -> np.ndarray:
-    """Validate an (H, W, 3) uint8 RGB image; returns it unchanged (no copy)."""
-    if not isinstance(image, np.ndarray):
-        raise ValueError(f"{name} must be an (H, W, 3) uint8 numpy array, got {describe(image)}")
-    if image.dtype != np.uint8:
-        raise ValueError(f"{name} must have dtype uint8, got {image.dtype} (shape {image.shape})")
-    if image.ndim != 3 or image.shape[2] != 3:
-        raise ValueError(f"{name} must have shape (H, W, 3) with 3 colour channels, got shape {image.shape}")
-    if image.shape[0] == 0 or image.shape[1] == 0:
-        raise ValueError(f"{name} is empty: shape {image.shape}")
-    return image
 
 
 @dataclass(frozen=True, eq=False)

@@ -18,7 +18,7 @@ from tracker.pipeline import KINDS, load_model
 __all__ = ["DETECTION_SUFFIX", "DETECTOR_METHOD", "build_trackers", "detections_camera", "rtblob_options"]
 
 #: detector method of each rt2 kind (tracker.pipeline.KINDS, the one table of kinds)
-DETECTOR_METHOD = {kind: det for kind, (det, _, _) in KINDS.items() if det is not None}
+DETECTOR_METHOD = {kind: spec.detector_method for kind, spec in KINDS.items() if spec.detector_method is not None}
 #: the logged detections of each rt2 kind go to camera name + suffix (``/camera/cam0.rt2-paper/detections``)
 DETECTION_SUFFIX = {"rt2": "", "rt2-paper": ".rt2-paper"}
 

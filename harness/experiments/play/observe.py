@@ -161,7 +161,8 @@ class ObservationService:
             now = time.monotonic_ns()
             while self._queue and self._queue[0][0] <= now:
                 due, _, rich, ten = heapq.heappop(self._queue)
-                rich["t_publish_s"] = None  # stamped by the publisher just before the send
+                t_publish = time.monotonic()  # the message is completed here; the publisher only sends
+                rich["t_publish_s"], rich["latency_s"] = t_publish, t_publish - rich["t_first_host_s"]
                 self.publisher.publish(ten, rich)
                 self.stats["published"] += 1
                 self.stats["late_ms_max"] = max(self.stats["late_ms_max"], (time.monotonic_ns() - due) / 1e6)

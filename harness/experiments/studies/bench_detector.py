@@ -115,11 +115,11 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
     det = BallDetector(model, DetectorOptions(roi_half_size_px=roi_half_size_px))
-    if len(det.detect(image, roi_center_px)) == 0 or not det.detect(image, roi_center_px).used_roi:
-        raise ValueError("the benchmark frame's ball is not found in its window: the model does not fit this image")
     cu, cv = (int(round(v)) for v in roi_center_px)
     h, w = image.shape[:2]
     window = (max(cu - roi_half_size_px, 0), max(cv - roi_half_size_px, 0), min(cu + roi_half_size_px, w), min(cv + roi_half_size_px, h))
+    if len(det.detect(image, window)) == 0:
+        raise ValueError("the benchmark frame's ball is not found in its window: the model does not fit this image")
     tdet = _torch_path(model, torch)
     lg = model.logits(image)
     th, tl, blob_kw = blob_arguments(det)
@@ -132,7 +132,7 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
             ("full", "cv2 without verifier"): lambda: plain.detect(image),
             ("full", f"cv2: verifier on {len(cand)} candidates' crops"): lambda: model.verifier.verify(image, cand.uv_px, sides),
         }
-        extra_roi = {("roi", "cv2 without verifier"): lambda: plain.detect(image, roi_center_px)}
+        extra_roi = {("roi", "cv2 without verifier"): lambda: plain.detect(image, window)}
     full = _median_ms(
         {
             **extra_full,
@@ -143,7 +143,7 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
         },
         repeats,
     )
-    roi = _median_ms({("roi", "cv2"): lambda: det.detect(image, roi_center_px), ("roi", "torch"): lambda: tdet(image, window), **extra_roi},
+    roi = _median_ms({("roi", "cv2"): lambda: det.detect(image, window), ("roi", "torch"): lambda: tdet(image, window), **extra_roi},
                      repeats * 10)
     timed = {**full, **roi}
     main = [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")]

@@ -13,7 +13,9 @@ import pytest
 from harness.cli import main as rt2
 from harness.cli.bench_live import add_arguments as bench_arguments
 from harness.cli.track import add_arguments as track_arguments
+from harness.cli.track import track_config
 from harness.live.bench import MODES, bench_live, check_options
+from harness.live.config import ConfigError, TrackConfig
 from harness.live.run import open_service, stream_addresses
 
 
@@ -27,25 +29,26 @@ def _track_args(*argv: str) -> argparse.Namespace:
     return _parse(track_arguments, *argv)
 
 
+def _config(*argv: str) -> TrackConfig:
+    return track_config(_track_args(*argv))
+
+
 # -- smoke -------------------------------------------------------------------------------------------
 def test_open_service_from_python_tracks_the_simulated_lab():
-    args = _track_args("--publish", "none", "--prerender", "0.1", "--status-period", "0", "--duration", "1")
-    service, assembler, closers = open_service(args, status=None)
-    try:
+    config = TrackConfig(publish=None, prerender_s=0.1, status_period_s=0, duration_s=1.0)
+    assert config == _config("--publish", "none", "--prerender", "0.1", "--status-period", "0", "--duration", "1")
+    with open_service(config, status=None) as live:
+        service = live.service
         assert service.publisher is None and service.log is None and service.view is None
-        assembler.start()
-        summary = service.run(assembler, duration_s=args.duration)
-    finally:
-        service.finish()
-        for close in reversed(closers):
-            close()
+        live.assembler.start()
+        summary = service.run(live.assembler, duration_s=config.duration_s)
     assert summary["frame_sets"] > 0 and summary["tracker"] == "rt2"
 
 
 def test_bench_live_from_python_gives_one_row_per_mode():
     args = _parse(bench_arguments, "--prerender", "0.1", "--duration", "2", "--warmup", "0.5", "--modes", "roi")
     lines = []
-    doc = bench_live(args, check_options(args), progress=lines.append)
+    doc = bench_live(args, check_options(args), track_config(args), progress=lines.append)
     assert [r["mode"] for r in doc["modes"]] == ["roi"] and len(lines) == 1 and "mode roi" in lines[0]
     row = doc["modes"][0]
     assert row["frame_sets_published"] > 0 and row["frame_sets_measured"] > 0
@@ -71,17 +74,67 @@ def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
 
 
 def test_stream_addresses_follow_the_tennicam_port():
-    assert stream_addresses(_track_args("--publish", "tcp://127.0.0.1:7000")) == ("tcp://127.0.0.1:7000", "tcp://127.0.0.1:7001")
-    assert stream_addresses(_track_args("--publish", "tcp://127.0.0.1:0")) == ("tcp://127.0.0.1:0", "tcp://127.0.0.1:0")
-    assert stream_addresses(_track_args("--publish", "none")) == (None, None)
-    assert stream_addresses(_track_args("--publish-rt2", "none"))[1] is None
+    assert stream_addresses(_config("--publish", "tcp://127.0.0.1:7000")) == ("tcp://127.0.0.1:7000", "tcp://127.0.0.1:7001")
+    assert stream_addresses(_config("--publish", "tcp://127.0.0.1:0")) == ("tcp://127.0.0.1:0", "tcp://127.0.0.1:0")
+    assert stream_addresses(_config("--publish", "none")) == (None, None)
+    assert stream_addresses(_config("--publish-rt2", "none"))[1] is None
+    assert stream_addresses(_config("--publish-rt2", "tcp://127.0.0.1:9"))[1] == "tcp://127.0.0.1:9"
 
 
 # -- bad input ---------------------------------------------------------------------------------------
 def test_truth_stream_without_a_scene_builder_is_refused():
-    args = _track_args("--publish", "none", "--truth-stream", "tcp://127.0.0.1:1")
-    with pytest.raises(ValueError, match="--truth-stream needs a lab truth scene"):
-        open_service(args, status=None)
+    config = _config("--publish", "none", "--truth-stream", "tcp://127.0.0.1:1")
+    with pytest.raises(ConfigError, match="^truth_stream needs a lab truth scene") as err:
+        open_service(config, status=None)
+    assert err.value.field == "truth_stream"
+
+
+@pytest.mark.parametrize("fields, field, message", [
+    (dict(rate_hz=0), "rate_hz", "rate_hz must be a positive number, got 0"),
+    (dict(rate_hz=float("nan")), "rate_hz", "rate_hz must be a positive number, got nan"),
+    (dict(rate_hz="200"), "rate_hz", "rate_hz must be a positive number, got 200"),
+    (dict(seed=1.5), "seed", "seed must be a whole number"),
+    (dict(queue_s=0), "queue_s", "queue_s must be in (0, 10] seconds"),
+    (dict(max_backlog=True), "max_backlog", "max_backlog must be a whole number of frame sets in [1, 50] (queue_s x rate_hz)"),
+    (dict(max_backlog=51), "max_backlog", "in [1, 50]"),
+    (dict(prerender_s=0.1, source=("replay", "x.mcap")), "prerender_s", "prerender_s applies to the sim source only, got source replay x.mcap"),
+    (dict(prerender_s=11), "prerender_s", "prerender_s must be in (0, 10] seconds"),
+    (dict(sim_rig="lab4_vga", source=("video", "d")), "sim_rig", "truth_stream and sim_rig apply to the sim source only"),
+    (dict(truth_stream="tcp://127.0.0.1:1", prerender_s=0.1), "prerender_s", "prerender_s cannot go with truth_stream"),
+    (dict(truth_stream="tcp://127.0.0.1:1", max_behind_s=0), "max_behind_s", "max_behind_s must be in (0, 3600]"),
+    (dict(sim_render="gpu"), "sim_render", "sim_render must be one of"),
+    (dict(sim_render="process", prerender_s=0.1), "sim_render", "sim_render process cannot go with prerender_s"),
+    (dict(tracker="rt3"), "tracker", "unknown tracker 'rt3'; valid: rt2, rt2-paper, rtblob"),
+    (dict(workers=0), "workers", "workers must be a whole number in [1, 64], got 0"),
+    (dict(tracker="rtblob", model_path="m.npz"), "model_path", "model_path applies to the rt2 kinds only"),
+    (dict(roi="yes"), "roi", "roi must be True, False or None"),
+    (dict(duration_s=-3), "duration_s", "duration_s must be a positive number of seconds"),
+    (dict(status_period_s=-1), "status_period_s", "status_period_s must be >= 0 seconds"),
+    (dict(foxglove_port=70000), "foxglove_port", "foxglove_port must be a port number"),
+    (dict(log_overwrite="yes"), "log_overwrite", "log_overwrite must be True or False"),
+])
+def test_track_config_names_the_field(fields, field, message):
+    """Hostile values, each refused when the config is made, naming its field (never a CLI flag)."""
+    with pytest.raises(ConfigError) as err:
+        TrackConfig(**fields)
+    assert err.value.field == field and message in str(err.value) and "--" not in str(err.value), str(err.value)
+
+
+def test_track_config_paths_are_checked_before_anything_opens(tmp_path):
+    (tmp_path / "there.mcap").write_bytes(b"keep me")
+    for fields, message in ((dict(model_path=str(tmp_path / "none.npz")), "model_path '"),
+                            (dict(log_path=str(tmp_path / "there.mcap")), "exists; pass log_overwrite to replace it"),
+                            (dict(log_path=str(tmp_path)), "is a folder"),
+                            (dict(log_path=str(tmp_path / "there.mcap" / "x.mcap")), "is a file, not a folder")):
+        with pytest.raises(ConfigError, match=message):
+            open_service(TrackConfig(publish=None, **fields), status=None)
+    assert (tmp_path / "there.mcap").read_bytes() == b"keep me"
+
+
+def test_rt2_track_unknown_tracker_lists_the_kinds(capsys):
+    assert rt2(["track", "--tracker", "rt3", "--publish", "none"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "unknown --tracker 'rt3'; valid: rt2, rt2-paper, rtblob" in err, err
 
 
 def test_rt2_track_hands_the_builder_the_lab_truth_scene(capsys):

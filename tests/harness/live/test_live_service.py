@@ -44,7 +44,7 @@ def _wait_joined(pub: Publisher, got: list, timeout_s: float = 10.0):
     t_end = time.monotonic() + timeout_s
     while not got and time.monotonic() < t_end:
         pub.publish({"num": -1, "time": 0, "proc_time": 0.0, "obs": None},
-                    {"num": -1, "t_first_host_s": 0.0, "t_publish_s": None})
+                    {"num": -1, "t_first_host_s": 0.0, "t_publish_s": 0.0})
         time.sleep(0.02)
     time.sleep(0.1)
     got.clear()
@@ -85,6 +85,7 @@ def test_every_frame_set_is_published_and_a_stopped_camera_is_reported(rig):
         assert t["obs"] == r["position_m"]
         assert t["time"] == round(r["t_s"] * 1e9)
         assert r["t_first_host_s"] <= r["t_publish_s"] and r["latency_s"] == pytest.approx(r["t_publish_s"] - r["t_first_host_s"])
+        assert t["proc_time"] == r["latency_s"]  # one publication stamp: both streams give the same latency
         assert (r["t_host_s"][2] is None) == (r["num"] >= 120)  # NaN stamps travel as null
     assert summary["latency_ms"]["p50"] > 0 and summary["status"] == {"ok": 240}
 

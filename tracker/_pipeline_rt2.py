@@ -1,0 +1,282 @@
+"""The per-frame work of the segmentation kinds of :class:`tracker.Tracker` (``rt2``, ``rt2-paper``).
+
+:class:`SegmentationEngine` gets a frame set whose images :class:`~tracker.pipeline.Tracker` has
+already checked (``usable``: the cameras with a usable frame) and runs the steps of docs/pipeline.md:
+predict the ball's pixels, one detector call per camera (window, neighbourhood or full frame:
+:mod:`tracker._pipeline_search`), the consensus (the robust estimate with the 3D size test as its
+last stage, :meth:`RobustTriangulator.estimate_checked`), the full-frame fallback when the windows
+did not confirm the ball, the ball hypotheses and the support hand-over (``rt2``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
+
+import numpy as np
+
+from tracker._pipeline_options import PipelineInfo, TrackerKind, TrackerOptions, TrackerStats, detector_options_for, estimator_options_for, load_model
+from tracker._pipeline_roi import MotionPredictor
+from tracker._pipeline_search import search_around, search_boxes
+from tracker.ball_size import ball_diameter_range_px, size_limits
+from tracker.detection import BallDetector
+from tracker.handover import SupportHandover
+from tracker.hypotheses import BallHypotheses
+from tracker.observation import BallObservation, Status
+from tracker.rig import Rig
+from tracker.robust import RobustTriangulator
+from tracker.size_test import SizeTest
+
+__all__ = ["SegmentationEngine"]
+
+
+class SegmentationEngine:
+    """The segmentation detector + robust estimator behind :class:`tracker.Tracker` (module docstring).
+
+    rig : the tracker's rig; kind : its name; spec : its :class:`TrackerKind` (methods, ROI default,
+    whether the size test, hand-over and hypotheses apply); options : :class:`TrackerOptions`;
+    stats : the tracker's :class:`TrackerStats` (counted here); model, detector_options,
+    estimator_options, rtblob_options : as :class:`tracker.Tracker` (``rtblob_options`` must be None)
+
+    Attributes: ``roi``, ``detector`` (the kind's detector), ``detectors`` (per camera, sized from the
+    rig), ``estimator``, ``candidates_per_camera`` (k of the estimator's input).
+    """
+
+    def __init__(self, rig: Rig, kind: str, spec: TrackerKind, options: TrackerOptions, stats: TrackerStats, *,
+                 model=None, detector_options=None, estimator_options=None, rtblob_options=None):
+        if rtblob_options is not None:
+            raise ValueError(f"rtblob_options apply to kind 'rtblob' only, got kind {kind!r}")
+        self.kind, self.n_cams, self.options, self.stats = kind, len(rig), options, stats
+        self.roi = spec.roi_default if options.roi is None else bool(options.roi)
+        self._names = rig.names
+        self._wh = np.array([tuple(c.image_size) for c in rig], np.int64)  # (n_cams, 2) width, height
+        model = load_model(model)
+        self.detector = BallDetector(model, detector_options_for(kind, spec.detector_method, detector_options))
+        self.detectors = _sized_detectors(rig, self.detector) if options.size_from_rig else [self.detector] * len(rig)
+        self._roi_half = np.array([d.options.roi_half_size_px for d in self.detectors], np.int64)[:, None]  # (n_cams, 1)
+        self.estimator = RobustTriangulator(rig, estimator_options_for(estimator_options, options.eps_px), method=spec.estimator_method)
+        k = self.candidates_per_camera = self.detector.options.k
+        if k > self.estimator.options.max_candidates_per_camera:
+            raise ValueError(
+                f"detector_options.max_candidates ({k}) exceeds estimator_options.max_candidates_per_camera "
+                f"({self.estimator.options.max_candidates_per_camera}); raise the latter or lower the former"
+            )
+        self._motion = MotionPredictor(rig, options.max_gap_s)
+        self._size = SizeTest(rig, options.max_size_ratio if spec.extras else None, options.ball_radius_m,
+                              model.edge_loss_px if options.blob_edge_px is None else options.blob_edge_px)
+        self.handover = None
+        if spec.extras and options.handover_max_age_s is not None:
+            self.handover = SupportHandover(self.estimator, len(rig), max_age_s=options.handover_max_age_s)
+        self.hypotheses = BallHypotheses(options.hypotheses) if spec.extras and options.hypotheses is not None else None
+        n = self.n_cams
+        self._uv = np.full((n, k, 2), np.nan)  # the estimator's input, reused every frame set
+        self._scores = np.full((n, k), np.nan)
+        self._areas = np.full((n, k), np.nan)  # blob areas, px (the size test's input)
+        self._size_stage = self._size.stage(self._areas)  # the consensus's last stage, on this workspace
+        self._dets = [None] * n
+        self._images = None
+        self._pool = None
+        if options.workers > 1:
+            self._pool = ThreadPoolExecutor(options.workers - 1, thread_name_prefix="rt2-detect")
+
+    # -- life cycle -------------------------------------------------------------------------------
+    def forget_motion(self, *, hypotheses: bool = True) -> None:
+        """Forget the motion prediction, the hand-over's history and (``hypotheses``) the ball hypotheses."""
+        self._motion.reset()
+        if self.handover is not None:
+            self.handover.reset()
+        if hypotheses and self.hypotheses is not None:
+            self.hypotheses.reset()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    # -- per frame set ----------------------------------------------------------------------------
+    def process(self, t_s: float, frameset, usable: list[int], notes: list, t0: float) -> tuple[BallObservation, PipelineInfo]:
+        """One frame set: ``t_s`` its time (NaN when not finite), ``usable`` the cameras with a usable
+        frame, ``notes`` the notes so far (appended to), ``t0`` ``time.perf_counter()`` at entry."""
+        n = self.n_cams
+        self._images = frameset.images
+        roi_px = self._motion.predict_pixels(t_s) if self.roi else None
+        hyp = self.hypotheses
+        if roi_px is not None and hyp is not None and hyp.wants_full_frame(t_s):
+            roi_px = None  # no ball in play: look at everything now and then (step 10)
+            self.stats.hypothesis_full_frames += 1
+        if roi_px is None:
+            roi_px = np.full((n, 2), np.nan)
+        else:
+            self.stats.predictions += 1
+        self._uv.fill(np.nan)
+        self._scores.fill(np.nan)
+        self._areas.fill(np.nan)
+        used_roi = np.isfinite(roi_px[:, 0])
+        used_roi[[i for i in range(n) if i not in usable]] = False
+        self._detect(usable, roi_px, used_roi)  # Algorithm 1 per camera (paper Sec. 2.1)
+        X, info, size_ratio = self._estimate(notes)  # Algorithm 2 (paper Sec. 2.2; "ours" extends it), then the 3D size test
+        retried = False
+        if self.options.retry_full_frame and info.status is not Status.OK and used_roi.any():
+            # The full-frame fallback, only when the windows did not confirm the ball (also when the
+            # size test rejected what they held). Every camera that searched a window is redone: with
+            # two agreeing cameras, those two may be the ones whose windows hold the wrong object (any
+            # two rays nearly meet).
+            redo = [i for i in usable if used_roi[i]]
+            if redo:
+                retried = True
+                self.stats.full_frame_retries += 1
+                notes.append(f"window search gave {info.status.value}; full frame searched in {', '.join(self._names[i] for i in redo)}")
+                self._uv[redo] = np.nan
+                self._scores[redo] = np.nan
+                self._areas[redo] = np.nan
+                used_roi[redo] = False
+                self._detect(redo, roi_px, used_roi)
+                X, info, size_ratio = self._estimate(notes)
+        withheld = False
+        if hyp is not None and math.isfinite(t_s):
+            X, info, size_ratio, withheld = self._choose_ball(t_s, X, info, size_ratio, usable, used_roi, notes)
+        ok = info.status is Status.OK and not withheld
+        cand = info.candidate_index
+        uv_px = np.full((n, 2), np.nan)
+        sel = np.flatnonzero(cand >= 0) if not withheld else np.zeros(0, np.int64)
+        uv_px[sel] = self._uv[sel, cand[sel]]
+        if X is not None and self.handover is not None and math.isfinite(t_s):
+            X = self._hand_over(t_s, X, info, uv_px, ok, notes)
+        if ok and math.isfinite(t_s):
+            self._motion.update(t_s, X)  # only confirmed estimates feed the prediction
+        self.stats.positions += X is not None
+        self.stats.ok += ok
+        pinfo = PipelineInfo(self._uv.copy(), self._scores.copy(), roi_px, used_roi, retried, info, size_ratio, self._areas.copy(),
+                             *((hyp.positions(), hyp.in_play()) if hyp is not None else (None, None)))
+        self._images = None  # do not keep the frames alive
+        obs = BallObservation(
+            t_s=t_s,
+            position_m=X,
+            covariance_m2=None if withheld else info.covariance_m2,
+            support=0 if withheld else info.support,
+            inliers=np.zeros(n, bool) if withheld else info.inliers,
+            status=Status.NO_CONSENSUS if withheld else info.status,
+            latency_s=time.perf_counter() - t0,  # entry to return
+            tracker=self.kind,
+            uv_px=uv_px,
+            notes=tuple(notes),
+        )
+        return obs, pinfo
+
+    def _hand_over(self, t_s: float, X: np.ndarray, info, uv_px: np.ndarray, ok: bool, notes: list) -> np.ndarray:
+        """An estimate from fewer cameras than the last confirmed ones, moved by those cameras' offset
+        from them (step 9, :mod:`tracker.handover`); unchanged otherwise."""
+        X, d = self.handover.apply(t_s, X, uv_px, ok)
+        if d is not None:
+            self.stats.handovers += 1
+            notes.append(f"{info.support}-camera estimate moved {1e3 * float(np.linalg.norm(d)):.1f} mm by the offset of those cameras "
+                         "from the last confirmed positions (support hand-over)")
+        return X
+
+    def _choose_ball(self, t_s: float, X, info, size_ratio: float, usable: list, used_roi: np.ndarray, notes: list):
+        """Step 10 (:mod:`tracker.hypotheses`): the positions of this frame set join the hypotheses and
+        the ball in play is reported. Positions: on a full-frame search every consistent set, best
+        first, each through the size test (the second and later ones only with ``Status.OK``); else
+        the one set the windows hold. Returns ``(X, info, size_ratio, withheld)``; ``withheld``:
+        positions exist but none is reported (X None)."""
+        hyp = self.hypotheses
+        full = not used_roi[usable].any()
+        if full:
+            hyp.searched_full_frame(t_s)
+        sets = [] if X is None else [(X, info, size_ratio)]
+        if full and X is not None:
+            uv = self._uv.copy()
+            while len(sets) < hyp.options.max_hypotheses:
+                cams = np.flatnonzero(sets[-1][1].candidate_index >= 0)
+                uv[cams, sets[-1][1].candidate_index[cams]] = np.nan  # the next best set: without these candidates
+                X2, info2, ratio2, _ = self.estimator.estimate_checked(uv, self._size_stage)
+                if info2.status is not Status.OK:  # two rays nearly always meet: a second ball needs min_support cameras
+                    break
+                sets.append((X2, info2, ratio2))
+        row = hyp.update(t_s, np.array([s[0] for s in sets]).reshape(-1, 3))
+        if row < 0:
+            if sets:
+                self.stats.withheld += 1
+                notes.append(f"{len(sets)} ball position(s), none in play (moving across the table) nor the ball reported before; no position reported")
+            return None, info, math.nan, bool(sets)
+        if hyp.switched:
+            self.stats.lead_changes += 1
+            self.forget_motion(hypotheses=False)  # the prediction and the hand-over belonged to the other ball
+            notes.append(f"reported ball changed to one in play (set {row + 1} of {len(sets)} positions)")
+        elif row > 0:
+            notes.append(f"reported the ball in play, set {row + 1} of {len(sets)} positions")
+        return (*sets[row], False)
+
+    def _estimate(self, notes: list):
+        """The consensus of the current candidates, the 3D size test its last stage (the candidates it
+        drops stay in ``self._uv``, which PipelineInfo reports). Returns (X, info, ratio)."""
+        X, info, ratio, rejected = self.estimator.estimate_checked(self._uv, self._size_stage)
+        for cams, r in rejected:
+            notes.append(self._size.rejection_note(cams, r))
+        self.stats.size_rejections += len(rejected)
+        return X, info, ratio
+
+    def _detect(self, cams: list[int], roi_px: np.ndarray, use_window: np.ndarray) -> None:
+        """One detector call per camera in ``cams``: in the window around ``roi_px[i]`` where
+        ``use_window[i]``, else on the full frame. Fills the estimator's input rows and the stats."""
+        boxes = search_boxes(roi_px, use_window, self._roi_half, self._wh)
+        pool = self._pool
+        if pool is not None and len(cams) > 1 and (self.options.threads_for_roi or not use_window[cams].all()):
+            w = min(self.options.workers, len(cams))
+            chunks = [cams[j::w] for j in range(w)]
+            futures = [pool.submit(self._detect_chunk, c, roi_px, boxes) for c in chunks[1:]]
+            self._detect_chunk(chunks[0], roi_px, boxes)  # the calling thread takes a share too
+            for f in futures:
+                f.result()
+        else:
+            self._detect_chunk(cams, roi_px, boxes)
+        st = self.stats
+        for i in cams:
+            d = self._dets[i]
+            m = 0 if d is None else len(d)
+            if m:
+                self._uv[i, :m] = d.uv_px
+                self._uv[i, :m] += boxes[i, :2]  # sub-image -> image pixels
+                self._scores[i, :m] = d.scores
+                self._areas[i, :m] = d.areas_px
+            if use_window[i]:
+                st.roi_searches += 1
+                st.roi_misses += m == 0
+            else:
+                st.full_frame_searches += 1
+
+    def _detect_chunk(self, cams, roi_px, boxes) -> None:
+        dets, images = self._dets, self._images
+        for i in cams:
+            det = self.detectors[i]
+            x0, y0, x1, y1 = boxes[i]
+            if x0 < 0:
+                dets[i] = None  # the predicted window lies outside this camera's image
+            elif x1 - x0 == self._wh[i, 0] and y1 - y0 == self._wh[i, 1]:
+                dets[i] = det.detect(images[i])  # the full frame
+            else:  # the neighbourhood: its window first, then at most the whole neighbourhood
+                dets[i] = search_around(det, images[i][y0:y1, x0:x1], roi_px[i] - boxes[i, :2])
+
+
+def _sized_detectors(rig: Rig, detector: BallDetector) -> list[BallDetector]:
+    """One detector per camera with the size limits of the rig's workspace (``TrackerOptions.size_from_rig``,
+    :mod:`tracker.ball_size`); ``detector`` itself for the cameras whose limits it already has."""
+    if rig.workspace_m is None:
+        return [detector] * len(rig)
+    o = detector.options
+    lim = size_limits(ball_diameter_range_px(rig), detector.area_range_px, o.roi_half_size_px, edge_loss_px=detector.model.edge_loss_px)
+    out, made = [], {}
+    for i in range(len(rig)):
+        (lo, hi), half = lim.area_px[i], int(lim.roi_half_size_px[i])
+        if (lo, hi) == detector.area_range_px and half == o.roi_half_size_px:
+            out.append(detector)
+            continue
+        key = (lo, hi, half)
+        if key not in made:
+            made[key] = BallDetector(detector.model, replace(o, roi_half_size_px=half,
+                                                             min_area_px=int(lo) if lo != detector.area_range_px[0] else o.min_area_px,
+                                                             max_area_px=int(hi) if hi != detector.area_range_px[1] else o.max_area_px))
+        out.append(made[key])
+    return out
