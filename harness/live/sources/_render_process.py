@@ -5,7 +5,12 @@ The child is a fresh interpreter (``python -m harness.live.sources._render_proce
 parent's threads, locks or ``__main__`` is inherited, so it works from any script). It builds its
 own :class:`harness.sim.render.Renderer` for the rig, then renders the frame sets it is asked for into a
 ring of ``slots`` frame sets in shared memory and answers with the slot; the parent copies the
-images out and gives the slot back. Requests are served in order; messages are pickles over the
+images out and gives the slot back.
+
+The child runs at a lower CPU priority (``nice``, default +10): a simulated camera stands in for
+hardware that renders on its own silicon, so on a busy machine the tracker's process gets the cores
+first and the renderer takes what is left; a frame set it cannot render in time is skipped by the
+``sim`` source and counted (``skipped``), as a camera drops the frames its host does not take. Requests are served in order; messages are pickles over the
 child's stdin / stdout. The scene provider is pickled into the child, so it must be picklable
 (:class:`~.sim.LauncherFlights` is; a lambda is not).
 """
@@ -13,6 +18,7 @@ child's stdin / stdout. The scene provider is pickled into the child, so it must
 from __future__ import annotations
 
 import dataclasses
+import os
 import pickle
 import queue
 import subprocess
@@ -48,7 +54,9 @@ def _serve(inp, out) -> None:
         out.flush()
 
     try:
-        rig_dict, render_options, seed, provider, shm_name, shapes, slots = pickle.load(inp)
+        rig_dict, render_options, seed, provider, shm_name, shapes, slots, nice = pickle.load(inp)
+        if nice:
+            os.nice(nice)  # before anything heavy: the renderer yields the cores to the tracker
         from harness.sim.render import Renderer, Scene
         from tracker import Rig
 
@@ -93,7 +101,10 @@ def _serve(inp, out) -> None:
 class RenderProcess:
     """A child process rendering frame sets of ``rig`` (see the module docstring)."""
 
-    def __init__(self, rig, render_options, seed: int, provider, *, slots: int = 16, start_timeout_s: float = 300.0):
+    def __init__(self, rig, render_options, seed: int, provider, *, slots: int = 16, start_timeout_s: float = 300.0,
+                 nice: int = 10):
+        if isinstance(nice, bool) or not isinstance(nice, int) or not 0 <= nice <= 19:
+            raise ValueError(f"the sim renderer's nice must be a whole number in [0, 19], got {nice!r}")
         try:
             pickle.dumps(provider)
         except Exception as exc:  # noqa: BLE001 - any pickling failure means the same thing here
@@ -111,7 +122,7 @@ class RenderProcess:
         self._reader = threading.Thread(target=self._read_results, name="sim renderer results", daemon=True)
         self._reader.start()
         try:
-            self._send((rig.to_dict(), render_options, seed, provider, self.shm.name, self.shapes, self.slots))
+            self._send((rig.to_dict(), render_options, seed, provider, self.shm.name, self.shapes, self.slots, nice))
             deadline = time.monotonic() + start_timeout_s
             msg = None
             while msg is None and time.monotonic() < deadline:

@@ -9,7 +9,9 @@ rate with host stamps. The device stamp is the scene time ``k / rate_hz`` (a cam
 Honest about speed: one process renders ~470 busy VGA images/s and ~3400/s with one flying ball
 (docs/renderer.md), so four VGA cameras of launcher flights at 200 Hz (800 images/s) fit in one
 core, a busy ``scene_provider`` may not. The clock is fixed (frame set k is due at ``t0 + k /
-rate_hz``): a frame set rendered after its due time is emitted at once and counted in ``late``;
+rate_hz``): a frame set rendered after its due time is emitted at once and counted in ``late`` (in
+a render process, one finished more than a period after its due time is dropped and counted in
+``skipped`` instead, so a renderer starved of CPU never delivers a burst of stale frame sets);
 when the renderer finds its next frame set already due it skips ahead to the next one not yet due
 (counted in ``skipped``; the frame ids jump, as with a camera that loses frames), so host and device
 stamps stay consistent and the run stays real time. ``prerender_s`` renders a clip up front and
@@ -64,6 +66,9 @@ class SimOptions:
         (which may wait for the lab's truth at it, e.g. :class:`harness.experiments.accuracy.truth_scene.LabTruthScene`), and stamped
         with the exposure time as its device stamp while it arrives later -- a camera with hardware
         timestamps on the host clock (assemble with ``clock="device"``)
+    render_nice : with ``render_process``: the child's CPU priority below the tracker's (``os.nice``, 0-19;
+        default 10): on a busy machine the tracker gets the cores first, as with cameras that render on
+        their own hardware; frame sets the renderer cannot make in time are skipped and counted
     max_behind_s : "host" clock: when frame set k's exposure is further than this in the past as its turn
         comes, the renderer skips to the present (counted in ``skipped``): a renderer slower than real time
         falls behind by up to this much, renders every frame meanwhile, then catches up at once
@@ -78,6 +83,7 @@ class SimOptions:
     queue_len: int = 8
     exposure: Exposure = Exposure(exposure_s=0.002, gain=1.0, light_level=1.0)
     render_process: bool = False
+    render_nice: int = 10
     clock: str = "scene"
     max_behind_s: float = 0.1
 
@@ -97,6 +103,8 @@ class SimOptions:
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
                 raise ValueError(f"SimOptions.{name} must be None or > 0 seconds, got {v!r}")
+        if isinstance(self.render_nice, bool) or not isinstance(self.render_nice, int) or not 0 <= self.render_nice <= 19:
+            raise ValueError(f"SimOptions.render_nice must be a whole number in [0, 19], got {self.render_nice!r}")
         if self.render_ahead < 1:
             raise ValueError(f"SimOptions.render_ahead must be >= 1, got {self.render_ahead!r}")
 
@@ -175,7 +183,8 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
     if options.render_process and options.prerender_s is None:
         from harness.live.sources._render_process import RenderProcess
 
-        process = RenderProcess(rig, render_options, options.seed, provider, slots=options.render_ahead)
+        process = RenderProcess(rig, render_options, options.seed, provider, slots=options.render_ahead,
+                                nice=options.render_nice)
         renderer = None
     else:
         renderer = Renderer(rig, render_options, seed=options.seed)  # ray-casts the static lab (~1 s per VGA camera)
@@ -229,6 +238,13 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
                 got = process.result(0.1)
             k_done, slot = got
             asked -= 1
+            now = feed.schedule_now()
+            if now is not None and now - k_done * period > period:
+                # rendered more than a period after it was due: dropped and counted (``skipped``), as a camera
+                # drops what its host did not take in time, rather than delivered late in a burst
+                free.append(slot)
+                feed.skipped += 1
+                continue
             images = process.images(slot)
             free.append(slot)
             t = k_done * period
