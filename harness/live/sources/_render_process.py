@@ -55,8 +55,6 @@ def _serve(inp, out) -> None:
 
     try:
         rig_dict, render_options, seed, provider, shm_name, shapes, slots, nice = pickle.load(inp)
-        if nice:
-            os.nice(nice)  # before anything heavy: the renderer yields the cores to the tracker
         from harness.sim.render import Renderer, Scene
         from tracker import Rig
 
@@ -72,6 +70,8 @@ def _serve(inp, out) -> None:
         warm = provider(0.0)  # the first render compiles and allocates: paid before "ready", not by frame set 0
         if isinstance(warm, Scene):
             renderer.render(dataclasses.replace(warm, frame_index=0))  # noise is a function of (seed, frame index)
+        if nice:  # after the start-up (ray-casting the lab), which the service waits for: then yield to the tracker
+            os.nice(nice)
         send(("ready",))
         while True:
             try:
