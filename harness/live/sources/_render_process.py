@@ -46,7 +46,11 @@ def _views(buf, shapes, slots: int) -> list[list[np.ndarray]]:
 
 
 def _serve(inp, out) -> None:
-    """The child: read the set-up, then requests ``(k, slot, t_s)`` until None or end of input."""
+    """The child: read the set-up, then requests ``(k, slot, t_s, drop_after_s)`` until None or end of input.
+
+    ``drop_after_s``: host monotonic time after which starting frame set k is pointless (it could not be
+    delivered in time), NaN = always render. Such a request is answered ``("skipped", k, slot)`` without
+    rendering, so a renderer that fell behind spends its time on frame sets it can still deliver."""
     shm, views = None, None
 
     def send(msg) -> None:
@@ -80,7 +84,10 @@ def _serve(inp, out) -> None:
                 break
             if req is None:
                 break
-            k, slot, t_s = req
+            k, slot, t_s, drop_after_s = req
+            if time.monotonic() > drop_after_s:  # False for NaN
+                send(("skipped", k, slot))
+                continue
             scene = provider(t_s)
             if not isinstance(scene, Scene):
                 raise ValueError(f"scene_provider({t_s:.4f}) returned {type(scene).__name__}, not a Scene")
@@ -151,14 +158,17 @@ class RenderProcess:
         except (EOFError, OSError, ValueError, pickle.UnpicklingError):
             self._results.put(("exit",))
 
-    def request(self, k: int, slot: int, t_s: float) -> None:
+    def request(self, k: int, slot: int, t_s: float, drop_after_s: float = float("nan")) -> None:
+        """Render frame set k (scene time ``t_s``) into ``slot``, unless the child starts it after host
+        time ``drop_after_s`` (then :meth:`result` reports it skipped)."""
         try:
-            self._send((int(k), int(slot), float(t_s)))
+            self._send((int(k), int(slot), float(t_s), float(drop_after_s)))
         except (BrokenPipeError, OSError, ValueError):
             raise RuntimeError(f"the sim renderer process is gone (exit code {self.proc.poll()})") from None
 
-    def result(self, timeout_s: float) -> tuple[int, int] | None:
-        """(k, slot) of the next rendered frame set, None on a timeout; raises what the child raised."""
+    def result(self, timeout_s: float) -> tuple[int, int, bool] | None:
+        """(k, slot, rendered) of the next answered request (``rendered`` False: skipped, too late to start),
+        None on a timeout; raises what the child raised."""
         try:
             msg = self._results.get(timeout=timeout_s)
         except queue.Empty:
@@ -167,7 +177,7 @@ class RenderProcess:
             raise RuntimeError(f"the sim renderer process failed: {msg[1]}")
         if msg[0] == "exit":
             raise RuntimeError(f"the sim renderer process died (exit code {self.proc.wait(timeout=5.0)})")
-        return msg[1], msg[2]
+        return msg[1], msg[2], msg[0] == "done"
 
     def images(self, slot: int) -> tuple:
         """Copies of the frame set in ``slot`` (the slot may be reused at once)."""

@@ -11,7 +11,8 @@ Honest about speed: one process renders ~470 busy VGA images/s and ~3400/s with 
 core, a busy ``scene_provider`` may not. The clock is fixed (frame set k is due at ``t0 + k /
 rate_hz``): a frame set rendered after its due time is emitted at once and counted in ``late`` (in
 a render process, one finished more than a period after its due time is dropped and counted in
-``skipped`` instead, so a renderer starved of CPU never delivers a burst of stale frame sets);
+``skipped`` instead, and one the child would start after that is not rendered at all, so a renderer
+starved of CPU never delivers a burst of stale frame sets and spends its time on those it can deliver);
 when the renderer finds its next frame set already due it skips ahead to the next one not yet due
 (counted in ``skipped``; the frame ids jump, as with a camera that loses frames), so host and device
 stamps stay consistent and the run stays real time. ``prerender_s`` renders a clip up front and
@@ -34,6 +35,7 @@ arrives later by the wait and the render time, as a frame from a camera with har
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -226,7 +228,9 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
                 k = next_index(k)
                 if n_total is not None and k >= n_total:
                     break
-                process.request(k, free.pop(), k * period)
+                origin = feed.origin_s  # None before the first emission: render whatever it costs
+                drop_after = math.nan if origin is None or feed.speed is None else origin + (k + 1) * period / feed.speed
+                process.request(k, free.pop(), k * period, drop_after)
                 asked += 1
                 k += 1
             if not asked:
@@ -236,10 +240,10 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
                 if feed._stop.is_set():
                     return
                 got = process.result(0.1)
-            k_done, slot = got
+            k_done, slot, rendered = got
             asked -= 1
             now = feed.schedule_now()
-            if now is not None and now - k_done * period > period:
+            if not rendered or (now is not None and now - k_done * period > period):
                 # rendered more than a period after it was due: dropped and counted (``skipped``), as a camera
                 # drops what its host did not take in time, rather than delivered late in a burst
                 free.append(slot)

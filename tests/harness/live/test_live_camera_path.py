@@ -88,6 +88,23 @@ def test_the_renderer_process_runs_below_the_tracker_s_priority(rig):
             s.close()
 
 
+def test_the_renderer_skips_a_request_it_could_not_deliver_in_time_without_rendering_it(rig):
+    from harness.live.sources._render_process import RenderProcess
+    from harness.sim.render import RenderOptions
+
+    proc = RenderProcess(rig, RenderOptions(), 0, SlowFlights(0.5), slots=2)
+    try:
+        t0 = time.monotonic()
+        proc.request(3, 0, 0.015, time.monotonic() - 1.0)  # already too late to start
+        assert proc.result(5.0) == (3, 0, False)
+        assert time.monotonic() - t0 < 0.4  # answered without asking the 0.5 s scene provider
+        proc.request(4, 1, 0.02)  # no deadline: rendered, whatever it costs
+        assert proc.result(10.0) == (4, 1, True)
+        assert proc.views[1][0].any()
+    finally:
+        proc.close()
+
+
 @pytest.mark.parametrize("nice", [-1, 20, 1.5, True, "10", None])
 def test_bad_renderer_priority(rig, nice):
     with pytest.raises(ValueError, match="render_nice"):
