@@ -72,6 +72,10 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                              "holding the tracker's interpreter lock, as a camera driver's threads; ~1 s per camera to start), "
                              "thread (in the service's process), auto (default: process, thread with --prerender or "
                              "--truth-stream)")
+    parser.add_argument("--sim-render-nice", type=int, default=None, metavar="N",
+                        help="sim only: the render process's CPU priority below the tracker's (os.nice, 0-19; default 10): the "
+                             "tracker gets the cores first, as with cameras that render on their own hardware; frame sets the "
+                             "renderer cannot make in time are skipped and counted. 0 on a machine busy with other work")
     parser.add_argument("--queue-s", type=float, default=0.25, metavar="S",
                         help="frames buffered per camera before the oldest is dropped, in seconds of the frame rate "
                              "(default 0.25: a hiccup of the machine that long costs latency, not frames)")

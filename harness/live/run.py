@@ -114,8 +114,15 @@ def open_frames(args, rig, *, truth_scene=None):
         raise ValueError(f"--sim-render applies to the sim source only, got --source {' '.join(args.source)}")
     if render == "process" and ("prerender_s" in extra or provider is not None):
         raise ValueError("--sim-render process cannot go with --prerender or --truth-stream (those render in the service's process)")
+    nice = getattr(args, "sim_render_nice", None)
+    if nice is not None and (isinstance(nice, bool) or not isinstance(nice, int) or not 0 <= nice <= 19):
+        raise ValueError(f"--sim-render-nice must be a whole number in [0, 19], got {nice!r}")
+    if nice is not None and spec.kind != "sim":
+        raise ValueError(f"--sim-render-nice applies to the sim source only, got --source {' '.join(args.source)}")
     if spec.kind == "sim" and "prerender_s" not in extra and provider is None:
         extra["render_process"] = render != "thread"  # "auto": a child process, as a camera driver's own threads
+        if nice is not None:
+            extra["render_nice"] = nice
     sources = open_sources(spec, render_rig, rate_hz=args.rate_hz, seed=args.seed, queue_len=n_queue,
                            scene_provider=provider, **extra)
     try:

@@ -165,3 +165,31 @@ def test_a_feed_with_a_camera_outside_the_assembler_keeps_its_readers():
         sets = drain(asm, 10, 5.0)
     assert [s.frame_id for s in sets] == [0, 1, 2, 3]
     views[1].close()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--sim-render-nice", "-1"], "--sim-render-nice must be a whole number in [0, 19], got -1"),
+    (["--sim-render-nice", "20"], "--sim-render-nice must be a whole number in [0, 19], got 20"),
+    (["--sim-render-nice", "5", "--source", "replay", "x.mcap"], "--sim-render-nice applies to the sim source only"),
+])
+def test_bad_renderer_priority_on_the_command_line_is_one_line(capsys, tmp_path, args, message):
+    from tests.harness.live import test_live_cli as cli_tests
+
+    assert message in cli_tests._bad(capsys, tmp_path, "--publish", "none", *args)
+
+
+def test_the_command_line_priority_reaches_the_renderer(rig, monkeypatch):
+    import argparse
+
+    from harness.cli.track import add_arguments
+    from harness.live import run
+    from harness.live.sources import sim
+
+    seen = []
+    monkeypatch.setattr(sim, "open_sim", lambda rig, options, **kw: seen.append(options.render_nice) or ([], None))
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    for extra, expect in (([], SimOptions().render_nice), (["--sim-render-nice", "0"], 0), (["--sim-render-nice", "7"], 7)):
+        with pytest.raises(ValueError, match="opened 0 camera"):  # the stand-in opened no camera: stop there
+            run.open_frames(parser.parse_args(["--publish", "none", *extra]), rig)
+    assert seen == [10, 0, 7]
