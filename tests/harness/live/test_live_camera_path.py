@@ -131,8 +131,9 @@ def test_frame_sets_rendered_too_late_are_dropped_and_counted_not_delivered_late
     t = np.array([np.nanmin(s.t_host_s) for s in sets])
     k = np.array([s.frame_id for s in sets])
     lag = (t - t[0]) - (k - k[0]) * 0.01
-    assert lag.max() < 0.01 + 0.03, lag  # a period, plus the scheduling slack of a loaded machine
-    assert feed.late <= 2
+    # a period plus the scheduling slack of a loaded machine; delivered late, the lag would grow to ~0.6 s
+    assert lag.max() < 0.15, lag
+    assert feed.late <= 5
 
 
 def test_a_pushing_feed_s_failure_reaches_the_assembler_as_a_failed_camera():
