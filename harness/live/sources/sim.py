@@ -9,10 +9,10 @@ rate with host stamps. The device stamp is the scene time ``k / rate_hz`` (a cam
 Honest about speed: one process renders ~470 busy VGA images/s and ~3400/s with one flying ball
 (docs/renderer.md), so four VGA cameras of launcher flights at 200 Hz (800 images/s) fit in one
 core, a busy ``scene_provider`` may not. The clock is fixed (frame set k is due at ``t0 + k /
-rate_hz``): a frame set rendered after its due time is emitted at once and counted in ``late`` (in
-a render process, one finished more than a period after its due time is dropped and counted in
-``skipped`` instead, and one the child would start after that is not rendered at all, so a renderer
-starved of CPU never delivers a burst of stale frame sets and spends its time on those it can deliver);
+rate_hz``): a frame set rendered after its due time is emitted at once and counted in ``late`` (a
+render process does not start a frame set more than a period after its due time: it answers it skipped,
+counted in ``skipped``, so a renderer starved of CPU spends its time on frame sets it can still deliver,
+at most a render's time late, rather than on a queue of stale ones delivered in a burst);
 when the renderer finds its next frame set already due it skips ahead to the next one not yet due
 (counted in ``skipped``; the frame ids jump, as with a camera that loses frames), so host and device
 stamps stay consistent and the run stays real time. ``prerender_s`` renders a clip up front and
@@ -226,7 +226,9 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
     def produce_in_process():
         free, asked, k = list(range(process.slots)), 0, 0
         while True:
-            while free and (n_total is None or k < n_total):
+            # one request until the first emission fixes the schedule (its deadlines), then render ahead
+            while free and (n_total is None or k < n_total) and (not asked or feed.origin_s is not None
+                                                                  or feed.speed is None):
                 k = next_index(k)
                 if n_total is not None and k >= n_total:
                     break
@@ -244,10 +246,7 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
                 got = process.result(0.1)
             k_done, slot, rendered = got
             asked -= 1
-            now = feed.schedule_now()
-            if not rendered or (now is not None and now - k_done * period > period):
-                # rendered more than a period after it was due: dropped and counted (``skipped``), as a camera
-                # drops what its host did not take in time, rather than delivered late in a burst
+            if not rendered:  # the child would have started it after its deadline: skipped, counted
                 free.append(slot)
                 feed.skipped += 1
                 continue

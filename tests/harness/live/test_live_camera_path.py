@@ -1,6 +1,6 @@
 """The path of a simulated camera's frames to the tracker: a paced feed hands each frame set to the
 assembler in the thread that stamped it (no reader threads), the sim renderer process runs at a lower
-CPU priority, and frame sets it renders too late are dropped and counted, never delivered in a burst.
+CPU priority, and frame sets it cannot start in time are skipped and counted, never delivered in a burst.
 Same seed, same images whichever path they take."""
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ def test_bad_renderer_priority(rig, nice):
         RenderProcess(rig, RenderOptions(), 0, LauncherFlights(0, n_serves=1), slots=2, nice=nice)
 
 
-def test_frame_sets_rendered_too_late_are_dropped_and_counted_not_delivered_late(rig):
+def test_frame_sets_the_renderer_cannot_start_in_time_are_skipped_and_counted_never_a_stale_burst(rig):
     # 25 ms per frame set at 100 Hz: the renderer makes at most 2 in 5; the rest are skipped, counted
     sources = open_sources(["sim"], rig, rate_hz=100.0, seed=2, scene_provider=SlowFlights(0.025), duration_s=1.0,
                            render_process=True)
@@ -127,13 +127,13 @@ def test_frame_sets_rendered_too_late_are_dropped_and_counted_not_delivered_late
     assert 0 < len(sets) < 60 and feed.skipped > 40
     assert len(sets) + feed.skipped == 100  # every frame set of the second is either delivered or counted
     assert st.dropped_framesets == 0 and st.late == (0, 0)  # nothing for rt2 to skip: the source dropped them
-    # what is delivered is on time: emitted within a period of its place in the schedule, never in a burst
+    # what is delivered is at most a render late, never a burst of stale sets
     t = np.array([np.nanmin(s.t_host_s) for s in sets])
     k = np.array([s.frame_id for s in sets])
     lag = (t - t[0]) - (k - k[0]) * 0.01
-    # a period plus the scheduling slack of a loaded machine; delivered late, it would grow to ~0.4 s (16 sets in flight, 25 ms each)
+    # a period plus a render plus the scheduling slack of a loaded machine; rendering every request in turn,
+    # it would grow to ~0.4 s (16 sets in flight, 25 ms each)
     assert lag.max() < 0.15, lag
-    assert feed.late <= 5
 
 
 def test_a_pushing_feed_s_failure_reaches_the_assembler_as_a_failed_camera():
