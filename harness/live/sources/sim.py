@@ -16,9 +16,7 @@ at most a render's time late, rather than on a queue of stale ones delivered in 
 when the renderer finds its next frame set already due it skips ahead to the next one not yet due
 (counted in ``skipped``; the frame ids jump, as with a camera that loses frames), so host and device
 stamps stay consistent and the run stays real time. ``prerender_s`` renders a clip up front and
-loops it instead (memory: 0.92 MB per VGA image); its frame sets are skipped alike when the feed's
-thread finds the next one already due (the machine held it back), rather than emitted in a burst that
-the tracker would skip anyway. The renderer shares the GIL with the tracker
+loops it instead (memory: 0.92 MB per VGA image). The renderer shares the GIL with the tracker
 when both run in one process.
 
 The default scene is seeded launcher ball flights (:class:`LauncherFlights`); any callable
@@ -206,7 +204,7 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
     def next_index(k: int) -> int:
         """k, or the first frame set not yet due when k already is (counted in ``skipped``)."""
         now = feed.schedule_now()
-        if now is not None and k * period < now:  # also a looped clip: the pacer fell behind, never a burst
+        if now is not None and clip is None and k * period < now:
             k_next = int(now / period) + 1
             feed.skipped += k_next - k
             return k_next
