@@ -41,7 +41,7 @@ _TRACKERS = ("rt2", "rt2-paper", "rtblob")  # for --help only; the kind is check
 #: the flag of each TrackConfig field (errors below the command line name fields; shown with these)
 FLAGS = {"rig": "--rig", "source": "--source", "rate_hz": "--rate-hz", "seed": "--seed", "prerender_s": "--prerender",
          "truth_stream": "--truth-stream", "scene": "--scene", "max_behind_s": "--max-behind", "sim_rig": "--sim-rig",
-         "sim_render": "--sim-render", "queue_s": "--queue-s", "max_backlog": "--max-backlog", "tracker": "--tracker",
+         "sim_render": "--sim-render", "sim_render_nice": "--sim-render-nice", "queue_s": "--queue-s", "max_backlog": "--max-backlog", "tracker": "--tracker",
          "model_path": "--model", "workers": "--workers", "publish": "--publish", "publish_rt2": "--publish-rt2",
          "foxglove_port": "--foxglove", "foxglove_host": "--foxglove-host", "log_path": "--log", "log_overwrite": "--log-overwrite",
          "log_images": "--log-images", "log_image_format": "--log-image-format", "duration_s": "--duration",
@@ -68,7 +68,7 @@ def track_config(args, **fields) -> TrackConfig:
         mine = dict(
             rig=str(args.rig), source=tuple(args.source), rate_hz=args.rate_hz, seed=args.seed, prerender_s=args.prerender,
             truth_stream=args.truth_stream, scene=args.scene, max_behind_s=args.max_behind, sim_rig=args.sim_rig,
-            sim_render=args.sim_render, queue_s=args.queue_s, max_backlog=args.max_backlog, tracker=args.tracker,
+            sim_render=args.sim_render, sim_render_nice=args.sim_render_nice, queue_s=args.queue_s, max_backlog=args.max_backlog, tracker=args.tracker,
             model_path=args.model, workers=args.workers,
         )
         if hasattr(args, "publish"):  # rt2 track's own options (rt2 bench live sets its streams itself)
@@ -118,6 +118,10 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                              "holding the tracker's interpreter lock, as a camera driver's threads; ~1 s per camera to start), "
                              "thread (in the service's process), auto (default: process, thread with --prerender or "
                              "--truth-stream)")
+    parser.add_argument("--sim-render-nice", type=int, default=None, metavar="N",
+                        help="sim only: the render process's CPU priority below the tracker's (os.nice, 0-19; default 10): the "
+                             "tracker gets the cores first, as with cameras that render on their own hardware; frame sets the "
+                             "renderer cannot make in time are skipped and counted. 0 on a machine busy with other work")
     parser.add_argument("--queue-s", type=float, default=0.25, metavar="S",
                         help="frames buffered per camera before the oldest is dropped, in seconds of the frame rate "
                              "(default 0.25: a hiccup of the machine that long costs latency, not frames)")

@@ -3,7 +3,16 @@ one :class:`~harness.live.frames.AssembledFrameSet` per trigger, without ever bl
 
 Threads: one reader per source (``source.read(timeout)`` into a bounded per-camera queue; full =
 drop the oldest, counted per camera) and one assembler (groups frames, emits sets into a bounded
-output queue; full = drop the oldest set, counted). ``get(timeout_s)`` only waits for that output.
+output queue; full = drop the oldest set, counted). ``get(timeout_s)`` only waits for that output,
+and is woken only when a set is there (or the assembly ends), never by the readers' frames.
+
+Cameras that are the views of one paced software feed (``sim``, ``replay`` and ``video`` in real time:
+:class:`~harness.live.sources._feed.PacedFeed`) have no reader threads: the feed hands each frame set
+to the assembler in the thread that stamped it (:meth:`~harness.live.sources._feed.PacedFeed.connect`),
+where it is placed and, when complete, emitted at once. Between a frame's arrival stamp and the
+tracker's queue there is then no thread hand-over (four reader wake-ups and the assembler's, each
+waiting for the interpreter lock and a core, were the tail of the ``assembly`` stage on a busy machine);
+the assembler thread only times out sets with a missing camera.
 
 Matching (``AssemblyOptions.match``):
 
@@ -39,6 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from harness.live.frames import AssembledFrameSet, Frame, SourceError
+from harness.live.sources._feed import PacedFeed
 from harness.live.sources.clock import ClockOffset, ClockOffsetEstimator
 from tracker import FrameSet
 
@@ -178,7 +188,9 @@ class FrameSetAssembler:
         self.options = options
         n = len(self.sources)
         self._n = n
-        self._cond = threading.Condition()
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)  # the assembler thread and the readers
+        self._out = threading.Condition(self._lock)  # get(): a set is ready or the assembly ended
         self._stop = threading.Event()
         self._inputs = [deque() for _ in range(n)]
         self._output: deque = deque()
@@ -200,6 +212,7 @@ class FrameSetAssembler:
         self._threads: list[threading.Thread] = []
         self._started = False
         self._t_start = 0.0
+        self.pushed_by_feed = [False] * n  # camera i's frames come straight from its feed's pacer (no reader)
 
     # -- lifetime ---------------------------------------------------------------------------------
     def start(self) -> "FrameSetAssembler":
@@ -207,11 +220,14 @@ class FrameSetAssembler:
             return self
         self._started = True
         self._t_start = time.monotonic()
+        self._connect_feeds()
         for i, src in enumerate(self.sources):
             try:
                 src.start()
             except SourceError as exc:
                 self._fail(i, str(exc))
+                continue
+            if self.pushed_by_feed[i]:
                 continue
             t = threading.Thread(target=self._read_loop, args=(i, src), name=f"read {src.name}", daemon=True)
             self._threads.append(t)
@@ -222,8 +238,9 @@ class FrameSetAssembler:
 
     def close(self) -> None:
         self._stop.set()
-        with self._cond:
+        with self._lock:
             self._cond.notify_all()
+            self._out.notify_all()
         for t in self._threads:
             t.join(timeout=2.0 + self.options.read_timeout_s)
         for src in self.sources:
@@ -240,10 +257,49 @@ class FrameSetAssembler:
 
     # -- readers ----------------------------------------------------------------------------------
     def _fail(self, i: int, message: str) -> None:
-        with self._cond:
+        with self._lock:
             self._ended[i] = True
             self._errors[i] = message
             self._cond.notify_all()
+            self._out.notify_all()
+
+    # -- feeds that push their frame sets -------------------------------------------------------------
+    def _connect_feeds(self) -> None:
+        """Connect every paced feed whose cameras are all among the sources (live only: a lossless
+        assembly paces its readers) so that it pushes its frame sets (the module docstring)."""
+        if self.options.lossless:
+            return
+        groups: dict[int, tuple] = {}
+        for i, src in enumerate(self.sources):
+            feed = getattr(src, "feed", None)
+            if isinstance(feed, PacedFeed) and isinstance(getattr(src, "feed_index", None), int):
+                groups.setdefault(id(feed), (feed, {}))[1][src.feed_index] = i
+        for feed, mapping in groups.values():
+            if sorted(mapping) == list(range(len(feed.cameras))) and feed.connect(_FeedSink(self, feed, mapping)):
+                for i in mapping.values():
+                    self.pushed_by_feed[i] = True
+
+    def _put_frames(self, frames) -> None:
+        """Frames ``[(i, Frame), ...]`` of one frame set, in the feed's thread: placed, and the set emitted
+        when complete (the assembler thread is woken only when a set is left waiting for a camera)."""
+        now = time.monotonic()
+        with self._lock:
+            if self._stop.is_set():
+                return
+            for i, frame in frames:
+                self._place(i, frame, now)
+            self._emit_ready(now)
+            if self._pending:  # a camera is missing: the assembler thread times the set out
+                self._cond.notify_all()
+
+    def _ended_pushed(self, cameras, message: str | None) -> None:
+        with self._lock:
+            for i in cameras:
+                self._ended[i] = True
+                if message is not None:
+                    self._errors[i] = message
+            self._cond.notify_all()
+            self._out.notify_all()
 
     def _read_loop(self, i: int, src) -> None:
         q, qlen = self._inputs[i], self.options.queue_len
@@ -255,9 +311,10 @@ class FrameSetAssembler:
                 return
             if frame is None:
                 if src.exhausted:
-                    with self._cond:
+                    with self._lock:
                         self._ended[i] = True
                         self._cond.notify_all()
+                        self._out.notify_all()
                     return
                 continue
             with self._cond:
@@ -372,6 +429,7 @@ class FrameSetAssembler:
             self._output.popleft()
             self._dropped_sets += 1
         self._output.append(out)
+        self._out.notify_all()  # the consumer in get()
 
     def _next_deadline(self, now: float) -> float:
         """Seconds until the oldest pending set times out (stalls show with the next arrival)."""
@@ -393,8 +451,10 @@ class FrameSetAssembler:
                     while q and not self._throttled(i):
                         self._place(i, q.popleft(), now)
                 self._emit_ready(now)
-                self._cond.notify_all()
+                if self.options.lossless:
+                    self._cond.notify_all()  # readers waiting for room in their queues
                 if all(self._ended) and not self._pending and not any(self._inputs):
+                    self._out.notify_all()
                     return
                 self._cond.wait(self._next_deadline(now))
 
@@ -404,16 +464,17 @@ class FrameSetAssembler:
         if not self._started:
             raise RuntimeError("FrameSetAssembler.get before start(): use it as a context manager or call start()")
         deadline = time.monotonic() + max(0.0, float(timeout_s))
-        with self._cond:
+        with self._lock:
             while not self._output:
                 if self._finished_locked():
                     return None
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return None
-                self._cond.wait(left)
+                self._out.wait(left)
             self._delivered += 1
-            self._cond.notify_all()  # a lossless assembler may wait for room
+            if self.options.lossless:
+                self._cond.notify_all()  # the assembler may wait for room
             return self._output.popleft()
 
     def _finished_locked(self) -> bool:
@@ -440,6 +501,22 @@ class FrameSetAssembler:
                 ended=tuple(self._ended), errors=tuple(self._errors),
                 clock_offsets=tuple(c.estimate() if has else None for c, has in zip(self._clocks, self._has_device)),
                 sources=own, clamped_times=self._clamped, waiting=len(self._output), backlog=self.options.output_len)
+
+
+class _FeedSink:
+    """What :meth:`PacedFeed.connect` calls: a feed's frame sets into the assembler (feed camera j -> source i)."""
+
+    def __init__(self, assembler: FrameSetAssembler, feed: PacedFeed, mapping: dict):
+        self._assembler, self._feed, self._mapping = assembler, feed, dict(mapping)
+
+    def put_frames(self, pairs) -> None:
+        self._assembler._put_frames([(self._mapping[j], frame) for j, frame in pairs])
+
+    def feed_ended(self, error) -> None:
+        feed = self._feed
+        for j, i in self._mapping.items():  # the message a reader gets from the feed's read()
+            msg = None if error is None else f"{feed.name}: camera {feed.names[j]}: {type(error).__name__}: {error}"
+            self._assembler._ended_pushed((i,), msg)
 
 
 def _source_stats(source):

@@ -66,7 +66,8 @@ class TrackConfig:
     (None = render live); truth_stream : sim only, a lab truth stream address (None = off); scene : the
     lab truth scene; max_behind_s : with a truth stream, how far behind the cameras may fall, seconds;
     sim_rig : sim only, the rig the cameras render with (None = ``rig``); sim_render : one of
-    :data:`SIM_RENDER`; queue_s : frames buffered per camera, seconds of the frame rate;
+    :data:`SIM_RENDER`; sim_render_nice : sim only, the render process's
+    CPU priority below the tracker's (os.nice 0-19; None = the sim source's default, 10); queue_s : frames buffered per camera, seconds of the frame rate;
     max_backlog : frame sets that may wait for the tracker (whole number, at most the queue's length)
 
     Tracker:
@@ -93,6 +94,7 @@ class TrackConfig:
     max_behind_s: float = 0.1
     sim_rig: str | None = None
     sim_render: str = "auto"
+    sim_render_nice: int | None = None
     queue_s: float = 0.25
     max_backlog: int = DEFAULT_MAX_BACKLOG
     tracker: str = "rt2"
@@ -146,6 +148,11 @@ class TrackConfig:
         if self.sim_render == "process" and (self.prerender_s is not None or self.truth_stream):
             raise ConfigError("sim_render", "{sim_render} process cannot go with {prerender_s} or {truth_stream} "
                                             "(those render in the service's process)")
+        if self.sim_render_nice is not None:
+            if not _whole(self.sim_render_nice) or not 0 <= self.sim_render_nice <= 19:
+                raise ConfigError("sim_render_nice", f"{{sim_render_nice}} must be a whole number in [0, 19], got {self.sim_render_nice!r}")
+            if not sim:
+                raise ConfigError("sim_render_nice", f"{{sim_render_nice}} applies to the sim source only, got {{source}} {src}")
         if self.tracker not in TRACKER_KINDS:
             raise ConfigError("tracker", f"unknown {{tracker}} {self.tracker!r}; valid: {', '.join(TRACKER_KINDS)}")
         if not _whole(self.workers) or not 1 <= self.workers <= 64:

@@ -13,6 +13,12 @@ once and counted in ``late``. With ``slide=True`` (replay, video) the schedule t
 that item (``t0`` slides), so a producer that cannot keep up runs slower than real time, visibly,
 rather than bursting; with ``slide=False`` (sim) the schedule stays fixed and the producer is
 expected to skip ahead itself (``schedule_now()`` tells it where the clock is).
+
+A consumer of every camera of a paced (``speed`` not None) feed may :meth:`PacedFeed.connect` a sink
+before it starts: each frame set is then handed to the sink in the pacer's thread at emission, all
+cameras at once, instead of going through the per-camera queues and one reader thread per camera
+(:class:`harness.live.assembly.FrameSetAssembler` does so: the frame set is assembled in the thread
+that stamped it, with no thread hand-over between the stamp and the tracker's queue).
 """
 
 from __future__ import annotations
@@ -112,6 +118,20 @@ class PacedFeed:
         self._open_views = 0
         self.skipped = 0  # counted by producers that skip ahead (sim)
         self._closers: list = []
+        self._sink = None
+
+    def connect(self, sink) -> bool:
+        """Hand emitted frames to ``sink`` instead of the per-camera queues; returns whether it did.
+
+        sink : ``sink.put_frames(pairs)`` with ``pairs`` a list of ``(j, Frame)`` (j = camera of this feed),
+        called in the pacer's thread once per frame set; ``sink.feed_ended(error)`` once when the feed ends
+        (``error``: None, or the exception the producer raised). Only for a paced feed (``speed`` not None:
+        the sink must never block) that has not started; else False (read the views instead)."""
+        with self._cond:
+            if self._started or self.speed is None or self._sink is not None:
+                return False
+            self._sink = sink
+            return True
 
     # -- lifetime ---------------------------------------------------------------------------------
     def start(self) -> None:
@@ -218,9 +238,20 @@ class PacedFeed:
         with self._cond:
             self._ended = True
             self._cond.notify_all()
+        if self._sink is not None:
+            self._sink.feed_ended(self._error)
 
     def _emit(self, item: FeedItem) -> None:
         t_host = time.monotonic()
+        if self._sink is not None:
+            pairs = [(j, Frame(self.cameras[j], int(item.frame_ids[j]), item.t_device_s[j], t_host, image))
+                     for j, image in enumerate(item.images) if image is not None]
+            with self._cond:
+                self._emitted += 1
+                self._t_first = t_host if self._t_first is None else self._t_first
+                self._t_last = t_host
+            self._sink.put_frames(pairs)
+            return
         with self._cond:
             for j, image in enumerate(item.images):
                 if image is None:
@@ -286,6 +317,7 @@ class FeedCamera:
         self._j = j
         self.camera = feed.cameras[j]
         self.name = f"{feed.name}:{feed.names[j]}"
+        self.feed_index = j  # this camera's place in the feed's cameras (``j`` of :meth:`PacedFeed.connect`)
         self._closed = False
         feed._attach()
 

@@ -5,7 +5,12 @@ The child is a fresh interpreter (``python -m harness.live.sources._render_proce
 parent's threads, locks or ``__main__`` is inherited, so it works from any script). It builds its
 own :class:`harness.sim.render.Renderer` for the rig, then renders the frame sets it is asked for into a
 ring of ``slots`` frame sets in shared memory and answers with the slot; the parent copies the
-images out and gives the slot back. Requests are served in order; messages are pickles over the
+images out and gives the slot back.
+
+The child runs at a lower CPU priority (``nice``, default +10): a simulated camera stands in for
+hardware that renders on its own silicon, so on a busy machine the tracker's process gets the cores
+first and the renderer takes what is left; a frame set it cannot render in time is skipped by the
+``sim`` source and counted (``skipped``), as a camera drops the frames its host does not take. Requests are served in order; messages are pickles over the
 child's stdin / stdout. The scene provider is pickled into the child, so it must be picklable
 (:class:`~.sim.LauncherFlights` is; a lambda is not).
 """
@@ -13,6 +18,7 @@ child's stdin / stdout. The scene provider is pickled into the child, so it must
 from __future__ import annotations
 
 import dataclasses
+import os
 import pickle
 import queue
 import subprocess
@@ -40,7 +46,11 @@ def _views(buf, shapes, slots: int) -> list[list[np.ndarray]]:
 
 
 def _serve(inp, out) -> None:
-    """The child: read the set-up, then requests ``(k, slot, t_s)`` until None or end of input."""
+    """The child: read the set-up, then requests ``(k, slot, t_s, drop_after_s)`` until None or end of input.
+
+    ``drop_after_s``: host monotonic time after which starting frame set k is pointless (it could not be
+    delivered in time), NaN = always render. Such a request is answered ``("skipped", k, slot)`` without
+    rendering, so a renderer that fell behind spends its time on frame sets it can still deliver."""
     shm, views = None, None
 
     def send(msg) -> None:
@@ -48,7 +58,7 @@ def _serve(inp, out) -> None:
         out.flush()
 
     try:
-        rig_dict, render_options, seed, provider, shm_name, shapes, slots = pickle.load(inp)
+        rig_dict, render_options, seed, provider, shm_name, shapes, slots, nice = pickle.load(inp)
         from harness.sim.render import Renderer, Scene
         from tracker import Rig
 
@@ -64,6 +74,8 @@ def _serve(inp, out) -> None:
         warm = provider(0.0)  # the first render compiles and allocates: paid before "ready", not by frame set 0
         if isinstance(warm, Scene):
             renderer.render(dataclasses.replace(warm, frame_index=0))  # noise is a function of (seed, frame index)
+        if nice:  # after the start-up (ray-casting the lab), which the service waits for: then yield to the tracker
+            os.nice(nice)
         send(("ready",))
         while True:
             try:
@@ -72,7 +84,10 @@ def _serve(inp, out) -> None:
                 break
             if req is None:
                 break
-            k, slot, t_s = req
+            k, slot, t_s, drop_after_s = req
+            if time.monotonic() > drop_after_s:  # False for NaN
+                send(("skipped", k, slot))
+                continue
             scene = provider(t_s)
             if not isinstance(scene, Scene):
                 raise ValueError(f"scene_provider({t_s:.4f}) returned {type(scene).__name__}, not a Scene")
@@ -93,7 +108,10 @@ def _serve(inp, out) -> None:
 class RenderProcess:
     """A child process rendering frame sets of ``rig`` (see the module docstring)."""
 
-    def __init__(self, rig, render_options, seed: int, provider, *, slots: int = 16, start_timeout_s: float = 300.0):
+    def __init__(self, rig, render_options, seed: int, provider, *, slots: int = 16, start_timeout_s: float = 300.0,
+                 nice: int = 10):
+        if isinstance(nice, bool) or not isinstance(nice, int) or not 0 <= nice <= 19:
+            raise ValueError(f"the sim renderer's nice must be a whole number in [0, 19], got {nice!r}")
         try:
             pickle.dumps(provider)
         except Exception as exc:  # noqa: BLE001 - any pickling failure means the same thing here
@@ -111,7 +129,7 @@ class RenderProcess:
         self._reader = threading.Thread(target=self._read_results, name="sim renderer results", daemon=True)
         self._reader.start()
         try:
-            self._send((rig.to_dict(), render_options, seed, provider, self.shm.name, self.shapes, self.slots))
+            self._send((rig.to_dict(), render_options, seed, provider, self.shm.name, self.shapes, self.slots, nice))
             deadline = time.monotonic() + start_timeout_s
             msg = None
             while msg is None and time.monotonic() < deadline:
@@ -140,14 +158,17 @@ class RenderProcess:
         except (EOFError, OSError, ValueError, pickle.UnpicklingError):
             self._results.put(("exit",))
 
-    def request(self, k: int, slot: int, t_s: float) -> None:
+    def request(self, k: int, slot: int, t_s: float, drop_after_s: float = float("nan")) -> None:
+        """Render frame set k (scene time ``t_s``) into ``slot``, unless the child starts it after host
+        time ``drop_after_s`` (then :meth:`result` reports it skipped)."""
         try:
-            self._send((int(k), int(slot), float(t_s)))
+            self._send((int(k), int(slot), float(t_s), float(drop_after_s)))
         except (BrokenPipeError, OSError, ValueError):
             raise RuntimeError(f"the sim renderer process is gone (exit code {self.proc.poll()})") from None
 
-    def result(self, timeout_s: float) -> tuple[int, int] | None:
-        """(k, slot) of the next rendered frame set, None on a timeout; raises what the child raised."""
+    def result(self, timeout_s: float) -> tuple[int, int, bool] | None:
+        """(k, slot, rendered) of the next answered request (``rendered`` False: skipped, too late to start),
+        None on a timeout; raises what the child raised."""
         try:
             msg = self._results.get(timeout=timeout_s)
         except queue.Empty:
@@ -156,7 +177,7 @@ class RenderProcess:
             raise RuntimeError(f"the sim renderer process failed: {msg[1]}")
         if msg[0] == "exit":
             raise RuntimeError(f"the sim renderer process died (exit code {self.proc.wait(timeout=5.0)})")
-        return msg[1], msg[2]
+        return msg[1], msg[2], msg[0] == "done"
 
     def images(self, slot: int) -> tuple:
         """Copies of the frame set in ``slot`` (the slot may be reused at once)."""

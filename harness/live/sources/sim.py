@@ -9,7 +9,10 @@ rate with host stamps. The device stamp is the scene time ``k / rate_hz`` (a cam
 Honest about speed: one process renders ~470 busy VGA images/s and ~3400/s with one flying ball
 (docs/renderer.md), so four VGA cameras of launcher flights at 200 Hz (800 images/s) fit in one
 core, a busy ``scene_provider`` may not. The clock is fixed (frame set k is due at ``t0 + k /
-rate_hz``): a frame set rendered after its due time is emitted at once and counted in ``late``;
+rate_hz``): a frame set rendered after its due time is emitted at once and counted in ``late`` (a
+render process does not start a frame set more than a period after its due time: it answers it skipped,
+counted in ``skipped``, so a renderer starved of CPU spends its time on frame sets it can still deliver,
+at most a render's time late, rather than on a queue of stale ones delivered in a burst);
 when the renderer finds its next frame set already due it skips ahead to the next one not yet due
 (counted in ``skipped``; the frame ids jump, as with a camera that loses frames), so host and device
 stamps stay consistent and the run stays real time. ``prerender_s`` renders a clip up front and
@@ -32,6 +35,7 @@ arrives later by the wait and the render time, as a frame from a camera with har
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -64,6 +68,9 @@ class SimOptions:
         (which may wait for the lab's truth at it, e.g. :class:`harness.experiments.accuracy.truth_scene.LabTruthScene`), and stamped
         with the exposure time as its device stamp while it arrives later -- a camera with hardware
         timestamps on the host clock (assemble with ``clock="device"``)
+    render_nice : with ``render_process``: the child's CPU priority below the tracker's (``os.nice``, 0-19;
+        default 10): on a busy machine the tracker gets the cores first, as with cameras that render on
+        their own hardware; frame sets the renderer cannot make in time are skipped and counted
     max_behind_s : "host" clock: when frame set k's exposure is further than this in the past as its turn
         comes, the renderer skips to the present (counted in ``skipped``): a renderer slower than real time
         falls behind by up to this much, renders every frame meanwhile, then catches up at once
@@ -78,6 +85,7 @@ class SimOptions:
     queue_len: int = 8
     exposure: Exposure = Exposure(exposure_s=0.002, gain=1.0, light_level=1.0)
     render_process: bool = False
+    render_nice: int = 10
     clock: str = "scene"
     max_behind_s: float = 0.1
 
@@ -97,6 +105,8 @@ class SimOptions:
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
                 raise ValueError(f"SimOptions.{name} must be None or > 0 seconds, got {v!r}")
+        if isinstance(self.render_nice, bool) or not isinstance(self.render_nice, int) or not 0 <= self.render_nice <= 19:
+            raise ValueError(f"SimOptions.render_nice must be a whole number in [0, 19], got {self.render_nice!r}")
         if self.render_ahead < 1:
             raise ValueError(f"SimOptions.render_ahead must be >= 1, got {self.render_ahead!r}")
 
@@ -175,7 +185,8 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
     if options.render_process and options.prerender_s is None:
         from harness.live.sources._render_process import RenderProcess
 
-        process = RenderProcess(rig, render_options, options.seed, provider, slots=options.render_ahead)
+        process = RenderProcess(rig, render_options, options.seed, provider, slots=options.render_ahead,
+                                nice=options.render_nice)
         renderer = None
     else:
         renderer = Renderer(rig, render_options, seed=options.seed)  # ray-casts the static lab (~1 s per VGA camera)
@@ -213,11 +224,15 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
     def produce_in_process():
         free, asked, k = list(range(process.slots)), 0, 0
         while True:
-            while free and (n_total is None or k < n_total):
+            # one request until the first emission fixes the schedule (its deadlines), then render ahead
+            while free and (n_total is None or k < n_total) and (not asked or feed.origin_s is not None
+                                                                  or feed.speed is None):
                 k = next_index(k)
                 if n_total is not None and k >= n_total:
                     break
-                process.request(k, free.pop(), k * period)
+                origin = feed.origin_s  # None before the first emission: render whatever it costs
+                drop_after = math.nan if origin is None or feed.speed is None else origin + (k + 1) * period / feed.speed
+                process.request(k, free.pop(), k * period, drop_after)
                 asked += 1
                 k += 1
             if not asked:
@@ -227,8 +242,12 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
                 if feed._stop.is_set():
                     return
                 got = process.result(0.1)
-            k_done, slot = got
+            k_done, slot, rendered = got
             asked -= 1
+            if not rendered:  # the child would have started it after its deadline: skipped, counted
+                free.append(slot)
+                feed.skipped += 1
+                continue
             images = process.images(slot)
             free.append(slot)
             t = k_done * period
