@@ -182,7 +182,7 @@ def test_bad_renderer_priority_on_the_command_line_is_one_line(capsys, tmp_path,
 def test_the_command_line_priority_reaches_the_renderer(rig, monkeypatch):
     import argparse
 
-    from harness.cli.track import add_arguments
+    from harness.cli.track import add_arguments, track_config
     from harness.live import run
     from harness.live.sources import sim
 
@@ -192,5 +192,5 @@ def test_the_command_line_priority_reaches_the_renderer(rig, monkeypatch):
     add_arguments(parser)
     for extra, expect in (([], SimOptions().render_nice), (["--sim-render-nice", "0"], 0), (["--sim-render-nice", "7"], 7)):
         with pytest.raises(ValueError, match="opened 0 camera"):  # the stand-in opened no camera: stop there
-            run.open_frames(parser.parse_args(["--publish", "none", *extra]), rig)
+            run.open_frames(track_config(parser.parse_args(["--publish", "none", *extra])), rig)
     assert seen == [10, 0, 7]
