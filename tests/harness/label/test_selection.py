@@ -174,8 +174,8 @@ HOSTILE = [
     (["--thresholds", "best"], r"invalid choice: 'best'"),
     (["--ball-colour", "pink"], r"invalid choice: 'pink'"),
     (["--model", "nowhere.npz"], r"nowhere.npz"),
-    (["--data", "/nonexistent/annotations.json"], r"/nonexistent"),
-    (["--json", "/nonexistent/dir/out.json"], r"--json"),
+    (["--data", "/proc/no-such-set/annotations.json"], r"no-such-set"),
+    (["--json", "/"], r"--json '/' is a folder"),
     (["--seed", "x"], r"invalid int value: 'x'"),
 ]
 
