@@ -38,12 +38,17 @@ class Run:
         env = dict(os.environ, TQDM_MININTERVAL="0")  # a progress line per finished task: signal right after it
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
         self.err = b""
+        self._more = threading.Condition()  #: notified on every chunk of stderr and at its end
         self._t = threading.Thread(target=self._read, daemon=True)
         self._t.start()
 
     def _read(self):
         for chunk in iter(lambda: self.proc.stderr.read1(4096), b""):
-            self.err += chunk
+            with self._more:
+                self.err += chunk
+                self._more.notify_all()
+        with self._more:
+            self._more.notify_all()
 
     def wait_progress(self, pattern: str, at_least: int, timeout_s: float = 240.0) -> None:
         """Until the progress bar shows ``pattern``'s first group >= at_least."""
@@ -54,7 +59,8 @@ class Run:
                 return
             if self.proc.poll() is not None:
                 pytest.fail(f"the run ended before the signal (code {self.proc.returncode}): {self.err.decode()[-2000:]}")
-            time.sleep(0.05)
+            with self._more:  # the next progress line (or the end of stderr), not a sleep
+                self._more.wait(min(1.0, max(0.0, t_end - time.monotonic())))
         self.proc.kill()
         pytest.fail(f"no progress {pattern} >= {at_least} within {timeout_s} s: {self.err.decode()[-2000:]}")
 
