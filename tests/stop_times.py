@@ -15,7 +15,8 @@ promises: the exit code (128 + signal; 0 for the services ``rt2 track`` and ``rt
 asked to stop and did), no descendant left (5 s after the exit at most; the time until the last one is gone is
 reported as well), every port they listened on bindable again, and the outputs: written and marked partial
 (``"partial": true``, ``PARTIAL (interrupted by SIGTERM)``), session logs closed with the reason, a data set
-left out (all or nothing). A try fails when the exit takes longer than ``--limit`` (2 s) or any check fails.
+left out (all or nothing), no traceback on stderr. A try fails when the exit takes longer than ``--limit`` (2 s)
+or any check fails; the tail of its output is kept in the JSON.
 
 ``--load "PYTEST ARGS"`` loops ``pytest -q -n 2 -m "not slow and not realtime" PYTEST ARGS`` in the
 background for the whole measurement (the load under which the 2 s promise must hold), stops it after, and
@@ -170,7 +171,7 @@ class Run:
     """``rt2 ARGV`` in its own session; stdout and stderr read line by line by threads, ``ready`` set once
     ``ready_pattern`` matched ``ready_count`` times (progress bars: its first group >= ``ready_count``)."""
 
-    def __init__(self, argv: list[str], ready_pattern: str, ready_count: int, cwd: Path):
+    def __init__(self, argv: list[str], ready_pattern: str, ready_count: int, cwd: Path, ready_stream: str = "stderr"):
         env = dict(os.environ, PYTHONUNBUFFERED="1", TQDM_MININTERVAL="0")  # a progress line per finished task
         self.proc = subprocess.Popen([sys.executable, "-m", "harness.cli", *argv], cwd=cwd, env=env, text=True,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
@@ -181,16 +182,16 @@ class Run:
         self._exited = threading.Event()
         self._pattern, self._count, self._hits = re.compile(ready_pattern), ready_count, 0
         self._lock = threading.Lock()
-        self._readers = [threading.Thread(target=self._read, args=(s, b), daemon=True)
-                         for s, b in ((self.proc.stdout, self.out), (self.proc.stderr, self.err))]
+        self._readers = [threading.Thread(target=self._read, args=(s, b, name == ready_stream), daemon=True)
+                         for name, s, b in (("stdout", self.proc.stdout, self.out), ("stderr", self.proc.stderr, self.err))]
         for t in self._readers:
             t.start()
         threading.Thread(target=self._wait, daemon=True).start()
 
-    def _read(self, stream, into: list[str]) -> None:
+    def _read(self, stream, into: list[str], match: bool) -> None:
         for line in iter(stream.readline, ""):
             into.append(line)
-            for piece in line.split("\r"):  # a terminal-style bar redraws with \r
+            for piece in (line.split("\r") if match else ()):  # a terminal-style bar redraws with \r
                 for m in self._pattern.finditer(piece):
                     with self._lock:
                         self._hits = max(self._hits, int(m.group(1))) if m.groups() else self._hits + 1
@@ -234,6 +235,7 @@ class Command:
     service: bool = False  #: a service asked to stop exits 0; a study stopped early exits 128 + signal
     check: Callable[[Path, str, str, str], list[str]] = field(default=lambda d, sig, out, err: [])
     slow: bool = False  #: starts slowly (renders, compiles): fewer tries when --slow-tries is given
+    ready_stream: str = "stderr"  #: where ready_pattern is looked for: progress bars write to stderr, ready lines to stdout
 
     def expected_code(self, signum: int) -> int:
         return 0 if self.service else 128 + signum
@@ -353,16 +355,17 @@ COMMANDS: dict[str, Command] = {c.name: c for c in [
     Command("sim dataset", lambda d: ["sim", "dataset", "--frames", "200", "--seed", "1", "--workers", "2",
                                       "--out", str(d / "set")],
             r"(\d+)/200", 8, check=_check_dataset),
-    Command("track", _track_argv, r"frame sets,", 2, service=True, check=_check_track),
+    Command("track", _track_argv, r"frame sets,", 2, service=True, check=_check_track, ready_stream="stdout"),
     Command("robot serve", lambda d: ["robot", "serve", "--sim", "--bind", "tcp://127.0.0.1:*", "--batch", "4",
                                       "--ready-json"],
-            r'^\{"command"', 1, service=True),
+            r'^\{"command"', 1, service=True, ready_stream="stdout"),
     Command("play --live", lambda d: ["play", "--live", "--balls", "20", "--seed", "0", "--out", str(d),
                                       "--json", str(d / "live.json")],
-            r"^ball 0:", 1, check=_check_play_live, slow=True),
+            # stdout: a warning on stderr may start with "ball 0:" too, before that ball has finished
+            r"^ball 0:", 1, check=_check_play_live, slow=True, ready_stream="stdout"),
     Command("accuracy --live", lambda d: ["accuracy", "--live", "--frames", "40", "--rate-hz", "100", "--trackers",
                                           "rt2", "--out", str(d / "out")],
-            r"^motion commanded:", 1, check=_check_accuracy_live, slow=True),
+            r"^motion commanded:", 1, check=_check_accuracy_live, slow=True, ready_stream="stdout"),
 ]}
 
 
@@ -376,7 +379,7 @@ def try_once(cmd: Command, sig: str, limit_s: float = LIMIT_S) -> dict:
     signum = SIGNALS[sig]
     with tempfile.TemporaryDirectory(prefix="rt2-stop-") as tmp:
         d = Path(tmp)
-        run = Run(cmd.argv(d), cmd.ready_pattern, cmd.ready_count, ROOT)
+        run = Run(cmd.argv(d), cmd.ready_pattern, cmd.ready_count, ROOT, cmd.ready_stream)
         row = {"command": cmd.name, "signal": sig, "exit_s": None, "gone_s": None, "code": None, "problems": []}
         try:
             t_start = time.monotonic()
@@ -405,6 +408,8 @@ def try_once(cmd: Command, sig: str, limit_s: float = LIMIT_S) -> dict:
                                        f"{''.join(run.err)[-600:]}")
             if left:
                 row["problems"].append(f"{len(left)} descendant(s) alive {CHILDREN_GONE_S:g} s after the exit")
+            if "Traceback (most recent call last)" in "".join(run.err):  # an exit code a fast exit may have masked
+                row["problems"].append("a traceback on stderr")
             busy = [p for p in ports if not bindable(p)]
             if busy:
                 row["problems"].append(f"ports {busy} not bindable after the exit")
@@ -512,6 +517,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--parallel", type=int, default=1, metavar="N",
                    help="N tries at a time (default 1); more load on the machine, fewer minutes")
     p.add_argument("--json", type=Path, default=None, help="write every try and the summary here")
+    p.add_argument("--report", type=Path, nargs="+", default=None, metavar="JSON",
+                   help="measure nothing: print the table of the tries in these --json files (runs made side by side)")
     args = p.parse_args(argv)
     keys = {key(c): c for c in COMMANDS}
     bad = [c for c in args.commands if c not in COMMANDS and c not in keys]
@@ -529,6 +536,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.report:
+        try:
+            rows = [r for path in args.report for r in json.loads(path.read_text())["tries"]]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            print(f"stop_times.py: error: --report: {exc}", file=sys.stderr)
+            return 2
+        print(table(summarise(rows)))
+        return 1 if any(r["problems"] for r in rows) else 0
     if not sys.platform.startswith("linux"):
         print("stop_times.py: the process and port checks read /proc (Linux only)", file=sys.stderr)
         return 2

@@ -75,3 +75,15 @@ def test_bad_arguments_are_one_line_and_exit_2(argv, says, capsys):
     with pytest.raises(SystemExit) as exc:
         stop_times.parse_args(argv)
     assert exc.value.code == 2 and says in capsys.readouterr().err
+
+
+def test_report_merges_the_tries_of_runs_made_side_by_side(tmp_path, capsys):
+    rows = [{"command": "track", "signal": "SIGTERM", "exit_s": e, "gone_s": e, "problems": p} for e, p in
+            [(0.2, []), (0.4, []), (2.4, ["exit 2.40 s after SIGTERM (limit 2 s)"])]]
+    (tmp_path / "a.json").write_text(json.dumps({"tries": rows[:2]}))
+    (tmp_path / "b.json").write_text(json.dumps({"tries": rows[2:]}))
+    assert stop_times.main(["--report", str(tmp_path / "a.json"), str(tmp_path / "b.json")]) == 1  # one failure
+    assert capsys.readouterr().out.splitlines()[1].split() == ["track", "SIGTERM", "3", "0.40", "2.40", "2.40", "1"]
+    (tmp_path / "c.json").write_text("{")
+    assert stop_times.main(["--report", str(tmp_path / "c.json")]) == 2
+    assert "--report" in capsys.readouterr().err
