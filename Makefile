@@ -13,7 +13,7 @@ RUNS   ?= 5
 # TESTS: pytest arguments that narrow `make test` (files, -k EXPR); JUNIT: a folder for JUnit XML reports
 JUNIT_OPT = $(if $(JUNIT),--junitxml=$(JUNIT)/$(1).xml)
 
-.PHONY: setup demo test test-all bench clean clean-numba flaky slowest
+.PHONY: setup demo test test-all bench clean clean-numba flaky slowest stop-times
 
 setup: $(STAMP) $(NODE_CLIENTS)
 
@@ -50,6 +50,17 @@ flaky: $(STAMP)
 # The 20 slowest tests of `make test`'s parallel part (narrow with TESTS=...).
 slowest: $(STAMP)
 	$(PY) -m pytest -q -n $(JOBS) -m "not slow and not realtime" --durations=20 $(TESTS)
+
+# How fast every long-running command stops on SIGINT / SIGTERM: TRIES per command and signal (default 20), beside
+# `pytest -n 2` looping over LOAD (default tests/tracker; LOAD= for none); table on stdout, every try in
+# build/stop_times.json; PARALLEL=N runs N tries at a time. e.g. `make stop-times TRIES=3 STOPS="play play-live"` (docs/reliability.md, "Stop times").
+TRIES  ?= 20
+LOAD   ?= tests/tracker
+STOPS  ?=
+PARALLEL ?= 1
+stop-times: $(STAMP)
+	$(PY) tests/stop_times.py --tries $(TRIES) --parallel $(PARALLEL) $(if $(LOAD),--load "$(LOAD)") $(if $(STOPS),--commands $(STOPS)) \
+	  --json build/stop_times.json
 
 # Long experiments marked `slow` (full studies); not part of `make test`.
 test-all: $(STAMP)

@@ -162,6 +162,7 @@ def _run_live(args, config) -> int:
     from harness.experiments.accuracy.live import run_live_accuracy, run_live_local
     from harness.experiments.accuracy.live_stream import format_budget
     from harness.common.outputs import atomic_write_json
+    from harness.common.signal_stop import stop_on_signals
 
     if not args.live:
         raise ValueError("--tracker-stream goes with --live")
@@ -172,12 +173,14 @@ def _run_live(args, config) -> int:
     if args.stream_timeout is not None and not (math.isfinite(args.stream_timeout) and 0 < args.stream_timeout <= 3600):
         raise ValueError(f"--stream-timeout must be in (0, 3600] s, got {args.stream_timeout}")
     status = lambda line: print(line, flush=True)  # noqa: E731
-    if local:
-        res = run_live_local(config, args.out, log=not args.no_log, status=status,
-                             **({"start_timeout_s": args.stream_timeout} if args.stream_timeout else {}))
-    else:
-        res = run_live_accuracy(config, args.out, robot=args.robot, tracker_stream=args.tracker_stream,
-                                log=not args.no_log, stream_timeout_s=args.stream_timeout or 10.0, status=status)
+    # SIGINT / SIGTERM: the children stopped and the log closed on the way out, exit 128 + signal within 2 s
+    with stop_on_signals():
+        if local:
+            res = run_live_local(config, args.out, log=not args.no_log, status=status,
+                                 **({"start_timeout_s": args.stream_timeout} if args.stream_timeout else {}))
+        else:
+            res = run_live_accuracy(config, args.out, robot=args.robot, tracker_stream=args.tracker_stream,
+                                    log=not args.no_log, stream_timeout_s=args.stream_timeout or 10.0, status=status)
     m, live = res.motion_info, res.motion_info["live"]
     c = live["robot_clock_estimate"]
     cams = "; ".join(f"{k} {'n/a' if v is None else format(v['offset_ms'], '+.1f') + ' ms (spread ' + format(v['spread_ms'], '.1f') + ')'}"

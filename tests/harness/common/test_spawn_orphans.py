@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -16,16 +15,7 @@ from pathlib import Path
 import pytest
 
 from harness.common.spawn import PARENT_PID_ENV, ROOT
-from tests.harness.common.test_worker_signals import children
-
-
-def _descendants(pid: int) -> list[int]:
-    found, todo = [], [pid]
-    while todo:
-        kids = children(todo.pop())
-        found += kids
-        todo += kids
-    return found
+from tests.stop_times import bindable, descendants, listening_ports, wait_gone
 
 
 def _cmdline(pid: int) -> str:
@@ -35,50 +25,8 @@ def _cmdline(pid: int) -> str:
         return ""
 
 
-def _alive(pid: int) -> bool:
-    """Running (a zombie waiting for init to reap it is dead)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat.rsplit(")", 1)[1].split()[0] != "Z"
-
-
 def _listening_ports(pid: int) -> set[int]:
-    inodes = set()
-    try:
-        for fd in Path(f"/proc/{pid}/fd").iterdir():
-            try:
-                target = os.readlink(fd)
-            except OSError:
-                continue
-            if target.startswith("socket:["):
-                inodes.add(target[8:-1])
-    except OSError:
-        return set()
-    ports = set()
-    for table in ("tcp", "tcp6"):
-        try:
-            lines = Path(f"/proc/{pid}/net/{table}").read_text().splitlines()[1:]
-        except OSError:
-            continue
-        for line in lines:
-            f = line.split()
-            if f[3] == "0A" and f[9] in inodes:  # LISTEN
-                ports.add(int(f[1].rsplit(":", 1)[1], 16))
-    return ports
-
-
-def _port_free(port: int) -> bool:
-    s = socket.socket()
-    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as a server would: TIME_WAIT does not count
-    try:
-        s.bind(("127.0.0.1", port))
-        return True
-    except OSError:
-        return False
-    finally:
-        s.close()
+    return set(listening_ports([pid]))
 
 
 def _kill_parent_and_check(tmp_path, argv, needles, timeout_s=600.0):
@@ -88,7 +36,7 @@ def _kill_parent_and_check(tmp_path, argv, needles, timeout_s=600.0):
     try:
         deadline = time.monotonic() + timeout_s
         while True:
-            kids = _descendants(proc.pid)
+            kids = descendants(proc.pid)
             ready = {n: [k for k in kids if n in _cmdline(k) and _listening_ports(k)] for n in needles}
             if all(ready.values()):
                 break
@@ -96,18 +44,17 @@ def _kill_parent_and_check(tmp_path, argv, needles, timeout_s=600.0):
             assert time.monotonic() < deadline, f"the children {needles} did not start: {[_cmdline(k) for k in kids]}"
             time.sleep(0.2)
         time.sleep(0.3)
-        kids = _descendants(proc.pid)
+        kids = descendants(proc.pid)
         ports = set().union(*(_listening_ports(k) for k in kids))
         assert ports
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait()
-    time.sleep(2.0)
-    left = [(k, _cmdline(k)) for k in kids if _alive(k)]
+    left = [(k, _cmdline(k)) for k in wait_gone(kids, 2.0)]  # on their exits (pidfds), at most 2 s
     for k, _ in left:  # do not leave them behind for the next test
         os.kill(k, signal.SIGKILL)
     assert not left, left
-    assert all(_port_free(p) for p in ports), [p for p in ports if not _port_free(p)]
+    assert all(bindable(p) for p in ports), [p for p in ports if not bindable(p)]
     return kids
 
 

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.stop_times import descendants, wait_gone
+
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the /proc scan needs Linux")
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -36,12 +38,17 @@ class Run:
         env = dict(os.environ, TQDM_MININTERVAL="0")  # a progress line per finished task: signal right after it
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
         self.err = b""
+        self._more = threading.Condition()  #: notified on every chunk of stderr and at its end
         self._t = threading.Thread(target=self._read, daemon=True)
         self._t.start()
 
     def _read(self):
         for chunk in iter(lambda: self.proc.stderr.read1(4096), b""):
-            self.err += chunk
+            with self._more:
+                self.err += chunk
+                self._more.notify_all()
+        with self._more:
+            self._more.notify_all()
 
     def wait_progress(self, pattern: str, at_least: int, timeout_s: float = 240.0) -> None:
         """Until the progress bar shows ``pattern``'s first group >= at_least."""
@@ -52,7 +59,8 @@ class Run:
                 return
             if self.proc.poll() is not None:
                 pytest.fail(f"the run ended before the signal (code {self.proc.returncode}): {self.err.decode()[-2000:]}")
-            time.sleep(0.05)
+            with self._more:  # the next progress line (or the end of stderr), not a sleep
+                self._more.wait(min(1.0, max(0.0, t_end - time.monotonic())))
         self.proc.kill()
         pytest.fail(f"no progress {pattern} >= {at_least} within {timeout_s} s: {self.err.decode()[-2000:]}")
 
@@ -94,20 +102,8 @@ def children(pid: int) -> list[int]:
     return out
 
 
-def alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except (ProcessLookupError, FileNotFoundError):
-        return False
-    return stat[stat.rindex(")") + 2] != "Z"  # a zombie nobody reaped has stopped running
-
-
 def assert_gone(pids, within_s: float = ORPHANS_GONE_WITHIN_S) -> None:
-    t_end = time.monotonic() + within_s
-    while time.monotonic() < t_end and any(alive(p) for p in pids):
-        time.sleep(0.05)
-    left = [p for p in pids if alive(p)]
+    left = wait_gone(pids, within_s)  # on the processes' exits (pidfds), not a sleep
     for p in left:  # do not leave them behind for the next test
         os.kill(p, signal.SIGKILL)
     assert not left, f"worker processes {left} still running {within_s} s after the main process stopped"
@@ -231,13 +227,28 @@ def test_sigterm_table1_stops_fast_and_writes_the_finished_chunks(tmp_path):
 
 
 # -- child services: rt2 robot serve, rt2 play --live (which starts a bridge and a tracker process) ----------
-def descendants(pid: int) -> list[int]:
-    out, todo = [], [pid]
-    while todo:
-        kids = children(todo.pop())
-        out += kids
-        todo += kids
-    return out
+def start_until(argv: list[str], prefix: str) -> subprocess.Popen:
+    """Start ``argv`` (stdout read line by line) and return once a stdout line starts with ``prefix``."""
+    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    lines = []
+    for line in proc.stdout:
+        lines.append(line)
+        if line.startswith(prefix):
+            return proc
+    pytest.fail(f"{' '.join(argv[3:5])} ended before '{prefix}': {''.join(lines)} {proc.stderr.read()[-2000:]}")
+
+
+def signal_and_communicate(proc: subprocess.Popen, sig) -> tuple[int, float, str]:
+    """Send ``sig``; (exit code, seconds until the exit, stderr)."""
+    t0 = time.monotonic()
+    proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail(f"{' '.join(proc.args[3:5])} did not stop within 30 s of {signal.Signals(sig).name}")
+    return proc.returncode, time.monotonic() - t0, err
 
 
 def test_sigterm_robot_serve_stops_within_2_s():
@@ -258,28 +269,12 @@ def test_sigterm_robot_serve_stops_within_2_s():
 def test_sigterm_play_live_stops_fast_closes_the_log_and_its_services(tmp_path):
     from harness.logs import SessionLogReader
 
-    proc = subprocess.Popen(cli("play", "--live", "--balls", "20", "--seed", "0", "--out", str(tmp_path),
-                                "--json", str(tmp_path / "live.json")),
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    lines = []
-    for line in proc.stdout:  # the first ball played: both services up, the policy running
-        lines.append(line)
-        if line.startswith("ball 0:"):
-            break
-    else:
-        pytest.fail(f"rt2 play --live ended before its first ball: {''.join(lines)} {proc.stderr.read()[-2000:]}")
+    proc = start_until(cli("play", "--live", "--balls", "20", "--seed", "0", "--out", str(tmp_path),
+                           "--json", str(tmp_path / "live.json")), "ball 0:")  # both services up, the policy running
     services = descendants(proc.pid)
     assert len(services) >= 2, "the bridge and the tracker should run as child processes"
-    t0 = time.monotonic()
-    proc.send_signal(signal.SIGTERM)
-    try:
-        out, err = proc.communicate(timeout=30)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        pytest.fail("rt2 play --live did not stop within 30 s of SIGTERM")
-    dt = time.monotonic() - t0
-    assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
+    code, dt, err = signal_and_communicate(proc, signal.SIGTERM)
+    assert code == 128 + signal.SIGTERM, err[-2000:]
     assert dt < STOP_WITHIN_S
     assert_gone(services)
     (row,) = json.loads((tmp_path / "live.json").read_text())
@@ -338,3 +333,20 @@ def test_a_signal_whose_exception_is_dropped_still_stops_the_sweep(mode):
     (line,) = [ln for ln in proc.stdout.splitlines() if ln.startswith("STOPPED")]
     done, total = map(int, line.split()[1:])
     assert total == 20 and done < 10  # stopped at the next poll, not after every task
+
+
+# -- rt2 accuracy --live: one motion on the live streams of its two child services -------------------------
+@pytest.mark.slow  # 20 s idle, 90 s on a loaded machine before the motion starts (render + compile)
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_stops_accuracy_live_fast_with_its_services(tmp_path, sig):
+    """SIGTERM used to kill it with no cleanup (no exit code 143, the children left to their parent watch)
+    and a SIGINT during the run could be dropped (the run went on and exited 0, 5 s later)."""
+    proc = start_until(cli("accuracy", "--live", "--frames", "40", "--rate-hz", "100", "--trackers", "rt2",
+                           "--out", str(tmp_path / "out")), "motion commanded:")  # both services up, frames arriving
+    services = descendants(proc.pid)
+    assert len(services) >= 2, "the bridge and rt2 track should run as child processes"
+    code, dt, err = signal_and_communicate(proc, sig)
+    assert code == 128 + sig, err[-2000:]
+    assert f"interrupted by {sig.name}" in err
+    assert dt < STOP_WITHIN_S
+    assert_gone(services)

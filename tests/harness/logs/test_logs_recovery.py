@@ -223,7 +223,9 @@ def test_flush_timer_is_stopped_by_close_and_does_not_keep_a_writer_alive(tmp_pa
     w = SessionLogWriter(tmp_path / "a.mcap", metadata={"kind": "t"}, flush_period_s=0.05)
     w.write_ground_truth(0.0, [0, 0, 1], None, None)
     (timer,) = {t for t in threading.enumerate() if t.name == "rt2-log-flush"} - before
-    time.sleep(0.2)
+    t_end = time.monotonic() + 10.0  # the timer's flush, however late a loaded machine runs it (was a 0.2 s sleep)
+    while SessionLogReader(tmp_path / "a.mcap").recovery.recovered_messages == 0 and time.monotonic() < t_end:
+        time.sleep(0.02)
     assert SessionLogReader(tmp_path / "a.mcap").recovery.recovered_messages == 1  # flushed while idle
     w.close()
     assert not timer.is_alive()
