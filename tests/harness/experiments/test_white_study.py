@@ -90,3 +90,18 @@ def test_white_study_hostile_options(argv, message, capsys):
     assert study(["--data", str(RALLY), *argv]) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_numpy_proposer_response_matches_the_torch_expansion():
+    torch = pytest.importorskip("torch")
+    from harness.experiments.detector.shape_study import _Proposer
+    from harness.experiments.detector.white_study import _NumpyProposer
+
+    rng = np.random.default_rng(0)
+    feats = rng.normal(0, 1, (7, 9, 24)).astype(np.float32)
+    ref, fast = _Proposer(4.0, 9), _NumpyProposer(4.0, 9)
+    w = torch.as_tensor(rng.normal(0, 0.1, 24 + 300).astype(np.float32))  # linear terms, then the 300 products i <= j
+    for p in (ref, fast):
+        p.mu, p.sd = np.full(24, 0.1, np.float32), np.full(24, 1.3, np.float32)
+        p.w, p.b = w, torch.tensor([0.2])
+    np.testing.assert_allclose(fast.response(feats), ref.response(feats), rtol=1e-4, atol=1e-4)
