@@ -7,8 +7,10 @@ more varied (drawn) balls, and a small CNN crop verifier with a centre-offset he
    (``white_balls``: cream/peach tint, shading, highlight, motion blur into capsules, defocus, noise;
    exact centres), one per copy, and ``--synthetic-crops`` more into random windows of them for the
    verifier.
-2. **Proposer**: ``shape_study``'s box features + quadratic logistic regression at 1/``scale``, trained
-   on the real training frames and the drawn frames (hard negatives from the backgrounds).
+2. **Proposer**: ``shape_study``'s box features + quadratic logistic regression at 1/``scale`` (its
+   response evaluated as a numpy quadratic form), trained on the real training frames, the drawn frames
+   and the backgrounds (``--proposer-data all``: 300 random negatives per frame, hard negatives in a
+   second round) or, as ``shape_study``, on the real training frames alone (``real``: 3000 per frame).
 3. **Verifier**: a CNN on ``crop_px`` x ``crop_px`` crops of side ``crop_side_px`` around each
    candidate (``log(p + 8)`` per channel minus the crop's channel means): three 3x3 conv + ReLU + 2x2
    max-pool layers, a hidden layer and three outputs (ball logit, centre offset in units of the crop
@@ -144,7 +146,7 @@ def _log(msg: str) -> None:
 def run_white_study(data, train_range: str = "0:58", test_range: str = "58:", *, backgrounds=(), background_frames: int = 8,
                     seed: int = 0, synthetic_per_frame: int = 2, synthetic_crops: int = 3000, scale: float = 4.0,
                     nms_px: int = 9, n_candidates: int = 32, crop_side_px: float = 80.0, crop_px: int = 32,
-                    epochs: int = 12, refine_steps: int = 2) -> dict:
+                    epochs: int = 12, refine_steps: int = 2, proposer_data: str = "all") -> dict:
     """The figures of the module docstring as a dict (JSON-ready). ``data``: a COCO file or folder."""
     import torch
 
@@ -184,7 +186,10 @@ def run_white_study(data, train_range: str = "0:58", test_range: str = "58:", *,
     fit_imgs = tr_img + syn_img + bgs
     fit_c = np.concatenate([tr_c, syn_c, np.tile(far, (len(bgs), 1))])
     fit_s = np.concatenate([tr_box[:, 2:].max(1), syn_box[:, 2:].max(1), np.ones(len(bgs))])
-    prop.fit(_LazyFeatures(fit_imgs, scale), (fit_c + 0.5) / scale - 0.5, fit_s / scale, rng, n_negatives=300)
+    if proposer_data == "all":  # the real training frames, the drawn frames and the backgrounds
+        prop.fit(_LazyFeatures(fit_imgs, scale), (fit_c + 0.5) / scale - 0.5, fit_s / scale, rng, n_negatives=300)
+    else:  # the real training frames only (as shape_study)
+        prop.fit(_LazyFeatures(tr_img, scale), (tr_c + 0.5) / scale - 0.5, tr_box[:, 2:].max(1) / scale, rng, n_negatives=3000)
 
     def candidates(im):
         p, _ = prop.maxima(_features(im, scale), n_candidates)
@@ -288,7 +293,8 @@ def run_white_study(data, train_range: str = "0:58", test_range: str = "58:", *,
         ranks.append(int(np.flatnonzero(d < hit)[0]) if (d < hit).any() else None)
     n = len(ranks)
     reach = {str(k): sum(r is not None and r < k for r in ranks) / n for k in (1, 4, 16, n_candidates)}
-    return dict(data=str(data), train_range=train_range, test_range=test_range, seed=seed, n_train=len(train), n_test=n,
+    return dict(data=str(data), train_range=train_range, test_range=test_range, seed=seed, proposer_data=proposer_data,
+                n_train=len(train), n_test=n,
                 n_backgrounds=len(bgs), n_synthetic_frames=len(syn_img), n_positive_crops=int(len(xp)), n_negative_crops=int(len(xn)),
                 candidate_reach=reach, candidate_ranks=ranks, verifier=rows, params=params)
 
@@ -303,6 +309,8 @@ def main(argv=None) -> int:
     parser.add_argument("--synthetic-per-frame", type=int, default=2, help="drawn-ball copies of every background")
     parser.add_argument("--synthetic-crops", type=int, default=3000, help="more drawn balls for the verifier")
     parser.add_argument("--epochs", type=int, default=12)
+    parser.add_argument("--proposer-data", choices=("all", "real"), default="all",
+                        help="train the proposer on the real training frames, drawn frames and backgrounds (all), or the real frames only")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="also write the figures to this JSON file")
     parser.add_argument("--save-params", help="write the verifier's weights to this .npz")
@@ -312,7 +320,8 @@ def main(argv=None) -> int:
         parse_range(args.test_range, "--test-range")
         res = run_white_study(args.data, args.train_range, args.test_range, backgrounds=args.backgrounds,
                               background_frames=args.background_frames, seed=args.seed, synthetic_per_frame=args.synthetic_per_frame,
-                              synthetic_crops=args.synthetic_crops, epochs=args.epochs)
+                              synthetic_crops=args.synthetic_crops, epochs=args.epochs,
+                              proposer_data=args.proposer_data)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
