@@ -88,7 +88,7 @@ class _Proposer:
         order = np.argsort(-r[ys, xs], kind="stable")[:k]
         return np.stack([xs[order], ys[order]], 1).astype(np.float64), r[ys, xs][order]
 
-    def fit(self, feats, centers, sizes, rng):
+    def fit(self, feats, centers, sizes, rng, n_negatives: int = 3000):
         nf = feats[0].shape[2]
         xs, ys = [], []
         for f, c, s in zip(feats, centers, sizes):
@@ -97,7 +97,7 @@ class _Proposer:
             dist = np.hypot(xx - c[0], yy - c[1]).ravel()
             pos = np.flatnonzero(dist <= max(1.5, 0.15 * s))
             far = np.flatnonzero(dist > 0.6 * s)
-            neg = rng.choice(far, min(3000, len(far)), replace=False)
+            neg = rng.choice(far, min(n_negatives, len(far)), replace=False)
             xs += [f.reshape(-1, nf)[pos], f.reshape(-1, nf)[neg]]
             ys += [np.ones(len(pos)), np.zeros(len(neg))]
         x0, y0 = np.concatenate(xs).astype(np.float32), np.concatenate(ys).astype(np.float32)
