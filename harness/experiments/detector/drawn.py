@@ -160,7 +160,7 @@ def draw_frame(image: np.ndarray, name: str, rng: np.random.Generator, opts: Dra
     from harness.experiments.detector.augment import AugmentOptions, augment
     from harness.experiments.detector.coco import LabelledImage
     from harness.sim.render.composite import draw_ball, edge_blur_px
-    from harness.sim.render.scene import Ball
+    from harness.sim.render.scene_state import Ball
 
     frame = _crop_resize(image, opts.size)
     w, h = opts.size

@@ -55,7 +55,7 @@ def bench_policy(balls: int = 10, seed: int = 0, *, tracker: str = "rt2", filter
     from threadpoolctl import threadpool_limits
     from harness.common.progress import progress_bar
 
-    from harness.experiments.play.experiment import PlayConfig, _build, ball_seeds
+    from harness.experiments.play.experiment import PlayConfig, ball_seeds, build_session
     from harness.sim.launcher import BallLauncher
 
     if balls < 2:
@@ -63,7 +63,7 @@ def bench_policy(balls: int = 10, seed: int = 0, *, tracker: str = "rt2", filter
     threadpool_limits(1)  # as the play workers and the live policy process: one core
     sessions, out = {}, {}
     for planner in PLANNERS:
-        built = _build(PlayConfig(tracker, filter_name, policy={"planner": planner}))
+        built = build_session(PlayConfig(tracker, filter_name, policy={"planner": planner}))
         out[planner] = {"first": [], "replan": [], "successes": 0}
         built["session"].policy = _TimedPolicy(built["session"].policy, out[planner])
         sessions[planner] = built
