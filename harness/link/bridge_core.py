@@ -95,6 +95,7 @@ class BridgeCore:
         self._intake_end.connect(pipe)
         state_bind = default_state_bind(bind) if state_bind is None else state_bind
         self._intake: threading.Thread | None = None
+        self._switch_before: float | None = None  # the process's switch interval, restored by close()
         self._intake_stop = threading.Event()
         try:
             self._router.bind(bind)
@@ -143,7 +144,9 @@ class BridgeCore:
     def start_intake(self) -> None:
         """Start the intake thread (requests are answered from then on); the serving loop calls it once."""
         if self._intake is None:
-            sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+            # scoped to the serving: close() restores the interval and unfreezes what this froze
+            self._switch_before = sys.getswitchinterval()
+            sys.setswitchinterval(min(self._switch_before, SWITCH_INTERVAL_S))
             gc.freeze()  # what exists now (modules, compiled kernels) is never traversed by a collection again
 
             self._intake = threading.Thread(target=self._intake_loop, name="robot-link intake", daemon=True)
@@ -158,6 +161,10 @@ class BridgeCore:
             self._intake_end.close(linger=0)
         for sock in (self._pub, self.requests):
             sock.close(linger=0)
+        if self._switch_before is not None:
+            sys.setswitchinterval(self._switch_before)
+            gc.unfreeze()
+            self._switch_before = None
 
     def serve_requests(self, budget_s: float = REQUEST_BUDGET_S) -> None:
         """Apply the validated ``trajectory`` / ``hold`` requests the intake thread queued, for at most
