@@ -250,11 +250,19 @@ def test_pylon_camera_emulator_through_rt2_track(tmp_path):
     env = dict(os.environ, PYLON_CAMEMU="4")
     p = subprocess.run([sys.executable, "-m", "harness.cli", "track", "--source", "pylon", "--rate-hz", "20",
                         "--duration", "3", "--publish", f"127.0.0.1:{_free_port()}", "--publish-rt2", f"127.0.0.1:{_free_port()}",
-                        "--json", str(stats)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=180)
+                        "--json", str(stats)], cwd=ROOT, env=env, capture_output=True, text=True,
+                       timeout=600)  # the start (imports, four cameras, the tracker's warm-up) is slow on a loaded machine
     assert p.returncode == 0, p.stderr
     s = json.loads(stats.read_text())
+    # 60 frame sets in 3 s at 20 Hz; 54 tracked at a load average of 15 (the rest skipped: --max-backlog)
     assert s["frame_sets"] >= 20 and s["published"] == {"tennicam": s["frame_sets"], "rt2": s["frame_sets"]}
-    assert s["assembly"]["complete"] >= s["frame_sets"] - 1 and s["with_position"] == 0
+    a = s["assembly"]
+    # assembled on the grabs' frame ids: a set lacks a camera only when that camera's frame came after the set was
+    # let go (its grab thread starved past the assembler's wait on a loaded machine: counted late), or at the end
+    # of the run; frame ids that did not match across cameras would leave every set incomplete with nothing late
+    assert a["complete"] + a["incomplete"] == a["framesets"] and a["complete"] >= s["frame_sets"] // 2
+    assert a["incomplete"] <= sum(a["late"]) + 1, a
+    assert s["with_position"] == 0
 
 
 # -- --model: a model you trained, used by the live service -------------------------------------------------------
