@@ -531,7 +531,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="N tries at a time (default 1); more load on the machine, fewer minutes")
     p.add_argument("--json", type=Path, default=None, help="write every try and the summary here")
     p.add_argument("--report", type=Path, nargs="+", default=None, metavar="JSON",
-                   help="measure nothing: print the table of the tries in these --json files (runs made side by side)")
+                   help="measure nothing: print the table of the tries in these --json files (runs made side by side); "
+                        "with --json, write them merged there")
     args = p.parse_args(argv)
     keys = {key(c): c for c in COMMANDS}
     bad = [c for c in args.commands if c not in COMMANDS and c not in keys]
@@ -556,6 +557,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"stop_times.py: error: --report: {exc}", file=sys.stderr)
             return 2
         print(table(summarise(rows)))
+        if args.json:  # the merged runs as one measurement (their loads are in the files named)
+            write_json(args.json, {"merged_from": [str(p) for p in args.report], "summary": summarise(rows), "tries": rows})
         return 1 if any(r["problems"] for r in rows) else 0
     if not sys.platform.startswith("linux"):
         print("stop_times.py: the process and port checks read /proc (Linux only)", file=sys.stderr)

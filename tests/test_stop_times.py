@@ -84,6 +84,10 @@ def test_report_merges_the_tries_of_runs_made_side_by_side(tmp_path, capsys):
     (tmp_path / "b.json").write_text(json.dumps({"tries": rows[2:]}))
     assert stop_times.main(["--report", str(tmp_path / "a.json"), str(tmp_path / "b.json")]) == 1  # one failure
     assert capsys.readouterr().out.splitlines()[1].split() == ["track", "SIGTERM", "3", "0.40", "2.36", "2.40", "2.40", "1"]
+    assert stop_times.main(["--report", str(tmp_path / "a.json"), str(tmp_path / "b.json"), "--json", str(tmp_path / "m.json")]) == 1
+    merged = json.loads((tmp_path / "m.json").read_text())
+    assert len(merged["tries"]) == 3 and merged["summary"][0]["exit_p100_s"] == 2.4 and len(merged["merged_from"]) == 2
+    capsys.readouterr()
     (tmp_path / "c.json").write_text("{")
     assert stop_times.main(["--report", str(tmp_path / "c.json")]) == 2
     assert "--report" in capsys.readouterr().err
