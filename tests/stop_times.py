@@ -22,7 +22,7 @@ or any check fails; the tail of its output is kept in the JSON.
 background for the whole measurement (the load under which the 2 s promise must hold), stops it after, and
 reports the 1-minute load average seen (median and max of a sample every 5 s) and the load runs' results.
 
-Prints a table (command, signal, tries, p50, p100 of signal -> exit, p100 of signal -> last descendant gone,
+Prints a table (command, signal, tries, p50, p99, p100 of signal -> exit, p100 of signal -> last descendant gone,
 failures) and writes every try to ``--json``. Exit code 0 when no try failed, 1 otherwise, 2 for bad
 arguments. Not a pytest test module (its name does not start with ``test_``): it is a measurement, and it
 runs from a checkout (the load is the checkout's own test suite), so it is a Makefile target, not an ``rt2``
@@ -473,8 +473,18 @@ class Load:
 
 
 # -- the report ------------------------------------------------------------------------------------------------
+def percentile(values: list[float], q: float) -> float:
+    """The ``q``-th percentile (0..100) of ``values``, linear between the ranks (numpy's default): with 20 tries
+    p99 lies 19/100 of the way from the 19th to the 20th (slowest) value."""
+    v = sorted(values)
+    x = (len(v) - 1) * q / 100.0
+    lo = int(x)
+    return v[lo] if lo + 1 >= len(v) else v[lo] + (v[lo + 1] - v[lo]) * (x - lo)
+
+
 def summarise(rows: list[dict]) -> list[dict]:
-    """Per (command, signal): tries, p50 and p100 of signal -> exit and of signal -> last descendant gone, failures."""
+    """Per (command, signal): tries, p50, p99 and p100 of signal -> exit, p100 of signal -> last descendant gone,
+    failures."""
     out = []
     for key in dict.fromkeys((r["command"], r["signal"]) for r in rows):
         mine = [r for r in rows if (r["command"], r["signal"]) == key]
@@ -482,6 +492,7 @@ def summarise(rows: list[dict]) -> list[dict]:
         gones = [r["gone_s"] for r in mine if r["gone_s"] is not None]
         out.append({"command": key[0], "signal": key[1], "tries": len(mine),
                     "exit_p50_s": round(statistics.median(exits), 3) if exits else None,
+                    "exit_p99_s": round(percentile(exits, 99), 3) if exits else None,
                     "exit_p100_s": max(exits) if exits else None,
                     "gone_p100_s": max(gones) if len(gones) == len(mine) else None,
                     "failures": sum(bool(r["problems"]) for r in mine)})
@@ -490,8 +501,10 @@ def summarise(rows: list[dict]) -> list[dict]:
 
 def table(summary: list[dict]) -> str:
     f = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
-    lines = [f"{'command':<16} {'signal':<7} {'tries':>5} {'p50 s':>6} {'p100 s':>6} {'gone p100':>9} {'failures':>8}"]
-    lines += [f"{s['command']:<16} {s['signal']:<7} {s['tries']:>5} {f(s['exit_p50_s']):>6} {f(s['exit_p100_s']):>6} "
+    lines = [f"{'command':<16} {'signal':<7} {'tries':>5} {'p50 s':>6} {'p99 s':>6} {'p100 s':>6} {'gone p100':>9} "
+             f"{'failures':>8}"]
+    lines += [f"{s['command']:<16} {s['signal']:<7} {s['tries']:>5} {f(s['exit_p50_s']):>6} {f(s.get('exit_p99_s')):>6} "
+              f"{f(s['exit_p100_s']):>6} "
               f"{f(s['gone_p100_s']):>9} {s['failures']:>8}" for s in summary]
     return "\n".join(lines)
 
@@ -518,7 +531,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="N tries at a time (default 1); more load on the machine, fewer minutes")
     p.add_argument("--json", type=Path, default=None, help="write every try and the summary here")
     p.add_argument("--report", type=Path, nargs="+", default=None, metavar="JSON",
-                   help="measure nothing: print the table of the tries in these --json files (runs made side by side)")
+                   help="measure nothing: print the table of the tries in these --json files (runs made side by side); "
+                        "with --json, write them merged there")
     args = p.parse_args(argv)
     keys = {key(c): c for c in COMMANDS}
     bad = [c for c in args.commands if c not in COMMANDS and c not in keys]
@@ -543,6 +557,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"stop_times.py: error: --report: {exc}", file=sys.stderr)
             return 2
         print(table(summarise(rows)))
+        if args.json:  # the merged runs as one measurement (their loads are in the files named)
+            write_json(args.json, {"merged_from": [str(p) for p in args.report], "summary": summarise(rows), "tries": rows})
         return 1 if any(r["problems"] for r in rows) else 0
     if not sys.platform.startswith("linux"):
         print("stop_times.py: the process and port checks read /proc (Linux only)", file=sys.stderr)

@@ -78,7 +78,8 @@ def run_live(args, config, open_log, print_rows) -> int:
         if args.robot is None:
             play_live_local(balls=args.balls, seed=args.seed, profile=config.resolved_profile(), run_policy=run_policy,
                             observe_args=["--profiles", args.profiles] + (
-                                ["--profile-json", str(args.profile_json)] if args.profile_json else []))
+                                ["--profile-json", str(args.profile_json)] if args.profile_json else []),
+                            stopping=lambda: bool(stop_signal))
         else:
             run_policy(args.robot, args.tracker_stream, args.world_stream)
     except LinkLostError as exc:

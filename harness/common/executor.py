@@ -231,6 +231,7 @@ class Executor:
         self._stop_seen = threading.Event()  #: set once the sweep has acted on the signal (workers stopping)
         self._stop_lock = threading.Lock()  #: no re-delivery after _stop_seen (the old handler may be back)
         self._task_here = False  #: a task runs in this process (the watchdog may re-deliver a signal)
+        self._holding = 0  #: inside hold_stop(): a signal is recorded, raised when the block is left
 
     # -- lifetime ---------------------------------------------------------------------------------
     def __enter__(self) -> "Executor":
@@ -252,6 +253,8 @@ class Executor:
             threading.Thread(target=self._redeliver, name="rt2-sweep-stop", daemon=True).start()
         if self._stop_seen.is_set():  # the workers are being stopped and the partial output written: a
             return  # second signal (or a late re-delivery) must not interrupt that
+        if self._holding:  # the caller writes a finished result whole (hold_stop): raised when it is done
+            return
         raise SweepInterrupted(self._signum)  # again for a re-delivery: the first one may have been swallowed
 
     def _redeliver(self) -> None:
@@ -273,6 +276,20 @@ class Executor:
         """Raise the pending :class:`SweepInterrupted` if a signal came and the sweep has not acted on it."""
         if self._signum is not None and not self._stop_seen.is_set():
             raise SweepInterrupted(self._signum)
+
+    @contextlib.contextmanager
+    def hold_stop(self):
+        """Around the caller's handling of one finished result (a session-log record, a ball handed on): a
+        signal that comes inside is recorded and raised (:class:`SweepInterrupted`) when the block is left,
+        not in the middle, where it would leave the record half-written (a log that is then not finished
+        cleanly). Keep the block short: the stop waits for it."""
+        self._holding += 1
+        try:
+            yield
+        finally:
+            self._holding -= 1
+        if not self._holding:
+            self._check_signal()
 
     def close(self, *, kill: bool = False) -> None:
         """Stop the workers: at once (``kill``) or after their current tasks."""

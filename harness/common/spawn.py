@@ -28,12 +28,17 @@ import threading
 import time
 from pathlib import Path
 
-__all__ = ["PARENT_PID_ENV", "ReadyProcess", "die_with_parent", "die_with_parent_from_env"]
+__all__ = ["PARENT_PID_ENV", "STOP_GRACE_S", "ReadyProcess", "die_with_parent", "die_with_parent_from_env",
+           "stop_together"]
 
 ROOT = Path(__file__).resolve().parents[2]
 PARENT_PID_ENV = "RT2_DIE_WITH_PARENT"  #: the parent's pid, for a child started by ReadyProcess
 PARENT_GONE_GRACE_S = 1.0  #: a child still alive this long after its parent died exits at once
 _WATCH_S = 0.1
+#: after SIGINT / SIGTERM reached the parent, how long its children get to leave after their SIGTERM before SIGKILL:
+#: the parent has 2 s in all (docs/reliability.md), and a child service that stops cleanly takes 0.03-0.5 s even
+#: on the loaded 2-core machine (make stop-times)
+STOP_GRACE_S = 1.0
 
 
 def die_with_parent(parent_pid: int, sig: int = signal.SIGTERM, grace_s: float = PARENT_GONE_GRACE_S) -> None:
@@ -118,15 +123,10 @@ class ReadyProcess:
         self.proc.send_signal(signal.SIGKILL)
         self.proc.wait(timeout=10)
 
-    def stop(self) -> str:
-        """SIGTERM, wait (SIGKILL after ``stop_timeout_s``); returns what the child logged and printed."""
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=self.stop_timeout_s)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+    def stop(self, timeout_s: float | None = None) -> str:
+        """SIGTERM, wait (SIGKILL after ``timeout_s``, default ``stop_timeout_s``); returns what the child logged
+        and printed."""
+        stop_together([self], timeout_s)
         return self.log_text()
 
     def log_text(self) -> str:
@@ -141,3 +141,27 @@ class ReadyProcess:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+def stop_together(children, timeout_s: float | None = None) -> None:
+    """Stop ``children`` (:class:`ReadyProcess` or anything with ``proc``, a :class:`subprocess.Popen`, and
+    ``stop_timeout_s``) side by side: SIGTERM to every one first, then wait for all of them until one deadline
+    (``timeout_s``, default the largest ``stop_timeout_s``), then SIGKILL the ones still running and reap them.
+    So n children take as long as the slowest, not the sum; a parent stopped by a signal passes
+    :data:`STOP_GRACE_S`, so that a child that does not leave never holds it past its 2 s."""
+    children = list(children)
+    for child in children:
+        if child.proc.poll() is None:
+            try:
+                child.proc.terminate()
+            except ProcessLookupError:
+                pass
+    if timeout_s is None:
+        timeout_s = max((float(c.stop_timeout_s) for c in children), default=0.0)
+    deadline = time.monotonic() + max(0.0, float(timeout_s))
+    for child in children:
+        try:
+            child.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            child.proc.kill()
+            child.proc.wait()

@@ -14,6 +14,7 @@ later step fails, so bad input leaves no socket, camera or log behind. Errors na
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 from harness.live.config import DEFAULT_MAX_BACKLOG, NEXT_PORT, SIM_RENDER, ConfigError, TrackConfig
@@ -93,15 +94,29 @@ class LiveService:
         self.config, self.service, self.assembler = config, service, assembler
         self._closers = closers
 
-    def close(self) -> None:
-        """Finish the service and close what was opened, newest first (once)."""
+    def close(self, timeout_s: float | None = None) -> bool:
+        """Finish the service (its log: always, whatever it takes) and close what was opened, newest first (once).
+        With ``timeout_s`` (a run stopped by a signal, which has 2 s to exit) the closing runs in a daemon thread
+        and is waited for that long: a camera driver or a thread that is slow to stop is left to the process's
+        exit. Returns whether everything was closed."""
         closers, self._closers = self._closers, []
-        if closers:
-            try:
-                self.service.finish()
-            finally:
+        if not closers:
+            return True
+        try:
+            self.service.finish()
+        finally:
+            def close_all():
                 for close in reversed(closers):
                     close()
+
+            if timeout_s is None:
+                close_all()
+            else:
+                t = threading.Thread(target=close_all, name="rt2-live-close", daemon=True)
+                t.start()
+                t.join(timeout_s)
+                return not t.is_alive()
+        return True
 
     def __enter__(self) -> "LiveService":
         return self

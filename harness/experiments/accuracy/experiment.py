@@ -141,11 +141,12 @@ def run_accuracy(config: AccuracyConfig, out_dir, *, workers: int = 1, log: bool
             with Executor(sweep) as ex:
                 for fr in _frames(config, rig, tracker_rig, motion, kin, open_log, ex, every, stats, bar):
                     writer = session.get("writer")
-                    for kind, obs in fr.observations.items():
-                        records[kind].put(fr.index, obs)
-                        latency[kind][fr.index] = obs.latency_s
-                    if writer is not None:
-                        writer.write_frame(fr)
+                    with ex.hold_stop():  # a finished frame set is recorded and logged whole, or not at all
+                        for kind, obs in fr.observations.items():
+                            records[kind].put(fr.index, obs)
+                            latency[kind][fr.index] = obs.latency_s
+                        if writer is not None:
+                            writer.write_frame(fr)
         except SweepStopped as stop:  # keep what finished: score it if enough frames register the robot
             done = np.all([r.present for r in records.values()], axis=0)  # every tracker's answer is in
             partial = {"reason": str(stop), "frames_done": int(done.sum()), "exit_code": stop.exit_code}

@@ -292,6 +292,7 @@ def run_live_local(config: AccuracyConfig, out_dir, *, log: bool = True, status=
     cores and a heartbeat thread can be held back longer than 0.3 s (a real robot keeps wam_node's 0.3 s)."""
     import yaml
 
+    from harness.common.spawn import STOP_GRACE_S, stop_together
     from harness.live.spawn_track import TrackProcess
     from harness.experiments.accuracy.link_motion import robot_seed_of
     from harness.link.spawn_bridge import SimBridgeProcess
@@ -326,5 +327,9 @@ def run_live_local(config: AccuracyConfig, out_dir, *, log: bool = True, status=
                 said = [ln for ln in track.log_text().strip().splitlines() if "error" in ln] or ["(no error printed)"]
                 return f"rt2 track stopped (exit code {track.proc.returncode}): {said[-1]}"
 
-            return run_live_accuracy(config, out, robot=bridge.address, tracker_stream=track.streams["rt2"], log=log,
-                                     stream_timeout_s=start_timeout_s, status=status, tracker_alive=track_alive)
+            try:
+                return run_live_accuracy(config, out, robot=bridge.address, tracker_stream=track.streams["rt2"],
+                                         log=log, stream_timeout_s=start_timeout_s, status=status,
+                                         tracker_alive=track_alive)
+            finally:  # both at once (the `with`s would stop one after the other); after a signal within STOP_GRACE_S
+                stop_together([track, bridge], STOP_GRACE_S if isinstance(sys.exc_info()[1], KeyboardInterrupt) else None)

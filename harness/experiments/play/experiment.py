@@ -153,11 +153,12 @@ def run_configuration(config: PlayConfig, *, balls: int, seed: int, workers: int
     bar = progress_bar(total=balls, desc=desc, file=sys.stderr, disable=not progress, leave=False)
     try:
         for _, (index, result, record, serve) in executor.map(_play_one, jobs):
-            buffered[index] = (result, record, serve)
-            bar.update(1)
-            while next_i in buffered:  # hand results on in ball order
-                hand_on(next_i, buffered.pop(next_i))
-                next_i += 1
+            with executor.hold_stop():  # a finished ball is kept and logged whole, or not at all
+                buffered[index] = (result, record, serve)
+                bar.update(1)
+                while next_i in buffered:  # hand results on in ball order
+                    hand_on(next_i, buffered.pop(next_i))
+                    next_i += 1
     except SweepStopped as stop:
         if stopped is None:
             raise

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import collections
 import json
+import sys
 import time
 from dataclasses import dataclass, field
 from types import SimpleNamespace
@@ -289,9 +290,12 @@ def _finish_latencies(run: LiveRun, bwam: BallClockWam, cur: dict) -> None:
             run.command_to_robot_ms.append((t_rx - t_send) / 1e6)
 
 
-def play_live_local(*, balls: int, seed: int, profile, run_policy, batch: int = 4, observe_args=()):
+def play_live_local(*, balls: int, seed: int, profile, run_policy, batch: int = 4, observe_args=(),
+                    stopping=lambda: False):
     """The one-command form: start the world+robot bridge and the tracker as children, call
-    ``run_policy(robot_addr, tracker_addr, world_addr)``, and stop the children (also on errors and SIGINT)."""
+    ``run_policy(robot_addr, tracker_addr, world_addr)``, and stop the children (also on errors and SIGINT;
+    ``stopping()`` True: the run was stopped by a signal, the children get :data:`STOP_GRACE_S` to leave)."""
+    from harness.common.spawn import STOP_GRACE_S, stop_together
     from harness.link.spawn_bridge import ReadyProcess, SimBridgeProcess
 
     children = []
@@ -306,9 +310,7 @@ def play_live_local(*, balls: int, seed: int, profile, run_policy, batch: int = 
                                what="the synthetic tracker (rt2 play observe)")
         children.append(tracker)
         return run_policy(bridge.address, tracker.ready["rt2"], bridge.ready["world"])
-    finally:  # SIGTERM to every child first, then wait: they stop side by side, not one after the other
-        for child in children:
-            if child.proc.poll() is None:
-                child.proc.terminate()
-        for child in reversed(children):
-            child.stop()
+    finally:  # SIGTERM to every child first, then wait: they stop side by side, not one after the other;
+        # after a signal they get STOP_GRACE_S, then SIGKILL (the 2 s promise, docs/reliability.md)
+        signalled = stopping() or isinstance(sys.exc_info()[1], KeyboardInterrupt)
+        stop_together(children, STOP_GRACE_S if signalled else None)

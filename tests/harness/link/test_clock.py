@@ -12,7 +12,7 @@ import pytest
 from harness.link import RoundTripClock, WamClient
 from harness.link.clock import ClockEstimate, pair_joint_states
 from robot_models import WamKinematics
-from tests.harness.link.robot_link_util import BridgeProcess
+from tests.harness.link.robot_link_util import BridgeProcess, STARVED_OK
 
 
 # -- synthetic ------------------------------------------------------------------------------------
@@ -66,7 +66,7 @@ def _true_offset_ns(bridge) -> int:
 def test_injected_skew_found_within_half_a_millisecond(bridges):
     found = []
     for bridge in bridges:
-        with WamClient(bridge.address) as wam:
+        with WamClient(bridge.address, **STARVED_OK) as wam:
             est = wam.sync_clock(32)
         err_ns = est.offset_ns - _true_offset_ns(bridge)
         assert abs(err_ns) < 0.5e6 and abs(err_ns) <= est.uncertainty_ns + 50_000, (err_ns, est)
@@ -80,7 +80,7 @@ def test_pairing_with_the_estimate_matches_a_clock_without_skew(bridges):
     (c) ignoring the skew. Figures: ball-position error of the paired reported joints against the truth."""
     kin = WamKinematics.default()
     bridge = bridges[1]
-    with WamClient(bridge.address, kinematics=kin) as wam:
+    with WamClient(bridge.address, kinematics=kin, **STARVED_OK) as wam:
         est = wam.sync_clock(32)
         st = wam.read_state()
         q1 = st.q.copy()

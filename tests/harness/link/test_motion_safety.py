@@ -19,7 +19,7 @@ import zmq
 from harness.link import WamClient, protocol
 from robot_models import WamKinematics
 from robot_models.motion_limits import DEFAULT_RULE, MotionRule, check_motion, state_at, stop_ramp
-from tests.harness.link.robot_link_util import BridgeProcess
+from tests.harness.link.robot_link_util import BridgeProcess, STARVED_OK
 
 DT = 0.002
 
@@ -149,7 +149,7 @@ def bridge():
 
 
 def test_hostile_trajectories_never_reach_the_arm(bridge, kin):
-    with WamClient(bridge.address, kinematics=kin, heartbeat_s=None) as listener:
+    with WamClient(bridge.address, kinematics=kin, heartbeat_s=None, **STARVED_OK) as listener:
         listener.advance_to(listener.t_s + 0.05)
         listener.take_sim_truth()
         q = listener.sim_true_q()
@@ -169,7 +169,7 @@ def test_hostile_trajectories_never_reach_the_arm(bridge, kin):
 
 
 def test_the_client_refuses_the_same_table_before_sending(bridge, kin):
-    with WamClient(bridge.address, kinematics=kin) as wam:
+    with WamClient(bridge.address, kinematics=kin, **STARVED_OK) as wam:
         wam.advance_to(wam.t_s + 0.05)
         q = wam.read_state().q  # the client checks against the reported state (what it knows)
         t0 = wam.t_s + 0.2
@@ -184,7 +184,7 @@ def test_the_client_refuses_the_same_table_before_sending(bridge, kin):
 def test_a_smooth_move_and_a_hold_at_full_speed_stay_within_the_limits(bridge, kin):
     """Joint 1 at 0.84 x its velocity limit, then a hold at the peak: the arm follows the move and ramps
     down within its deceleration limit, without reversing (the old hold braked and sprang back)."""
-    with WamClient(bridge.address, kinematics=kin) as wam:
+    with WamClient(bridge.address, kinematics=kin, **STARVED_OK) as wam:
         wam.advance_to(wam.t_s + 0.05)
         wam.take_sim_truth()
         q = wam.read_state().q

@@ -18,7 +18,7 @@ import zmq
 from harness.link import ProtocolError, WamClient, protocol
 from robot_models import WamKinematics
 from robot_models.robot_interface import JointSamples, WamInterface
-from tests.harness.link.robot_link_util import ROOT, BridgeProcess
+from tests.harness.link.robot_link_util import ROOT, BridgeProcess, STARVED_OK
 
 Q7 = [0.0, 0.1, 0.0, 1.5, 0.0, 0.0, 0.0]
 
@@ -115,7 +115,7 @@ def kin():
 
 
 def test_client_is_a_wam_interface_streaming_at_the_robot_rate(bridge, kin):
-    with WamClient(bridge.address, kinematics=kin) as wam:
+    with WamClient(bridge.address, kinematics=kin, **STARVED_OK) as wam:
         assert isinstance(wam, WamInterface) and wam.control_rate_hz == 500.0 and wam.n_joints == 7
         t0 = wam.read_state().t_s
         s = wam.advance_to(t0 + 0.4)
@@ -129,7 +129,7 @@ def test_client_is_a_wam_interface_streaming_at_the_robot_rate(bridge, kin):
 
 
 def test_command_moves_the_robot(bridge, kin):
-    with WamClient(bridge.address, kinematics=kin) as wam:
+    with WamClient(bridge.address, kinematics=kin, **STARVED_OK) as wam:
         st = wam.read_state()
         q_target = np.clip(st.q + 0.1, kin.q_min + 0.05, kin.q_max - 0.05)
         # rest to rest (qdot 0 at both samples: a cubic Hermite), as the motion-safety rule asks
@@ -143,7 +143,7 @@ def test_command_moves_the_robot(bridge, kin):
 
 
 def test_limits_refused_before_leaving_the_harness(bridge, kin):
-    with WamClient(bridge.address, kinematics=kin) as wam:
+    with WamClient(bridge.address, kinematics=kin, **STARVED_OK) as wam:
         st = wam.read_state()
         q_bad = st.q.copy()
         q_bad[3] = kin.q_max[3] + 0.2
@@ -170,7 +170,7 @@ def _raw_request(address: str, frame: bytes) -> dict:
 
 
 def test_malformed_and_out_of_range_requests_are_rejected_never_applied(bridge, kin):
-    with WamClient(bridge.address, kinematics=kin, heartbeat_s=None) as listener:
+    with WamClient(bridge.address, kinematics=kin, heartbeat_s=None, **STARVED_OK) as listener:
         before = listener.read_state()
         cmd_before = listener._latest["cmd_id"]
         q_far = before.q.copy()
@@ -202,12 +202,12 @@ def test_robot_holds_when_the_commanding_process_dies(bridge, kin):
     script = (
         "import sys, time, numpy as np\n"
         "from harness.link import WamClient\n"
-        f"w = WamClient({bridge.address!r})\n"
+        f"w = WamClient({bridge.address!r}, **{STARVED_OK!r})\n"
         "s = w.read_state(); q1 = s.q.copy(); q1[0] += 0.6\n"
         "w.command_trajectory([s.t_s + 0.02, s.t_s + 3.0], np.stack([s.q, q1]), np.zeros((2, 7)))\n"
         "print('commanded', flush=True)\n"
         "time.sleep(30)\n")
-    with WamClient(bridge.address, kinematics=kin, heartbeat_s=None, timeout_s=1.0) as listener:
+    with WamClient(bridge.address, kinematics=kin, heartbeat_s=None, **STARVED_OK) as listener:
         proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, stdout=subprocess.PIPE, text=True)
         try:
             assert proc.stdout.readline().strip() == "commanded"
