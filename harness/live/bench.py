@@ -172,4 +172,6 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
                           "incomplete_frame_sets": int(a.get("incomplete", 0) or 0)},
         "status": summary["status"],
         "load_average_1min": [load0[0], load1[0]],
+        "process_per_set": summary["process_per_set"],
     }
+
