@@ -60,6 +60,7 @@ def test_bench_live_from_python_gives_one_row_per_mode():
     assert list(budget) == ["assembly", "backlog", "tracker", "publish", "after", "total"]
     assert all(b["n"] == budget["total"]["n"] > 0 for b in budget.values())
     assert budget["tracker"]["p50"] <= budget["total"]["p50"] and set(row["backlog_wait_periods"]) == {"p50", "p99", "max"}
+    assert row["process_per_set"]["cpu_ms"] > 0 and row["process_per_set"]["page_faults"] >= 0
 
 
 def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
@@ -68,6 +69,7 @@ def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "rt2 bench live: mode full" in printed and "end-to-end latency" in printed and f"wrote {out}" in printed
     assert "goals (roi" not in printed  # the goals are the roi mode's
+    assert "cpu ms/set" in printed and "faults/set" in printed
     doc = json.loads(out.read_text())
     assert doc["prerender_s"] == 0.5 and doc["goals_met"] is None  # the sim source's default pre-render
     assert [r["mode"] for r in doc["modes"]] == ["full"] and doc["modes"][0]["frame_sets_published"] > 0
