@@ -131,8 +131,8 @@ def open_service(config: TrackConfig, *, status=print, truth_scene=None) -> Live
     closers = []
     try:
         kw = {"model": config.model_path} if config.model_path is not None else {}
-        if config.workers != 1:
-            kw["workers"] = config.workers
+        if config.tracker_workers != 1:
+            kw["workers"] = config.tracker_workers
         if config.roi is not None:
             kw["roi"] = config.roi
         tracker = Tracker(rig, config.tracker, **kw)

@@ -111,6 +111,9 @@ def test_truth_stream_without_a_scene_builder_is_refused():
     (dict(sim_render_nice=3, source=("replay", "x.mcap")), "sim_render_nice", "sim_render_nice applies to the sim source only"),
     (dict(tracker="rt3"), "tracker", "unknown tracker 'rt3'; valid: rt2, rt2-paper, rtblob"),
     (dict(workers=0), "workers", "workers must be a whole number in [1, 64], got 0"),
+    (dict(workers=65), "workers", "workers must be a whole number in [1, 64], got 65"),
+    (dict(workers=1.5), "workers", "workers must be a whole number in [1, 64], got 1.5"),
+    (dict(workers="2"), "workers", "workers must be a whole number in [1, 64], got '2'"),
     (dict(tracker="rtblob", model_path="m.npz"), "model_path", "model_path applies to the rt2 kinds only"),
     (dict(roi="yes"), "roi", "roi must be True, False or None"),
     (dict(duration_s=-3), "duration_s", "duration_s must be a positive number of seconds"),
@@ -123,6 +126,18 @@ def test_track_config_names_the_field(fields, field, message):
     with pytest.raises(ConfigError) as err:
         TrackConfig(**fields)
     assert err.value.field == field and message in str(err.value) and "--" not in str(err.value), str(err.value)
+
+
+def test_default_workers_are_two_for_the_rt2_kinds_and_one_for_rtblob():
+    from harness.live.config import DEFAULT_WORKERS
+
+    assert DEFAULT_WORKERS == 2
+    assert TrackConfig().tracker_workers == 2 and TrackConfig(tracker="rt2-paper").tracker_workers == 2
+    assert TrackConfig(tracker="rtblob").tracker_workers == 1  # runs its cameras in its own loop
+    assert TrackConfig(workers=1).tracker_workers == 1 and TrackConfig(workers=3).tracker_workers == 3
+    assert track_config(_parse(track_arguments)).tracker_workers == 2  # rt2 track without --workers
+    assert track_config(_parse(track_arguments, "--tracker", "rtblob")).tracker_workers == 1
+    assert track_config(_parse(track_arguments, "--workers", "1")).tracker_workers == 1
 
 
 def test_track_config_paths_are_checked_before_anything_opens(tmp_path):
