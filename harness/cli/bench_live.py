@@ -57,7 +57,7 @@ def run(args) -> int:
 
 def format_table(rows: list, args) -> str:
     head = (f"{'mode':<6}{'sets/s':>9}{'p50 ms':>9}{'p90 ms':>9}{'p99 ms':>9}{'max ms':>9}{'<=10 ms':>9}{'tracker p50':>13}"
-            f"{'dropped by rt2':>16}{'of which skipped':>18}{'waited max':>12}{'late (source)':>15}")
+            f"{'dropped by rt2':>16}{'of which skipped':>18}{'waited max':>12}{'late (source)':>15}{'cpu ms/set':>12}{'faults/set':>12}")
     lines = [f"end-to-end latency: first frame's arrival -> message at a subscriber in another process "
              f"({args.rate_hz:g} Hz requested, 1-min load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)", head]
     for r in rows:
@@ -66,8 +66,10 @@ def format_table(rows: list, args) -> str:
                      f"{100 * r['share_within_10ms']:>8.1f}%"
                      f"{r['tracker_ms']['p50']:>13.2f}{r['dropped_by_rt2_total']:>16d}{r['skipped_framesets']:>18d}"
                      f"{r['backlog_wait_periods'].get('max', float('nan')):>8.2f} per"
-                     f"{sum(r['by_the_source']['late_frames_per_camera']):>15d}")
+                     f"{sum(r['by_the_source']['late_frames_per_camera']):>15d}"
+                     f"{r['process_per_set']['cpu_ms']:>12.2f}{r['process_per_set']['page_faults']:>12.1f}")
     lines.append(f"(skipped: frame sets the tracker could not take before --max-backlog newer ones came; waited max: the "
-                 f"longest a tracked set waited for the tracker, in frame periods)")
+                 f"longest a tracked set waited for the tracker, in frame periods; cpu ms/set, faults/set: the service "
+                 f"process's CPU time and page faults per published set, whatever the load)")
     return "\n".join(lines)
 

@@ -97,9 +97,10 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", default=None, metavar="MODEL.npz",
                         help="rt2 kinds: the ball segmentation model (default: the shipped data/models/ball_seg_default.npz); "
                              "one you trained with `rt2 train` on your own labels")
-    parser.add_argument("--workers", type=int, default=1, metavar="N",
-                        help="rt2 kinds: threads running the detector on the cameras of one frame set (default 1); 2 halves "
-                             "a full-frame search (a new ball, a lost one) when a second core is free (rt2 bench live)")
+    parser.add_argument("--workers", type=int, default=None, metavar="N",
+                        help="rt2 kinds: threads running the detector on the cameras of one frame set (default 2: a "
+                             "full-frame search, a new ball or a lost one, runs two cameras at a time when a second core "
+                             "is free; rt2 bench live); 1 = the tracking thread only (rtblob: always 1)")
     parser.add_argument("--truth-stream", default=None, metavar="ADDR",
                         help="sim only: render the lab from a lab truth stream (e.g. rt2 robot serve --sim --truth-stream ADDR): "
                              "each frame is exposed on the host clock, rendered once the truth at that instant has arrived, "

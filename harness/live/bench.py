@@ -88,7 +88,7 @@ def bench_live(args, modes: list[str], config, *, progress=None, truth_scene=Non
                  "no_drops_by_rt2": roi["dropped_by_rt2_total"] == 0}
     return {"date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "cpus": os.cpu_count(),
             "source": list(args.source), "rig": args.rig, "rate_hz": args.rate_hz, "tracker": args.tracker,
-            "workers": config.workers, "max_backlog": config.max_backlog,
+            "workers": config.tracker_workers, "max_backlog": config.max_backlog,
             "duration_s": args.duration, "warmup_s": args.warmup, "prerender_s": args.prerender,
             "goals": GOALS, "goals_met": goals, "modes": rows}
 
@@ -172,4 +172,6 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
                           "incomplete_frame_sets": int(a.get("incomplete", 0) or 0)},
         "status": summary["status"],
         "load_average_1min": [load0[0], load1[0]],
+        "process_per_set": summary["process_per_set"],
     }
+

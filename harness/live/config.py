@@ -20,11 +20,14 @@ import re
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-__all__ = ["DEFAULT_MAX_BACKLOG", "NEXT_PORT", "SIM_RENDER", "ConfigError", "TrackConfig", "check_output_path"]
+__all__ = ["DEFAULT_MAX_BACKLOG", "DEFAULT_WORKERS", "NEXT_PORT", "SIM_RENDER", "ConfigError", "TrackConfig", "check_output_path"]
 
 #: frame sets that may wait for the tracker before the oldest is skipped (``max_backlog``); chosen with
 #: ``rt2 bench live --max-backlog 1`` and ``3`` against the default (README, "Latency first")
 DEFAULT_MAX_BACKLOG = 1
+#: detector threads of the rt2 kinds by default: a full-frame search (a new ball, a lost one) runs two cameras at a
+#: time (OpenCV releases the interpreter lock); measured with `rt2 bench live` (README, "The per-frame cost")
+DEFAULT_WORKERS = 2
 #: where the sim source renders (``sim_render``): auto = a child process unless prerendered or from a truth stream
 SIM_RENDER = ("auto", "process", "thread")
 #: ``publish_rt2`` value: rt2's stream on the port after the tennicam one
@@ -72,7 +75,8 @@ class TrackConfig:
 
     Tracker:
     tracker : the kind (``tracker.TRACKER_KINDS``); model_path : rt2 kinds' segmentation model (None =
-    the shipped one); workers : detector threads, 1..64; roi : the rt2 kinds' window search (None = the
+    the shipped one); workers : detector threads, 1..64 (None = :data:`DEFAULT_WORKERS` for the rt2 kinds,
+    whose full-frame searches then run two cameras at a time, 1 for rtblob; :attr:`tracker_workers`); roi : the rt2 kinds' window search (None = the
     kind's default; False = full frame every frame set)
 
     Outputs:
@@ -99,7 +103,7 @@ class TrackConfig:
     max_backlog: int = DEFAULT_MAX_BACKLOG
     tracker: str = "rt2"
     model_path: str | None = None
-    workers: int = 1
+    workers: int | None = None
     roi: bool | None = None
     publish: str | None = "tcp://127.0.0.1:7660"
     publish_rt2: str | None = NEXT_PORT
@@ -155,7 +159,7 @@ class TrackConfig:
                 raise ConfigError("sim_render_nice", f"{{sim_render_nice}} applies to the sim source only, got {{source}} {src}")
         if self.tracker not in TRACKER_KINDS:
             raise ConfigError("tracker", f"unknown {{tracker}} {self.tracker!r}; valid: {', '.join(TRACKER_KINDS)}")
-        if not _whole(self.workers) or not 1 <= self.workers <= 64:
+        if self.workers is not None and (not _whole(self.workers) or not 1 <= self.workers <= 64):
             raise ConfigError("workers", f"{{workers}} must be a whole number in [1, 64], got {self.workers!r}")
         if self.model_path is not None and self.tracker == "rtblob":
             raise ConfigError("model_path", "{model_path} applies to the rt2 kinds only (rtblob matches a colour and a template, it has no model)")
@@ -174,6 +178,14 @@ class TrackConfig:
     def queue_len(self) -> int:
         """Frames each camera's queue holds (and frame sets the assembler's input holds): ``queue_s`` at ``rate_hz``, at least 8."""
         return max(8, math.ceil(self.queue_s * self.rate_hz))
+
+    @property
+    def tracker_workers(self) -> int:
+        """The tracker's detector threads: ``workers``, or by default :data:`DEFAULT_WORKERS` for the rt2
+        kinds and 1 for rtblob (which runs its cameras in its own loop)."""
+        if self.workers is not None:
+            return int(self.workers)
+        return 1 if self.tracker == "rtblob" else DEFAULT_WORKERS
 
     def check_paths(self) -> None:
         """The checks that need the file system, before anything is opened: the model exists; the log

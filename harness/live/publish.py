@@ -99,10 +99,11 @@ def _candidates(info) -> list | None:
     if uv is None:
         return None
     uv = np.asarray(uv, float)
-    rows = np.concatenate([uv, np.asarray(info.scores, float)[..., None], np.asarray(info.areas_px, float)[..., None]],
-                          axis=-1)
+    areas = getattr(info, "areas_px", None)  # None: rtblob has no blob areas
+    areas = np.full(uv.shape[:-1], np.nan) if areas is None else np.asarray(areas, float)
+    rows = np.concatenate([uv, np.asarray(info.scores, float)[..., None], areas[..., None]], axis=-1)
     have = np.isfinite(uv[..., 0])
-    return [rows[i][have[i]].tolist() for i in range(rows.shape[0])]
+    return [[[_num(v) for v in row] for row in rows[i][have[i]].tolist()] for i in range(rows.shape[0])]  # NaN -> null
 
 
 def rich_message(num: int, afs, obs, *, t_first_host_s: float, camera_names, t_publish_s: float | None = None,

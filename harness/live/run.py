@@ -131,6 +131,7 @@ def open_service(config: TrackConfig, *, status=print, truth_scene=None) -> Live
 
     config : :class:`TrackConfig`; status : callable taking one line of text (None = quiet)
     truth_scene : the scene provider's builder for ``truth_stream`` (:func:`open_frames`)"""
+    from harness.live._memory import keep_freed_memory
     from harness.live.publish import Publisher
     from harness.live.service import ServiceOptions, TrackingService, warm_up
     from tracker.rig_files import resolve_rig
@@ -139,13 +140,14 @@ def open_service(config: TrackConfig, *, status=print, truth_scene=None) -> Live
     if not isinstance(config, TrackConfig):
         raise ValueError(f"open_service takes a harness.live.config.TrackConfig, got {type(config).__name__}")
     config.check_paths()
+    keep_freed_memory()  # frames freed per set are reused, not mapped anew (page faults per set)
     tennicam_addr, rich_addr = stream_addresses(config)
     rig = resolve_rig(config.rig)
     closers = []
     try:
         kw = {"model": config.model_path} if config.model_path is not None else {}
-        if config.workers != 1:
-            kw["workers"] = config.workers
+        if config.tracker_workers != 1:
+            kw["workers"] = config.tracker_workers
         if config.roi is not None:
             kw["roi"] = config.roi
         tracker = Tracker(rig, config.tracker, **kw)

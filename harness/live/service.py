@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import gc
 import math
+import resource
 import sys
 import threading
 import time
@@ -27,7 +28,7 @@ import numpy as np
 
 from harness.live.frames import AssembledFrameSet
 from harness.live.publish import rich_message, tennicam_message
-from harness.live.stats import LiveStats
+from harness.live.stats import LiveStats, process_per_set
 from harness.logs.codecs import to_json_value
 from tracker import FrameSet
 
@@ -192,6 +193,7 @@ class TrackingService:
             gc.collect()
             gc.freeze()
         gc.callbacks.append(self._gc_pauses.on_gc)
+        use0 = resource.getrusage(resource.RUSAGE_SELF)
         try:
             for afs in self._frames(source, stop, deadline):
                 if afs is not None:
@@ -204,6 +206,7 @@ class TrackingService:
             error = f"{type(exc).__name__}: {exc}"
             raise
         finally:
+            self._process = process_per_set(use0, resource.getrusage(resource.RUSAGE_SELF), self.stats.n)
             sys.setswitchinterval(old_switch)
             gc.callbacks.remove(self._gc_pauses.on_gc)
             if froze:
@@ -224,6 +227,8 @@ class TrackingService:
         if self.log is not None:
             s["log"] = {"path": str(self.log.path), "dropped": self.log.dropped, "error": self.log_error}
         s["gc"] = self._gc_pauses.summary()
+        if self._process is not None:
+            s["process_per_set"] = self._process  # CPU ms, page faults, context switches per frame set (the run)
         if self._assembly is not None:
             s["assembly"] = self._assembly
             if isinstance(self._assembly, dict) and "dropped_framesets" in self._assembly:
@@ -233,6 +238,7 @@ class TrackingService:
 
     _assembly = None
     _finished = False
+    _process = None
 
     def finish(self, *, error: str | None = None, source=None) -> None:
         """Record the assembler's figures (if it has ``stats()``) and close the log with the summary."""

@@ -149,6 +149,16 @@ class LiveStats:
         }
 
 
+def process_per_set(use0, use1, n_sets: int) -> dict:
+    """This process's CPU time (ms), page faults and context switches per frame set between two
+    ``resource.getrusage(RUSAGE_SELF)`` readings: what a frame set costs the service's process (its
+    cameras, assembly, tracker and sockets; not a render child), whatever the load."""
+    n = max(int(n_sets), 1)
+    cpu_s = (use1.ru_utime - use0.ru_utime) + (use1.ru_stime - use0.ru_stime)
+    return {"cpu_ms": 1e3 * cpu_s / n, "page_faults": (use1.ru_minflt - use0.ru_minflt) / n,
+            "context_switches": ((use1.ru_nvcsw - use0.ru_nvcsw) + (use1.ru_nivcsw - use0.ru_nivcsw)) / n}
+
+
 _STAGE_WHAT = {"assembly": "first frame -> set assembled", "backlog": "assembled -> taken by the tracker",
                "tracker": "tracker", "publish": "messages encoded and sent",
                "after": "log, view, figures (before the next set)", "total": "first frame -> messages sent"}

@@ -148,6 +148,7 @@ def find_blobs(
     max_aspect: float = math.inf,
     backend: str = "numba",
     overwrite: bool = False,
+    queues: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Blobs:
     """Algorithm 1, repeated for up to ``max_blobs`` candidates.
 
@@ -160,6 +161,8 @@ def find_blobs(
     max_aspect : accepted ``max(box w, box h) / min(box w, box h)``
     backend : "numba" or "python" (the reference)
     overwrite : allow suppressing found blobs in ``logits`` itself instead of a copy
+    queues : optional reusable (rows, cols) int64 arrays of at least H * W entries for the flood
+        fill's queue (``backend="numba"``; default: new ones per call)
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {sorted(BACKENDS)}, got {backend!r}")
@@ -181,8 +184,12 @@ def find_blobs(
     flat = work.reshape(-1)
     p_low = 1.0 / (1.0 + math.exp(-float(t_low_logit)))
     t_low = np.float32(t_low_logit)
-    qr = np.empty(h * w, dtype=np.int64) if backend == "numba" else None
-    qc = np.empty(h * w, dtype=np.int64) if backend == "numba" else None
+    if backend != "numba":
+        qr = qc = None
+    elif queues is not None and len(queues[0]) >= h * w and len(queues[1]) >= h * w:
+        qr, qc = queues
+    else:
+        qr, qc = np.empty(h * w, dtype=np.int64), np.empty(h * w, dtype=np.int64)
 
     rows = []
     grown = 0

@@ -21,13 +21,14 @@ Methods (``DetectorOptions.method``):
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 
 from checks.arrays import describe
 from tracker.detection.blobs import find_blobs
-from tracker.detection.model import BallSegmentationModel, logit, sigmoid
+from tracker.detection.model import BallSegmentationModel, LogitWorkspace, logit, sigmoid
 
 __all__ = ["BallDetector", "DetectorOptions", "Detections", "METHODS"]
 
@@ -164,6 +165,7 @@ class BallDetector:
                 max_aspect=options.max_aspect,
             )
         self._blob_kw["backend"] = options.backend
+        self._local = threading.local()  # per-thread buffers of the full-frame search (_Work)
         self.verifier = model.verifier if options.method == "ours" and options.verify else None
         if self.verifier is not None:  # every accepted blob goes to the verifier, which picks the K best
             self._blob_kw["max_blobs"] = options.max_seeds
@@ -181,14 +183,31 @@ class BallDetector:
             sees the image's pixels around it)
         returns :class:`Detections` in the image's pixels, best first (``used_roi`` = a window was given)
         """
+        work = self._thread_work()
         if window is None:
             x0 = y0 = 0
-            logits = self.model._logits(image)
+            logits = self.model._logits(image, work.logits)  # into this thread's buffers: no allocation
         else:
             x0, y0, x1, y1 = window
             logits = np.ascontiguousarray(self.model._logits_window(image, x0, y0, x1, y1))
-        blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, **self._blob_kw)
+        blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, queues=work.queues(logits.size), **self._blob_kw)
         return self._verified(image, _to_detections(blobs, x0, y0, window is not None))
+
+    def __getstate__(self):  # picklable (e.g. to worker processes): the buffers are not sent
+        state = dict(self.__dict__)
+        del state["_local"]
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._local = threading.local()
+
+    def _thread_work(self) -> "_Work":
+        """This thread's reusable buffers (a detector may serve several cameras on several threads)."""
+        work = getattr(self._local, "work", None)
+        if work is None:
+            work = self._local.work = _Work()
+        return work
 
     def _verified(self, image, det: Detections) -> Detections:
         """The verifier's choice among the candidates (unchanged without a verifier)."""
@@ -198,6 +217,20 @@ class BallDetector:
         keep = np.flatnonzero(prob >= self.verifier.threshold)
         keep = keep[np.argsort(-prob[keep], kind="stable")][: self.options.max_candidates]
         return Detections(uv[keep], prob[keep], det.boxes_xywh[keep], det.areas_px[keep], det.used_roi)
+
+
+class _Work:
+    """One thread's reusable buffers: the full-frame logits (:class:`LogitWorkspace`) and the flood
+    fill's queue (grown to the largest image searched). The detections never refer to them."""
+
+    def __init__(self):
+        self.logits = LogitWorkspace()
+        self._queues = (np.empty(0, np.int64), np.empty(0, np.int64))
+
+    def queues(self, n_px: int) -> tuple[np.ndarray, np.ndarray]:
+        if len(self._queues[0]) < n_px:
+            self._queues = (np.empty(n_px, np.int64), np.empty(n_px, np.int64))
+        return self._queues
 
 
 def _to_detections(blobs, x0: int, y0: int, used_roi: bool) -> Detections:

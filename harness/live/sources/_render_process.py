@@ -91,8 +91,7 @@ def _serve(inp, out) -> None:
             scene = provider(t_s)
             if not isinstance(scene, Scene):
                 raise ValueError(f"scene_provider({t_s:.4f}) returned {type(scene).__name__}, not a Scene")
-            for view, image in zip(views[slot], renderer.render(dataclasses.replace(scene, frame_index=k))):
-                view[...] = image
+            renderer.render(dataclasses.replace(scene, frame_index=k), out=views[slot])  # straight into the slot
             send(("done", k, slot))
     except BaseException as exc:  # noqa: BLE001 - reported to the parent, which raises it to the readers
         try:

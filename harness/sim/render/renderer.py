@@ -9,6 +9,7 @@ tiles. Nothing else touches the full frame, which is what makes >= 200 VGA frame
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,6 +88,7 @@ class Renderer:
             raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
         self.rig, self.options, self.seed = rig, options, int(seed)
         self._draw = DRAW_METHODS[options.method]
+        self._local = threading.local()  # per-thread reusable depth buffers (_zbuf)
         self._backgrounds: list[Background] = [
             background(cam, supersample=options.supersample, vignette_strength=options.vignette) for cam in rig
         ]
@@ -107,10 +109,24 @@ class Renderer:
         """The precomputed static background of camera ``i``."""
         return self._backgrounds[self._index(i)]
 
-    def render(self, scene: Scene) -> list[np.ndarray]:
-        """One (H, W, 3) uint8 RGB image per rig camera, in rig order."""
+    def render(self, scene: Scene, out: list[np.ndarray] | None = None) -> list[np.ndarray]:
+        """One (H, W, 3) uint8 RGB image per rig camera, in rig order.
+
+        out : optional one C-contiguous (H, W, 3) uint8 array per camera to render into (e.g. shared
+            memory): the same bytes as new images, without allocating and copying them
+        """
         prims, n_balls = self._pack(scene)
-        return [self._render(i, scene, prims, n_balls)[0] for i in range(len(self.rig))]
+        if out is not None:
+            out = list(out)
+            if len(out) != len(self.rig):
+                raise ValueError(f"out must hold one image per camera ({len(self.rig)}), got {len(out)}")
+            for i, (a, cam) in enumerate(zip(out, self.rig)):
+                w, h = cam.image_size
+                if not (isinstance(a, np.ndarray) and a.shape == (h, w, 3) and a.dtype == np.uint8 and a.flags.c_contiguous
+                        and a.flags.writeable):
+                    raise ValueError(f"out[{i}] must be a writable C-contiguous ({h}, {w}, 3) uint8 array, got "
+                                     f"{getattr(a, 'shape', type(a).__name__)} {getattr(a, 'dtype', '')}")
+        return [self._render(i, scene, prims, n_balls, None if out is None else out[i])[0] for i in range(len(self.rig))]
 
     def render_camera(self, i: int, scene: Scene) -> np.ndarray:
         """Camera ``i``'s (H, W, 3) uint8 RGB image of ``scene``."""
@@ -128,6 +144,26 @@ class Renderer:
         return images, truths
 
     # -- internals ----------------------------------------------------------------------------------
+    def _zbuf(self, i: int) -> np.ndarray:
+        """This thread's reusable depth buffer of camera ``i``'s size (no allocation per frame)."""
+        bufs = getattr(self._local, "zbufs", None)
+        if bufs is None:
+            bufs = self._local.zbufs = {}
+        depth = self._backgrounds[i].depth_m
+        buf = bufs.get(depth.shape)
+        if buf is None:
+            buf = bufs[depth.shape] = np.empty_like(depth)
+        return buf
+
+    def __getstate__(self):  # picklable: the per-thread buffers stay behind
+        state = dict(self.__dict__)
+        del state["_local"]
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._local = threading.local()
+
     def _index(self, i) -> int:
         if isinstance(i, str):
             return self.rig.index(i)
@@ -141,15 +177,16 @@ class Renderer:
             raise ValueError(f"render needs a harness.sim.render.Scene, got {type(scene).__name__}")
         return pack_scene(scene)
 
-    def _render(self, i: int, scene: Scene, prims: np.ndarray, n_balls: int):
+    def _render(self, i: int, scene: Scene, prims: np.ndarray, n_balls: int, out: np.ndarray | None = None):
         bg = self._backgrounds[i]
         K, d8, R, t, L_cam = self._params[i]
         exp = scene.exposure
         brightness = exp.light_level * exp.gain * exp.exposure_s / self.options.reference_exposure_s
-        img = background_dn(bg.radiance_u16, brightness)
+        img = background_dn(bg.radiance_u16, brightness, out)
         coverage = np.zeros(n_balls)
         if len(prims):
-            zbuf = bg.depth_m.copy()
+            zbuf = self._zbuf(i)
+            np.copyto(zbuf, bg.depth_m)  # the draw kernel's depth test writes into it
             self._draw(
                 img, zbuf, bg.rays_cam, bg.px_per_rad, bg.veil_alpha, bg.veil_depth_m, bg.veil_rgb, bg.vignette,
                 K, d8, R, t, prims, L_cam, brightness * DN_PER_RADIANCE, coverage,

@@ -60,6 +60,7 @@ def test_bench_live_from_python_gives_one_row_per_mode():
     assert list(budget) == ["assembly", "backlog", "tracker", "publish", "after", "total"]
     assert all(b["n"] == budget["total"]["n"] > 0 for b in budget.values())
     assert budget["tracker"]["p50"] <= budget["total"]["p50"] and set(row["backlog_wait_periods"]) == {"p50", "p99", "max"}
+    assert row["process_per_set"]["cpu_ms"] > 0 and row["process_per_set"]["page_faults"] >= 0
 
 
 def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
@@ -68,6 +69,7 @@ def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "rt2 bench live: mode full" in printed and "end-to-end latency" in printed and f"wrote {out}" in printed
     assert "goals (roi" not in printed  # the goals are the roi mode's
+    assert "cpu ms/set" in printed and "faults/set" in printed
     doc = json.loads(out.read_text())
     assert doc["prerender_s"] == 0.5 and doc["goals_met"] is None  # the sim source's default pre-render
     assert [r["mode"] for r in doc["modes"]] == ["full"] and doc["modes"][0]["frame_sets_published"] > 0
@@ -109,6 +111,9 @@ def test_truth_stream_without_a_scene_builder_is_refused():
     (dict(sim_render_nice=3, source=("replay", "x.mcap")), "sim_render_nice", "sim_render_nice applies to the sim source only"),
     (dict(tracker="rt3"), "tracker", "unknown tracker 'rt3'; valid: rt2, rt2-paper, rtblob"),
     (dict(workers=0), "workers", "workers must be a whole number in [1, 64], got 0"),
+    (dict(workers=65), "workers", "workers must be a whole number in [1, 64], got 65"),
+    (dict(workers=1.5), "workers", "workers must be a whole number in [1, 64], got 1.5"),
+    (dict(workers="2"), "workers", "workers must be a whole number in [1, 64], got '2'"),
     (dict(tracker="rtblob", model_path="m.npz"), "model_path", "model_path applies to the rt2 kinds only"),
     (dict(roi="yes"), "roi", "roi must be True, False or None"),
     (dict(duration_s=-3), "duration_s", "duration_s must be a positive number of seconds"),
@@ -121,6 +126,18 @@ def test_track_config_names_the_field(fields, field, message):
     with pytest.raises(ConfigError) as err:
         TrackConfig(**fields)
     assert err.value.field == field and message in str(err.value) and "--" not in str(err.value), str(err.value)
+
+
+def test_default_workers_are_two_for_the_rt2_kinds_and_one_for_rtblob():
+    from harness.live.config import DEFAULT_WORKERS
+
+    assert DEFAULT_WORKERS == 2
+    assert TrackConfig().tracker_workers == 2 and TrackConfig(tracker="rt2-paper").tracker_workers == 2
+    assert TrackConfig(tracker="rtblob").tracker_workers == 1  # runs its cameras in its own loop
+    assert TrackConfig(workers=1).tracker_workers == 1 and TrackConfig(workers=3).tracker_workers == 3
+    assert track_config(_parse(track_arguments)).tracker_workers == 2  # rt2 track without --workers
+    assert track_config(_parse(track_arguments, "--tracker", "rtblob")).tracker_workers == 1
+    assert track_config(_parse(track_arguments, "--workers", "1")).tracker_workers == 1
 
 
 def test_track_config_paths_are_checked_before_anything_opens(tmp_path):

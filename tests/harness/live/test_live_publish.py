@@ -158,3 +158,28 @@ def test_late_subscriber_gets_the_current_stream():
                 break
         s.close(linger=0)
     assert got is not None and got["num"] >= 1000
+
+
+def test_candidates_without_blob_areas_are_sent_with_a_null_area():
+    """rtblob's PipelineInfo has no areas (None): its candidates still go out, with a null area."""
+    from types import SimpleNamespace
+
+    from harness.live.publish import _candidates
+
+    uv = np.array([[[10.0, 20.0]], [[np.nan, np.nan]]])
+    got = _candidates(SimpleNamespace(uv_candidates_px=uv, scores=np.array([[0.9], [np.nan]]), areas_px=None))
+    assert got == [[[10.0, 20.0, 0.9, None]], []]
+    json.dumps(got, allow_nan=False)  # strict JSON, as the publisher encodes it
+    with_areas = _candidates(SimpleNamespace(uv_candidates_px=uv, scores=np.array([[0.9], [np.nan]]), areas_px=np.array([[12.0], [np.nan]])))
+    assert with_areas[0] == [[10.0, 20.0, 0.9, 12.0]]
+
+
+def test_the_live_service_runs_the_rtblob_tracker():
+    from harness.live.config import TrackConfig
+    from harness.live.run import open_service
+
+    with open_service(TrackConfig(tracker="rtblob", publish=None, prerender_s=0.1, duration_s=0.5), status=None) as live:
+        assert live.service.tracker.kind == "rtblob"
+        live.assembler.start()
+        summary = live.service.run(live.assembler, duration_s=0.5)
+    assert summary["frame_sets"] > 0 and summary["tracker"] == "rtblob"

@@ -160,6 +160,21 @@ def test_status_line_and_summary(rig):
     assert lines and "frame sets" in lines[0] and "latency p50" in lines[0] and "cam3:0" in lines[0]
     assert summary["frame_sets"] == 40 and 10 < summary["rate_hz"] < 300  # paced at 200 Hz; a loaded machine is slower
     assert set(summary["latency_ms"]) >= {"p50", "p99", "max"}
+    use = summary["process_per_set"]  # what a frame set cost the process: CPU, page faults, switches
+    assert set(use) == {"cpu_ms", "page_faults", "context_switches"}
+    assert 0 < use["cpu_ms"] < 1000 and use["page_faults"] >= 0 and use["context_switches"] >= 0
+
+
+def test_process_per_set_divides_the_readings():
+    from types import SimpleNamespace as U
+
+    from harness.live.stats import process_per_set
+
+    a = U(ru_utime=1.0, ru_stime=0.5, ru_minflt=100, ru_nvcsw=10, ru_nivcsw=2)
+    b = U(ru_utime=1.2, ru_stime=0.6, ru_minflt=140, ru_nvcsw=30, ru_nivcsw=2)
+    got = process_per_set(a, b, 10)
+    assert got == pytest.approx({"cpu_ms": 30.0, "page_faults": 4.0, "context_switches": 2.0})
+    assert process_per_set(a, b, 0)["cpu_ms"] == pytest.approx(300.0)  # no set: per one, never a division by zero
 
 
 def test_latency_budget_stages_add_up_to_the_latency_and_the_collector_is_frozen_only_while_running(rig):

@@ -273,3 +273,34 @@ def test_noise_level_and_brightness_follow_the_exposure(rig):
     dim = quiet.render_camera(0, Scene(exposure=Exposure(exposure_s=0.001)))
     bright = quiet.render_camera(0, Scene(exposure=Exposure(exposure_s=0.002, gain=1.5)))
     assert 2.5 < bright.mean() / dim.mean() < 3.1  # brightness 1.5 vs 0.5 (minus saturation)
+
+
+def test_render_into_given_images_gives_the_same_bytes(rig, noisy):
+    scenes = [Scene(balls=(Ball([-1.2, 0.1 * k, 1.2], [-4.0, 0.0, 0.0]),), exposure=Exposure(gain=1.5), frame_index=k) for k in range(3)]
+    scenes.append(Scene(frame_index=9))  # no primitive: background and noise only
+    outs = [np.full((c.image_size[1], c.image_size[0], 3), 77, np.uint8) for c in rig]
+    for scene in scenes:
+        want = noisy.render(scene)
+        got = noisy.render(scene, out=outs)
+        assert all(g is o for g, o in zip(got, outs))  # rendered in place, no new image
+        for x, y in zip(want, got):
+            assert x.tobytes() == y.tobytes()
+
+
+def test_render_into_refuses_wrong_images(rig, noisy):
+    w, h = rig[0].image_size
+    good = [np.zeros((c.image_size[1], c.image_size[0], 3), np.uint8) for c in rig]
+    scene = Scene(frame_index=0)
+    bad = [
+        (good[:-1], "one image per camera"),
+        ([np.zeros((h, w, 3), np.float32)] + good[1:], r"out\[0\] must be"),
+        ([np.zeros((h, w + 1, 3), np.uint8)] + good[1:], r"out\[0\] must be"),
+        ([np.zeros((h, 2 * w, 3), np.uint8)[:, ::2]] + good[1:], r"out\[0\] must be"),
+        ([np.zeros((h, w, 3), np.uint8)] + good[1:-1] + ["image"], rf"out\[{len(good) - 1}\] must be"),
+    ]
+    ro = np.zeros((h, w, 3), np.uint8)
+    ro.setflags(write=False)
+    bad.append(([ro] + good[1:], r"out\[0\] must be"))
+    for out, match in bad:
+        with pytest.raises(ValueError, match=match):
+            noisy.render(scene, out=out)
