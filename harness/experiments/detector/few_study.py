@@ -17,7 +17,22 @@ import sys
 
 import numpy as np
 
-__all__ = ["main", "run_study", "spread_frames"]
+__all__ = ["camera_frames", "main", "run_study", "spread_frames"]
+
+
+def camera_frames(labelled, camera: str) -> list:
+    """The images of ``camera`` (``f000123_cam2.png``, as ``rt2 sim dataset`` names them) in time order;
+    ValueError naming the cameras the set has when there is none."""
+    import re
+    from pathlib import Path
+
+    from harness.experiments.detector.subsets import time_order
+
+    named = [(li, m.group(1)) for li in labelled if (m := re.search(r"_(cam\d+)$", Path(li.path).stem))]
+    out = [li for li, c in named if c == camera]
+    if not out:
+        raise ValueError(f"--camera {camera}: not in the labelled set; its cameras: {', '.join(sorted({c for _, c in named})) or 'none'}")
+    return time_order(out)
 
 
 def spread_frames(frames: list, n: int) -> list:
@@ -57,7 +72,6 @@ def main(argv=None) -> int:
     from harness.common.outputs import atomic_write_json, check_output_file
     from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.train import KEEP_BASE_CHOICES, TrainOptions, resolve_base, select_ball_colour
-    from harness.label.selection import split_cameras, time_order
     from tracker.detection.model import BALL_COLOURS
 
     p = argparse.ArgumentParser(prog="python -m harness.experiments.detector.few_study", description=__doc__.split("\n")[0])
@@ -87,10 +101,9 @@ def main(argv=None) -> int:
         base, origin = resolve_base(args.from_model, args.ball_colour)
         if base is None:
             raise ValueError(f"--from {args.from_model}: no base model ({origin}); this study compares fine-tuning with its base")
-        frames = time_order(split_cameras(read_labels(args.train), (args.camera,))[args.camera])
-        few = spread_frames(frames, args.frames)
-        held = split_cameras(read_labels(args.eval), tuple(args.eval_camera))
-        eval_set = select_ball_colour([li for c in args.eval_camera for li in held[c]], args.ball_colour)
+        few = spread_frames(camera_frames(read_labels(args.train), args.camera), args.frames)
+        held = read_labels(args.eval)
+        eval_set = select_ball_colour([li for c in args.eval_camera for li in camera_frames(held, c)], args.ball_colour)
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

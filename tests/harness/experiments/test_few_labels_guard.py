@@ -149,8 +149,8 @@ def test_few_study_same_seed_same_json(synthetic_ball_coco, synthetic_base, tmp_
 @pytest.mark.parametrize("args, message", [
     (["--frames", "1"], "--frames must be >= 2"),
     (["--frames", "99"], "--frames 99: the camera has only 16 frames"),
-    (["--camera", "cam5"], "--camera cam5: not in the labelled set"),
-    (["--eval-camera", "cam9"], "--camera cam9: not in the labelled set"),
+    (["--camera", "cam5"], "--camera cam5: not in the labelled set; its cameras: cam0"),
+    (["--eval-camera", "cam9"], "--camera cam9: not in the labelled set; its cameras: cam0"),
     (["--from", "none"], "no base model"),
     (["--from", "w.txt"], "--from must be a .npz"),
     (["--keep-base", "x"], "invalid choice: 'x'"),
