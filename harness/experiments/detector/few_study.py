@@ -110,7 +110,7 @@ def main(argv=None) -> int:
     print(f"fine-tuning {origin} on {len(few)} frames of {args.train} {args.camera} ({sum(li.n_balls > 0 for li in few)} with a ball); "
           f"scored on {len(eval_set)} images of {args.eval} {' '.join(args.eval_camera)} ({args.ball_colour} balls)")
     result = run_study(few, eval_set, base, opts_list)
-    result["options"] = {k: v for k, v in vars(args).items()}
+    result["options"] = {k: v for k, v in vars(args).items() if k != "json"}  # the figures, not where they went
     result["train_frames"] = [str(li.path.name) for li in few]
     if args.json:
         atomic_write_json(args.json, result)
