@@ -12,7 +12,7 @@ __all__ = ["add_arguments", "run"]
 
 
 def add_arguments(parser) -> None:
-    from harness.experiments.detector.train import THRESHOLD_CHOICES
+    from harness.experiments.detector.train import KEEP_BASE_CHOICES, THRESHOLD_CHOICES
     from tracker.detection.model import BALL_COLOURS
 
     parser.add_argument("--data", required=True, help="labelled frames of one or more cameras (folder with annotations.json, or the JSON file); "
@@ -32,6 +32,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--augment", type=int, default=None, help="as rt2 train --augment (default: 3 when fine-tuning, 0 from scratch)")
     parser.add_argument("--thresholds", choices=THRESHOLD_CHOICES, default=SelectionOptions.threshold_choice, help="as rt2 train --thresholds (default auto)")
     parser.add_argument("--ball-colour", choices=BALL_COLOURS, default=SelectionOptions.ball_colour, help="as rt2 train --ball-colour (default any)")
+    parser.add_argument("--keep-base", choices=KEEP_BASE_CHOICES, default=SelectionOptions.keep_base,
+                        help="as rt2 train --keep-base (default auto: an arm keeps the base model when fine-tuning does not beat it on its "
+                             "own labelled frames; 'never' always fine-tunes)")
     parser.add_argument("--seed", type=int, default=0, help="first seed (consecutive starts and training)")
     parser.add_argument("--json", default=None, help="also write the figures as JSON to this path")
 
@@ -49,7 +52,8 @@ def run(args) -> int:
     check_output_file(args.json, "--json")  # before the trainings, not after
     opts = SelectionOptions(pool_fraction=args.pool_fraction, n_chosen=args.chosen, n_consecutive=args.consecutive,
                             repeats=args.repeats, epochs=args.epochs, seed=args.seed, gap_frames=args.gap, from_model=args.from_model,
-                            augment=args.augment, threshold_choice=args.thresholds, ball_colour=args.ball_colour, cameras=tuple(args.camera))
+                            augment=args.augment, threshold_choice=args.thresholds, ball_colour=args.ball_colour, cameras=tuple(args.camera),
+                            keep_base=args.keep_base)
     model = BallSegmentationModel.load(args.model)
     result = run_selection(read_coco(args.data), model, opts)
     n_runs = opts.repeats * len(result["recordings"])

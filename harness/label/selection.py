@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.experiments.detector.train import THRESHOLD_CHOICES, TrainOptions, load_image, resolve_base, train
+from harness.experiments.detector.train import (KEEP_BASE_CHOICES, THRESHOLD_CHOICES, TrainOptions, load_image, resolve_base,
+                                                select_ball_colour, train)
 from harness.experiments.studies.eval_detector import evaluate
 from harness.label.suggest import describe_image, suggest, uncertainty
 from tracker import BallDetector, DetectorOptions
@@ -65,6 +66,8 @@ class SelectionOptions:
     threshold_choice : ``rt2 train --thresholds``
     ball_colour : ``rt2 train --ball-colour``
     cameras : the cameras to study (names as in the file names, e.g. "cam0"); empty = every camera of the set
+    keep_base : ``rt2 train --keep-base``: "auto" keeps the base model when fine-tuning does not beat it on held-out
+        labelled images, "never" always fine-tunes
     """
 
     pool_fraction: float = 0.6
@@ -79,6 +82,7 @@ class SelectionOptions:
     threshold_choice: str = "auto"
     ball_colour: str = "any"
     cameras: tuple = ()
+    keep_base: str = "auto"
 
     def __post_init__(self):
         if not 0.0 < self.pool_fraction < 1.0:
@@ -94,6 +98,8 @@ class SelectionOptions:
             raise ValueError(f"SelectionOptions.threshold_choice must be one of {THRESHOLD_CHOICES}, got {self.threshold_choice!r}")
         if self.ball_colour not in BALL_COLOURS:
             raise ValueError(f"SelectionOptions.ball_colour must be one of {BALL_COLOURS}, got {self.ball_colour!r}")
+        if self.keep_base not in KEEP_BASE_CHOICES:
+            raise ValueError(f"SelectionOptions.keep_base (--keep-base) must be one of {KEEP_BASE_CHOICES}, got {self.keep_base!r}")
         object.__setattr__(self, "cameras", tuple(self.cameras))
         if len(set(self.cameras)) != len(self.cameras):
             raise ValueError(f"--camera names a camera twice: {list(self.cameras)}")
@@ -176,13 +182,13 @@ def _split(frames, opts: SelectionOptions, camera: str):
 
 def _train_and_score(images, held_out, base, augment: int, opts: SelectionOptions, seed: int) -> dict:
     topts = TrainOptions(epochs=opts.epochs, seed=seed, augment_copies=augment, threshold_choice=opts.threshold_choice,
-                         ball_colour=opts.ball_colour)
+                         ball_colour=opts.ball_colour, keep_base=opts.keep_base)
     try:
-        trained, _ = train(images, topts, base=base, progress=False, log=lambda line: None)
+        trained, info = train(images, topts, base=base, progress=False, log=lambda line: None)
     except ValueError as exc:  # e.g. no ball among the arm's frames: rt2 train refuses, the user has no model
-        return {"error": str(exc), "ours": None, "topk": None}
+        return {"error": str(exc), "ours": None, "topk": None, "kept_base": None}
     ours, topk = evaluate(trained, held_out, methods=("ours", "topk"), progress=False)
-    return {"error": None, "ours": ours.as_json(), "topk": topk.as_json()}
+    return {"error": None, "ours": ours.as_json(), "topk": topk.as_json(), "kept_base": bool(info.get("kept_base"))}
 
 
 def run_selection(labelled, model, opts: SelectionOptions = SelectionOptions(), *, log=print) -> dict:
@@ -193,6 +199,8 @@ def run_selection(labelled, model, opts: SelectionOptions = SelectionOptions(), 
     """
     recordings = {c: time_order(images) for c, images in split_cameras(labelled, opts.cameras).items()}
     splits = {c: _split(frames, opts, c) for c, frames in recordings.items()}  # every camera checked before any training
+    # held out as rt2 eval detector --ball-colour scores it: balls of the other colour are not labels there
+    splits = {c: (pool, select_ball_colour(held, opts.ball_colour)) for c, (pool, held) in splits.items()}
     base, origin = resolve_base(opts.from_model, opts.ball_colour)
     augment = opts.augment if opts.augment is not None else (3 if base is not None else 0)
     log(f"training as rt2 train does: from {origin}, {augment} augmented copies, thresholds {opts.threshold_choice}, "
@@ -222,7 +230,7 @@ def run_selection(labelled, model, opts: SelectionOptions = SelectionOptions(), 
                        "n_with_ball": sum(li.n_balls > 0 for li in images),
                        "frames": [frames.index(li) + 1 for li in images], **_train_and_score(images, held_out, base, augment, opts, seed)}
                 runs.append(row)
-                what = "" if arm == "chosen" else f", {start + 1}-{start + opts.n_consecutive}"
+                what = ("" if arm == "chosen" else f", {start + 1}-{start + opts.n_consecutive}") + ("; base kept" if row["kept_base"] else "")
                 if row["error"]:
                     log(f"{name}seed {seed} {arm:>11} ({len(images)} frames{what}): no model: {row['error']}")
                 else:

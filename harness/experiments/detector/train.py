@@ -40,6 +40,7 @@ from tracker.detection.model import BALL_COLOURS, INPUT_TRANSFORMS, logit, trans
 
 __all__ = [
     "BALL_COLOURS",
+    "KEEP_BASE_CHOICES",
     "THRESHOLD_CHOICES",
     "TrainOptions",
     "add_arguments",
@@ -64,6 +65,8 @@ THRESHOLD_CHOICES = ("auto", "split", "cv")
 AUTO_SPLIT_MIN_VAL_IMAGES = 40
 #: when fine-tuning, cross-validation's thresholds replace the base model's only if they score better by more than this many balls
 PRIOR_MARGIN_BALLS = 2
+#: ``TrainOptions.keep_base`` / ``rt2 train --keep-base``: may fine-tuning end with the base model unchanged?
+KEEP_BASE_CHOICES = ("auto", "never")
 
 
 @dataclass(frozen=True)
@@ -90,6 +93,10 @@ class TrainOptions:
         stronger, so a few labelled images adjust the base rather than replace it)
     threshold_choice : "auto", "split" or "cv" (see :func:`train`)
     cv_folds : folds of the "cv" threshold choice
+    keep_base : when fine-tuning, "auto" writes the base model unchanged (weights and thresholds) unless the
+        fine-tuned one scores better than the base on the held-out images (cross-validation's out-of-fold
+        images, or the validation split) by more than ``PRIOR_MARGIN_BALLS`` balls' worth; "never" always
+        writes the fine-tuned one (the behaviour before the guard)
     """
 
     epochs: int = 6
@@ -112,6 +119,7 @@ class TrainOptions:
     finetune_l2: float = 1e-2
     threshold_choice: str = "auto"
     cv_folds: int = 4
+    keep_base: str = "auto"
 
     def __post_init__(self):
         if not 0.0 < self.val_fraction < 1.0:
@@ -133,6 +141,8 @@ class TrainOptions:
             raise ValueError(f"TrainOptions.threshold_choice must be one of {THRESHOLD_CHOICES}, got {self.threshold_choice!r}")
         if isinstance(self.augment_copies, bool) or not isinstance(self.augment_copies, int) or self.augment_copies < 0:
             raise ValueError(f"TrainOptions.augment_copies must be an integer >= 0, got {self.augment_copies!r}")
+        if self.keep_base not in KEEP_BASE_CHOICES:
+            raise ValueError(f"TrainOptions.keep_base must be one of {KEEP_BASE_CHOICES}, got {self.keep_base!r}")
         if isinstance(self.cv_folds, bool) or not isinstance(self.cv_folds, int) or self.cv_folds < 2:
             raise ValueError(f"TrainOptions.cv_folds must be an integer >= 2, got {self.cv_folds!r}")
 
@@ -563,6 +573,8 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     """
     import torch  # training only
 
+    from harness.experiments.detector.scores import truth_of
+
     torch.manual_seed(opts.seed)
     rng = np.random.default_rng(opts.seed)
     if base is not None and base.input_transform != opts.input_transform:
@@ -578,15 +590,16 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             raise ValueError(f"no ball boxes among the {len(val_set)} validation images (val_fraction {opts.val_fraction:g}, "
                              f"seed {opts.seed}): the thresholds and the recall cannot be measured; label more images "
                              "with balls, raise the validation fraction or change the seed (or use --thresholds cv)")
-        r = fitter.fit(_items(train_set, opts, rng, progress, backgrounds=backgrounds), [(load_image(li), li) for li in val_set], log=log)
+        val_items = [(load_image(li), li) for li in val_set]
+        r = fitter.fit(_items(train_set, opts, rng, progress, backgrounds=backgrounds), val_items, log=log)
         n_train, n_val, how = len(train_set), len(val_set), "val"
+        held_out = [im for im, _ in val_items], ([truth_of(li)[0] for li in val_set], [truth_of(li)[1] for li in val_set])
     else:
         if not any(li.n_balls for li in labelled):
             raise ValueError(f"no ball boxes among the {len(labelled)} images: nothing to learn")
         folds = cv_folds(labelled, opts.cv_folds)
         originals = [(load_image(li), li) for li in labelled]
-        oof_logits, oof_truth_c, oof_truth_d, loose = [], [], [], []
-        from harness.experiments.detector.scores import truth_of
+        oof_logits, oof_truth_c, oof_truth_d, loose, oof_images = [], [], [], [], []
 
         for f, fold in enumerate(folds):
             inside = set(fold)
@@ -599,6 +612,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             for i in fold:
                 im, li = originals[i]
                 oof_logits.append(m_f.logits(im))
+                oof_images.append(im)
                 c, d = truth_of(li)
                 oof_truth_c.append(c)
                 oof_truth_d.append(d)
@@ -623,6 +637,11 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         r = fitter.fit(_items(labelled, opts, rng, progress, backgrounds=backgrounds), None, log=log, label=" (all images)")
         r.update(t_high=t_high, t_low=t_low, area=area, ours=s_ours, paper=s_paper)
         n_train, n_val, how = len(labelled), 0, f"{len(folds)}-fold cv"
+        held_out = oof_images, oof_truth
+    base_scores = None
+    if base is not None:  # the base model scored on the same held-out images: fine-tuning must beat it to be kept
+        base_scores = score_thresholds([base.logits(im) for im in held_out[0]], held_out[1], base.t_high, base.t_low,
+                                       tuple(float(v) for v in base.area_range_px), opts)
     epoch, t_high, t_low, area, s_ours, s_paper = r["epoch"], r["t_high"], r["t_low"], r["area"], r["ours"], r["paper"]
     summary = (
         f"{'best epoch ' + str(epoch) + '; ' if choice == 'split' else ''}{how} at T_h={t_high:g}, T_l={t_low:g}, area {area[0]:.0f}-{area[1]:.0f} px: "
@@ -630,13 +649,31 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         f"paper recall {100 * s_paper.recall:.2f}%, outliers {100 * s_paper.outlier_rate:.2f}%"
     )
     log(summary)
+    kept_base = False
+    if base_scores is not None:
+        b_ours = base_scores[0]
+        n = max(s_ours.n_balls, b_ours.n_balls, 1)
+        gain = (np.nan_to_num(s_ours.recall) - s_ours.outlier_rate) - (np.nan_to_num(b_ours.recall) - b_ours.outlier_rate)
+        base_line = (f"the base model on the same held-out images ({how}) at T_h={base.t_high:g}, T_l={base.t_low:g}: ours recall "
+                     f"{100 * b_ours.recall:.2f}%, outliers {100 * b_ours.outlier_rate:.2f}%, median {b_ours.median_center_error_px:.3f} px")
+        log(base_line)
+        if opts.keep_base == "auto" and gain <= PRIOR_MARGIN_BALLS / n:
+            kept_base = True
+            verdict = (f"kept the base model unchanged (weights and thresholds): fine-tuning gains {100 * gain:.1f} points of recall - outliers "
+                       f"on {n} held-out balls, not more than {PRIOR_MARGIN_BALLS} balls' worth")
+            log(verdict)
+            t_high, t_low, area = base.t_high, base.t_low, tuple(float(v) for v in base.area_range_px)
+            s_ours, s_paper = base_scores
+            summary = f"{verdict}; {base_line}"
     desc = f"{description}; " if description else ""
     origin = "fine-tuned from a base model" if base is not None else "trained from scratch"
+    if kept_base:
+        origin = "the base model kept unchanged (fine-tuning did not beat it on held-out images)"
     if backgrounds:
         origin += f", {len(backgrounds)} ball-free background images"
     desc += (f"{opts.ball_colour} balls, {opts.input_transform} input, {origin}, {n_train} train / {n_val} val images "
              f"(+{opts.augment_copies} augmented copies each), thresholds by {how}, seed {opts.seed}; {summary}")
-    model = _to_model(r["w"], r["b"], r["norm"], opts, t_high, t_low, area, desc)
+    model = dataclasses.replace(base, description=desc) if kept_base else _to_model(r["w"], r["b"], r["norm"], opts, t_high, t_low, area, desc)
     v_info = None
     if opts.verifier:
         from harness.experiments.detector.augment import augment
@@ -654,7 +691,8 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             f"median {s_v.median_center_error_px:.3f} px; candidates reach {100 * v_info['candidate_recall']:.1f}% of the balls"))
     info = dict(n_train=n_train, n_val=n_val, n_pos=r["n_pos"], n_neg=r["n_neg"], n_hard=r["n_hard"], history=r["history"],
                 best_epoch=epoch, t_high=t_high, t_low=t_low, area_range_px=area, val_ours=s_ours, val_paper=s_paper,
-                threshold_choice=choice, verifier=v_info)
+                threshold_choice=choice, verifier=v_info, kept_base=kept_base,
+                base_ours=None if base_scores is None else base_scores[0])
     return model, info
 
 
@@ -704,6 +742,10 @@ def add_arguments(parser) -> None:
                         help="ball-free real images added to training as background: videos (frames spread over each), COCO sets "
                              "(balls painted out; PATH@START:STOP takes those images in time order) or folders of images")
     parser.add_argument("--background-frames", type=int, default=8, help="frames taken from each --backgrounds video (default 8)")
+    parser.add_argument("--keep-base", choices=KEEP_BASE_CHOICES, default="auto",
+                        help="when fine-tuning: 'auto' (default) writes the base model unchanged unless the fine-tuned one beats it on the "
+                             f"held-out images (cross-validation or the validation split) by more than {PRIOR_MARGIN_BALLS} balls' worth; "
+                             "'never' always writes the fine-tuned one")
     parser.add_argument("--cv-folds", type=int, default=TrainOptions.cv_folds, help="folds of --thresholds cv (default 4)")
     parser.add_argument("--time-range", default=None,
                         help="use only images START:STOP in time order (file names sorted as frame numbers), e.g. 0:58; "
@@ -755,7 +797,8 @@ def run(args) -> int:
     for seed in seeds:
         opts = TrainOptions(epochs=args.epochs, seed=seed, val_fraction=args.val_fraction, input_transform=args.input_transform,
                             ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
-                            threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier)
+                            threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
+                            keep_base=getattr(args, "keep_base", "auto"))
         sources = f"data {', '.join(map(str, args.data))}" + (f" (time range {args.time_range})" if args.time_range else "")
         if backgrounds:
             sources += f"; backgrounds {', '.join(map(str, args.backgrounds))} ({len(backgrounds)} ball-free images)"
@@ -778,5 +821,6 @@ def run(args) -> int:
     with atomic_path(out, "--out") as tmp:  # never a half-written model
         model.save(tmp)
     print(f"wrote {out}: T_h={model.t_high:g}, T_l={model.t_low:g} ({info['n_train']} train / {info['n_val']} val images"
-          f"{', thresholds by cross-validation' if info['threshold_choice'] == 'cv' else ''}{f', seed {seed}' if len(results) > 1 else ''})")
+          f"{', thresholds by cross-validation' if info['threshold_choice'] == 'cv' else ''}{f', seed {seed}' if len(results) > 1 else ''})"
+          + ("; the base model unchanged: fine-tuning did not beat it on held-out images" if info.get("kept_base") else ""))
     return 0

@@ -173,6 +173,8 @@ HOSTILE = [
     (["--camera", "cam0", "cam0"], r"--camera names a camera twice"),
     (["--thresholds", "best"], r"invalid choice: 'best'"),
     (["--ball-colour", "pink"], r"invalid choice: 'pink'"),
+    (["--keep-base", "sometimes"], r"invalid choice: 'sometimes'"),
+    (["--keep-base"], r"expected one argument"),
     (["--model", "nowhere.npz"], r"nowhere.npz"),
     (["--data", "/proc/no-such-set/annotations.json"], r"no-such-set"),
     (["--json", "/"], r"--json '/' is a folder"),
@@ -205,3 +207,4 @@ def test_fine_tuning_as_rt2_train_does_and_the_base_model_is_scored_too(syntheti
     assert r["trained_from"] == str(base) and r["augment_copies"] == 1
     b = r["recordings"][0]["base"]
     assert 0.0 <= b["ours"]["recall"] <= 1.0 and b["topk"]["recall"] >= b["ours"]["recall"]
+    assert all(isinstance(run["kept_base"], bool) for run in r["runs"] if not run["error"])  # rt2 train's guard, per training
