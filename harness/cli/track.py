@@ -36,8 +36,8 @@ from harness.live.stats import format_budget
 __all__ = ["FLAGS", "add_arguments", "add_source_arguments", "flag_errors", "lab_truth_scene", "run", "track_config"]
 
 DEFAULT_RIG = "lab4_vga"  # data/rigs/lab4_vga.yaml, found from any working directory
-_TRACKERS = ("rt2", "rt2-paper", "rtblob")
-CLOSE_BY_S = 1.0  #: after SIGINT / SIGTERM, what is not closed this long after the signal is left to the exit (2 s in all)  # for --help only; the kind is checked against tracker.TRACKER_KINDS
+_TRACKERS = ("rt2", "rt2-paper", "rtblob")  # for --help only; the kind is checked against tracker.TRACKER_KINDS
+CLOSE_BY_S = 1.0  #: after SIGINT / SIGTERM, what is not closed this long after the signal is left to the exit (2 s in all)
 
 #: the flag of each TrackConfig field (errors below the command line name fields; shown with these)
 FLAGS = {"rig": "--rig", "source": "--source", "rate_hz": "--rate-hz", "seed": "--seed", "prerender_s": "--prerender",

@@ -174,4 +174,3 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
         "load_average_1min": [load0[0], load1[0]],
         "process_per_set": summary["process_per_set"],
     }
-

@@ -99,11 +99,16 @@ def _candidates(info) -> list | None:
     if uv is None:
         return None
     uv = np.asarray(uv, float)
-    areas = getattr(info, "areas_px", None)  # None: rtblob has no blob areas
-    areas = np.full(uv.shape[:-1], np.nan) if areas is None else np.asarray(areas, float)
-    rows = np.concatenate([uv, np.asarray(info.scores, float)[..., None], areas[..., None]], axis=-1)
+    cols = [uv, np.asarray(info.scores, float)[..., None]]
+    if info.areas_px is not None:  # rtblob has no blob areas: its rows end in null
+        cols.append(np.asarray(info.areas_px, float)[..., None])
+    rows = np.concatenate(cols, axis=-1)
     have = np.isfinite(uv[..., 0])
-    return [[[_num(v) for v in row] for row in rows[i][have[i]].tolist()] for i in range(rows.shape[0])]  # NaN -> null
+    out = [rows[i][have[i]].tolist() for i in range(rows.shape[0])]
+    if info.areas_px is None:
+        for row in (r for cam in out for r in cam):
+            row.append(None)
+    return out
 
 
 def rich_message(num: int, afs, obs, *, t_first_host_s: float, camera_names, t_publish_s: float | None = None,

@@ -21,12 +21,12 @@ Methods (``DetectorOptions.method``):
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 
 import numpy as np
 
 from checks.arrays import describe
+from checks.per_thread import PerThread
 from tracker.detection.blobs import find_blobs
 from tracker.detection.model import BallSegmentationModel, LogitWorkspace, logit, sigmoid
 
@@ -165,7 +165,7 @@ class BallDetector:
                 max_aspect=options.max_aspect,
             )
         self._blob_kw["backend"] = options.backend
-        self._local = threading.local()  # per-thread buffers of the full-frame search (_Work)
+        self._work = PerThread(_Work)  # each thread's buffers of the full-frame search (not pickled)
         self.verifier = model.verifier if options.method == "ours" and options.verify else None
         if self.verifier is not None:  # every accepted blob goes to the verifier, which picks the K best
             self._blob_kw["max_blobs"] = options.max_seeds
@@ -183,7 +183,7 @@ class BallDetector:
             sees the image's pixels around it)
         returns :class:`Detections` in the image's pixels, best first (``used_roi`` = a window was given)
         """
-        work = self._thread_work()
+        work = self._work.get()  # a detector may serve several cameras on several threads
         if window is None:
             x0 = y0 = 0
             logits = self.model._logits(image, work.logits)  # into this thread's buffers: no allocation
@@ -192,22 +192,6 @@ class BallDetector:
             logits = np.ascontiguousarray(self.model._logits_window(image, x0, y0, x1, y1))
         blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, queues=work.queues(logits.size), **self._blob_kw)
         return self._verified(image, _to_detections(blobs, x0, y0, window is not None))
-
-    def __getstate__(self):  # picklable (e.g. to worker processes): the buffers are not sent
-        state = dict(self.__dict__)
-        del state["_local"]
-        return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self._local = threading.local()
-
-    def _thread_work(self) -> "_Work":
-        """This thread's reusable buffers (a detector may serve several cameras on several threads)."""
-        work = getattr(self._local, "work", None)
-        if work is None:
-            work = self._local.work = _Work()
-        return work
 
     def _verified(self, image, det: Detections) -> Detections:
         """The verifier's choice among the candidates (unchanged without a verifier)."""

@@ -229,10 +229,13 @@ class BallSegmentationModel:
             xs, rs = [x_buf] * 3, [out_buf, r_buf, r_buf]  # each is used up before the next channel reuses it
         out = None
         for c in range(3):
-            if self._lut is None:
-                x = chans[c].astype(np.float32) if xs[c] is None else _converted(chans[c], xs[c])
-            else:
+            if self._lut is not None:
                 x = cv2.LUT(chans[c], self._lut, dst=xs[c])
+            elif xs[c] is None:
+                x = chans[c].astype(np.float32)
+            else:
+                x = xs[c]
+                np.copyto(x, chans[c])  # uint8 -> float32, as astype
             r = cv2.filter2D(x, -1, self._kernels_rgb[c], dst=rs[c], borderType=_BORDER)
             out = r if out is None else cv2.add(out, r, dst=out)
         out += np.float32(self._bias_eff)
@@ -349,11 +352,6 @@ def _scalar(data: dict, key: str, kind: type, src: str):
     if not math.isfinite(value):
         raise ValueError(f"{src}: field {key!r} must be finite, got {value!r}")
     return value
-
-
-def _converted(chans: np.ndarray, out: np.ndarray) -> np.ndarray:
-    out[...] = chans  # uint8 -> float32, as astype
-    return out
 
 
 class LogitWorkspace:

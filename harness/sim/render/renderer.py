@@ -9,11 +9,11 @@ tiles. Nothing else touches the full frame, which is what makes >= 200 VGA frame
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 
 import numpy as np
 
+from checks.per_thread import PerThread
 from harness.sim.render._kernels import draw_numba
 from harness.sim.render.primitives import AMBIENT, DIFFUSE, DN_PER_RADIANCE, LIGHT_DIR_WORLD, SPECULAR_GAIN, pack_scene
 from harness.sim.render.reference import draw_numpy
@@ -88,7 +88,7 @@ class Renderer:
             raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
         self.rig, self.options, self.seed = rig, options, int(seed)
         self._draw = DRAW_METHODS[options.method]
-        self._local = threading.local()  # per-thread reusable depth buffers (_zbuf)
+        self._zbufs = PerThread(dict)  # each thread's reusable depth buffers by shape (_zbuf; not pickled)
         self._backgrounds: list[Background] = [
             background(cam, supersample=options.supersample, vignette_strength=options.vignette) for cam in rig
         ]
@@ -146,23 +146,12 @@ class Renderer:
     # -- internals ----------------------------------------------------------------------------------
     def _zbuf(self, i: int) -> np.ndarray:
         """This thread's reusable depth buffer of camera ``i``'s size (no allocation per frame)."""
-        bufs = getattr(self._local, "zbufs", None)
-        if bufs is None:
-            bufs = self._local.zbufs = {}
+        bufs = self._zbufs.get()
         depth = self._backgrounds[i].depth_m
         buf = bufs.get(depth.shape)
         if buf is None:
             buf = bufs[depth.shape] = np.empty_like(depth)
         return buf
-
-    def __getstate__(self):  # picklable: the per-thread buffers stay behind
-        state = dict(self.__dict__)
-        del state["_local"]
-        return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self._local = threading.local()
 
     def _index(self, i) -> int:
         if isinstance(i, str):

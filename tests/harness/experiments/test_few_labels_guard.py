@@ -10,6 +10,8 @@ the fine-tuned filter beats it clearly.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -138,8 +140,6 @@ def test_few_study_same_seed_same_json(synthetic_ball_coco, synthetic_base, tmp_
     assert study([*args, "--json", str(tmp_path / "a.json")]) == 0
     assert study([*args, "--json", str(tmp_path / "b.json")]) == 0
     assert (tmp_path / "a.json").read_bytes() == (tmp_path / "b.json").read_bytes()
-    import json
-
     r = json.loads((tmp_path / "a.json").read_text())
     assert len(r["runs"]) == 1 and isinstance(r["runs"][0]["kept_base"], bool) and len(r["train_frames"]) == 8
     if r["runs"][0]["kept_base"]:
