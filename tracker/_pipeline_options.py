@@ -72,6 +72,13 @@ class TrackerOptions:
     retry_full_frame : when the window search ends without a confirmed (``OK``) estimate, search the
         full frames of the cameras that searched a window, and estimate again
         (the full-frame fallback; off: windows only while a prediction exists)
+    retry_backoff_sets : after a full-frame retry that did not confirm the ball either, the next
+        retries wait: the fallback is skipped for the next 1, then 2, 4, ... frame sets whose windows
+        fail (doubling, at most this many), until an estimate is confirmed again or the prediction
+        ends (``max_gap_s``). A retry that found no ball rarely finds one a frame later (the ball is
+        occluded, out of view or gone; measured: 1 of 141 retries on ``rt2 track --source sim``
+        confirmed the ball, none right after a failed one), yet each costs the window pass plus full
+        frames. 0 = retry at every such frame set
     workers : threads that run the detector calls of one frame set (1 = the calling thread only)
     threads_for_roi : use the threads also when every camera searches a window (off: measured
         slower, the thread hand-off costs more than a 64x64 window, see docs/pipeline.md)
@@ -110,6 +117,7 @@ class TrackerOptions:
     roi: bool | None = None
     max_gap_s: float = 0.05
     retry_full_frame: bool = True
+    retry_backoff_sets: int = 4
     workers: int = 1
     threads_for_roi: bool = False
     eps_px: float | None = None
@@ -129,6 +137,9 @@ class TrackerOptions:
         g = self.max_gap_s
         if isinstance(g, bool) or not isinstance(g, (int, float, np.floating, np.integer)) or not (math.isfinite(g) and g > 0):
             raise ValueError(f"TrackerOptions.max_gap_s must be a positive number of seconds, got {g!r}")
+        b = self.retry_backoff_sets
+        if isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 0:
+            raise ValueError(f"TrackerOptions.retry_backoff_sets must be an integer >= 0 (0 = retry at every frame set), got {b!r}")
         w = self.workers
         if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or w < 1:
             raise ValueError(f"TrackerOptions.workers must be an integer >= 1, got {w!r}")
@@ -162,6 +173,8 @@ class TrackerStats:
     roi_misses : of those, windows without a ball candidate (incl. a prediction outside the image)
     full_frame_searches : camera images searched over the full frame (no prediction, or a retry)
     full_frame_retries : frame sets re-searched on full frames after the windows gave no OK estimate
+    retries_held : frame sets whose windows gave no OK estimate and whose retry waited
+        (``TrackerOptions.retry_backoff_sets``)
     size_rejections : positions rejected by the 3D size test (``TrackerOptions.max_size_ratio``)
     handovers : positions moved by the support hand-over (``TrackerOptions.handover_max_age_s``)
     lead_changes : frame sets whose reported ball changed from a hypothesis still kept to another one
@@ -181,6 +194,7 @@ class TrackerStats:
     roi_misses: int = 0
     full_frame_searches: int = 0
     full_frame_retries: int = 0
+    retries_held: int = 0
     size_rejections: int = 0
     handovers: int = 0
     lead_changes: int = 0

@@ -64,6 +64,7 @@ class SegmentationEngine:
                 f"({self.estimator.options.max_candidates_per_camera}); raise the latter or lower the former"
             )
         self._motion = MotionPredictor(rig, options.max_gap_s)
+        self._retry_wait, self._retry_gap = 0, 1  # frame sets the next retry still waits; the next wait
         self._size = SizeTest(rig, options.max_size_ratio if spec.extras else None, options.ball_radius_m,
                               model.edge_loss_px if options.blob_edge_px is None else options.blob_edge_px)
         self.handover = None
@@ -85,6 +86,7 @@ class SegmentationEngine:
     def forget_motion(self, *, hypotheses: bool = True) -> None:
         """Forget the motion prediction, the hand-over's history and (``hypotheses``) the ball hypotheses."""
         self._motion.reset()
+        self._retry_wait, self._retry_gap = 0, 1  # TrackerOptions.retry_backoff_sets
         if self.handover is not None:
             self.handover.reset()
         if hypotheses and self.hypotheses is not None:
@@ -122,9 +124,14 @@ class SegmentationEngine:
             # The full-frame fallback, only when the windows did not confirm the ball (also when the
             # size test rejected what they held). Every camera that searched a window is redone: with
             # two agreeing cameras, those two may be the ones whose windows hold the wrong object (any
-            # two rays nearly meet).
+            # two rays nearly meet). After a retry that found no ball either, the next ones wait
+            # (TrackerOptions.retry_backoff_sets).
             redo = [i for i in usable if used_roi[i]]
-            if redo:
+            if redo and self._retry_wait > 0:
+                self._retry_wait -= 1
+                self.stats.retries_held += 1
+                notes.append(f"window search gave {info.status.value}; full-frame retry held back (the last one did not confirm the ball)")
+            elif redo:
                 retried = True
                 self.stats.full_frame_retries += 1
                 notes.append(f"window search gave {info.status.value}; full frame searched in {', '.join(self._names[i] for i in redo)}")
@@ -134,6 +141,11 @@ class SegmentationEngine:
                 used_roi[redo] = False
                 self._detect(redo, roi_px, used_roi)
                 X, info, size_ratio = self._estimate(notes)
+                if info.status is not Status.OK and self.options.retry_backoff_sets > 0:
+                    self._retry_wait = self._retry_gap
+                    self._retry_gap = min(2 * self._retry_gap, self.options.retry_backoff_sets)
+        if info.status is Status.OK:
+            self._retry_wait, self._retry_gap = 0, 1
         withheld = False
         if hyp is not None and math.isfinite(t_s):
             X, info, size_ratio, withheld = self._choose_ball(t_s, X, info, size_ratio, usable, used_roi, notes)

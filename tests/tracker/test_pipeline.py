@@ -224,6 +224,41 @@ def test_full_frame_retry_when_windows_hold_inconsistent_objects(rig, model):
     assert o2.status is not Status.OK
 
 
+
+def test_failed_retries_back_off_until_the_ball_is_confirmed(rig, model):
+    # The ball is tracked for 3 frame sets, then gone for 7 (within max_gap_s, so the windows are
+    # searched every time), then back where it was predicted. A full-frame retry that found no ball
+    # makes the next ones wait 1, then 2 frame sets (doubling up to retry_backoff_sets); the ball back in
+    # its windows is confirmed without any retry, and the backoff starts over.
+    X = X0_M + V_MPS * DT_S * np.arange(12)[:, None]
+    nothing = np.full((4, 1, 2), np.nan)
+
+    def frames(trk, present):
+        out = []
+        for f, here in enumerate(present):
+            pts = rig.project(X[f])[:, None] if here else nothing
+            out.append(trk.process_with_info(_drawn_frameset(rig, pts, f * DT_S, f, diameter_px=_ball_px(rig, X[f]))))
+        return out
+
+    present = [True] * 3 + [False] * 7 + [True, False]
+    trk = Tracker(rig, model=model, max_gap_s=0.1, retry_backoff_sets=4)
+    res = frames(trk, present)
+    retried = [info.retried for _, info in res]
+    assert retried == [False] * 3 + [True, False, True, False, False, True, False] + [False, True]
+    assert trk.stats.full_frame_retries == 4 and trk.stats.retries_held == 4
+    assert res[10][0].status is Status.OK and res[10][1].used_roi.all()  # found in its windows
+    assert res[4][0].notes == ("window search gave too_few_observations; full-frame retry held back (the last one did not confirm the ball)",)
+    # 0: a retry at every frame set whose windows fail (the same answers on this sequence)
+    every = Tracker(rig, model=model, max_gap_s=0.1, retry_backoff_sets=0)
+    res0 = frames(every, present)
+    assert [info.retried for _, info in res0] == [False] * 3 + [True] * 7 + [False, True]
+    assert every.stats.retries_held == 0
+    assert [o.status for o, _ in res0] == [o.status for o, _ in res]
+    # reset() starts the backoff over
+    trk.reset()
+    assert frames(trk, [True] * 3 + [False] * 2)[3:][0][1].retried and trk.stats.full_frame_retries == 5
+
+
 # -- the 3D size test -------------------------------------------------------------------------------
 def test_size_test_rejects_an_orange_object_too_wide_for_a_ball(rig, model):
     # Every camera sees one orange disk 1.8 times as wide as a ball at the point they agree on: an
@@ -484,6 +519,9 @@ def test_bad_construction_raises(rig, model):
         Tracker(rig, model=model, workers=0)
     with pytest.raises(ValueError, match="TrackerOptions.max_gap_s must be a positive number"):
         TrackerOptions(max_gap_s=-1.0)
+    for bad in (-1, 2.0, True, None, "4"):
+        with pytest.raises(ValueError, match=r"TrackerOptions.retry_backoff_sets must be an integer >= 0 \(0 = retry at every frame set\)"):
+            TrackerOptions(retry_backoff_sets=bad)
     with pytest.raises(ValueError, match="TrackerOptions.eps_px"):
         TrackerOptions(eps_px=float("inf"))
     for bad in (0, -1.2, float("nan"), True, "1.2"):
