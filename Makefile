@@ -38,7 +38,7 @@ demo: $(STAMP)
 # so that the parallel suite does not take the cores they measure.
 # A narrowed run (TESTS=...) may select no realtime test: pytest's "no tests ran" (exit 5) is no failure there.
 test: $(STAMP) $(NODE_CLIENTS)
-	$(PY) -m pytest -q -n $(JOBS) -m "not slow and not realtime" $(call JUNIT_OPT,parallel) $(TESTS)
+	$(PY) -m pytest -q -n $(JOBS) --dist worksteal -m "not slow and not realtime" $(call JUNIT_OPT,parallel) $(TESTS)
 	$(PY) -m pytest -q -m "realtime and not slow" $(call JUNIT_OPT,realtime) $(TESTS); \
 	  code=$$?; if [ -n "$(TESTS)" ] && [ $$code -eq 5 ]; then code=0; fi; exit $$code
 
@@ -49,7 +49,7 @@ flaky: $(STAMP)
 
 # The 20 slowest tests of `make test`'s parallel part (narrow with TESTS=...).
 slowest: $(STAMP)
-	$(PY) -m pytest -q -n $(JOBS) -m "not slow and not realtime" --durations=20 $(TESTS)
+	$(PY) -m pytest -q -n $(JOBS) --dist worksteal -m "not slow and not realtime" --durations=20 $(TESTS)
 
 # How fast every long-running command stops on SIGINT / SIGTERM: TRIES per command and signal (default 20), beside
 # `pytest -n 2` looping over LOAD (default tests/tracker; LOAD= for none); table on stdout, every try in

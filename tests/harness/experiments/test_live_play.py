@@ -82,7 +82,7 @@ def test_link_loss_mid_session_is_a_clear_error_and_the_log_is_closed(tmp_path):
 def test_live_success_rate_agrees_with_the_in_process_run(tmp_path):
     """Same seed, same serves and robots: live and in-process success counts differ by at most
     max(2 balls, 2 binomial std) -- timing (planning takes real time live, none in process) changes single balls."""
-    n, seed = 20, 0
+    n, seed = 12, 0  # 12 balls: the live run takes real time (~2 s a ball), and the test runs alone
     live_json, proc_json = tmp_path / "live.json", tmp_path / "proc.json"
     assert main(["play", "--live", "--balls", str(n), "--seed", str(seed), "--no-log", "--quiet",
                  "--json", str(live_json), "--out", str(tmp_path)]) == 0

@@ -70,10 +70,10 @@ def test_few_label_run_on_real_frames(tmp_path, capsys):
 def test_shape_study_is_seeded():
     from harness.experiments.detector.shape_study import run_study
 
-    kw = dict(train_range="40:50", test_range="50:54", seed=3, epochs=5)
+    kw = dict(train_range="40:44", test_range="50:52", seed=3, epochs=2)  # small: the seeding is the point, not the figures
     a, b = run_study(RALLY, **kw), run_study(RALLY, **kw)
     assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
-    assert a["n_train"] == 10 and a["n_test"] == 4 and len(a["candidate_ranks"]) == 4
+    assert a["n_train"] == 4 and a["n_test"] == 2 and len(a["candidate_ranks"]) == 2
     assert [(r["verified"], r["threshold"]) for r in a["verifier"]] == [(n, t) for n in (16, 32) for t in (0.5, 0.9, 0.95, 0.98)]
 
 
