@@ -64,7 +64,7 @@ class SegmentationEngine:
                 f"({self.estimator.options.max_candidates_per_camera}); raise the latter or lower the former"
             )
         self._motion = MotionPredictor(rig, options.max_gap_s)
-        self._retry_wait, self._retry_gap = 0, 1  # frame sets the next retry still waits; the next wait
+        self._retry_wait, self._retry_gap = 0, 1  # frame sets the next retry still waits; the wait after the next failed retry
         self._size = SizeTest(rig, options.max_size_ratio if spec.extras else None, options.ball_radius_m,
                               model.edge_loss_px if options.blob_edge_px is None else options.blob_edge_px)
         self.handover = None
