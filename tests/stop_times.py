@@ -49,6 +49,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # rt2's own harness package, not tests/harness (this script's folder comes first)
 LIMIT_S = 2.0  #: docs/reliability.md: every command stops within 2 s of SIGINT / SIGTERM
@@ -473,15 +475,6 @@ class Load:
 
 
 # -- the report ------------------------------------------------------------------------------------------------
-def percentile(values: list[float], q: float) -> float:
-    """The ``q``-th percentile (0..100) of ``values``, linear between the ranks (numpy's default): with 20 tries
-    p99 lies 19/100 of the way from the 19th to the 20th (slowest) value."""
-    v = sorted(values)
-    x = (len(v) - 1) * q / 100.0
-    lo = int(x)
-    return v[lo] if lo + 1 >= len(v) else v[lo] + (v[lo + 1] - v[lo]) * (x - lo)
-
-
 def summarise(rows: list[dict]) -> list[dict]:
     """Per (command, signal): tries, p50, p99 and p100 of signal -> exit, p100 of signal -> last descendant gone,
     failures."""
@@ -492,7 +485,7 @@ def summarise(rows: list[dict]) -> list[dict]:
         gones = [r["gone_s"] for r in mine if r["gone_s"] is not None]
         out.append({"command": key[0], "signal": key[1], "tries": len(mine),
                     "exit_p50_s": round(statistics.median(exits), 3) if exits else None,
-                    "exit_p99_s": round(percentile(exits, 99), 3) if exits else None,
+                    "exit_p99_s": round(float(np.percentile(exits, 99)), 3) if exits else None,  # linear between ranks
                     "exit_p100_s": max(exits) if exits else None,
                     "gone_p100_s": max(gones) if len(gones) == len(mine) else None,
                     "failures": sum(bool(r["problems"]) for r in mine)})
@@ -503,7 +496,7 @@ def table(summary: list[dict]) -> str:
     f = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
     lines = [f"{'command':<16} {'signal':<7} {'tries':>5} {'p50 s':>6} {'p99 s':>6} {'p100 s':>6} {'gone p100':>9} "
              f"{'failures':>8}"]
-    lines += [f"{s['command']:<16} {s['signal']:<7} {s['tries']:>5} {f(s['exit_p50_s']):>6} {f(s.get('exit_p99_s')):>6} "
+    lines += [f"{s['command']:<16} {s['signal']:<7} {s['tries']:>5} {f(s['exit_p50_s']):>6} {f(s['exit_p99_s']):>6} "
               f"{f(s['exit_p100_s']):>6} "
               f"{f(s['gone_p100_s']):>9} {s['failures']:>8}" for s in summary]
     return "\n".join(lines)

@@ -34,6 +34,7 @@ import numpy as np
 
 from harness.experiments.detector.train import (KEEP_BASE_CHOICES, THRESHOLD_CHOICES, TrainOptions, load_image, resolve_base,
                                                 select_ball_colour, train)
+from harness.experiments.detector.subsets import camera_of
 from harness.experiments.studies.eval_detector import evaluate
 from harness.label.suggest import describe_image, suggest, uncertainty
 from tracker import BallDetector, DetectorOptions
@@ -44,9 +45,6 @@ __all__ = ["SelectionOptions", "camera_of", "frame_number", "run_selection", "sp
 #: Roboflow appends ``_<ext>.rf.<hash>`` to exported file stems, rt2's data sets ``_cam<k>``: the frame number sits before
 _NAME_SUFFIX = re.compile(r"(_(jpg|jpeg|png)\.rf\.[0-9a-f]+|_cam\d+)$", re.IGNORECASE)
 _LAST_NUMBER = re.compile(r"(\d+)\D*$")
-#: the camera in a file name: ``f000123_cam2`` (``rt2 sim dataset``) or ``cam2_s000017`` (``rt2 label`` on a session log)
-_CAMERA_SUFFIX = re.compile(r"_(cam\d+)$")
-_CAMERA_PREFIX = re.compile(r"^(.+)_s\d+$")
 #: the figures the verdict compares (higher is better)
 _VERDICT_KEYS = ("ours_recall", "topk_recall")
 
@@ -113,16 +111,6 @@ def frame_number(path) -> int | None:
     stem = _NAME_SUFFIX.sub("", Path(path).stem)
     m = _LAST_NUMBER.search(stem)
     return int(m.group(1)) if m else None
-
-
-def camera_of(path) -> str:
-    """The camera of an image file name: ``cam2`` of ``f000123_cam2.png`` (``rt2 sim dataset``) or of
-    ``cam2_s000017.png`` (``rt2 label`` on a session log); "" for a name without one (a one-camera set)."""
-    from pathlib import Path
-
-    stem = Path(path).stem
-    m = _CAMERA_SUFFIX.search(stem) or _CAMERA_PREFIX.match(stem)
-    return m.group(1) if m else ""
 
 
 def split_cameras(labelled, cameras=()) -> dict:

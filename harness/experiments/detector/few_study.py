@@ -21,17 +21,14 @@ __all__ = ["camera_frames", "main", "run_study", "spread_frames"]
 
 
 def camera_frames(labelled, camera: str) -> list:
-    """The images of ``camera`` (``f000123_cam2.png``, as ``rt2 sim dataset`` names them) in time order;
-    ValueError naming the cameras the set has when there is none."""
-    import re
-    from pathlib import Path
+    """The images of ``camera`` (:func:`~harness.experiments.detector.subsets.camera_of` of their names) in time
+    order; ValueError naming the cameras the set has when there is none."""
+    from harness.experiments.detector.subsets import camera_of, time_order
 
-    from harness.experiments.detector.subsets import time_order
-
-    named = [(li, m.group(1)) for li in labelled if (m := re.search(r"_(cam\d+)$", Path(li.path).stem))]
+    named = [(li, camera_of(li.path)) for li in labelled]
     out = [li for li, c in named if c == camera]
     if not out:
-        raise ValueError(f"--camera {camera}: not in the labelled set; its cameras: {', '.join(sorted({c for _, c in named})) or 'none'}")
+        raise ValueError(f"--camera {camera}: not in the labelled set; its cameras: {', '.join(sorted({c for _, c in named if c})) or 'none'}")
     return time_order(out)
 
 

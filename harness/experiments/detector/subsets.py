@@ -13,10 +13,21 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-__all__ = ["parse_range", "take_range", "time_key", "time_order"]
+__all__ = ["camera_of", "parse_range", "take_range", "time_key", "time_order"]
 
 _SPLIT_PREFIX = re.compile(r"^(train|valid|val|test)_", re.IGNORECASE)
 _ROBOFLOW_SUFFIX = re.compile(r"\.rf\.[0-9a-f]+$", re.IGNORECASE)
+#: the camera in a file name: ``f000123_cam2`` (``rt2 sim dataset``) or ``cam2_s000017`` (``rt2 label`` on a session log)
+_CAMERA_SUFFIX = re.compile(r"_(cam\d+)$")
+_CAMERA_PREFIX = re.compile(r"^(.+)_s\d+$")
+
+
+def camera_of(path) -> str:
+    """The camera of an image file name: ``cam2`` of ``f000123_cam2.png`` (``rt2 sim dataset``) or of
+    ``cam2_s000017.png`` (``rt2 label`` on a session log); "" for a name without one (a one-camera set)."""
+    stem = Path(path).stem
+    m = _CAMERA_SUFFIX.search(stem) or _CAMERA_PREFIX.match(stem)
+    return m.group(1) if m else ""
 
 
 def time_key(path) -> tuple:

@@ -232,8 +232,7 @@ def split_groups(labelled, val_fraction: float, rng: np.random.Generator):
     """Split images into (train, val) lists, keeping the cameras of one frame set together."""
     groups: dict[str, list] = {}
     for li in labelled:
-        key = str(Path(li.path).parent / re.sub(r"_cam\d+$", "", Path(li.path).stem))
-        groups.setdefault(key, []).append(li)
+        groups.setdefault(_group_key(li), []).append(li)
     keys = sorted(groups)
     if len(keys) < 2:
         raise ValueError(f"need images from at least 2 frame sets to hold out a validation split, got {len(keys)}")
@@ -593,7 +592,8 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         val_items = [(load_image(li), li) for li in val_set]
         r = fitter.fit(_items(train_set, opts, rng, progress, backgrounds=backgrounds), val_items, log=log)
         n_train, n_val, how = len(train_set), len(val_set), "val"
-        held_out = [im for im, _ in val_items], ([truth_of(li)[0] for li in val_set], [truth_of(li)[1] for li in val_set])
+        truths = [truth_of(li) for li in val_set]
+        held_out = [im for im, _ in val_items], ([c for c, _ in truths], [d for _, d in truths])
     else:
         if not any(li.n_balls for li in labelled):
             raise ValueError(f"no ball boxes among the {len(labelled)} images: nothing to learn")
@@ -798,7 +798,7 @@ def run(args) -> int:
         opts = TrainOptions(epochs=args.epochs, seed=seed, val_fraction=args.val_fraction, input_transform=args.input_transform,
                             ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
                             threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
-                            keep_base=getattr(args, "keep_base", "auto"))
+                            keep_base=args.keep_base)
         sources = f"data {', '.join(map(str, args.data))}" + (f" (time range {args.time_range})" if args.time_range else "")
         if backgrounds:
             sources += f"; backgrounds {', '.join(map(str, args.backgrounds))} ({len(backgrounds)} ball-free images)"
