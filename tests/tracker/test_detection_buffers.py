@@ -38,7 +38,7 @@ def test_workspace_is_reused_and_resized():
     a = work.buffers((10, 20))
     assert work.buffers((10, 20))[1] is a[1]
     b = work.buffers((11, 20))
-    assert b[1] is not a[1] and b[1].shape == (11, 20) and b[0][0].dtype == np.uint8
+    assert b[1] is not a[1] and b[1].shape == (11, 20) and b[0].shape == (3, 5, 24) and b[0].dtype == b[1].dtype == np.float32
 
 
 def test_find_blobs_with_given_queues_equals_fresh_queues():

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from tracker import BallSegmentationModel
-from tracker.detection.model import MODEL_FORMAT, logit, sigmoid
+from tracker.detection._correlate import correlate_5x5x3, correlate_5x5x3_reference, scratch_shape
+from tracker.detection.model import MODEL_FORMAT, logit, sigmoid, transform_lut
 from tracker.images import check_image
 from tracker.detection.synthetic import ORANGE_RGB, hand_made_model, synthetic_scene
 
@@ -73,9 +74,44 @@ def test_window_equals_full_frame(transform):
     model = _random_model(rng, input_transform=transform)
     image = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)
     full = model.logits(image)
-    for window in [(10, 20, 74, 84), (0, 0, 64, 64), (100, 60, 160, 120), (0, 119, 160, 120)]:
+    for window in [(10, 20, 74, 84), (0, 0, 64, 64), (100, 60, 160, 120), (0, 119, 160, 120), (0, 0, 160, 120), (159, 0, 160, 1),
+                   (1, 1, 3, 2), (157, 117, 160, 120)]:
         x0, y0, x1, y1 = window
-        np.testing.assert_allclose(model.logits(image, window), full[y0:y1, x0:x1], atol=1e-5)
+        got = model.logits(image, window)
+        assert got.dtype == np.float32 and got.tobytes() == np.ascontiguousarray(full[y0:y1, x0:x1]).tobytes()  # the same bytes
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (1, 1), (2, 2), (3, 3), (4, 7), (5, 5), (2, 9), (9, 1), (31, 17)])
+def test_compiled_correlation_is_the_numpy_reference_bit_for_bit(shape):
+    h, w = shape
+    rng = np.random.default_rng(sum(shape))
+    image = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    lut = rng.normal(0, 3, 256).astype(np.float32)
+    k = rng.normal(size=(3, 5, 5)).astype(np.float32)
+    windows = [(0, 0, w, h), (w // 2, h // 2, w, h), (0, h - 1, max(w // 3, 1), h), (w - 1, 0, w, max(h // 2, 1))]
+    for x0, y0, x1, y1 in windows:
+        out = np.full((y1 - y0, x1 - x0), np.nan, np.float32)
+        correlate_5x5x3(image, lut, k, np.float32(0.7), x0, y0, x1, y1, np.empty(scratch_shape(y1 - y0, x1 - x0), np.float32), out)
+        want = correlate_5x5x3_reference(image, lut, k, 0.7, (x0, y0, x1, y1))
+        assert out.tobytes() == want.tobytes()
+        whole = correlate_5x5x3_reference(image, lut, k, 0.7)
+        assert out.tobytes() == np.ascontiguousarray(whole[y0:y1, x0:x1]).tobytes()  # a window is the full frame there
+    # and both are the correlation itself (float64 with reflected borders, as cv2.filter2D and torch compute it)
+    pad = np.pad(lut[image].astype(np.float64), ((2, 2), (2, 2), (0, 0)), mode="reflect")
+    exact = 0.7 + sum(k[c, i, j] * pad[i : i + h, j : j + w, c] for c in range(3) for i in range(5) for j in range(5))
+    np.testing.assert_allclose(whole, exact, atol=1e-5 * (1 + np.abs(exact).max()))
+
+
+@pytest.mark.parametrize("transform", ["linear", "log"])
+@pytest.mark.parametrize("colour_order", ["RGB", "BGR"])
+def test_model_logits_are_the_numpy_reference_bit_for_bit(colour_order, transform):
+    """The shipped path (the compiled correlation) is the plain numpy one, byte for byte."""
+    rng = np.random.default_rng(5)
+    model = _random_model(rng, colour_order, transform)
+    image = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    k = np.stack([model.kernel_rgb_uint8[:, :, c] for c in range(3)])
+    want = correlate_5x5x3_reference(image, transform_lut(transform, model.log_offset_dn), k, np.float32(model.bias_uint8))
+    assert model.logits(image).tobytes() == want.tobytes()
 
 
 def test_probability_is_sigmoid_of_logits_and_threshold_equivalence():

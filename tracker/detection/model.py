@@ -13,8 +13,8 @@ Conventions:
   ``T(p) = p`` (``input_transform="linear"``, the paper's raw RGB) or ``T(p) = log(p + log_offset_dn)``
   (``"log"``: a filter whose channel weights cancel is then blind to exposure and shading, so it
   tests chromaticity; a per-channel 256-entry lookup table at run time). Scale and offset are folded
-  into an effective kernel and bias at construction, so inference is three ``cv2.filter2D`` calls on
-  ``T`` of the raw channels, summed.
+  into an effective kernel and bias at construction, so inference is one 5x5x3 correlation of ``T`` of
+  the raw channels (a compiled pass, ``tracker/detection/_correlate.py``, with its numpy reference).
 * Borders are reflected without repeating the edge pixel (``cv2.BORDER_REFLECT_101``, which is
   ``padding_mode="reflect"`` in torch).
 * The sigmoid is monotonic, so a threshold ``T`` on the probability equals the threshold
@@ -27,11 +27,11 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from checks.arrays import describe
 from checks.files import load_npz_checked
+from tracker.detection._correlate import correlate_5x5x3, scratch_shape
 from tracker.detection.verifier import CandidateVerifier
 from tracker.images import check_image
 
@@ -46,7 +46,6 @@ INPUT_TRANSFORMS = ("linear", "log")
 #: colours of table-tennis balls a model may be trained for ("any": both, or not recorded)
 BALL_COLOURS = ("any", "orange", "white")
 _HALF = KERNEL_SIZE // 2
-_BORDER = cv2.BORDER_REFLECT_101
 
 
 def logit(p: float) -> float:
@@ -108,9 +107,9 @@ class BallSegmentationModel:
     edge_loss_px: float = 0.0
     verifier: "CandidateVerifier | None" = None
     # Derived at construction: the kernel for T(uint8 RGB channels) with the scaling folded in.
-    _kernels_rgb: tuple = field(init=False, repr=False, compare=False)
+    _kernel_crgb: np.ndarray = field(init=False, repr=False, compare=False)
     _bias_eff: float = field(init=False, repr=False, compare=False)
-    _lut: np.ndarray | None = field(init=False, repr=False, compare=False)
+    _lut: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         where = "BallSegmentationModel"
@@ -172,16 +171,15 @@ class BallSegmentationModel:
         k64 = kernel.astype(np.float64)
         kernels = tuple(np.ascontiguousarray((k64[:, :, order[c]] * scale[order[c]]).astype(np.float32)) for c in range(3))
         bias_eff = bias + float(sum(offset[c] * k64[:, :, c].sum() for c in range(3)))
-        object.__setattr__(self, "_kernels_rgb", kernels)
+        object.__setattr__(self, "_kernel_crgb", np.ascontiguousarray(np.stack(kernels)))  # (3, 5, 5): RGB channel first
         object.__setattr__(self, "_bias_eff", bias_eff)
-        lut = None if self.input_transform == "linear" else transform_lut(self.input_transform, log_offset)
-        object.__setattr__(self, "_lut", lut)
+        object.__setattr__(self, "_lut", transform_lut(self.input_transform, log_offset))  # T of the 256 channel values
 
     # -- inference -----------------------------------------------------------------------------
     @property
     def kernel_rgb_uint8(self) -> np.ndarray:
         """(5, 5, 3) float32 effective kernel for ``T`` of the uint8 RGB channels (scaling folded in)."""
-        return np.stack(self._kernels_rgb, axis=-1)
+        return np.ascontiguousarray(np.moveaxis(self._kernel_crgb, 0, -1))
 
     @property
     def bias_uint8(self) -> float:
@@ -219,35 +217,22 @@ class BallSegmentationModel:
         """(H, W) float32 logits of a trusted image; into ``work``'s buffers when given (its ``out``,
         overwritten by the next call with it), else into new arrays. Same operations either way, so
         the same bytes: the buffers only spare the allocations (a VGA frame's ~1200 page faults)."""
-        # Three 5x5 filters on the float32 channels, summed: the fastest exact way we measured
-        # (filter2D on uint8 input with a float kernel, or on interleaved channels, is 2-10x slower).
+        h, w = image.shape[:2]
         if work is None:
-            chans, xs, rs = cv2.split(image), [None] * 3, [None] * 3
+            t, out = np.empty(scratch_shape(h, w), np.float32), np.empty((h, w), np.float32)
         else:
-            chans, x_buf, out_buf, r_buf = work.buffers(image.shape[:2])
-            cv2.split(image, chans)
-            xs, rs = [x_buf] * 3, [out_buf, r_buf, r_buf]  # each is used up before the next channel reuses it
-        out = None
-        for c in range(3):
-            if self._lut is not None:
-                x = cv2.LUT(chans[c], self._lut, dst=xs[c])
-            elif xs[c] is None:
-                x = chans[c].astype(np.float32)
-            else:
-                x = xs[c]
-                np.copyto(x, chans[c])  # uint8 -> float32, as astype
-            r = cv2.filter2D(x, -1, self._kernels_rgb[c], dst=rs[c], borderType=_BORDER)
-            out = r if out is None else cv2.add(out, r, dst=out)
-        out += np.float32(self._bias_eff)
+            t, out = work.buffers((h, w))
+        correlate_5x5x3(np.ascontiguousarray(image), self._lut, self._kernel_crgb, np.float32(self._bias_eff), 0, 0, w, h, t, out)
         return out
 
     def _logits_window(self, image, x0, y0, x1, y1) -> np.ndarray:
-        h, w = image.shape[:2]
-        # Crop with a 2-pixel margin where the image has one, so the window's values are exact.
-        cx0, cy0 = max(x0 - _HALF, 0), max(y0 - _HALF, 0)
-        cx1, cy1 = min(x1 + _HALF, w), min(y1 + _HALF, h)
-        crop = self._logits(np.ascontiguousarray(image[cy0:cy1, cx0:cx1]))
-        return crop[y0 - cy0 : y0 - cy0 + (y1 - y0), x0 - cx0 : x0 - cx0 + (x1 - x0)]
+        """(y1 - y0, x1 - x0) float32 logits of a trusted window of a trusted image (the pixels around
+        the window are read too: the values are the full frame's there, bit for bit)."""
+        h, w = y1 - y0, x1 - x0
+        out = np.empty((h, w), np.float32)
+        correlate_5x5x3(np.ascontiguousarray(image), self._lut, self._kernel_crgb, np.float32(self._bias_eff),
+                        x0, y0, x1, y1, np.empty(scratch_shape(h, w), np.float32), out)
+        return out
 
     # -- files ---------------------------------------------------------------------------------
     def save(self, path) -> Path:
@@ -357,9 +342,9 @@ def _scalar(data: dict, key: str, kind: type, src: str):
 class LogitWorkspace:
     """Reusable buffers for :meth:`BallSegmentationModel._logits` on full frames of one size at a time.
 
-    One per thread (the buffers are overwritten by every call); ``buffers(shape)`` returns the three
-    (H, W) uint8 channels, the float32 transformed channel, the float32 logits and the float32 filter
-    output of the second and third channel, reallocated only when the frame size changes.
+    One per thread (the buffers are overwritten by every call); ``buffers(shape)`` returns the float32
+    scratch of the transformed rows (:func:`tracker.detection._correlate.scratch_shape`) and the (H, W)
+    float32 logits, reallocated only when the frame size changes.
     """
 
     def __init__(self):
@@ -369,6 +354,6 @@ class LogitWorkspace:
     def buffers(self, shape) -> tuple:
         shape = tuple(int(v) for v in shape)
         if shape != self._shape:
-            self._bufs = ([np.empty(shape, np.uint8) for _ in range(3)], *(np.empty(shape, np.float32) for _ in range(3)))
+            self._bufs = (np.empty(scratch_shape(*shape), np.float32), np.empty(shape, np.float32))
             self._shape = shape
         return self._bufs

@@ -32,7 +32,7 @@ def test_bench_json_rows_rendered_frame(tmp_path, capsys):
 def test_bench_times_the_detector_on_a_frame_where_it_finds_the_ball():
     # The Python API refuses a frame whose ball the model does not find in its window: the figures are
     # always of a detection that works, never of a detector returning nothing.
-    from harness.experiments.studies.bench_detector import bench
+    from harness.experiments.studies.bench_detector import bench, filter2d_logits
     from tracker.detection.synthetic import draw_disk
 
     model = hand_made_model()
@@ -40,7 +40,10 @@ def test_bench_times_the_detector_on_a_frame_where_it_finds_the_ball():
     draw_disk(image, (300.0, 200.0), 12.0, (245, 120, 20))
     rows, breakdown = bench(model, image, (300.0, 200.0), repeats=2)
     assert [(r["mode"], r["backend"]) for r in rows] == [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")]
-    assert [r["backend"] for r in breakdown] == ["cv2: logits only (3 x filter2D)", "cv2: Algorithm 1 top-K on given logits"]
+    assert [r["backend"] for r in breakdown] == ["cv2: logits only (LUT + one compiled 5x5x3 pass)", "cv2: logits as 3 x filter2D, summed (baseline)",
+                                                 "cv2: Algorithm 1 top-K on given logits"]
+    # the baseline row computes the same logits (up to float32 rounding: other summation order)
+    np.testing.assert_allclose(filter2d_logits(model, image), model.logits(image), atol=1e-4)
     empty = np.full((480, 640, 3), 100, np.uint8)
     with pytest.raises(ValueError, match="the benchmark frame's ball is not found in its window"):
         bench(model, empty, (300.0, 200.0), repeats=2)
