@@ -102,6 +102,22 @@ def test_compiled_correlation_is_the_numpy_reference_bit_for_bit(shape):
     np.testing.assert_allclose(whole, exact, atol=1e-5 * (1 + np.abs(exact).max()))
 
 
+def test_a_read_only_frame_gives_the_same_logits_without_compiling_at_run_time():
+    # frames decoded from raw log images, or lent by a driver, come read-only: the kernel has that
+    # signature from import on, so the first such frame does not stall a live run on a compilation
+    model = _random_model(np.random.default_rng(6), "RGB", "log")
+    image = np.random.default_rng(7).integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    want = model.logits(image)
+    frozen = image.copy()
+    frozen.setflags(write=False)
+    assert model.logits(frozen).tobytes() == want.tobytes()
+    assert model.logits(frozen, (5, 5, 30, 20)).tobytes() == np.ascontiguousarray(want[5:20, 5:30]).tobytes()
+    assert len(correlate_5x5x3.signatures) == 2  # writable and read-only images, nothing compiled since import
+    with pytest.raises(TypeError):  # any other type is refused rather than compiled in the middle of a run
+        correlate_5x5x3(image.astype(np.float32), np.zeros(256, np.float32), np.zeros((3, 5, 5), np.float32), np.float32(0),
+                        0, 0, 50, 40, np.empty(scratch_shape(40, 50), np.float32), np.empty((40, 50), np.float32))
+
+
 @pytest.mark.parametrize("transform", ["linear", "log"])
 @pytest.mark.parametrize("colour_order", ["RGB", "BGR"])
 def test_model_logits_are_the_numpy_reference_bit_for_bit(colour_order, transform):

@@ -62,12 +62,23 @@ def _transform_row(image, lut, row, cols, t, slot):
         t2[q] = lut[src[cq, 2]]
 
 
-@numba.njit(cache=True, nogil=True)
+def _signatures():
+    """The kernel's two signatures, compiled (or loaded from numba's cache) at import: a frame that comes
+    read-only (a raw image decoded from a log, a buffer a driver lends) must not compile a second version
+    in the middle of a run."""
+    f32 = [numba.types.Array(numba.float32, n, "C") for n in (1, 2, 3)]
+    i64 = numba.int64
+    return [numba.void(numba.types.Array(numba.uint8, 3, "C", readonly=ro), f32[0], f32[2], numba.float32, i64, i64, i64, i64, f32[2], f32[1])
+            for ro in (False, True)]
+
+
+@numba.njit(_signatures(), cache=True, nogil=True)
 def correlate_5x5x3(image, lut, k, bias, x0, y0, x1, y1, t, out):
     """out ((y1 - y0, x1 - x0) float32) = the logits of the window (see the module docstring).
 
-    image : (H, W, 3) uint8, C order; lut : (256,) float32; k : (3, 5, 5) float32, channel first, in the
-    image's channel order; bias : float32; t : float32 scratch of :func:`scratch_shape` (overwritten).
+    image : (H, W, 3) uint8, C order (writable or not); lut : (256,) float32; k : (3, 5, 5) float32,
+    channel first, in the image's channel order; bias : float32; x0, y0, x1, y1 : int; t : float32
+    scratch of :func:`scratch_shape` (overwritten). Other types are refused (no compilation at run time).
     """
     hh, ww = image.shape[0], image.shape[1]
     h, w = y1 - y0, x1 - x0
@@ -110,4 +121,4 @@ def correlate_5x5x3_reference(image: np.ndarray, lut: np.ndarray, k: np.ndarray,
     return out
 
 
-key_cache_on_callees(globals())  # an edit of a helper it compiles in recompiles the kernel
+key_cache_on_callees(globals())  # the helpers live in this file, so an edit of them changes the kernel's own cache key too
