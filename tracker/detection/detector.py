@@ -218,8 +218,10 @@ class _Work:
 
 
 def _to_detections(blobs, x0: int, y0: int, used_roi: bool) -> Detections:
+    """The blobs of a window whose top-left pixel is (x0, y0), in the image's pixels; boxes ``[x, y, w, h]``."""
     uv = blobs.centers_px + np.array([x0, y0], dtype=np.float64)
-    b = blobs.boxes
-    boxes = np.stack([b[:, 0] + x0, b[:, 1] + y0, b[:, 2] - b[:, 0] + 1, b[:, 3] - b[:, 1] + 1], axis=1).astype(np.float64)
+    boxes = blobs.boxes.astype(np.float64)  # x_min, y_min, x_max, y_max (integers: exact in float64)
+    boxes[:, 2:] -= boxes[:, :2] - 1
+    boxes[:, :2] += (x0, y0)
     return Detections(uv, sigmoid(blobs.peak_logits), boxes, blobs.areas_px, used_roi)
 
