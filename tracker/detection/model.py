@@ -45,7 +45,6 @@ COLOUR_ORDERS = ("RGB", "BGR")
 INPUT_TRANSFORMS = ("linear", "log")
 #: colours of table-tennis balls a model may be trained for ("any": both, or not recorded)
 BALL_COLOURS = ("any", "orange", "white")
-_HALF = KERNEL_SIZE // 2
 
 
 def logit(p: float) -> float:
@@ -169,9 +168,9 @@ class BallSegmentationModel:
         # Exact with reflected borders (a constant image stays constant under reflection).
         order = [0, 1, 2] if self.colour_order == "RGB" else [2, 1, 0]  # RGB channel -> kernel channel
         k64 = kernel.astype(np.float64)
-        kernels = tuple(np.ascontiguousarray((k64[:, :, order[c]] * scale[order[c]]).astype(np.float32)) for c in range(3))
+        kernel_crgb = np.stack([(k64[:, :, order[c]] * scale[order[c]]).astype(np.float32) for c in range(3)])  # (3, 5, 5): RGB first
         bias_eff = bias + float(sum(offset[c] * k64[:, :, c].sum() for c in range(3)))
-        object.__setattr__(self, "_kernel_crgb", np.ascontiguousarray(np.stack(kernels)))  # (3, 5, 5): RGB channel first
+        object.__setattr__(self, "_kernel_crgb", kernel_crgb)
         object.__setattr__(self, "_bias_eff", bias_eff)
         object.__setattr__(self, "_lut", transform_lut(self.input_transform, log_offset))  # T of the 256 channel values
 
