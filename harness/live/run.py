@@ -102,21 +102,23 @@ class LiveService:
         closers, self._closers = self._closers, []
         if not closers:
             return True
+
+        def close_all():
+            for close in reversed(closers):
+                close()
+
         try:
             self.service.finish()
-        finally:
-            def close_all():
-                for close in reversed(closers):
-                    close()
-
+        finally:  # the closers run also when finishing failed; its error then goes on to the caller
             if timeout_s is None:
                 close_all()
+                done = True
             else:
                 t = threading.Thread(target=close_all, name="rt2-live-close", daemon=True)
                 t.start()
                 t.join(timeout_s)
-                return not t.is_alive()
-        return True
+                done = not t.is_alive()
+        return done
 
     def __enter__(self) -> "LiveService":
         return self

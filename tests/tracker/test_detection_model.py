@@ -116,6 +116,9 @@ def test_a_read_only_frame_gives_the_same_logits_without_compiling_at_run_time()
     with pytest.raises(TypeError):  # any other type is refused rather than compiled in the middle of a run
         correlate_5x5x3(image.astype(np.float32), np.zeros(256, np.float32), np.zeros((3, 5, 5), np.float32), np.float32(0),
                         0, 0, 50, 40, np.empty(scratch_shape(40, 50), np.float32), np.empty((40, 50), np.float32))
+    with pytest.raises(TypeError, match="No matching definition"):  # even one numba would compile happily: a strided view
+        correlate_5x5x3(image[:, ::2], np.zeros(256, np.float32), np.zeros((3, 5, 5), np.float32), np.float32(0),
+                        0, 0, 25, 40, np.empty(scratch_shape(40, 25), np.float32), np.empty((40, 25), np.float32))
 
 
 @pytest.mark.parametrize("transform", ["linear", "log"])

@@ -224,7 +224,6 @@ def test_full_frame_retry_when_windows_hold_inconsistent_objects(rig, model):
     assert o2.status is not Status.OK
 
 
-
 def test_failed_retries_back_off_until_the_ball_is_confirmed(rig, model):
     # The ball is tracked for 3 frame sets, then gone for 7 (within max_gap_s, so the windows are
     # searched every time), then back where it was predicted. A full-frame retry that found no ball

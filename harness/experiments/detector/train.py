@@ -402,6 +402,12 @@ def choose_thresholds(val_logits, truth, loose_area, opts: TrainOptions):
     return t_high, t_low, area, s_ours, score("paper", paper, t_high)
 
 
+def _net_gain(s, b) -> float:
+    """Recall minus outlier rate of the scores ``s`` over those of ``b`` (a recall of NaN, no ball, counts 0): what
+    the base model's thresholds and the base model itself must be beaten by (``PRIOR_MARGIN_BALLS``)."""
+    return (np.nan_to_num(s.recall) - s.outlier_rate) - (np.nan_to_num(b.recall) - b.outlier_rate)
+
+
 def score_thresholds(val_logits, truth, t_high: float, t_low: float, area, opts: TrainOptions):
     """(ours, paper) scores of fixed thresholds and area range on validation logits (best candidate per image)."""
     from harness.experiments.detector.scores import score_detections
@@ -578,6 +584,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     rng = np.random.default_rng(opts.seed)
     if base is not None and base.input_transform != opts.input_transform:
         opts = dataclasses.replace(opts, input_transform=base.input_transform, log_offset_dn=base.log_offset_dn)
+    base_area = None if base is None else tuple(float(v) for v in base.area_range_px)
     labelled = select_ball_colour(labelled, opts.ball_colour, progress=progress)
     choice = _resolve_threshold_choice(labelled, opts)
     fitter = _Fitter(torch, opts, base, rng, progress)
@@ -622,14 +629,14 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         oof_truth = (oof_truth_c, oof_truth_d)
         t_high, t_low, area, s_ours, s_paper = choose_thresholds(oof_logits, oof_truth, loose_area, opts)
         if base is not None:  # the base model's thresholds are the prior: leave them only on clear evidence
-            area = (min(area[0], float(base.area_range_px[0])), max(area[1], float(base.area_range_px[1])))
-            b_ours, b_paper = score_thresholds(oof_logits, oof_truth, base.t_high, base.t_low, tuple(base.area_range_px), opts)
+            area = (min(area[0], base_area[0]), max(area[1], base_area[1]))
+            b_ours, b_paper = score_thresholds(oof_logits, oof_truth, base.t_high, base.t_low, base_area, opts)
             n = max(s_ours.n_balls, 1)
-            gain = (np.nan_to_num(s_ours.recall) - s_ours.outlier_rate) - (np.nan_to_num(b_ours.recall) - b_ours.outlier_rate)
+            gain = _net_gain(s_ours, b_ours)
             if gain <= PRIOR_MARGIN_BALLS / n:
                 log(f"thresholds: the base model's (T_h={base.t_high:g}, T_l={base.t_low:g}) kept; cross-validation's choice gains "
                     f"{100 * gain:.1f} points of recall - outliers on {n} balls, not more than {PRIOR_MARGIN_BALLS} balls' worth")
-                t_high, t_low, area, s_ours, s_paper = base.t_high, base.t_low, tuple(float(v) for v in base.area_range_px), b_ours, b_paper
+                t_high, t_low, area, s_ours, s_paper = base.t_high, base.t_low, base_area, b_ours, b_paper
         msg = (f"cross-validation over {len(folds)} time-contiguous folds of {len(labelled)} images: T_h={t_high:g}, T_l={t_low:g}: "
                f"ours recall {100 * s_ours.recall:.2f}% outliers {100 * s_ours.outlier_rate:.2f}% median {s_ours.median_center_error_px:.3f} px | "
                f"paper recall {100 * s_paper.recall:.2f}% outliers {100 * s_paper.outlier_rate:.2f}%")
@@ -640,8 +647,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         held_out = oof_images, oof_truth
     base_scores = None
     if base is not None:  # the base model scored on the same held-out images: fine-tuning must beat it to be kept
-        base_scores = score_thresholds([base.logits(im) for im in held_out[0]], held_out[1], base.t_high, base.t_low,
-                                       tuple(float(v) for v in base.area_range_px), opts)
+        base_scores = score_thresholds([base.logits(im) for im in held_out[0]], held_out[1], base.t_high, base.t_low, base_area, opts)
     epoch, t_high, t_low, area, s_ours, s_paper = r["epoch"], r["t_high"], r["t_low"], r["area"], r["ours"], r["paper"]
     summary = (
         f"{'best epoch ' + str(epoch) + '; ' if choice == 'split' else ''}{how} at T_h={t_high:g}, T_l={t_low:g}, area {area[0]:.0f}-{area[1]:.0f} px: "
@@ -653,7 +659,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     if base_scores is not None:
         b_ours = base_scores[0]
         n = max(s_ours.n_balls, b_ours.n_balls, 1)
-        gain = (np.nan_to_num(s_ours.recall) - s_ours.outlier_rate) - (np.nan_to_num(b_ours.recall) - b_ours.outlier_rate)
+        gain = _net_gain(s_ours, b_ours)
         base_line = (f"the base model on the same held-out images ({how}) at T_h={base.t_high:g}, T_l={base.t_low:g}: ours recall "
                      f"{100 * b_ours.recall:.2f}%, outliers {100 * b_ours.outlier_rate:.2f}%, median {b_ours.median_center_error_px:.3f} px")
         log(base_line)
@@ -662,7 +668,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             verdict = (f"kept the base model unchanged (weights and thresholds): fine-tuning gains {100 * gain:.1f} points of recall - outliers "
                        f"on {n} held-out balls, not more than {PRIOR_MARGIN_BALLS} balls' worth")
             log(verdict)
-            t_high, t_low, area = base.t_high, base.t_low, tuple(float(v) for v in base.area_range_px)
+            t_high, t_low, area = base.t_high, base.t_low, base_area
             s_ours, s_paper = base_scores
             summary = f"{verdict}; {base_line}"
     desc = f"{description}; " if description else ""

@@ -2,9 +2,9 @@
 
 Rows (all in one process, one thread each, same image, same weights):
 
-* ``full / cv2`` — the production path: ``BallDetector.detect`` on the whole frame (``cv2.split`` and
-  ``cv2.LUT`` for the transformed channels, one compiled 5x5x3 correlation pass for the logits,
-  Algorithm 1 with top-K candidates, numba flood fill).
+* ``full / cv2`` — the production path: ``BallDetector.detect`` on the whole frame (the logits in one
+  compiled pass: the input transform's lookup and the 5x5x3 correlation, ``tracker/detection/_correlate.py``;
+  Algorithm 1 with top-K candidates, numba flood fill). The row keeps its name for the scripts that read it.
 * ``roi / cv2`` — the same in a window of side ``2 * roi_half_size_px`` around a predicted pixel.
 * ``full / cv2 without verifier``, ``roi / cv2 without verifier`` (models with a candidate verifier
   only) — the same detector with the filter alone, so the verifier's cost is the difference; a

@@ -187,11 +187,13 @@ def test_lossless_assembly_makes_a_fast_recording_wait_for_a_slow_consumer():
 
 
 def test_per_camera_queue_drops_oldest_when_the_assembler_lags():
-    # queue_len=1 and a camera bursting 20 frames at once: the assembler sees only the newest.
+    # queue_len=1 and a camera bursting 20 frames at once: the assembler sees only the newest. The output
+    # holds every set (output_len 20): a test thread slow to drain on a loaded machine must not make the
+    # output's own drop-oldest (another test's subject) skip one of them.
     start = _Start()
     burst = [(0.0, k, None) for k in range(20)]
     sources = [ScriptedCamera(0, burst, start)]
-    opts = AssemblyOptions(rate_hz=100.0, queue_len=1)
+    opts = AssemblyOptions(rate_hz=100.0, queue_len=1, output_len=20)
     with FrameSetAssembler(sources, opts) as asm:
         sets = drain(asm, 20)
         st = asm.stats()

@@ -7,6 +7,8 @@ from __future__ import annotations
 import threading
 import time
 
+import pytest
+
 from harness.live.run import LiveService
 
 
@@ -33,6 +35,19 @@ def test_close_with_a_deadline_finishes_the_log_and_leaves_a_hung_closer_behind(
     assert closed == ["log?"]  # newest first: the ones before the hung one ran, the one after waits behind it
     hang.set()
     assert live.close(timeout_s=0.3) is True and service.finished == 1  # once
+
+
+@pytest.mark.parametrize("timeout_s", [None, 1.0])
+def test_a_failing_finish_still_closes_everything_and_is_raised(timeout_s):
+    class _Broken(_Service):
+        def finish(self):
+            raise OSError("disk full")
+
+    closed = []
+    live = LiveService(config=None, service=_Broken(), assembler=None, closers=[lambda: closed.append(1), lambda: closed.append(2)])
+    with pytest.raises(OSError, match="disk full"):
+        live.close(timeout_s=timeout_s)
+    assert closed == [2, 1]
 
 
 def test_close_without_a_deadline_closes_everything_in_order():
