@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["AugmentOptions", "augment", "augmented_copies"]
+__all__ = ["AugmentOptions", "augment", "augmented_copies", "jpeg", "optics"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +67,27 @@ def _motion_kernel(length: float, angle: float) -> np.ndarray:
     return k / k.sum()
 
 
+def optics(image: np.ndarray, rng: np.random.Generator, opts: AugmentOptions) -> np.ndarray:
+    """Motion blur along a random direction (p = 1/2) or else defocus, as :func:`augment` draws them."""
+    if rng.random() < 0.5:
+        length = float(rng.uniform(0, opts.motion_blur_px))
+        if length >= 1.5:
+            return cv2.filter2D(image, -1, _motion_kernel(length, float(rng.uniform(0, math.pi))), borderType=cv2.BORDER_REFLECT_101)
+        return image
+    sigma = float(rng.uniform(0, opts.defocus_sigma_px))
+    return cv2.GaussianBlur(image, (0, 0), sigma) if sigma >= 0.3 else image
+
+
+def jpeg(image: np.ndarray, rng: np.random.Generator, opts: AugmentOptions) -> np.ndarray:
+    """JPEG artefacts (p = ``opts.p_jpeg``, quality in ``opts.jpeg_quality``), as :func:`augment` draws them."""
+    if rng.random() < opts.p_jpeg:
+        q = int(rng.integers(opts.jpeg_quality[0], opts.jpeg_quality[1] + 1))
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, q])
+        if ok:
+            return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    return image
+
+
 def augment(image: np.ndarray, labelled, rng: np.random.Generator, opts: AugmentOptions = AugmentOptions()):
     """One augmented copy: ``(image (H', W', 3) uint8 RGB, labelled with boxes and size moved to match)``.
 
@@ -86,14 +107,7 @@ def augment(image: np.ndarray, labelled, rng: np.random.Generator, opts: Augment
         boxes[:, 0] = nw - boxes[:, 0] - boxes[:, 2]
         centers[:, 0] = nw - 1 - centers[:, 0]
     # optics before the sensor: blur the scene, then gains, curve, noise, compression
-    if rng.random() < 0.5:
-        length = float(rng.uniform(0, opts.motion_blur_px))
-        if length >= 1.5:
-            out = cv2.filter2D(out, -1, _motion_kernel(length, float(rng.uniform(0, math.pi))), borderType=cv2.BORDER_REFLECT_101)
-    else:
-        sigma = float(rng.uniform(0, opts.defocus_sigma_px))
-        if sigma >= 0.3:
-            out = cv2.GaussianBlur(out, (0, 0), sigma)
+    out = optics(out, rng, opts)
     x = out.astype(np.float32) / 255.0
     gains = rng.uniform(*opts.wb_range, size=3) * rng.uniform(*opts.exposure_range)
     x = x * gains.astype(np.float32)
@@ -109,11 +123,7 @@ def augment(image: np.ndarray, labelled, rng: np.random.Generator, opts: Augment
     x = np.clip(x, 0.0, 1.0) ** np.float32(rng.uniform(*opts.gamma_range))
     x = x * 255.0 + rng.normal(0.0, rng.uniform(0, opts.noise_dn), size=x.shape).astype(np.float32)
     out = np.clip(np.rint(x), 0, 255).astype(np.uint8)
-    if rng.random() < opts.p_jpeg:
-        q = int(rng.integers(opts.jpeg_quality[0], opts.jpeg_quality[1] + 1))
-        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, q])
-        if ok:
-            out = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    out = jpeg(out, rng, opts)
     boxes[:, 2:] = np.maximum(boxes[:, 2:], 1e-3)
     boxes[:, :2] = np.clip(boxes[:, :2], 0, None)
     boxes[:, 2] = np.minimum(boxes[:, 2], nw - boxes[:, 0])

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from harness.experiments.detector.augment import AugmentOptions, _motion_kernel
+from harness.experiments.detector.augment import AugmentOptions, jpeg, optics
 from tracker.detection.learned import LearnedStage, learned_scale
 
 __all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "export_onnx", "fit_learned", "items_at_scale", "sample_patches",
@@ -184,15 +184,7 @@ def photometric(patch: np.ndarray, rng: np.random.Generator, opts: AugmentOption
     the same ranges, in fewer passes (per-channel gain and gamma as one lookup table; a lamp's tint as a
     smooth gradient): optics (motion blur or defocus), white balance x exposure, gamma, lamp tint, gain
     noise, JPEG."""
-    out = patch
-    if rng.random() < 0.5:
-        length = float(rng.uniform(0, opts.motion_blur_px))
-        if length >= 1.5:
-            out = cv2.filter2D(out, -1, _motion_kernel(length, float(rng.uniform(0, math.pi))), borderType=cv2.BORDER_REFLECT_101)
-    else:
-        sigma = float(rng.uniform(0, opts.defocus_sigma_px))
-        if sigma >= 0.3:
-            out = cv2.GaussianBlur(out, (0, 0), sigma)
+    out = optics(patch, rng, opts)
     gains = rng.uniform(*opts.wb_range, size=3) * rng.uniform(*opts.exposure_range)
     gamma = float(rng.uniform(*opts.gamma_range))
     v = np.arange(256, dtype=np.float64)[:, None] / 255.0
@@ -208,13 +200,7 @@ def photometric(patch: np.ndarray, rng: np.random.Generator, opts: AugmentOption
             tint = tint[::-1]
         x += ramp[..., None] * tint
     x += rng.standard_normal(x.shape, dtype=np.float32) * np.float32(rng.uniform(0, opts.noise_dn))
-    out = np.clip(np.rint(x), 0, 255).astype(np.uint8)
-    if rng.random() < opts.p_jpeg:
-        q = int(rng.integers(opts.jpeg_quality[0], opts.jpeg_quality[1] + 1))
-        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, q])
-        if ok:
-            out = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
-    return out
+    return jpeg(np.clip(np.rint(x), 0, 255).astype(np.uint8), rng, opts)
 
 
 def _warp(image: np.ndarray, m: np.ndarray, p: int, a: float) -> np.ndarray:

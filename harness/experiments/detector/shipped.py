@@ -51,8 +51,12 @@ def _drawn(sources, n_per_video: int, seed: int, colour: str, diameter_px, log):
     return out
 
 
+#: relative sampling weights of the sources (the real frames count most; the drawn balls, whose look is ours, least)
+WEIGHTS = {"real": 4.0, "pasted": 1.0, "drawn": 0.3, "renders": 1.0}
+
+
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
-          diameter_px=(5.0, 48.0), frames_per_video: int = 64, log=print, progress: bool = True):
+          diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, log=print, progress: bool = True):
     """The model (base filter + trained learned stage) and a dict of what it was trained on and its validation figures."""
     from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.learned_train import (LearnedTrainOptions, _best_threshold, fit_learned, items_at_scale)
@@ -63,39 +67,41 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     from tracker.detection.learned import LearnedStage
 
     base = BallSegmentationModel.load(base_path)
-    max_side = 640
     pairs, weights, sources = [], [], []
     rally_train = take_range(read_labels(RALLY, "auto"), rally_range) if RALLY.is_file() else []
     if colour == "white":
         if not rally_train:
             raise ValueError(f"the real rally frames are missing ({RALLY}): the white model's real frames")
         pairs += [(load_image(li), li) for li in rally_train]
-        weights += [2.0] * len(rally_train)
+        weights += [WEIGHTS["real"]] * len(rally_train)
         sources.append(f"{len(rally_train)} real rally frames ({rally_range})")
     bg = [str(p) for p in CALISCOPE_VIDEOS if p.is_file()] + ([f"{RALLY}@{rally_range}"] if rally_train else [])
     drawn = _drawn(bg, frames_per_video, seed, colour, diameter_px, log)
     pairs += drawn
-    weights += [1.0] * len(drawn)
+    weights += [WEIGHTS["drawn"]] * len(drawn)
     sources.append(f"{len(drawn)} frames with drawn {colour} balls (caliscope cameras 0-1, rally {rally_range} painted out)")
     if colour == "white":
         pasted = _pasted(rally_range, bg, seed, frames_per_video, diameter_px, log)
         if pasted:
             pairs += pasted
-            weights += [1.0] * len(pasted)
+            weights += [WEIGHTS["pasted"]] * len(pasted)
             sources.append(f"{len(pasted)} frames with the rally's real ball crops pasted in")
     if renders:
         r = read_labels(renders, "auto")
         pairs += [(load_image(li), li) for li in r]
-        weights += [1.0] * len(r)
+        weights += [WEIGHTS["renders"]] * len(r)
         sources.append(f"{len(r)} renders ({renders})")
     items = []
     for (im, li), w in zip(pairs, weights):
         items += items_at_scale([(im, li)], max_side, weight=w)
     opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0))
     _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
-    stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px)
-    # threshold on a validation set made like the drawn training frames, from other frames and seeds
-    val = _drawn([str(p) for p in CALISCOPE_VIDEOS if p.is_file()], 24, seed + 1000, colour, diameter_px, log)
+    stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px, coarse_side_px=max_side // 2)
+    # threshold on a validation set made like the training frames, from other frames and seeds
+    vids = [str(p) for p in CALISCOPE_VIDEOS if p.is_file()]
+    val = _drawn(vids, 24, seed + 1000, colour, diameter_px, log)
+    if colour == "white":
+        val += _pasted(rally_range, vids, seed + 1000, 24, diameter_px, log)
     truth = ([truth_of(li)[0] for _, li in val], [truth_of(li)[1] for _, li in val])
     cands = [stage.candidates(im, None, k=16, threshold=0.05)[:2] for im, _ in val]
     th, s = _best_threshold(truth, cands, 4, 6.0)
@@ -154,6 +160,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--rally-range", default="0:58", help="the rally frames trained on, in time order (default 0:58; the rest stays held out)")
     parser.add_argument("--renders", default=None, help="an rt2 sim dataset folder of renders added to training (e.g. for orange)")
     parser.add_argument("--frames-per-video", type=int, default=64, help="background frames taken from each video (default 64)")
+    parser.add_argument("--max-side-px", type=int, default=960,
+                        help="frames with a longer side are shrunk to it before the network (default 960: VGA frames as they are)")
 
 
 def run(args) -> int:
@@ -164,7 +172,7 @@ def run(args) -> int:
         raise ValueError(f"--out must end in .npz, got {args.out!r}")
     check_output_file(out, "--out")
     model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,
-                        renders=args.renders, frames_per_video=args.frames_per_video)
+                        renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px)
     with atomic_path(out, "--out") as tmp:
         model.save(tmp)
     print(f"wrote {out}: learned stage threshold {info['threshold']:g}")

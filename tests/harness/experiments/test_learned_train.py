@@ -92,7 +92,7 @@ def test_rt2_train_chooses_between_the_base_stage_fine_tuned_and_scratch(synthet
     """With a base model that has a stage, the three candidates are scored and the description says which won."""
     base_path = tmp_path / "base.npz"
     assert main(["train", "--data", str(synthetic_ball_coco(30, 0)), "--out", str(base_path), "--epochs", "1", "--from", "none",
-                 "--learned-steps", "150", "--learned-folds", "2", "--force", "--seed", "0"]) == 0
+                 "--learned-steps", "40", "--learned-folds", "2", "--force", "--seed", "0"]) == 0
     capsys.readouterr()
     out = tmp_path / "m.npz"
     assert main(["train", "--data", str(synthetic_ball_coco(12, 1)), "--out", str(out), "--epochs", "1", "--from", str(base_path),
