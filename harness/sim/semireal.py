@@ -6,7 +6,9 @@ frames are the backgrounds, its calibration is the rig (the lens model the ball 
 the one the trackers get), and one ball per frame set flies by the project's ball physics
 (:func:`policies.ball_model.simulate`: gravity, drag, Magnus; free flight, no table in this room).
 Per camera the ball is drawn with that camera's lens, the image's local light, sharpness and noise
-(:func:`harness.sim.render.composite.draw_ball`).
+(:func:`harness.sim.render.composite.draw_ball`), or, with ``SemiRealOptions.real_balls``, a real white ball
+cut from the real rally frames is pasted there (:class:`harness.sim.real_balls.RealBalls`: the projected
+centre, the apparent size at its depth, its smear laid along the projected flight).
 
 World frame: caliscope's (camera ``cameras.1`` at the origin); ``+y`` is up (cameras 0, 2 and 3 hang
 above the board and look down along ``-y``). Workspace (:func:`common_view_box`): the box of the points
@@ -14,7 +16,12 @@ all cameras see (5th-95th percentile of a 5 cm grid, each point inside every ima
 
 Frame set ``f`` of seed ``s`` depends only on ``(s, f)`` (``default_rng([s, f])``): the background
 frame set, the flight, the noise. Frames are decoded once per process and kept in memory (only the
-``backgrounds`` frame sets used: 12 x 4 x 2.8 MB by default).
+``backgrounds`` frame sets used: 12 x 4 x 2.8 MB by default). With moving backgrounds
+(``SemiRealOptions.moving_backgrounds``, the default for the real balls) frame ``j`` of a flight lies on the
+session's real frame set ``k0 + j`` (its 48 frame sets in their time order, ``k0`` drawn per flight), so
+the people and the board move as they did; the frame sets a flight needs are decoded when it starts and
+kept (at most all 48 x 4 x 2.8 MB). The session's frames come 6 per second: the scene moves ~17 times faster than at the
+flight's 100 Hz.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ import cv2
 import numpy as np
 
 from checks.files import MAX_CONFIG_BYTES, read_text_capped
+from harness.sim.real_balls import RealBalls
 from harness.sim.render.composite import draw_ball, edge_blur_px
 from harness.sim.render.scene_state import Ball
 from tracker.rig_files import read_anipose_toml
@@ -35,10 +43,12 @@ from policies.ball_model import simulate
 from tracker import Camera, Rig
 from tracker.calibration.poses import rigid_fit, rotation_angle_deg
 
-__all__ = ["DEFAULT_SESSION", "EXPOSURES", "SemiRealOptions", "SemiRealSession", "aligned_rig", "common_view_box", "session_rig"]
+__all__ = ["DEFAULT_RALLY", "DEFAULT_SESSION", "EXPOSURES", "SemiRealOptions", "SemiRealSession", "aligned_rig", "common_view_box", "session_frames", "session_rig"]
 
 #: the caliscope session shipped beside the project (``../shared`` next to the repository)
 DEFAULT_SESSION = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "caliscope_4cam"
+#: the real rally frames whose white balls are cut and pasted (``SemiRealOptions.real_balls``)
+DEFAULT_RALLY = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "phone_rally"
 #: ``SemiRealOptions.exposure``: "tracking" = ``tracking_exposure_s`` in every camera; "recorded" =
 #: each webcam's own shutter from ``camera_array.toml`` (``exposure`` = log2 seconds: -7 -> 7.8 ms)
 EXPOSURES = ("tracking", "recorded")
@@ -75,6 +85,15 @@ def session_rig(folder=DEFAULT_SESSION) -> Rig:
     return Rig(rig.cameras, workspace_m=common_view_box(rig), description=f"caliscope_4cam (real calibration, {folder})")
 
 
+def session_frames(folder=DEFAULT_SESSION) -> int:
+    """The number of frame sets of the session (rows of ``timestamps.csv`` by sync index), without decoding a frame."""
+    folder = Path(folder)
+    toml = folder / "camera_array.toml"
+    if not toml.is_file():
+        raise FileNotFoundError(f"semi-real session {str(folder)!r}: no camera_array.toml (expected the caliscope_4cam folder of ../shared/data/real)")
+    return len(_frame_times(folder / "calibration" / "extrinsic" / "timestamps.csv", len(read_anipose_toml(toml))))
+
+
 def aligned_rig(other: Rig, session: Rig) -> tuple[Rig, dict]:
     """``other`` (another calibration of the session's cameras, same order, e.g. ``rt2 calib board`` of its
     videos, whose world frame is its first camera) moved into the session's world frame by the rigid fit
@@ -109,6 +128,11 @@ class SemiRealOptions:
     sync : "exact" (the ball drawn at the frame set's time in every camera) or "recorded" (at each
         camera's own frame time from ``timestamps.csv``: the session's real sync error, up to ~10 ms)
     backgrounds : real frame sets used as backgrounds, evenly spaced over the session
+    real_balls : None (the ball is drawn) or a COCO set of one video whose balls are cut and pasted
+        (:class:`harness.sim.real_balls.RealBalls`, e.g. ``DEFAULT_RALLY``; ``ball_colour`` must be "white")
+    crop_frames : the ``"START:STOP"`` range of ``real_balls``' time order whose balls are used (None: all)
+    moving_backgrounds : flights run over the session's frame sets in time order (module docstring); None =
+        True with ``real_balls``, False for the drawn ball (whose published figures used still backgrounds)
     """
 
     ball_colour: str = "orange"
@@ -118,6 +142,14 @@ class SemiRealOptions:
     tracking_exposure_s: float = 0.002
     sync: str = "exact"
     backgrounds: int = 12
+    real_balls: object = None
+    crop_frames: str | None = None
+    moving_backgrounds: bool | None = None
+
+    @property
+    def moving(self) -> bool:
+        """Whether flights run over the session's frame sets in time order (``moving_backgrounds`` resolved)."""
+        return self.real_balls is not None if self.moving_backgrounds is None else bool(self.moving_backgrounds)
 
     def __post_init__(self):
         if self.ball_colour not in ("orange", "white"):
@@ -133,6 +165,12 @@ class SemiRealOptions:
             raise ValueError(f"unknown sync {self.sync!r}; valid: ['exact', 'recorded']")
         if isinstance(self.backgrounds, bool) or not isinstance(self.backgrounds, int) or self.backgrounds < 1:
             raise ValueError(f"backgrounds must be a positive integer, got {self.backgrounds!r}")
+        if self.real_balls is not None and self.ball_colour != "white":
+            raise ValueError(f"real_balls are the real white balls: ball_colour must be 'white', got {self.ball_colour!r}")
+        if self.crop_frames is not None and self.real_balls is None:
+            raise ValueError("crop_frames chooses among real_balls' frames; real_balls is None (the ball is drawn)")
+        if self.moving_backgrounds not in (None, True, False):
+            raise ValueError(f"moving_backgrounds must be None, True or False, got {self.moving_backgrounds!r}")
 
 
 class SemiRealSession:
@@ -155,7 +193,8 @@ class SemiRealSession:
         n = len(self._times)
         self.frame_indices = np.unique(np.linspace(0, n - 1, min(options.backgrounds, n)).round().astype(int))
         self._frames = _decode(self._videos, self.frame_indices, [c.image_size for c in rig])  # {index: [images]}
-        self._blur = {k: [edge_blur_px(cv2.cvtColor(im, cv2.COLOR_RGB2GRAY)) for im in ims] for k, ims in self._frames.items()}
+        self._blur: dict[int, list] = {}
+        self.real = None if options.real_balls is None else RealBalls(options.real_balls, options.crop_frames)
         if options.exposure == "recorded":
             data = tomllib.loads(read_text_capped(toml, MAX_CONFIG_BYTES, "calibration file"))
             cams = data.get("cameras", data)
@@ -164,7 +203,13 @@ class SemiRealSession:
             self.exposures_s = np.full(len(rig), options.tracking_exposure_s)
 
     def __repr__(self) -> str:
-        return f"SemiRealSession({self.folder.name}, {len(self.frame_indices)} background frame sets, {self.options.ball_colour} ball)"
+        ball = f"real {self.options.ball_colour} balls ({len(self.real.crops)} crops)" if self.real else f"{self.options.ball_colour} ball"
+        return f"SemiRealSession({self.folder.name}, {len(self.frame_indices)} background frame sets, {ball})"
+
+    @property
+    def n_frames(self) -> int:
+        """Frame sets of the session (its time order: ``timestamps.csv``'s sync index)."""
+        return len(self._times)
 
     def ball_state(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """A ball flying through the workspace at a random time of a random physics flight: its
@@ -190,15 +235,23 @@ class SemiRealSession:
         rng = np.random.default_rng([self.seed, f])
         k = int(self.frame_indices[rng.integers(len(self.frame_indices))])
         p, v = self.ball_state(rng)
-        return (*self._draw(k, p, v, rng), p[None, :], k)
+        return (*self._draw(k, p, v, rng)[:2], p[None, :], k)
 
     def flight(self, n: int, frames: int, rate_hz: float) -> tuple[int, np.ndarray, np.ndarray]:
         """Flight ``n`` (stream ``[seed, n, 0]``): its background frame set index and the ball's positions and
         velocities (frames, 3), world frame, every ``1 / rate_hz`` s. The flight passes a random point of the
-        workspace at its middle (launched ``frames / 2`` frames earlier, back along its launch velocity)."""
+        workspace at its middle (launched ``frames / 2`` frames earlier, back along its launch velocity).
+        With moving backgrounds the index is the first of ``frames`` consecutive frame sets (module docstring)."""
         rng = np.random.default_rng([self.seed, n, 0])
         o, (lo, hi), R = self.options, self.rig.workspace_m, _lab_from_world()
-        k = int(self.frame_indices[rng.integers(len(self.frame_indices))])
+        if o.moving:
+            if frames > self.n_frames:
+                raise ValueError(f"a flight of {frames} frame sets over moving backgrounds needs as many of the session's "
+                                 f"frame sets; {self.folder} has {self.n_frames}")
+            k = int(rng.integers(self.n_frames - frames + 1))
+            self._decode_range(k, k + frames)
+        else:
+            k = int(self.frame_indices[rng.integers(len(self.frame_indices))])
         mid = rng.uniform(lo, hi)
         d = rng.standard_normal(3)
         v0 = rng.uniform(*o.speed_mps) * d / np.linalg.norm(d)
@@ -208,23 +261,50 @@ class SemiRealSession:
         s = simulate(state, t)[0]
         return k, (s[:, :3] - [0, 0, LIFT_M]) @ R, s[:, 3:6] @ R
 
-    def flight_frameset(self, n: int, j: int, flight) -> tuple:
+    def flight_frameset(self, n: int, j: int, flight, *, crop: bool = False) -> tuple:
         """Frame ``j`` of flight ``n`` (``flight`` = :meth:`flight`'s result; noise stream ``[seed, n, j + 1]``),
-        as :meth:`frameset` returns it."""
+        as :meth:`frameset` returns it; ``crop=True`` appends the pasted real ball's source frame name (None: drawn)."""
         k, P, V = flight
-        return (*self._draw(k, P[j], V[j], np.random.default_rng([self.seed, n, j + 1])), P[j][None, :], k)
+        if self.options.moving:
+            self._decode_range(k, k + len(P))  # (decoded by :meth:`flight` in this process; a no-op then)
+            k = k + j
+        images, truths, source = self._draw(k, P[j], V[j], np.random.default_rng([self.seed, n, j + 1]))
+        return (images, truths, P[j][None, :], k, source) if crop else (images, truths, P[j][None, :], k)
 
-    def _draw(self, k: int, p: np.ndarray, v: np.ndarray, rng) -> tuple[list, list]:
+    def _decode_range(self, start: int, stop: int) -> None:
+        """Decode the frame sets ``start .. stop - 1`` not decoded yet (moving backgrounds); they stay in memory."""
+        missing = [k for k in range(start, stop) if k not in self._frames]
+        if missing:
+            self._frames.update(_decode(self._videos, missing, [c.image_size for c in self.rig]))
+
+    def _frame_blur(self, k: int) -> list:
+        """Per camera :func:`~harness.sim.render.composite.edge_blur_px` of frame set ``k`` (the drawn ball's defocus), cached."""
+        if k not in self._blur:
+            self._blur[k] = [edge_blur_px(cv2.cvtColor(im, cv2.COLOR_RGB2GRAY)) for im in self._frames[k]]
+        return self._blur[k]
+
+    def _draw(self, k: int, p: np.ndarray, v: np.ndarray, rng) -> tuple[list, list, str | None]:
         times = self._times[k]
         dt = times - np.median(times) if self.options.sync == "recorded" else np.zeros(len(self.rig))
+        balls = [Ball(position_m=p + dt[i] * v, velocity_mps=v, colour=self.options.ball_colour) for i in range(len(self.rig))]
+        if self.real is not None:  # one real ball for all cameras: its crop by the flight's smear over its size
+            ratios = []
+            for cam, ball, T in zip(self.rig, balls, self.exposures_s):
+                smear, d = RealBalls.smear_px(cam, ball, float(T))
+                ratios.append(np.hypot(*smear) / d if d > 0 else np.nan)
+            finite = [r for r in ratios if np.isfinite(r)]
+            look = self.real.choose(float(np.median(finite)) if finite else float("nan"), rng)
+        source = None if self.real is None else look.crop.source
         images, truths = [], []
-        for i, cam in enumerate(self.rig):
-            ball = Ball(position_m=p + dt[i] * v, velocity_mps=v, colour=self.options.ball_colour)
-            img, truth = draw_ball(self._frames[k][i], cam, ball, float(self.exposures_s[i]), rng,
-                                   light_dir_world=UP_WORLD + 0.3 * np.array([1.0, 0.0, 1.0]), frame_blur_px=self._blur[k][i])
+        for i, (cam, ball) in enumerate(zip(self.rig, balls)):
+            if self.real is not None:
+                img, truth, _ = self.real.paste(self._frames[k][i], cam, ball, float(self.exposures_s[i]), look, rng)
+            else:
+                img, truth = draw_ball(self._frames[k][i], cam, ball, float(self.exposures_s[i]), rng,
+                                       light_dir_world=UP_WORLD + 0.3 * np.array([1.0, 0.0, 1.0]), frame_blur_px=self._frame_blur(k)[i])
             images.append(img)
             truths.append((truth,))
-        return images, truths
+        return images, truths, source
 
 
 def _lab_from_world() -> np.ndarray:

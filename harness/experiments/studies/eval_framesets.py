@@ -48,7 +48,10 @@ Scenes (``--scene``): ``lab`` renders random frame sets of ``--rig`` (above; tra
 caliscope session (:mod:`harness.sim.semireal`: its real frames as backgrounds, its real calibration, one
 orange or white ball of known physics flight drawn into every camera with that camera's lens, local light,
 sharpness and noise; trackers ``rt2``, ``rt2-paper``, ``rtblob`` by default), and also prints the accuracy
-table: percentiles of every position's 3D error, wrong ones included. ``--tracker-rig`` gives the
+table: percentiles of every position's 3D error, wrong ones included. ``--ball white`` pastes a real white
+ball cut from the real rally frames instead (:mod:`harness.sim.real_balls`: at the projection of its 3D
+position, its size at that depth, its smear along the projected flight; ``--crop-frames`` chooses the rally
+frames, ``--ball-crops`` another COCO set), and its flights run over the session's frames in time order. ``--tracker-rig`` gives the
 trackers a second real calibration of the same cameras (``caliscope_4cam_rt2``: ``rt2 calib board`` of the
 session's videos, aligned to caliscope's world frame), so the ball drawn with caliscope's calibration is
 tracked through a real calibration error.
@@ -241,7 +244,8 @@ def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "
     trackers : names in ``TRACKERS`` (default: ``DEFAULT_TRACKERS[scene]``)
     scene : one of ``SCENES``; "caliscope" ignores ``rig`` (the session's calibration is the rig) and draws
         the ball into the real frames of ``session`` (a folder, default ``harness.sim.semireal.DEFAULT_SESSION``)
-        with :class:`harness.sim.semireal.SemiRealOptions` ``semireal`` (its ``ball_colour`` is ``ball_colour``);
+        with :class:`harness.sim.semireal.SemiRealOptions` ``semireal`` (its ``ball_colour`` is ``ball_colour``;
+        its ``real_balls`` pastes real white balls, and its flights then need at most the session's frame sets);
         the trackers get the session's calibration, or ``tracker_rig`` (a :class:`tracker.Rig`: another calibration
         of the same cameras, aligned by :func:`harness.sim.semireal.aligned_rig`) for a real calibration error
     flight_frames : (caliscope) 1 = every frame set alone (a new ball, trackers reset, no window search); N > 1 =
@@ -281,6 +285,13 @@ def evaluate(rig, frames: int, seed: int, *, trackers=None, ball_colour: str = "
         if tracker_rig is not None:
             rig = aligned_rig(tracker_rig, rig)[0]
         semi = (session, replace(SemiRealOptions() if semireal is None else semireal, ball_colour=ball_colour))
+        if semi[1].moving and flight_frames > 1:
+            from harness.sim.semireal import session_frames
+
+            n = session_frames(session)
+            if flight_frames > n:
+                raise ValueError(f"--flight-frames {flight_frames}: the flights run over the session's frame sets in time order, "
+                                 f"and {session} has {n}")
     if rig.workspace_m is None:
         raise ValueError("the rig has no workspace_m: random frame sets need the box where balls fly")
     model = load_model(model)  # fails here, not in a worker
@@ -433,7 +444,17 @@ def add_arguments(parser) -> None:
     parser.add_argument("--frames", type=int, default=300, help="frame sets to render (default 300)")
     parser.add_argument("--seed", type=int, default=2, help="scene and noise seed (default 2 = the held-out detector set's frames)")
     parser.add_argument("--model", default=None, help="weights file (.npz; default: the shipped model)")
-    parser.add_argument("--ball-colour", choices=("orange", "white"), default="orange", help="the balls that count as the ball (default orange, the model's)")
+    parser.add_argument("--ball-colour", choices=("orange", "white"), default=None,
+                        help="the balls that count as the ball (default orange, the model's; white with --ball white)")
+    parser.add_argument("--ball", choices=("orange", "white"), default=None,
+                        help="--scene caliscope: orange = the drawn orange ball (the default); white = real white balls cut from the "
+                             "real rally frames (--ball-crops) and pasted along the flight; flights then run over the session's "
+                             "frames in their time order")
+    parser.add_argument("--ball-crops", default=None,
+                        help="--ball white: the COCO set whose balls are cut (default ../shared/data/real/phone_rally)")
+    parser.add_argument("--crop-frames", default=None,
+                        help="--ball white: START:STOP of the crops' time order whose balls are used (e.g. 58: = the rally "
+                             "frames a detector trained on 0:58 never saw; default all)")
     parser.add_argument("--tol-m", type=float, default=0.04, help="a position this close to a ball is right, metres (default 0.04 = one ball diameter)")
     parser.add_argument("--max-size-ratio", type=float, default=MAX_SIZE_RATIO,
                         help=f"the rt2 tracker's 3D size test threshold (default {MAX_SIZE_RATIO:g}, TrackerOptions' default)")
@@ -443,7 +464,30 @@ def add_arguments(parser) -> None:
     add_sweep_arguments(parser)
 
 
-def _semireal_options(args):
+def _ball_choice(args) -> tuple[str, dict]:
+    """``--ball`` / ``--ball-colour`` / ``--ball-crops`` / ``--crop-frames`` -> (target colour, SemiRealOptions fields)."""
+    from checks.time_order import parse_range
+    from harness.sim.semireal import DEFAULT_RALLY
+
+    colour = args.ball_colour or ("white" if args.ball == "white" else "orange")
+    if args.ball is not None and colour != args.ball:
+        raise ValueError(f"--ball {args.ball} and --ball-colour {colour} disagree: the ball pasted is the ball that counts")
+    if args.ball != "white":
+        for name in ("ball_crops", "crop_frames"):
+            if getattr(args, name) is not None:
+                raise ValueError(f"--{name.replace('_', '-')} applies to --ball white only")
+        return colour, {}
+    if args.crop_frames is not None:
+        parse_range(args.crop_frames, "--crop-frames")
+    crops = args.ball_crops or DEFAULT_RALLY
+    from pathlib import Path
+
+    if not (Path(crops).is_file() or (Path(crops) / "annotations.json").is_file()):
+        raise FileNotFoundError(f"--ball-crops {str(crops)!r}: no COCO annotations.json there (the real rally frames are ../shared/data/real/phone_rally)")
+    return colour, {"ball_colour": colour, "real_balls": crops, "crop_frames": args.crop_frames}
+
+
+def _semireal_options(args, ball: dict):
     from harness.sim.semireal import SemiRealOptions
 
     if args.backgrounds < 1:
@@ -453,14 +497,14 @@ def _semireal_options(args):
     if not (np.isfinite(args.rate_hz) and 0 < args.rate_hz <= 10000):
         raise ValueError(f"--rate-hz must be a frame rate in (0, 10000] Hz, got {args.rate_hz}")
     if args.exposure in ("tracking", "recorded"):
-        return SemiRealOptions(exposure=args.exposure, sync=args.sync, backgrounds=args.backgrounds)
+        return SemiRealOptions(exposure=args.exposure, sync=args.sync, backgrounds=args.backgrounds, **ball)
     try:
         t = float(args.exposure)
     except ValueError:
         raise ValueError(f"--exposure must be 'tracking', 'recorded' or a shutter time in seconds, got {args.exposure!r}") from None
     if not (np.isfinite(t) and 0 < t <= 0.1):
         raise ValueError(f"--exposure must be a shutter time in (0, 0.1] s, got {args.exposure!r}")
-    return SemiRealOptions(exposure="tracking", tracking_exposure_s=t, sync=args.sync, backgrounds=args.backgrounds)
+    return SemiRealOptions(exposure="tracking", tracking_exposure_s=t, sync=args.sync, backgrounds=args.backgrounds, **ball)
 
 
 def run(args) -> int:
@@ -480,7 +524,8 @@ def run(args) -> int:
     if args.scene == "caliscope":
         if args.rig is not None:
             raise ValueError("--rig applies to --scene lab; --scene caliscope uses the session's own calibration (--session)")
-        semireal = _semireal_options(args)
+        args.ball_colour, ball = _ball_choice(args)
+        semireal = _semireal_options(args, ball)
         from harness.sim.semireal import DEFAULT_SESSION
 
         args.rig = f"caliscope_4cam ({args.session or DEFAULT_SESSION})"
@@ -489,6 +534,9 @@ def run(args) -> int:
         shutter = "each webcam's own" if semireal.exposure == "recorded" else f"{1e3 * semireal.tracking_exposure_s:g} ms"
         when = "each camera's recorded frame time" if semireal.sync == "recorded" else "one time in all cameras"
         args.rig += f"; shutter {shutter}; ball drawn at {when}"
+        if semireal.real_balls is not None:
+            args.rig += (f"; real white balls cut from {semireal.real_balls}" + (f" frames {semireal.crop_frames}" if semireal.crop_frames else "")
+                         + (", flights over the session's frames in time order" if args.flight_frames > 1 else ""))
         if args.tracker_rig is not None:
             from harness.sim.semireal import aligned_rig, session_rig
 
@@ -497,9 +545,10 @@ def run(args) -> int:
             args.rig += (f"; trackers' calibration {args.tracker_rig}: rotation {', '.join(f'{v:.2f}' for v in diff['rotation_deg'])} deg, "
                          f"centres {', '.join(f'{v:.0f}' for v in diff['centre_mm'])} mm from caliscope's")
     else:
-        for name in ("session", "exposure", "sync", "backgrounds", "tracker_rig", "flight_frames", "rate_hz"):
+        for name in ("session", "exposure", "sync", "backgrounds", "tracker_rig", "flight_frames", "rate_hz", "ball", "ball_crops", "crop_frames"):
             if getattr(args, name) != {"exposure": "tracking", "sync": "exact", "backgrounds": 12, "flight_frames": 1, "rate_hz": 100.0}.get(name):
                 raise ValueError(f"--{name.replace('_', '-')} applies to --scene caliscope only")
+        args.ball_colour = args.ball_colour or "orange"
         args.rig = args.rig or "lab4_vga_v1"
         rig = resolve_rig(args.rig)
     stopped: list = []

@@ -23,7 +23,7 @@ real rally frames of ``../shared/data/real/phone_rally``) and returns per ball a
    ``sqrt(12 (lambda_max - lambda_min))`` pixels along the major axis (a segment of length L adds L^2 / 12).
 
 :func:`paste_ball` puts a crop into another image at a given centre and diameter: the matte and the
-premultiplied foreground resampled by ``cv2.warpAffine`` (sub-pixel placement), optional motion blur along a
+premultiplied foreground resampled by ``cv2.warpAffine`` (sub-pixel placement, scale, optional turn), optional motion blur along a
 path (the average of ``ceil(2 |path|)`` shifted copies, at least 2) and defocus (Gaussian), the
 ball's brightness moved part of the way to the destination's local light (the white level of
 :func:`harness.sim.render.composite.local_look`), a gain and colour jitter, composited in
@@ -311,7 +311,7 @@ def _solidity(alpha: np.ndarray) -> float:
 
 def paste_ball(image: np.ndarray, crop: BallCrop, center_px, diameter_px: float, rng: np.random.Generator, *,
                blur_px=(0.0, 0.0), defocus_px: float = 0.0, gain: float | None = None, colour_gain=None,
-               light_match: float | None = None, noise: bool = True) -> PasteResult:  # fmt: skip
+               light_match: float | None = None, noise: bool = True, angle_deg: float = 0.0) -> PasteResult:  # fmt: skip
     """``image`` (H, W, 3) uint8 RGB with ``crop``'s ball pasted at ``center_px`` (u, v, rt2 pixels), scaled to
     ``diameter_px`` (module docstring).
 
@@ -335,14 +335,18 @@ def paste_ball(image: np.ndarray, crop: BallCrop, center_px, diameter_px: float,
     H, W = img.shape[:2]
     s = float(diameter_px) / crop.diameter_px
     ch, cw = crop.alpha.shape
-    half_u = s * max(crop.center_px[0], cw - 1 - crop.center_px[0]) + abs(bu) / 2 + 3 * defocus_px + 2
-    half_v = s * max(crop.center_px[1], ch - 1 - crop.center_px[1]) + abs(bv) / 2 + 3 * defocus_px + 2
+    a = math.radians(float(angle_deg))
+    rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    corners = np.array([[0, 0], [cw - 1, 0], [0, ch - 1], [cw - 1, ch - 1]], float) - crop.center_px
+    reach = np.abs(s * corners @ rot.T).max(axis=0)  # the turned, scaled patch around the centre
+    half_u = reach[0] + abs(bu) / 2 + 3 * defocus_px + 2
+    half_v = reach[1] + abs(bv) / 2 + 3 * defocus_px + 2
     x0, x1 = max(int(math.floor(cu - half_u)), 0), min(int(math.ceil(cu + half_u)) + 1, W)
     y0, y1 = max(int(math.floor(cv - half_v)), 0), min(int(math.ceil(cv + half_v)) + 1, H)
     out = img.copy()
     full_alpha = np.zeros((H, W), np.float32)
     r = diameter_px / 2
-    ext = s * np.abs(crop.blur_px) / 2 + np.abs([bu, bv]) / 2 + r
+    ext = s * np.abs(rot @ crop.blur_px) / 2 + np.abs([bu, bv]) / 2 + r
     box = np.array([cu - ext[0] + 0.5, cv - ext[1] + 0.5, 2 * ext[0], 2 * ext[1]])
     if x1 <= x0 or y1 <= y0:
         return PasteResult(out, np.array([cu, cv]), box, full_alpha)
@@ -351,7 +355,8 @@ def paste_ball(image: np.ndarray, crop: BallCrop, center_px, diameter_px: float,
     acc = np.zeros((y1 - y0, x1 - x0, 4), np.float32)
     for t in (np.linspace(-0.5, 0.5, n) if n > 1 else [0.0]):
         tu, tv = cu + t * bu - x0, cv + t * bv - y0  # crop centre -> this window's point
-        M = np.array([[s, 0, tu - s * crop.center_px[0]], [0, s, tv - s * crop.center_px[1]]], np.float32)
+        A = s * rot
+        M = np.hstack([A, (np.array([tu, tv]) - A @ crop.center_px)[:, None]]).astype(np.float32)
         interp = cv2.INTER_AREA if s < 0.7 else cv2.INTER_LINEAR
         acc += cv2.warpAffine(layers, M, (x1 - x0, y1 - y0), flags=interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     acc /= n

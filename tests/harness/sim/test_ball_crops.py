@@ -118,13 +118,13 @@ def centroid(a):
     return np.array([(a * u).sum(), (a * v).sum()]) / a.sum()
 
 
-@pytest.mark.parametrize("diameter,blur,defocus", [(22.0, (0, 0), 0.0), (9.5, (0, 0), 0.0), (35.0, (12.0, 5.0), 1.0),
-                                                   (14.0, (-6.0, 9.0), 0.5)])
-def test_paste_puts_the_ball_where_asked(tmp_path, diameter, blur, defocus):
+@pytest.mark.parametrize("diameter,blur,defocus,angle", [(22.0, (0, 0), 0.0, 0.0), (9.5, (0, 0), 0.0, 0.0), (35.0, (12.0, 5.0), 1.0, 0.0),
+                                                         (14.0, (-6.0, 9.0), 0.5, 0.0), (26.0, (0, 0), 0.0, 70.0)])
+def test_paste_puts_the_ball_where_asked(tmp_path, diameter, blur, defocus, angle):
     video(tmp_path, n=3, blur=(10.0, 4.0))
     for crop in cut_ball_crops(tmp_path):
         for centre in [(101.3, 87.8), (130.55, 95.2)]:
-            a, res = pasted_alpha(crop, centre, diameter, blur_px=blur, defocus_px=defocus)
+            a, res = pasted_alpha(crop, centre, diameter, blur_px=blur, defocus_px=defocus, angle_deg=angle)
             assert np.abs(centroid(a) - centre).max() < 0.5
             assert np.allclose(res.center_px, centre)
             assert np.abs(centroid(res.alpha) - centre).max() < 0.25  # the returned matte is the one composited
@@ -132,6 +132,14 @@ def test_paste_puts_the_ball_where_asked(tmp_path, diameter, blur, defocus):
             assert x - 0.5 < centre[0] < x + w - 0.5 and w >= diameter and h >= diameter
             scale = diameter / crop.diameter_px
             assert a.sum() == pytest.approx(crop.alpha.sum() * scale**2, rel=0.05)  # blur spreads the matte, scaling scales it
+            if angle:  # the crop's smear turned by the angle
+                t = np.radians(angle)
+                want = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]]) @ crop.blur_px
+                vv, uu = np.mgrid[0:a.shape[0], 0:a.shape[1]]
+                du, dv = uu - centre[0], vv - centre[1]
+                cov = np.array([[(a * du * du).sum(), (a * du * dv).sum()], [(a * du * dv).sum(), (a * dv * dv).sum()]])
+                axis = np.linalg.eigh(cov)[1][:, 1]
+                assert abs(axis @ want) / np.linalg.norm(want) > np.cos(np.radians(5))
 
 
 def test_paste_is_seeded_and_random_where_asked(tmp_path):
