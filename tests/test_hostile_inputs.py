@@ -338,7 +338,7 @@ def _commands(tmp_path, synthetic_ball_coco):
         "accuracy --json": lambda p: ["accuracy", "--frames", "20", "--no-log", "--out", str(tmp_path / "acc"), "--json", p],
         "sim dataset --out": lambda p: ["sim", "dataset", "--frames", "1", "--out", p],
         "sim table1 --json": lambda p: ["sim", "table1", "--trials", "10", "--json", p],
-        "train --out": lambda p: ["train", "--data", data, "--epochs", "1", "--out", p + ".npz"],
+        "train --out": lambda p: ["train", "--data", data, "--epochs", "1", "--learned", "off", "--out", p + ".npz"],
         "reevaluate --json": lambda p: ["reevaluate", str(log), "--json", p],
         "reevaluate --plot": lambda p: ["reevaluate", str(log), "--plot", p + ".png"],
         "eval detector --json": lambda p: ["eval", "detector", "--data", data, "--json", p],

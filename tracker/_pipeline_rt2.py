@@ -66,7 +66,7 @@ class SegmentationEngine:
         self._motion = MotionPredictor(rig, options.max_gap_s)
         self._retry_wait, self._retry_gap = 0, 1  # frame sets the next retry still waits; the wait after the next failed retry
         self._size = SizeTest(rig, options.max_size_ratio if spec.extras else None, options.ball_radius_m,
-                              model.edge_loss_px if options.blob_edge_px is None else options.blob_edge_px)
+                              self.detector.edge_loss_px if options.blob_edge_px is None else options.blob_edge_px)
         self.handover = None
         if spec.extras and options.handover_max_age_s is not None:
             self.handover = SupportHandover(self.estimator, len(rig), max_age_s=options.handover_max_age_s)
@@ -269,7 +269,7 @@ class SegmentationEngine:
             elif x1 - x0 == self._wh[i, 0] and y1 - y0 == self._wh[i, 1]:
                 dets[i] = det.detect(images[i])  # the full frame
             else:  # the neighbourhood: its window first, then at most the whole neighbourhood
-                dets[i] = search_around(det, images[i][y0:y1, x0:x1], roi_px[i] - boxes[i, :2])
+                dets[i] = search_around(det, images[i][y0:y1, x0:x1], roi_px[i] - boxes[i, :2], images[i].shape)
 
 
 def _sized_detectors(rig: Rig, detector: BallDetector) -> list[BallDetector]:
@@ -278,7 +278,7 @@ def _sized_detectors(rig: Rig, detector: BallDetector) -> list[BallDetector]:
     if rig.workspace_m is None:
         return [detector] * len(rig)
     o = detector.options
-    lim = size_limits(ball_diameter_range_px(rig), detector.area_range_px, o.roi_half_size_px, edge_loss_px=detector.model.edge_loss_px)
+    lim = size_limits(ball_diameter_range_px(rig), detector.area_range_px, o.roi_half_size_px, edge_loss_px=detector.edge_loss_px)
     out, made = [], {}
     for i in range(len(rig)):
         (lo, hi), half = lim.area_px[i], int(lim.roi_half_size_px[i])

@@ -51,21 +51,22 @@ def truncated(det, window, w: int, h: int) -> bool:
     return bool((bx0 == 0 and x0 > 0) or (by0 == 0 and y0 > 0) or (bx1 == x1 - x0 - 1 and x1 < w) or (by1 == y1 - y0 - 1 and y1 < h))
 
 
-def search_around(detector, image: np.ndarray, center_px) -> "Detections":  # noqa: F821 (tracker.detection.Detections)
+def search_around(detector, image: np.ndarray, center_px, frame_shape=None) -> "Detections":  # noqa: F821 (tracker.detection.Detections)
     """Step 2 of the module docstring: the window of half side ``detector.options.roi_half_size_px``
     around ``center_px`` (u, v) in ``image`` first, then the whole ``image`` when the window is empty,
     holds no candidate or its best one is truncated (:func:`truncated`).
 
     detector : :class:`~tracker.detection.BallDetector`; image : (H, W, 3) uint8 RGB (the neighbourhood
-    view in the pipeline); center_px : (2,) finite predicted pixel in ``image``'s pixels
+    view in the pipeline); center_px : (2,) finite predicted pixel in ``image``'s pixels; frame_shape : the
+    shape of the camera frame ``image`` is a view of (the learned stage searches it at the frame's scale)
     """
     h, w = image.shape[:2]
     half = detector.options.roi_half_size_px
     cu, cv = int(round(center_px[0])), int(round(center_px[1]))
     window = (max(cu - half, 0), max(cv - half, 0), min(cu + half, w), min(cv + half, h))
     if window[0] >= window[2] or window[1] >= window[3]:  # the prediction is outside the image
-        return detector.detect(image)
-    det = detector.detect(image, window)
+        return detector.detect(image, frame_shape=frame_shape)
+    det = detector.detect(image, window, frame_shape=frame_shape)
     if len(det) == 0 or truncated(det, window, w, h):
-        return detector.detect(image)
+        return detector.detect(image, frame_shape=frame_shape)
     return det

@@ -16,11 +16,15 @@ Methods (``DetectorOptions.method``):
   model carries a :class:`~tracker.detection.verifier.CandidateVerifier` (and ``verify`` is on),
   every accepted blob among the first ``max_seeds`` is scored by it on its crop; candidates below
   its threshold are dropped, the rest are ordered by its probability (which becomes the score) and
-  their centres refined, and the first ``max_candidates`` are reported.
+  their centres refined, and the first ``max_candidates`` are reported. When the model carries a
+  :class:`~tracker.detection.learned.LearnedStage` (and ``learned`` is on), the heatmap network finds the
+  candidates instead of the filter and Algorithm 1 (the local maxima of its heat, best first, with a
+  sub-pixel centre and the ball's diameter); "paper" always uses the filter.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +38,12 @@ __all__ = ["BallDetector", "DetectorOptions", "Detections", "METHODS"]
 
 #: detection methods (see the module docstring)
 METHODS = ("paper", "ours")
+#: the filter's blob refines a learned centre only when its centroid is within this share of the ball's diameter ...
+REFINE_MAX_SHIFT = 0.3
+#: ... and it covers at least this share of the ball's disk (a ball of the filter's colour, not an edge beside one)
+REFINE_MIN_AREA = 0.25
+#: the learned stage's candidates have no area limit of their own: the largest area accepted unless the options set one
+LEARNED_MAX_AREA_PX = 10**7
 
 
 @dataclass(frozen=True)
@@ -52,6 +62,14 @@ class DetectorOptions:
     max_aspect : accepted box long side / short side ("ours"; motion blur stretches the ball)
     backend : flood-fill implementation, "numba" or "python" (reference)
     verify : run the model's candidate verifier ("ours" only; ignored when the model has none)
+    learned : find the candidates with the model's learned stage ("ours" only; ignored when the model has
+        none): the heatmap network instead of the filter and Algorithm 1
+    learned_threshold : the learned stage's heat threshold, a probability; ``None`` = the stage's own
+    refine_with_filter : the learned stage's centres refined by the model's filter where it sees the ball: in a box of
+        the candidate's diameter (plus 3 px) around it, Algorithm 1's blob (the model's thresholds), when its
+        weighted centroid lies within 0.3 diameters of the candidate and it covers a quarter of the ball's disk, gives the centre (sub-pixel to a few
+        hundredths of a pixel on balls of the filter's colour); elsewhere (a white ball, an orange filter) the
+        network's centre stays
     """
 
     method: str = "ours"
@@ -66,6 +84,9 @@ class DetectorOptions:
     max_aspect: float = 4.0
     backend: str = "numba"
     verify: bool = True
+    learned: bool = True
+    learned_threshold: float | None = None
+    refine_with_filter: bool = True
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -90,8 +111,12 @@ class DetectorOptions:
             raise ValueError(f"DetectorOptions.min_fill_ratio must be in [0, 1], got {self.min_fill_ratio!r}")
         if not self.max_aspect >= 1.0:
             raise ValueError(f"DetectorOptions.max_aspect must be >= 1, got {self.max_aspect!r}")
-        if not isinstance(self.verify, bool):
-            raise ValueError(f"DetectorOptions.verify must be True or False, got {self.verify!r}")
+        for name in ("verify", "learned", "refine_with_filter"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"DetectorOptions.{name} must be True or False, got {getattr(self, name)!r}")
+        v = self.learned_threshold
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < v < 1.0):
+            raise ValueError(f"DetectorOptions.learned_threshold must be a probability in (0, 1) or None, got {v!r}")
         if self.backend not in ("numba", "python"):
             raise ValueError(f"DetectorOptions.backend must be 'numba' or 'python', got {self.backend!r}")
 
@@ -148,8 +173,11 @@ class BallDetector:
         self.options = options
         self.t_high, self.t_low = float(t_high), float(t_low)
         self._th_logit, self._tl_logit = logit(self.t_high), logit(self.t_low)  # B > T  <=>  logit(B) > logit(T)
-        min_area = model.area_range_px[0] if options.min_area_px is None else options.min_area_px
-        max_area = model.area_range_px[1] if options.max_area_px is None else options.max_area_px
+        self.learned = model.learned if options.method == "ours" and options.learned else None
+        # the learned stage reports each ball's diameter; its area range is open unless the options set one
+        own_area = (1.0, float(LEARNED_MAX_AREA_PX)) if self.learned is not None else model.area_range_px
+        min_area = own_area[0] if options.min_area_px is None else options.min_area_px
+        max_area = own_area[1] if options.max_area_px is None else options.max_area_px
         if not min_area <= max_area:
             raise ValueError(f"need min_area_px <= max_area_px, got {min_area} and {max_area} (options and model defaults combined)")
         self.area_range_px = (float(min_area), float(max_area))
@@ -171,18 +199,29 @@ class BallDetector:
             self._blob_kw["max_blobs"] = options.max_seeds
 
     def __repr__(self) -> str:
-        return f"BallDetector(method={self.options.method!r}, t_high={self.t_high}, t_low={self.t_low})"
+        stage = ", learned stage" if self.learned is not None else ""
+        return f"BallDetector(method={self.options.method!r}, t_high={self.t_high}, t_low={self.t_low}{stage})"
+
+    @property
+    def edge_loss_px(self) -> float:
+        """How much narrower than the ball a candidate's width is, pixels (the 3D size test adds it back):
+        the model's ``edge_loss_px`` for the filter's blobs, 0 for the learned stage (it reports the ball's diameter)."""
+        return 0.0 if self.learned is not None else self.model.edge_loss_px
 
     # -- one image -------------------------------------------------------------------------------
-    def detect(self, image: np.ndarray, window=None) -> Detections:
+    def detect(self, image: np.ndarray, window=None, frame_shape=None) -> Detections:
         """Ball candidates in one image, or in one box of it.
 
         image : (H, W, 3) uint8 RGB, trusted (checked where it came in: :func:`tracker.images.check_image`)
         window : None = the whole image; else ``(x0, y0, x1, y1)`` integers, a non-empty box inside the
             image (``0 <= x0 < x1 <= W``, same for y): only its pixels are searched (the filter still
             sees the image's pixels around it)
+        frame_shape : when ``image`` is a part of a camera frame (the pipeline's neighbourhood view), the frame's
+            shape: the learned stage searches the part at the frame's scale (the filter needs no such hint)
         returns :class:`Detections` in the image's pixels, best first (``used_roi`` = a window was given)
         """
+        if self.learned is not None:
+            return self._detect_learned(image, window, frame_shape)
         work = self._work.get()  # a detector may serve several cameras on several threads
         if window is None:
             x0 = y0 = 0
@@ -192,6 +231,41 @@ class BallDetector:
             logits = np.ascontiguousarray(self.model._logits_window(image, x0, y0, x1, y1))
         blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, queues=work.queues(logits.size), **self._blob_kw)
         return self._verified(image, _to_detections(blobs, x0, y0, window is not None))
+
+    def _detect_learned(self, image, window, frame_shape) -> Detections:
+        """The learned stage's candidates as :class:`Detections`: boxes of the predicted diameter around the
+        sub-pixel centre, areas of the disk, the area range of the options applied."""
+        o = self.options
+        uv, scores, d = self.learned.candidates(image, window, k=o.max_seeds if o.min_area_px or o.max_area_px else o.max_candidates,
+                                                threshold=o.learned_threshold, frame_shape=frame_shape)
+        areas = np.pi / 4 * d * d
+        keep = (areas >= self.area_range_px[0]) & (areas <= self.area_range_px[1])
+        if not keep.all():
+            uv, scores, d, areas = uv[keep], scores[keep], d[keep], areas[keep]
+        uv, scores, d, areas = uv[: o.max_candidates], scores[: o.max_candidates], d[: o.max_candidates], areas[: o.max_candidates]
+        if o.refine_with_filter and len(uv):
+            uv = self._refined(image, uv, d)
+        boxes = np.concatenate([uv + 0.5 - d[:, None] / 2, np.repeat(d[:, None], 2, axis=1)], axis=1) if len(d) else np.zeros((0, 4))
+        return Detections(uv, scores, boxes, np.rint(areas).astype(np.int64), window is not None)
+
+    def _refined(self, image, uv, d) -> np.ndarray:
+        """The learned candidates' centres, each replaced by the filter's blob centroid where the filter sees the ball."""
+        h, w = image.shape[:2]
+        out = uv.copy()
+        for i, ((u, v), dd) in enumerate(zip(uv, d)):
+            r = 0.5 * dd + 3.0
+            x0, y0 = max(int(math.floor(u - r)), 0), max(int(math.floor(v - r)), 0)
+            x1, y1 = min(int(math.ceil(u + r)) + 1, w), min(int(math.ceil(v + r)) + 1, h)
+            if x1 - x0 < 2 or y1 - y0 < 2:
+                continue
+            lg = self.model._logits_window(image, x0, y0, x1, y1)
+            blobs = find_blobs(lg, self._th_logit, self._tl_logit, max_blobs=1, max_seeds=2, backend=self.options.backend, overwrite=True)
+            if len(blobs.areas_px) == 0:
+                continue
+            c = blobs.centers_px[0] + (x0, y0)
+            if math.hypot(c[0] - u, c[1] - v) <= REFINE_MAX_SHIFT * dd and blobs.areas_px[0] >= REFINE_MIN_AREA * math.pi / 4 * dd * dd:
+                out[i] = c
+        return out
 
     def _verified(self, image, det: Detections) -> Detections:
         """The verifier's choice among the candidates (unchanged without a verifier)."""

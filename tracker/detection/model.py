@@ -32,6 +32,7 @@ import numpy as np
 from checks.arrays import describe
 from checks.files import load_npz_checked
 from tracker.detection._correlate import correlate_5x5x3, scratch_shape
+from tracker.detection.learned import LearnedStage
 from tracker.detection.verifier import CandidateVerifier
 from tracker.images import check_image
 
@@ -89,6 +90,9 @@ class BallSegmentationModel:
         model (2.8; ``rt2 eval framesets`` prints the fit, docs/pipeline.md step 8); 0 for files written before the field existed and for the hand-made model
     verifier : optional :class:`~tracker.detection.verifier.CandidateVerifier`, the classifier our
         detector runs on its candidates' crops (None: the filter alone decides, as in the paper)
+    learned : optional :class:`~tracker.detection.learned.LearnedStage`, the heatmap network our detector
+        (``method="ours"``) finds candidates with instead of the filter; the filter stays for the paper's
+        method (``rt2-paper``). None: the filter and Algorithm 1 for both
     """
 
     kernel: np.ndarray
@@ -105,6 +109,7 @@ class BallSegmentationModel:
     ball_colour: str = "any"
     edge_loss_px: float = 0.0
     verifier: "CandidateVerifier | None" = None
+    learned: "LearnedStage | None" = None
     # Derived at construction: the kernel for T(uint8 RGB channels) with the scaling folded in.
     _kernel_crgb: np.ndarray = field(init=False, repr=False, compare=False)
     _bias_eff: float = field(init=False, repr=False, compare=False)
@@ -150,6 +155,8 @@ class BallSegmentationModel:
         object.__setattr__(self, "edge_loss_px", float(edge))
         if self.verifier is not None and not isinstance(self.verifier, CandidateVerifier):
             raise ValueError(f"{where}: verifier must be a CandidateVerifier or None, got {describe(self.verifier)}")
+        if self.learned is not None and not isinstance(self.learned, LearnedStage):
+            raise ValueError(f"{where}: learned must be a LearnedStage or None, got {describe(self.learned)}")
         area = np.asarray(self.area_range_px, dtype=np.float64).reshape(-1)
         if area.shape != (2,) or not np.isfinite(area).all() or not 1 <= area[0] <= area[1]:
             raise ValueError(f"{where}: area_range_px must be [min, max] with 1 <= min <= max, got {self.area_range_px!r}")
@@ -258,6 +265,7 @@ class BallSegmentationModel:
             ball_colour=np.array(self.ball_colour),
             edge_loss_px=np.array(self.edge_loss_px),
             **({} if self.verifier is None else self.verifier.to_fields()),
+            **({} if self.learned is None else self.learned.to_fields()),
         )
         return path
 
@@ -296,6 +304,8 @@ class BallSegmentationModel:
                 edge_loss_px=_scalar(data, "edge_loss_px", float, src) if "edge_loss_px" in data else 0.0,
                 # optional: the candidate verifier (files without it: the filter alone decides)
                 verifier=CandidateVerifier.from_fields(data, src),
+                # optional: the learned stage (files without it: the filter and Algorithm 1 find the candidates)
+                learned=LearnedStage.from_fields(data, src),
             )
         except ValueError as exc:
             raise ValueError(f"{src}: {exc}") from None

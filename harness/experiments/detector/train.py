@@ -40,6 +40,9 @@ from tracker.detection.model import BALL_COLOURS, INPUT_TRANSFORMS, logit, trans
 
 __all__ = [
     "BALL_COLOURS",
+    "EXIT_WEAK_MODEL",
+    "LEARNED_CHOICES",
+    "MIN_WRITE_RECALL",
     "KEEP_BASE_CHOICES",
     "THRESHOLD_CHOICES",
     "TrainOptions",
@@ -47,6 +50,7 @@ __all__ = [
     "ball_colour",
     "choose_thresholds",
     "cv_folds",
+    "cv_recall",
     "load_image",
     "pixel_targets",
     "run",
@@ -67,6 +71,12 @@ AUTO_SPLIT_MIN_VAL_IMAGES = 40
 PRIOR_MARGIN_BALLS = 2
 #: ``TrainOptions.keep_base`` / ``rt2 train --keep-base``: may fine-tuning end with the base model unchanged?
 KEEP_BASE_CHOICES = ("auto", "never")
+#: ``TrainOptions.learned`` / ``rt2 train --learned``: train the learned detector stage too?
+LEARNED_CHOICES = ("auto", "off")
+#: rt2 train's exit status when the model it chose finds too few balls in cross-validation (not written without --force)
+EXIT_WEAK_MODEL = 3
+#: the cross-validated recall below which rt2 train does not write the model (without --force)
+MIN_WRITE_RECALL = 0.5
 
 
 @dataclass(frozen=True)
@@ -97,6 +107,12 @@ class TrainOptions:
         fine-tuned one scores better than the base on the held-out images (cross-validation's out-of-fold
         images, or the validation split) by more than ``PRIOR_MARGIN_BALLS`` balls' worth; "never" always
         writes the fine-tuned one (the behaviour before the guard)
+    learned : "auto" also trains the learned detector stage (:mod:`harness.experiments.detector.learned_train`:
+        the base's stage as it is, fine-tuned, or from scratch, chosen by cross-validation; ``rt2 train``'s
+        default); "off" (the default of this function: the filter studies) writes the filter alone (and drops
+        a base model's stage)
+    learned_folds : time-contiguous folds of the learned stage's cross-validation
+    learned_steps : optimiser steps of a learned stage from scratch (fine-tuning takes 3/8 of them)
     """
 
     epochs: int = 6
@@ -120,6 +136,9 @@ class TrainOptions:
     threshold_choice: str = "auto"
     cv_folds: int = 4
     keep_base: str = "auto"
+    learned: str = "off"
+    learned_folds: int = 3
+    learned_steps: int = 400
 
     def __post_init__(self):
         if not 0.0 < self.val_fraction < 1.0:
@@ -145,6 +164,12 @@ class TrainOptions:
             raise ValueError(f"TrainOptions.keep_base must be one of {KEEP_BASE_CHOICES}, got {self.keep_base!r}")
         if isinstance(self.cv_folds, bool) or not isinstance(self.cv_folds, int) or self.cv_folds < 2:
             raise ValueError(f"TrainOptions.cv_folds must be an integer >= 2, got {self.cv_folds!r}")
+        if self.learned not in LEARNED_CHOICES:
+            raise ValueError(f"TrainOptions.learned must be one of {LEARNED_CHOICES}, got {self.learned!r}")
+        if isinstance(self.learned_folds, bool) or not isinstance(self.learned_folds, int) or self.learned_folds < 2:
+            raise ValueError(f"TrainOptions.learned_folds must be an integer >= 2, got {self.learned_folds!r}")
+        if isinstance(self.learned_steps, bool) or not isinstance(self.learned_steps, int) or self.learned_steps < 1:
+            raise ValueError(f"TrainOptions.learned_steps must be a positive integer, got {self.learned_steps!r}")
 
 
 # -- data ------------------------------------------------------------------------------------------
@@ -695,11 +720,33 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             f"; verifier ({verifier.crop_px}x{verifier.crop_px} crops, {verifier.n_hidden} hidden units, threshold {verifier.threshold:g}): "
             f"{len(labelled)}-image cv recall {100 * s_v.recall:.2f}%, outliers {100 * s_v.outlier_rate:.2f}%, "
             f"median {s_v.median_center_error_px:.3f} px; candidates reach {100 * v_info['candidate_recall']:.1f}% of the balls"))
+    l_info = None
+    if opts.learned == "auto":
+        from harness.experiments.detector.learned_train import train_stage
+
+        stage, l_info = train_stage(labelled, base=None if base is None else base.learned, seed=opts.seed, n_folds=opts.learned_folds,
+                                    scratch_steps=opts.learned_steps, finetune_steps=max(1, opts.learned_steps * 3 // 8),
+                                    extra=backgrounds, log=log, progress=progress)
+        c = l_info["chosen"]
+        model = dataclasses.replace(model, learned=stage, description=model.description + (
+            f"; learned stage: {c.name} (of {', '.join(x.name for x in l_info['choices'])}) by {l_info['folds']}-fold cross-validation: "
+            + "; ".join(x.line() for x in l_info["choices"])))
+    elif model.learned is not None:
+        model = dataclasses.replace(model, learned=None)
     info = dict(n_train=n_train, n_val=n_val, n_pos=r["n_pos"], n_neg=r["n_neg"], n_hard=r["n_hard"], history=r["history"],
                 best_epoch=epoch, t_high=t_high, t_low=t_low, area_range_px=area, val_ours=s_ours, val_paper=s_paper,
                 threshold_choice=choice, verifier=v_info, kept_base=kept_base,
-                base_ours=None if base_scores is None else base_scores[0])
+                base_ours=None if base_scores is None else base_scores[0], learned=l_info)
     return model, info
+
+
+def cv_recall(info) -> tuple[float, str]:
+    """The (cross-)validated recall of what ``rt2 train`` writes and what it is: the learned stage's when one was
+    trained, else the filter's (top-K)."""
+    if info.get("learned"):
+        c = info["learned"]["chosen"]
+        return float(np.nan_to_num(c.scores.recall)), f"the learned stage ({c.name}, {info['learned']['folds']}-fold cross-validation)"
+    return float(np.nan_to_num(info["val_ours"].recall)), f"the filter ({info['threshold_choice']})"
 
 
 # -- command line ----------------------------------------------------------------------------------
@@ -756,6 +803,17 @@ def add_arguments(parser) -> None:
     parser.add_argument("--time-range", default=None,
                         help="use only images START:STOP in time order (file names sorted as frame numbers), e.g. 0:58; "
                              "keeps later frames out of training")
+    parser.add_argument("--learned", choices=LEARNED_CHOICES, default="auto",
+                        help="'auto' (default): also train the learned detector stage (a small heatmap network): the base model's "
+                             "stage as it is, fine-tuned, or from scratch, whichever cross-validation over time-contiguous folds "
+                             "scores best; 'off': the 5x5 filter alone")
+    parser.add_argument("--learned-folds", type=int, default=TrainOptions.learned_folds,
+                        help=f"folds of the learned stage's cross-validation (default {TrainOptions.learned_folds})")
+    parser.add_argument("--learned-steps", type=int, default=TrainOptions.learned_steps,
+                        help=f"optimiser steps of a learned stage from scratch; fine-tuning takes 3/8 of them (default {TrainOptions.learned_steps})")
+    parser.add_argument("--force", action="store_true",
+                        help=f"write the model even when its cross-validated recall is below {100 * MIN_WRITE_RECALL:.0f}%% "
+                             f"(otherwise rt2 train exits {EXIT_WEAK_MODEL} without writing it)")
 
 
 def resolve_base(from_model: str, colour: str) -> tuple[BallSegmentationModel | None, str]:
@@ -804,7 +862,8 @@ def run(args) -> int:
         opts = TrainOptions(epochs=args.epochs, seed=seed, val_fraction=args.val_fraction, input_transform=args.input_transform,
                             ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
                             threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
-                            keep_base=args.keep_base)
+                            keep_base=args.keep_base, learned=args.learned, learned_folds=args.learned_folds,
+                            learned_steps=args.learned_steps)
         sources = f"data {', '.join(map(str, args.data))}" + (f" (time range {args.time_range})" if args.time_range else "")
         if backgrounds:
             sources += f"; backgrounds {', '.join(map(str, args.backgrounds))} ({len(backgrounds)} ball-free images)"
@@ -824,6 +883,14 @@ def run(args) -> int:
         spread = ", ".join(f"seed {sd}: recall {100 * np.nan_to_num(i['val_ours'].recall):.1f}% outliers {100 * i['val_ours'].outlier_rate:.1f}%"
                            for sd, _, i in results)
         model = dataclasses.replace(model, description=model.description + f"; kept seed {seed} of [{spread}]")
+    recall, what = cv_recall(info)
+    if recall < MIN_WRITE_RECALL:
+        line = (f"rt2 train: {args.out} not written: the cross-validated recall of {what} is {100 * recall:.1f}% < "
+                f"{100 * MIN_WRITE_RECALL:.0f}%; label more frames (with balls) or check --ball-colour; --force writes it anyway")
+        if not args.force:
+            print(line, file=sys.stderr)
+            return EXIT_WEAK_MODEL
+        print(line.replace("not written", "written anyway (--force)").replace("; --force writes it anyway", ""), file=sys.stderr)
     with atomic_path(out, "--out") as tmp:  # never a half-written model
         model.save(tmp)
     print(f"wrote {out}: T_h={model.t_high:g}, T_l={model.t_low:g} ({info['n_train']} train / {info['n_val']} val images"

@@ -160,7 +160,7 @@ def test_train_options_hostile(kw, match):
 def test_cli_from_model_seeds_and_time_range(synthetic_ball_coco, cv_trained, tmp_path, capsys):
     base = cv_trained[0].save(tmp_path / "base.npz")
     out = tmp_path / "tuned.npz"
-    code = main(["train", "--data", str(synthetic_ball_coco(16, 0)), "--out", str(out), "--epochs", "1", "--from", str(base),
+    code = main(["train", "--data", str(synthetic_ball_coco(16, 0)), "--out", str(out), "--epochs", "1", "--learned", "off", "--from", str(base),
                  "--seeds", "0", "1", "--augment", "0", "--time-range", "0:12", "--cv-folds", "3",
                  "--backgrounds", f"{synthetic_ball_coco(16, 0)}@12:"])
     assert code == 0
@@ -179,7 +179,7 @@ def test_cli_from_model_seeds_and_time_range(synthetic_ball_coco, cv_trained, tm
     (["--backgrounds", "x.mp4@0:3"], "no such file"),
 ])
 def test_cli_hostile_few_label_options(synthetic_ball_coco, tmp_path, capsys, args, message):
-    code = main(["train", "--data", str(synthetic_ball_coco(16, 0)), "--out", str(tmp_path / "m.npz"), "--epochs", "1", *args])
+    code = main(["train", "--data", str(synthetic_ball_coco(16, 0)), "--out", str(tmp_path / "m.npz"), "--epochs", "1", "--learned", "off", *args])
     assert code == 2
     assert message in capsys.readouterr().err
 

@@ -105,7 +105,7 @@ def test_keep_base_option_hostile(value):
                                            (["--keep-base"], "expected one argument")])
 def test_cli_keep_base_hostile(synthetic_ball_coco, tmp_path, capsys, args, message):
     try:
-        code = main(["train", "--data", str(synthetic_ball_coco(16, 0)), "--out", str(tmp_path / "m.npz"), "--epochs", "1", *args])
+        code = main(["train", "--data", str(synthetic_ball_coco(16, 0)), "--out", str(tmp_path / "m.npz"), "--epochs", "1", "--learned", "off", *args])
     except SystemExit as exc:
         code = exc.code
     assert code == 2
@@ -118,7 +118,7 @@ def test_cli_says_when_the_base_is_kept(synthetic_ball_coco, synthetic_base, tmp
     base = synthetic_base
     base.save(tmp_path / "base.npz")
     out = tmp_path / "m.npz"
-    assert main(["train", "--data", str(synthetic_ball_coco(12, 1)), "--out", str(out), "--epochs", "1", "--from", str(tmp_path / "base.npz"),
+    assert main(["train", "--data", str(synthetic_ball_coco(12, 1)), "--out", str(out), "--epochs", "1", "--learned", "off", "--from", str(tmp_path / "base.npz"),
                  "--augment", "0", "--cv-folds", "3", "--seed", "3"]) == 0
     text = capsys.readouterr().out
     assert "the base model on the same held-out images" in text

@@ -130,7 +130,7 @@ def test_same_seed_same_model(synthetic_ball_coco, trained):
 # -- command line ------------------------------------------------------------------------------------
 def test_cli_writes_a_loadable_model(synthetic_ball_coco, tmp_path, capsys):
     out = tmp_path / "m.npz"
-    code = main(["train", "--data", str(synthetic_ball_coco(30, 0)), "--out", str(out), "--epochs", "1", "--from", "none", "--thresholds", "split"])
+    code = main(["train", "--data", str(synthetic_ball_coco(30, 0)), "--out", str(out), "--epochs", "1", "--from", "none", "--thresholds", "split", "--learned", "off"])
     assert code == 0
     model = BallSegmentationModel.load(out)
     assert "rt2 train" in model.description and "val images" in model.description

@@ -1,0 +1,494 @@
+"""Training the learned detector stage (:class:`tracker.detection.learned.LearnedStage`): a small heatmap
+network, CenterNet-like, fitted in torch on the CPU and exported to ONNX for inference without torch.
+
+The network (:func:`build_net`): the uint8 RGB frame in, ``x / 255 - 0.5``; a 4x4 convolution of stride 4
+(16 channels: every pixel of each 4x4 cell seen, so balls of a few pixels keep their shape); three 3x3
+convolutions at stride 8 (16 channels, dilations 1, 2, 4: what surrounds the ball, up to ~120 pixels);
+upsampled to stride 4 and joined to the stride-4 features; a 1x1 convolution to four maps: the heat
+logit, the centre's offset in the cell (u, v) and the log diameter. About 7k weights.
+
+Targets (:func:`targets`): a Gaussian bump on the heat at each ball's centre (sigma from its diameter,
+at least half a cell), offset and log diameter at the centre's cell. Loss: CenterNet's penalty-reduced
+focal loss on the heat plus L1 on offset and log diameter at the centre cells.
+
+Samples (:func:`sample_patches`): square patches of the training images at random scales (the balls'
+sizes spread over the stage's diameter range), half of them on a ball, with the photometric changes of
+:mod:`harness.experiments.detector.augment` (white balance, exposure, gamma, lamp tint, motion blur or
+defocus, gain noise, JPEG). Everything random comes from the seeded ``rng``; torch is seeded too and runs
+on one thread, so the same data and seed give the same weights.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from harness.experiments.detector.augment import AugmentOptions, _motion_kernel
+from tracker.detection.learned import LearnedStage, learned_scale
+
+__all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "export_onnx", "fit_learned", "items_at_scale", "sample_patches",
+           "stage_candidates", "targets"]
+
+STRIDE = 4
+
+
+@dataclass(frozen=True)
+class LearnedTrainOptions:
+    """Options of :func:`fit_learned`.
+
+    iterations : optimiser steps; batch : patches per step; patch_px : patch side (network pixels)
+    lr : Adam's learning rate (cosine decay to 5 % of it); weight_decay : Adam's L2
+    p_ball : share of patches centred near a ball
+    scale_range : patches are taken at a random scale in this range (log-uniform), after the frame's own
+        scale to the network (``max_side_px``)
+    diameter_range_px : ball diameters (network pixels) a patch's balls are kept within by its scale
+    max_side_px : frames are shrunk to this longer side first (the stage's; :func:`tracker.detection.learned.learned_scale`)
+    augment : photometric augmentation of the patches (:mod:`harness.experiments.detector.augment`)
+    """
+
+    iterations: int = 1500
+    batch: int = 24
+    patch_px: int = 128
+    lr: float = 3e-3
+    weight_decay: float = 1e-5
+    p_ball: float = 0.6
+    scale_range: tuple = (0.6, 1.6)
+    diameter_range_px: tuple = (4.0, 48.0)
+    max_side_px: int = 640
+    augment: bool = True
+
+    def __post_init__(self):
+        for name in ("iterations", "batch", "patch_px", "max_side_px"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"LearnedTrainOptions.{name} must be a positive integer, got {v!r}")
+        if self.patch_px % (2 * STRIDE):
+            raise ValueError(f"LearnedTrainOptions.patch_px must be a multiple of {2 * STRIDE}, got {self.patch_px}")
+        if not (0 < self.scale_range[0] <= self.scale_range[1]):
+            raise ValueError(f"LearnedTrainOptions.scale_range must be (lo, hi) with 0 < lo <= hi, got {self.scale_range!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class LearnedItem:
+    """One training image at the network's scale: ``image`` (H, W, 3) uint8 RGB, ``centers`` (n, 2) rt2 pixels,
+    ``diameters`` (n,) pixels, ``weight`` (how often it is sampled, relative), ``name`` (for messages)."""
+
+    image: np.ndarray
+    centers: np.ndarray
+    diameters: np.ndarray
+    weight: float = 1.0
+    name: str = ""
+
+
+def items_at_scale(pairs, max_side_px: int, weight: float = 1.0) -> list[LearnedItem]:
+    """``(image, LabelledImage)`` pairs -> :class:`LearnedItem` shrunk as the stage shrinks frames (``max_side_px``)."""
+    out = []
+    for image, li in pairs:
+        h, w = image.shape[:2]
+        s = learned_scale(h, w, max_side_px)
+        c = np.asarray(li.centers_px, np.float64).reshape(-1, 2)
+        d = np.minimum(li.boxes_xywh[:, 2], li.boxes_xywh[:, 3]).astype(np.float64) if len(c) else np.zeros(0)
+        if s != 1.0:
+            nw, nh = max(1, int(round(w * s))), max(1, int(round(h * s)))
+            image = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_AREA)
+            sx, sy = nw / w, nh / h
+            c = (c + 0.5) * np.array([sx, sy]) - 0.5
+            d = d * 0.5 * (sx + sy)
+        out.append(LearnedItem(np.ascontiguousarray(image), c, d, weight, str(li.path)))
+    return out
+
+
+def targets(centers, diameters, size: int, stride: int = STRIDE):
+    """Heat (g, g), offsets (2, g, g), log diameters (g, g) and centre mask (g, g) of a ``size`` x ``size`` patch, g = size / stride."""
+    g = size // stride
+    heat = np.zeros((g, g), np.float32)
+    off = np.zeros((2, g, g), np.float32)
+    logd = np.zeros((g, g), np.float32)
+    mask = np.zeros((g, g), np.float32)
+    ys, xs = np.mgrid[0:g, 0:g].astype(np.float32)
+    for (u, v), d in zip(np.asarray(centers, np.float64).reshape(-1, 2), np.asarray(diameters, np.float64).reshape(-1)):
+        cu, cv_ = (u + 0.5) / stride - 0.5, (v + 0.5) / stride - 0.5  # centre in cell units (cell centres at integers)
+        ci, cj = int(round(cv_)), int(round(cu))
+        if not (0 <= ci < g and 0 <= cj < g):
+            continue
+        sigma = max(0.5, d / stride / 6.0)
+        bump = np.exp(-((xs - cu) ** 2 + (ys - cv_) ** 2) / (2 * sigma * sigma))
+        heat = np.maximum(heat, bump.astype(np.float32))
+        heat[ci, cj] = 1.0
+        off[0, ci, cj], off[1, ci, cj] = cu - cj, cv_ - ci
+        logd[ci, cj] = math.log(max(d, 1.0))
+        mask[ci, cj] = 1.0
+    return heat, off, logd, mask
+
+
+def sample_patches(items: list[LearnedItem], n: int, rng: np.random.Generator, opts: LearnedTrainOptions, aug: AugmentOptions | None = None):
+    """n training patches: (images (n, P, P, 3) uint8, heat (n, g, g), offsets (n, 2, g, g), log diameters (n, g, g), masks (n, g, g))."""
+    p = opts.patch_px
+    weights = np.array([it.weight for it in items], np.float64)
+    weights /= weights.sum()
+    with_ball = [i for i, it in enumerate(items) if len(it.centers)]
+    imgs = np.empty((n, p, p, 3), np.uint8)
+    g = p // STRIDE
+    heat = np.empty((n, g, g), np.float32)
+    off = np.empty((n, 2, g, g), np.float32)
+    logd = np.empty((n, g, g), np.float32)
+    mask = np.empty((n, g, g), np.float32)
+    lo, hi = np.log(opts.scale_range)
+    for k in range(n):
+        on_ball = with_ball and rng.random() < opts.p_ball
+        if on_ball:
+            w_b = weights[with_ball] / weights[with_ball].sum()
+            it = items[with_ball[int(rng.choice(len(with_ball), p=w_b))]]
+            j = int(rng.integers(len(it.centers)))
+            s = math.exp(rng.uniform(lo, hi))
+            d = it.diameters[j] * s  # keep the ball inside the trained range
+            dmin, dmax = opts.diameter_range_px
+            if d < dmin or d > dmax:
+                s = float(np.clip(d, dmin, dmax)) / max(it.diameters[j], 1e-3)
+            side = p / s
+            cu, cv_ = it.centers[j] + rng.uniform(-0.4, 0.4, 2) * side
+        else:
+            it = items[int(rng.choice(len(items), p=weights))]
+            s = math.exp(rng.uniform(lo, hi))
+            side = p / s
+            h, w = it.image.shape[:2]
+            cu, cv_ = rng.uniform(0, max(w - 1, 1)), rng.uniform(0, max(h - 1, 1))
+        # the patch: a square of `side` image pixels centred at (cu, cv_), resampled to p x p (borders reflected);
+        # rt2 pixel centres (integers): x_patch = a (x_img - c) + p / 2 - 0.5
+        a = p / side
+        m = np.array([[a, 0.0, p / 2 - 0.5 - a * cu], [0.0, a, p / 2 - 0.5 - a * cv_]])
+        patch = _warp(it.image, m, p, a)
+        c = it.centers * a + m[:, 2] if len(it.centers) else np.zeros((0, 2))
+        dd = it.diameters * a
+        if rng.random() < 0.5:
+            patch = np.ascontiguousarray(patch[:, ::-1])
+            c = c.copy()
+            c[:, 0] = p - 1 - c[:, 0]
+        if opts.augment:
+            patch = photometric(patch, rng, aug or _PATCH_AUGMENT)
+        imgs[k] = patch
+        heat[k], off[k], logd[k], mask[k] = targets(c, dd, p)
+    return imgs, heat, off, logd, mask
+
+
+#: the patches' photometric changes (the sampler chooses scale and flip)
+_PATCH_AUGMENT = AugmentOptions(scale_range=(1.0, 1.0), p_flip=0.0)
+
+
+def photometric(patch: np.ndarray, rng: np.random.Generator, opts: AugmentOptions = _PATCH_AUGMENT) -> np.ndarray:
+    """The photometric part of :func:`harness.experiments.detector.augment.augment` for a small patch, with
+    the same ranges, in fewer passes (per-channel gain and gamma as one lookup table; a lamp's tint as a
+    smooth gradient): optics (motion blur or defocus), white balance x exposure, gamma, lamp tint, gain
+    noise, JPEG."""
+    out = patch
+    if rng.random() < 0.5:
+        length = float(rng.uniform(0, opts.motion_blur_px))
+        if length >= 1.5:
+            out = cv2.filter2D(out, -1, _motion_kernel(length, float(rng.uniform(0, math.pi))), borderType=cv2.BORDER_REFLECT_101)
+    else:
+        sigma = float(rng.uniform(0, opts.defocus_sigma_px))
+        if sigma >= 0.3:
+            out = cv2.GaussianBlur(out, (0, 0), sigma)
+    gains = rng.uniform(*opts.wb_range, size=3) * rng.uniform(*opts.exposure_range)
+    gamma = float(rng.uniform(*opts.gamma_range))
+    v = np.arange(256, dtype=np.float64)[:, None] / 255.0
+    lut = np.clip(np.clip(v * gains[None, :], 0.0, 1.0) ** gamma * 255.0, 0, 255)
+    x = cv2.LUT(out, np.rint(lut).astype(np.uint8).reshape(1, 256, 3)).astype(np.float32)
+    h, w = x.shape[:2]
+    if rng.random() < opts.p_lamp:  # a smooth warm or cool tint rising across the patch
+        ang = rng.uniform(0, 2 * math.pi)
+        ramp = (np.cos(ang) * np.arange(w)[None, :] / w + np.sin(ang) * np.arange(h)[:, None] / h).astype(np.float32)
+        ramp = (ramp - ramp.min()) / max(float(np.ptp(ramp)), 1e-6)
+        tint = rng.uniform(0.0, 0.5) * np.array([1.0, rng.uniform(0.7, 1.0), rng.uniform(0.4, 1.0)], np.float32) * 255.0
+        if rng.random() < 0.5:
+            tint = tint[::-1]
+        x += ramp[..., None] * tint
+    x += rng.standard_normal(x.shape, dtype=np.float32) * np.float32(rng.uniform(0, opts.noise_dn))
+    out = np.clip(np.rint(x), 0, 255).astype(np.uint8)
+    if rng.random() < opts.p_jpeg:
+        q = int(rng.integers(opts.jpeg_quality[0], opts.jpeg_quality[1] + 1))
+        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, q])
+        if ok:
+            out = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    return out
+
+
+def _warp(image: np.ndarray, m: np.ndarray, p: int, a: float) -> np.ndarray:
+    """``cv2.warpAffine(image, m, (p, p))`` with reflected borders, reading only the part of the image the patch
+    covers (blurred first when shrinking by more than 0.8: warpAffine has no area averaging)."""
+    h, w = image.shape[:2]
+    side = p / a
+    x0, y0 = -m[0, 2] / a, -m[1, 2] / a  # the image point that lands on patch pixel (0, 0)
+    pad = 3 + (1.5 / a if a < 0.8 else 0)
+    ix0, iy0 = max(int(math.floor(x0 - pad)), 0), max(int(math.floor(y0 - pad)), 0)
+    ix1, iy1 = min(int(math.ceil(x0 + side + pad)) + 1, w), min(int(math.ceil(y0 + side + pad)) + 1, h)
+    # a patch reaching past the image reflects the image's own border: warp from the whole image then
+    touches = ix0 == 0 or iy0 == 0 or ix1 == w or iy1 == h or ix1 - ix0 < 2 or iy1 - iy0 < 2
+    if touches:
+        ix0 = iy0 = 0
+        src = image
+    else:
+        src = image[iy0:iy1, ix0:ix1]
+    if a < 0.8:
+        src = cv2.GaussianBlur(src, (0, 0), 0.5 / a)
+    mm = m.copy()
+    mm[0, 2] += a * ix0
+    mm[1, 2] += a * iy0
+    return cv2.warpAffine(src, mm, (p, p), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+
+
+def build_net(torch, c4: int = 16, c8: int = 16):
+    """The heatmap network (module docstring) as a torch module taking (N, H, W, 3) uint8 RGB, H and W multiples of 8."""
+    nn = torch.nn
+    F = torch.nn.functional
+
+    class HeatmapNet(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.a = nn.Conv2d(3, c4, 4, stride=4)
+            self.b = nn.Conv2d(c4, c8, 3, stride=2, padding=1)
+            self.c = nn.Conv2d(c8, c8, 3, padding=1)
+            self.d = nn.Conv2d(c8, c8, 3, padding=2, dilation=2)
+            self.e = nn.Conv2d(c8, c8, 3, padding=4, dilation=4)
+            self.head = nn.Conv2d(c4 + c8, 4, 1)
+            with torch.no_grad():
+                self.head.bias[:] = torch.tensor([-4.0, 0.0, 0.0, 2.5])  # few balls; offsets 0; diameter ~12 px
+
+        def forward(self, image):
+            x = image.permute(0, 3, 1, 2).float() * (1.0 / 255.0) - 0.5
+            a = F.relu(self.a(x))
+            b = F.relu(self.b(a))
+            b = F.relu(self.c(b))
+            b = F.relu(self.d(b)) + b
+            b = F.relu(self.e(b)) + b
+            u = F.interpolate(b, size=a.shape[2:], mode="nearest")
+            return self.head(torch.cat([a, u], 1))
+
+    return HeatmapNet()
+
+
+def export_onnx(torch, net) -> bytes:
+    """The network as ONNX bytes: input ``image`` (1, H, W, 3) uint8, output ``out`` (1, 4, H/4, W/4)."""
+    net = net.eval()
+    buf = io.BytesIO()
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(net, torch.zeros(1, 64, 64, 3, dtype=torch.uint8), buf, input_names=["image"], output_names=["out"],
+                          dynamic_axes={"image": {1: "h", 2: "w"}, "out": {2: "gh", 3: "gw"}}, opset_version=17, dynamo=False)
+    return buf.getvalue()
+
+
+def _loss(torch, out, heat, off, logd, mask):
+    """CenterNet's penalty-reduced focal loss on the heat + L1 on offset and log diameter at the centres."""
+    p = torch.sigmoid(out[:, 0]).clamp(1e-4, 1 - 1e-4)
+    pos = mask
+    neg_w = (1 - heat) ** 4
+    n_pos = pos.sum().clamp(min=1.0)
+    focal = -(pos * (1 - p) ** 2 * torch.log(p) + (1 - pos) * neg_w * p ** 2 * torch.log(1 - p)).sum() / n_pos
+    l_off = (torch.abs(out[:, 1:3] - off).sum(1) * pos).sum() / n_pos
+    l_d = (torch.abs(out[:, 3] - logd) * pos).sum() / n_pos
+    return focal + l_off + 0.2 * l_d
+
+
+def fit_learned(items: list[LearnedItem], opts: LearnedTrainOptions, seed: int, *, init: bytes | None = None, state=None,
+                log=print, progress: bool = False):
+    """Fit the heatmap network; returns ``(state_dict, onnx bytes)``.
+
+    items : training images at the network's scale (:func:`items_at_scale`, drawn balls, backgrounds without balls)
+    state : a torch state dict to start from (fine-tuning), or None (from scratch)
+    """
+    import torch
+
+    if not any(len(it.centers) for it in items):
+        raise ValueError(f"no ball among the {len(items)} training images of the learned stage: nothing to learn")
+    torch.manual_seed(seed)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # bit-for-bit repeatable sums
+    try:
+        rng = np.random.default_rng([seed, 35])
+        net = build_net(torch)
+        if state is not None:
+            net.load_state_dict(state)
+        opt = torch.optim.Adam(net.parameters(), lr=opts.lr, weight_decay=opts.weight_decay)
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda i: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(i, opts.iterations) / opts.iterations)))
+        net.train()
+        bar = None
+        if progress:
+            from harness.common.progress import progress_bar
+
+            bar = progress_bar(total=opts.iterations, desc="learned stage", unit="step", leave=False)
+        avg = None
+        for i in range(opts.iterations):
+            imgs, heat, off, logd, mask = sample_patches(items, opts.batch, rng, opts)
+            out = net(torch.from_numpy(imgs))
+            loss = _loss(torch, out, torch.from_numpy(heat), torch.from_numpy(off), torch.from_numpy(logd), torch.from_numpy(mask))
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+            lv = float(loss.detach())
+            avg = lv if avg is None else 0.98 * avg + 0.02 * lv
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{avg:.3f}")
+        if bar is not None:
+            bar.close()
+        log(f"learned stage: {opts.iterations} steps of {opts.batch} patches, final loss {avg:.3f}")
+        state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+        return state, export_onnx(torch, net)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def stage_candidates(stage: LearnedStage, images, k: int = 4, threshold: float | None = None):
+    """Per image the stage's candidates ``(uv (n, 2), scores (n,), diameters (n,))`` (full frames)."""
+    return [stage.candidates(im, None, k=k, threshold=threshold) for im in images]
+
+
+# -- the stage for rt2 train: shipped, fine-tuned or from scratch, chosen by cross-validation ---------------
+#: heat thresholds searched for the operating point (probabilities)
+THRESHOLD_GRID = (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+#: the candidates of the choice
+CHOICES = ("shipped", "fine-tuned", "scratch")
+#: a stage whose cross-validated recall is below this is not written by rt2 train (unless --force)
+MIN_CV_RECALL = 0.5
+#: the median ball at the network's scale, pixels: training a stage from scratch shrinks frames towards it
+TARGET_DIAMETER_PX = 16.0
+
+
+@dataclass(frozen=True)
+class StageChoice:
+    """One candidate stage's cross-validated figures: ``name`` (one of ``CHOICES``), ``threshold`` (its best heat
+    threshold on the pooled out-of-fold candidates) and the :class:`DetectorScores` there (``scores``, top-K)."""
+
+    name: str
+    threshold: float
+    scores: object
+
+    @property
+    def gain(self) -> float:
+        return float(np.nan_to_num(self.scores.recall)) - float(self.scores.outlier_rate)
+
+    def line(self) -> str:
+        s = self.scores
+        return (f"{self.name}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
+                f"median {s.median_center_error_px:.2f} px at threshold {self.threshold:g}")
+
+
+def max_side_for(labelled, base_max_side: int | None = None) -> int:
+    """The longer frame side the stage shrinks frames to: the base's when fine-tuning, else so that the median
+    labelled ball is about ``TARGET_DIAMETER_PX`` across (never enlarging, at least 256, a multiple of 32)."""
+    if base_max_side is not None:
+        return int(base_max_side)
+    d = np.concatenate([np.minimum(li.boxes_xywh[:, 2], li.boxes_xywh[:, 3]) for li in labelled if li.n_balls] or [np.zeros(0)])
+    side = max(max(li.width, li.height) for li in labelled)
+    if len(d) == 0:
+        return int(min(side, 640))
+    target = side * min(1.0, TARGET_DIAMETER_PX / float(np.median(d)))
+    return int(max(256, min(side, 32 * round(target / 32))))
+
+
+def _best_threshold(truth, cands, k: int, min_diameter_px: float):
+    """(threshold, scores) of the threshold of ``THRESHOLD_GRID`` with the best recall - outliers (ties: the higher threshold)."""
+    from harness.experiments.detector.scores import score_detections
+
+    best = None
+    for th in THRESHOLD_GRID:
+        found = [uv[sc >= th][:k] for uv, sc in cands]
+        s = score_detections("topk", truth[0], truth[1], found, min_diameter_px=min_diameter_px)
+        g = float(np.nan_to_num(s.recall)) - s.outlier_rate
+        if best is None or g >= best[0] - 1e-12:
+            best = (g, th, s)
+    return best[1], best[2]
+
+
+def state_of_onnx(onnx_bytes: bytes) -> dict:
+    """The torch state dict of a network exported by :func:`export_onnx` (its initializers by name; ``onnx`` package)."""
+    import onnx
+    import torch
+    from onnx import numpy_helper
+
+    graph = onnx.load_from_string(onnx_bytes).graph
+    return {t.name: torch.from_numpy(numpy_helper.to_array(t).copy()) for t in graph.initializer if t.name.endswith((".weight", ".bias"))}
+
+
+def train_stage(labelled, *, base: LearnedStage | None, seed: int, n_folds: int = 3, k: int = 4, min_diameter_px: float = 6.0,
+                finetune_steps: int = 150, scratch_steps: int = 400, batch: int = 16, patch_px: int = 96, extra=(),
+                log=print, progress: bool = False):
+    """The learned stage ``rt2 train`` writes, chosen by cross-validation; returns ``(stage, info)``.
+
+    labelled : ``LabelledImage`` list (the user's labels); base : the shipped (or ``--from``) model's stage, or None
+    extra : more ``(image, LabelledImage)`` pairs trained on in every fit, never scored (e.g. ball-free backgrounds)
+    Over ``n_folds`` time-contiguous folds (:func:`harness.experiments.detector.train.cv_folds`) the base stage as it
+    is, the base fine-tuned (``finetune_steps``) and a stage from scratch (``scratch_steps``) are scored on the frames
+    each fit did not see (top-K candidates, each at its best threshold); the best by recall - outliers is refitted on
+    every image (the base itself when it wins) with that threshold. ``info``: the choices' figures, the chosen one.
+    """
+    from harness.experiments.detector.scores import truth_of
+    from harness.experiments.detector.train import cv_folds, load_image
+
+    if not any(li.n_balls for li in labelled):
+        raise ValueError(f"no ball boxes among the {len(labelled)} images: the learned stage has nothing to learn")
+    max_side = max_side_for(labelled, None if base is None else base.max_side_px)
+    pairs = [(load_image(li), li) for li in labelled]
+    items = items_at_scale(pairs, max_side)
+    extra_items = items_at_scale(list(extra), max_side, weight=0.5)
+    folds = cv_folds(labelled, n_folds)
+    base_state = None if base is None else state_of_onnx(base.onnx)
+    names = (["shipped", "fine-tuned"] if base is not None else []) + ["scratch"]
+    oof = {n: [None] * len(labelled) for n in names}
+
+    def stage_of(onnx_bytes):
+        return LearnedStage(onnx_bytes, max_side_px=max_side, threshold=0.5, diameter_range_px=LearnedTrainOptions().diameter_range_px,
+                            context_px=24 if base is None else base.context_px)
+
+    def candidates(stage, idx):
+        for i in idx:
+            uv, sc, _ = stage.candidates(pairs[i][0], None, k=4 * k, threshold=min(THRESHOLD_GRID))
+            yield i, (uv, sc)
+
+    if base is not None:
+        for i, c in candidates(base, range(len(labelled))):
+            oof["shipped"][i] = c
+    for f, fold in enumerate(folds):
+        inside = set(fold)
+        rest = [items[i] for i in range(len(items)) if i not in inside] + extra_items
+        if not any(len(it.centers) for it in rest):
+            continue
+        for name in names[1 if base is not None else 0:]:
+            steps, state = (finetune_steps, base_state) if name == "fine-tuned" else (scratch_steps, None)
+            opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
+                                       lr=1e-3 if state is not None else 3e-3)
+            _, onnx_f = fit_learned(rest, opts, seed + 101 * f, state=state, log=lambda m: None, progress=False)
+            for i, c in candidates(stage_of(onnx_f), fold):
+                oof[name][i] = c
+        log(f"learned stage: fold {f + 1}/{len(folds)} done")
+    scored = [i for i in range(len(labelled)) if all(oof[n][i] is not None for n in names)]
+    truth = ([truth_of(labelled[i])[0] for i in scored], [truth_of(labelled[i])[1] for i in scored])
+    choices = []
+    for name in names:
+        th, s = _best_threshold(truth, [oof[name][i] for i in scored], k, min_diameter_px)
+        choices.append(StageChoice(name, th, s))
+    for c in choices:
+        log(f"learned stage, {len(folds)}-fold cross-validation on {len(scored)} images: {c.line()}")
+    best = max(choices, key=lambda c: (round(c.gain, 9), -names.index(c.name)))
+    if best.name == "shipped":
+        stage = base.__class__(base.onnx, stride=base.stride, max_side_px=base.max_side_px, threshold=best.threshold,
+                               diameter_range_px=base.diameter_range_px, context_px=base.context_px,
+                               description=base.description + f"; threshold {best.threshold:g} by cross-validation on {len(labelled)} images")
+    else:
+        steps, state = (finetune_steps, base_state) if best.name == "fine-tuned" else (scratch_steps, None)
+        opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
+                                   lr=1e-3 if state is not None else 3e-3)
+        _, onnx_all = fit_learned(items + extra_items, opts, seed, state=state, log=log, progress=progress)
+        stage = LearnedStage(onnx_all, max_side_px=max_side, threshold=best.threshold, diameter_range_px=opts.diameter_range_px,
+                             context_px=24 if base is None else base.context_px,
+                             description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed})")
+    info = dict(choices=choices, chosen=best, folds=len(folds), max_side_px=max_side)
+    return stage, info

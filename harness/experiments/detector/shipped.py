@@ -1,0 +1,180 @@
+"""The shipped detector models (``data/models/ball_seg_white.npz``, ``ball_seg_default.npz``): the recipe that
+trains their learned stage for transfer to cameras they never saw, as one command.
+
+``rt2 train-shipped --colour white|orange --out M.npz --seed 0 [--steps N] [--base M0.npz]``
+
+The 5x5 filter of the file is the base model's (``--base``; the shipped orange filter by default, which the
+paper's method ``rt2-paper`` keeps using); the learned stage is trained here on (seeded, every source in the
+model's description):
+
+* **real frames**: the real rally frames (``../shared/data/real/phone_rally``, white ball) of the training part
+  of their time order only (``--rally-range``, default ``0:58``; ``58:`` stays held out), weight 2;
+* **balls drawn into real frames** (:mod:`harness.experiments.detector.drawn`): the caliscope session's cameras
+  0 and 1 (cameras 2 and 3 stay held out) and the rally frames of the training part with their ball painted
+  out, VGA, balls of ``--diameter-px`` (log-uniform), motion blur, highlights, Bayer and camera randomisation
+  (white balance, exposure, gamma, lamp tint, blur, noise, JPEG), a quarter of the frames ball-free;
+* **real ball crops pasted into real frames** (white; :mod:`harness.sim.render.ball_crops` when present):
+  the rally's own ball, cut from the training frames with its matte, at random scale and blur;
+* **renders** of the simulated lab (orange; ``--renders DIR``: an ``rt2 sim dataset`` set).
+
+The stage's threshold is chosen on a validation set made the same way from other frames (cameras 0-1's later
+frames with other seeds), never on held-out data: recall - outliers, top-K candidates.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["add_arguments", "build", "run"]
+
+ROOT = Path(__file__).resolve().parents[3]
+REAL = ROOT.parent / "shared" / "data" / "real"
+RALLY = REAL / "phone_rally" / "annotations.json"
+CALISCOPE_VIDEOS = [REAL / "caliscope_4cam" / "calibration" / "extrinsic" / f"cam_{i}.mp4" for i in (0, 1)]
+DEFAULT_BASE = ROOT / "data" / "models" / "ball_seg_default.npz"
+
+
+def _drawn(sources, n_per_video: int, seed: int, colour: str, diameter_px, log):
+    from harness.experiments.detector.backgrounds import read_backgrounds
+    from harness.experiments.detector.drawn import DrawnOptions, draw_frame
+    from harness.experiments.detector.train import load_image
+
+    frames = read_backgrounds(sources, n_per_video, load_image=load_image)
+    opts = DrawnOptions(size=(640, 480), diameter_px=tuple(diameter_px), colour=colour, p_empty=0.25, max_blur_diameters=1.4)
+    out = [draw_frame(im, f"drawn/{seed}/{i:05d}.png", np.random.default_rng([seed, i]), opts) for i, (im, _) in enumerate(frames)]
+    log(f"{len(out)} frames with {colour} balls drawn in ({', '.join(Path(str(s)).name for s in sources)})")
+    return out
+
+
+def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
+          diameter_px=(5.0, 48.0), frames_per_video: int = 64, log=print, progress: bool = True):
+    """The model (base filter + trained learned stage) and a dict of what it was trained on and its validation figures."""
+    from harness.experiments.detector.labels import read_labels
+    from harness.experiments.detector.learned_train import (LearnedTrainOptions, _best_threshold, fit_learned, items_at_scale)
+    from harness.experiments.detector.scores import truth_of
+    from harness.experiments.detector.subsets import take_range
+    from harness.experiments.detector.train import load_image
+    from tracker import BallSegmentationModel
+    from tracker.detection.learned import LearnedStage
+
+    base = BallSegmentationModel.load(base_path)
+    max_side = 640
+    pairs, weights, sources = [], [], []
+    rally_train = take_range(read_labels(RALLY, "auto"), rally_range) if RALLY.is_file() else []
+    if colour == "white":
+        if not rally_train:
+            raise ValueError(f"the real rally frames are missing ({RALLY}): the white model's real frames")
+        pairs += [(load_image(li), li) for li in rally_train]
+        weights += [2.0] * len(rally_train)
+        sources.append(f"{len(rally_train)} real rally frames ({rally_range})")
+    bg = [str(p) for p in CALISCOPE_VIDEOS if p.is_file()] + ([f"{RALLY}@{rally_range}"] if rally_train else [])
+    drawn = _drawn(bg, frames_per_video, seed, colour, diameter_px, log)
+    pairs += drawn
+    weights += [1.0] * len(drawn)
+    sources.append(f"{len(drawn)} frames with drawn {colour} balls (caliscope cameras 0-1, rally {rally_range} painted out)")
+    if colour == "white":
+        pasted = _pasted(rally_train, bg, seed, frames_per_video, diameter_px, log)
+        if pasted:
+            pairs += pasted
+            weights += [1.0] * len(pasted)
+            sources.append(f"{len(pasted)} frames with the rally's real ball crops pasted in")
+    if renders:
+        r = read_labels(renders, "auto")
+        pairs += [(load_image(li), li) for li in r]
+        weights += [1.0] * len(r)
+        sources.append(f"{len(r)} renders ({renders})")
+    items = []
+    for (im, li), w in zip(pairs, weights):
+        items += items_at_scale([(im, li)], max_side, weight=w)
+    opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0))
+    _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
+    stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px)
+    # threshold on a validation set made like the drawn training frames, from other frames and seeds
+    val = _drawn([str(p) for p in CALISCOPE_VIDEOS if p.is_file()], 24, seed + 1000, colour, diameter_px, log)
+    truth = ([truth_of(li)[0] for _, li in val], [truth_of(li)[1] for _, li in val])
+    cands = [stage.candidates(im, None, k=16, threshold=0.05)[:2] for im, _ in val]
+    th, s = _best_threshold(truth, cands, 4, 6.0)
+    stage = dataclasses.replace(stage, threshold=th, description=(
+        f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps}` on " + "; ".join(sources)
+        + f"; {steps} steps of {opts.batch} patches of {opts.patch_px} px; threshold {th:g} chosen on {len(val)} validation frames "
+        f"(drawn balls, other frames and seeds): recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%"))
+    log(f"validation ({len(val)} frames): threshold {th:g}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
+        f"median {s.median_center_error_px:.2f} px")
+    model = dataclasses.replace(base, learned=stage, ball_colour=colour if colour == "white" else base.ball_colour,
+                                description=base.description + f"; learned stage: {stage.description}")
+    return model, dict(validation=s, threshold=th, sources=sources)
+
+
+def _pasted(rally_train, bg_sources, seed: int, n_per_video: int, diameter_px, log):
+    """Frames of the background sources with the rally's real ball crops pasted in (nothing where the crop module is absent)."""
+    try:
+        from harness.sim.render import ball_crops
+    except ImportError:
+        return []
+    from harness.experiments.detector.backgrounds import read_backgrounds
+    from harness.experiments.detector.coco import LabelledImage
+    from harness.experiments.detector.train import load_image
+
+    crops = ball_crops.cut_ball_crops(RALLY, names=[str(li.path) for li in rally_train])
+    if not crops:
+        return []
+    frames = read_backgrounds(bg_sources, n_per_video, load_image=load_image)
+    out = []
+    for i, (im, _) in enumerate(frames):
+        rng = np.random.default_rng([seed, 7, i])
+        h, w = im.shape[:2]
+        s = 640 / max(h, w)
+        import cv2
+
+        im = cv2.resize(im, (int(round(w * s)), int(round(h * s))), interpolation=cv2.INTER_AREA)
+        h, w = im.shape[:2]
+        boxes, centers = [], []
+        if rng.random() > 0.2:
+            d = float(math.exp(rng.uniform(math.log(diameter_px[0]), math.log(diameter_px[1]))))
+            c = rng.uniform([d, d], [w - 1 - d, h - 1 - d])
+            crop = crops[int(rng.integers(len(crops)))]
+            im, center, box = ball_crops.paste_ball(im, crop, c, d, rng=rng)
+            boxes.append(box)
+            centers.append(center)
+        out.append((im, LabelledImage(f"pasted/{seed}/{i:05d}.png", w, h, np.array(boxes, float).reshape(-1, 4), np.array(centers, float).reshape(-1, 2))))
+    log(f"{len(out)} frames with real rally ball crops pasted in")
+    return out
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--colour", choices=("white", "orange"), required=True, help="the ball colour of the model")
+    parser.add_argument("--out", required=True, help="weights file to write (.npz)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--steps", type=int, default=4000, help="optimiser steps of the learned stage (default 4000)")
+    parser.add_argument("--base", default=str(DEFAULT_BASE), help="the model whose 5x5 filter the file keeps (default: the shipped orange model)")
+    parser.add_argument("--rally-range", default="0:58", help="the rally frames trained on, in time order (default 0:58; the rest stays held out)")
+    parser.add_argument("--renders", default=None, help="an rt2 sim dataset folder of renders added to training (e.g. for orange)")
+    parser.add_argument("--frames-per-video", type=int, default=64, help="background frames taken from each video (default 64)")
+
+
+def run(args) -> int:
+    from harness.common.outputs import atomic_path, check_output_file
+
+    out = Path(args.out)
+    if out.suffix != ".npz":
+        raise ValueError(f"--out must end in .npz, got {args.out!r}")
+    check_output_file(out, "--out")
+    model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,
+                        renders=args.renders, frames_per_video=args.frames_per_video)
+    with atomic_path(out, "--out") as tmp:
+        model.save(tmp)
+    print(f"wrote {out}: learned stage threshold {info['threshold']:g}")
+    return 0
+
+
+if __name__ == "__main__":
+    import argparse
+
+    p = argparse.ArgumentParser(prog="rt2 train-shipped")
+    add_arguments(p)
+    sys.exit(run(p.parse_args()))

@@ -1,0 +1,119 @@
+"""Training the learned detector stage: patches and targets, seeding, rt2 train's choice and its refusal to write a weak model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch", reason="training needs rt2[train]")
+
+from harness.cli import main  # noqa: E402
+from harness.experiments.detector.coco import read_coco  # noqa: E402
+from harness.experiments.detector.learned_train import (  # noqa: E402
+    LearnedItem, LearnedTrainOptions, fit_learned, items_at_scale, max_side_for, sample_patches, targets)
+from harness.experiments.detector.train import EXIT_WEAK_MODEL, load_image  # noqa: E402
+from tracker import BallSegmentationModel  # noqa: E402
+
+
+def test_targets_put_the_centre_in_its_cell_with_the_sub_cell_offset():
+    heat, off, logd, mask = targets(np.array([[41.0, 22.5]]), np.array([10.0]), 64)
+    # pixel 41 -> cell coordinate (41 + 0.5) / 4 - 0.5 = 9.875 -> cell 10, offset -0.125; 22.5 -> 5.25 -> cell 5, +0.25
+    assert mask.sum() == 1 and mask[5, 10] == 1 and heat[5, 10] == 1.0
+    np.testing.assert_allclose(off[:, 5, 10], [-0.125, 0.25])
+    np.testing.assert_allclose(logd[5, 10], np.log(10.0), rtol=1e-6)
+    assert heat[5, 11] < 1.0 and heat[5, 11] > 0.0 and heat[0, 0] < 1e-6
+    empty = targets(np.zeros((0, 2)), np.zeros(0), 64)
+    assert empty[0].max() == 0 and empty[3].sum() == 0
+    outside = targets(np.array([[-30.0, 10.0]]), np.array([8.0]), 64)
+    assert outside[3].sum() == 0  # a ball outside the patch leaves no centre
+
+
+def test_patches_carry_their_balls_where_the_targets_say(synthetic_ball_coco):
+    """Patches on a ball: the target's centre cell lies on the ball's bright pixels (without photometric changes)."""
+    labelled = read_coco(synthetic_ball_coco(10, 0))
+    items = items_at_scale([(load_image(li), li) for li in labelled], 640)
+    opts = LearnedTrainOptions(patch_px=64, p_ball=1.0, augment=False, scale_range=(1.0, 1.0))
+    imgs, heat, off, logd, mask = sample_patches(items, 12, np.random.default_rng(0), opts)
+    assert imgs.shape == (12, 64, 64, 3) and heat.shape == (12, 16, 16)
+    assert (mask.sum(axis=(1, 2)) >= 1).all()
+    for im, m, o in zip(imgs, mask, off):
+        r, c = np.argwhere(m)[0]
+        u, v = (c + 0.5 + o[0, r, c]) * 4 - 0.5, (r + 0.5 + o[1, r, c]) * 4 - 0.5
+        ball = im[int(round(v)), int(round(u))].astype(int)
+        around = np.median(im.reshape(-1, 3), axis=0)
+        assert np.abs(ball - around).sum() > 60  # the synthetic ball is a coloured disk on a textured background
+
+
+def test_the_same_seed_gives_the_same_network_bytes(synthetic_ball_coco):
+    labelled = read_coco(synthetic_ball_coco(10, 0))
+    items = items_at_scale([(load_image(li), li) for li in labelled], 640)
+    opts = LearnedTrainOptions(iterations=3, batch=4, patch_px=64)
+    a = fit_learned(items, opts, 5, log=lambda m: None)[1]
+    b = fit_learned(items, opts, 5, log=lambda m: None)[1]
+    c = fit_learned(items, opts, 6, log=lambda m: None)[1]
+    assert a == b and a != c
+
+
+def test_no_ball_nothing_to_learn():
+    items = [LearnedItem(np.zeros((64, 64, 3), np.uint8), np.zeros((0, 2)), np.zeros(0))]
+    with pytest.raises(ValueError, match="no ball"):
+        fit_learned(items, LearnedTrainOptions(iterations=1), 0)
+
+
+def test_max_side_shrinks_large_frames_towards_the_target_ball_size(synthetic_ball_coco):
+    labelled = read_coco(synthetic_ball_coco(10, 0))
+    assert max_side_for(labelled) == 128  # small frames are never enlarged
+    assert max_side_for(labelled, 512) == 512
+
+
+def test_rt2_train_refuses_a_weak_model_with_exit_3_and_force_writes_it(synthetic_ball_coco, tmp_path, capsys):
+    """Two optimiser steps cannot find a ball: recall < 50 % -> exit 3, one line, nothing written; --force writes it."""
+    out = tmp_path / "m.npz"
+    args = ["train", "--data", str(synthetic_ball_coco(12, 3)), "--out", str(out), "--epochs", "1", "--from", "none",
+            "--learned-steps", "2", "--learned-folds", "2", "--thresholds", "cv", "--cv-folds", "2", "--seed", "0"]
+    code = main(args)
+    err = capsys.readouterr().err.strip().splitlines()
+    if code == 0:  # the filter's cross-validated recall decides only without a learned stage: this one must be weak
+        pytest.fail(f"a learned stage of 2 steps was written: {err}")
+    assert code == EXIT_WEAK_MODEL and not out.exists()
+    assert len(err) == 1 and "not written" in err[0] and "< 50%" in err[0] and "--force" in err[0]
+    assert main([*args, "--force"]) == 0 and out.is_file()
+    assert "written anyway (--force)" in capsys.readouterr().err
+    model = BallSegmentationModel.load(out)
+    assert model.learned is not None and "learned stage: scratch" in model.description
+
+
+def test_rt2_train_chooses_between_the_base_stage_fine_tuned_and_scratch(synthetic_ball_coco, tmp_path, capsys):
+    """With a base model that has a stage, the three candidates are scored and the description says which won."""
+    base_path = tmp_path / "base.npz"
+    assert main(["train", "--data", str(synthetic_ball_coco(30, 0)), "--out", str(base_path), "--epochs", "1", "--from", "none",
+                 "--learned-steps", "150", "--learned-folds", "2", "--force", "--seed", "0"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "m.npz"
+    assert main(["train", "--data", str(synthetic_ball_coco(12, 1)), "--out", str(out), "--epochs", "1", "--from", str(base_path),
+                 "--learned-steps", "16", "--learned-folds", "2", "--force", "--seed", "0"]) == 0
+    text = capsys.readouterr().out
+    for name in ("shipped:", "fine-tuned:", "scratch:"):
+        assert f"learned stage, 2-fold cross-validation on 12 images: {name}" in text
+    model = BallSegmentationModel.load(out)
+    assert "(of shipped, fine-tuned, scratch) by 2-fold cross-validation" in model.description
+
+
+def test_learned_options_hostile(synthetic_ball_coco, tmp_path, capsys):
+    data = str(synthetic_ball_coco(12, 3))
+    for extra, message in ((["--learned", "maybe"], "invalid choice"), (["--learned-steps", "0"], "learned_steps"),
+                           (["--learned-folds", "1"], "learned_folds")):
+        with pytest.raises(SystemExit) if extra[0] == "--learned" else _no_raise():
+            code = main(["train", "--data", data, "--out", str(tmp_path / "m.npz"), *extra])
+            assert code == 2
+        err = capsys.readouterr().err
+        assert message in err
+        assert not (tmp_path / "m.npz").exists()
+
+
+class _no_raise:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False

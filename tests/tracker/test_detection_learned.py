@@ -1,0 +1,176 @@
+"""The learned detector stage: decoding the heatmap, the model file's fields, hostile files, the detector's use of it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tracker import BallDetector, BallSegmentationModel, DetectorOptions
+from tracker.detection.learned import LEARNED_FIELDS, LearnedStage, decode_heatmap, learned_scale
+
+torch = pytest.importorskip("torch", reason="the tiny test network is exported from torch (rt2[train])")
+
+
+@pytest.fixture(scope="module")
+def tiny_onnx():
+    from harness.experiments.detector.learned_train import build_net, export_onnx
+
+    torch.manual_seed(0)
+    return export_onnx(torch, build_net(torch))
+
+
+@pytest.fixture(scope="module")
+def bright_spot_onnx():
+    """A network whose heat is the brightness of each 4x4 cell (a bright spot peaks where it is), offsets 0, diameter e^2."""
+    from harness.experiments.detector.learned_train import build_net, export_onnx
+
+    net = build_net(torch)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.zero_()
+        net.a.weight[0] = 1.0 / 16  # channel 0 of the stride-4 features: the cell's mean of (x/255 - 0.5) over RGB
+        net.head.weight[0, 0, 0, 0] = 10.0  # heat = 10 * relu(mean)
+        net.head.bias[:] = torch.tensor([-1.0, 0.0, 0.0, 2.0])
+    return export_onnx(torch, net)
+
+
+def test_decode_heatmap_finds_the_peaks_best_first_with_subcell_centres():
+    out = np.zeros((4, 10, 12), np.float32)
+    out[0] = -5
+    out[0, 2, 3], out[1, 2, 3], out[2, 2, 3], out[3, 2, 3] = 3.0, 0.25, -0.25, np.log(10.0)
+    out[0, 7, 9] = 5.0
+    out[0, 7, 8] = 4.0  # a neighbour of a higher peak: not a peak
+    uv, heat, d = decode_heatmap(out, 0.0, 4, 4)
+    np.testing.assert_allclose(heat, [5.0, 3.0])
+    np.testing.assert_allclose(uv[0], [(9 + 0.5) * 4 - 0.5, (7 + 0.5) * 4 - 0.5])
+    np.testing.assert_allclose(uv[1], [(3 + 0.75) * 4 - 0.5, (2 + 0.25) * 4 - 0.5])
+    np.testing.assert_allclose(d[1], 10.0, rtol=1e-6)
+    assert len(decode_heatmap(out, 4.5, 4, 4)[1]) == 1  # the threshold
+    assert len(decode_heatmap(out, 0.0, 1, 4)[1]) == 1  # k
+
+
+def test_learned_scale_bounds_the_longer_side():
+    assert learned_scale(480, 640, 640) == 1.0
+    assert learned_scale(1080, 1920, 640) == pytest.approx(1 / 3)
+
+
+def test_a_bright_spot_is_found_at_its_place_in_full_frames_windows_and_shrunk_frames(bright_spot_onnx):
+    stage = LearnedStage(bright_spot_onnx, max_side_px=640, threshold=0.5)
+    img = np.zeros((240, 320, 3), np.uint8)
+    img[100:104, 200:204] = 255  # one cell: centre (201.5, 101.5)
+    uv, sc, d = stage.candidates(img)
+    assert len(uv) == 1 and np.linalg.norm(uv[0] - [201.5, 101.5]) <= 1e-9
+    np.testing.assert_allclose(d[0], np.exp(2.0), rtol=1e-5)
+    uv_w, _, _ = stage.candidates(img, (180, 80, 244, 144))
+    np.testing.assert_allclose(uv_w[0], uv[0], atol=1e-9)
+    assert len(stage.candidates(img, (0, 0, 64, 64))[0]) == 0  # nothing in that window
+    big = np.zeros((720, 1280, 3), np.uint8)
+    big[400:408, 800:808] = 255
+    small = LearnedStage(bright_spot_onnx, max_side_px=640, threshold=0.5)
+    uv_b, _, d_b = small.candidates(big)
+    assert len(uv_b) == 1 and np.linalg.norm(uv_b[0] - [803.5, 403.5]) <= 1e-9  # found in the half-size frame, mapped back
+    np.testing.assert_allclose(d_b[0], 2 * np.exp(2.0), rtol=1e-3)
+
+
+def test_the_detector_uses_the_stage_for_ours_and_the_filter_for_the_paper(bright_spot_onnx):
+    base = BallSegmentationModel.load("data/models/ball_seg_default.npz")
+    model = dataclasses.replace(base, learned=LearnedStage(bright_spot_onnx, threshold=0.5))
+    img = np.zeros((240, 320, 3), np.uint8)
+    img[100:104, 200:204] = 255
+    ours = BallDetector(model, DetectorOptions(refine_with_filter=False)).detect(img)
+    assert len(ours) == 1 and np.linalg.norm(ours.uv_px[0] - [201.5, 101.5]) <= 1e-9
+    assert ours.areas_px[0] == round(np.pi / 4 * np.exp(2.0) ** 2)
+    np.testing.assert_allclose(ours.boxes_xywh[0, 2:], np.exp(2.0), rtol=1e-5)
+    assert BallDetector(model).edge_loss_px == 0.0
+    off = BallDetector(model, DetectorOptions(learned=False))
+    assert off.learned is None and off.edge_loss_px == base.edge_loss_px
+    assert BallDetector(model, DetectorOptions(method="paper")).learned is None
+    high = BallDetector(model, DetectorOptions(learned_threshold=0.9999999)).detect(img)  # the spot's heat is 14: below it
+    assert len(high) == 0
+
+
+def test_a_model_with_the_stage_saves_and_loads_the_same_bytes(tmp_path, tiny_onnx):
+    base = BallSegmentationModel.load("data/models/ball_seg_default.npz")
+    stage = LearnedStage(tiny_onnx, stride=4, max_side_px=512, threshold=0.3, diameter_range_px=(5.0, 30.0), context_px=16, description="test")
+    path = dataclasses.replace(base, learned=stage).save(tmp_path / "m.npz")
+    back = BallSegmentationModel.load(path).learned
+    assert back.onnx == tiny_onnx and (back.max_side_px, back.threshold, back.diameter_range_px, back.context_px, back.description) == (
+        512, 0.3, (5.0, 30.0), 16, "test")
+    img = np.random.default_rng(0).integers(0, 256, (96, 128, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(back.run(img), stage.run(img))
+
+
+def _write(tmp_path, base, tiny_onnx, change):
+    fields = dict(np.load(dataclasses.replace(base, learned=LearnedStage(tiny_onnx)).save(tmp_path / "ok.npz")))
+    change(fields)
+    path = tmp_path / "bad.npz"
+    np.savez(path, **fields)
+    return path
+
+
+HOSTILE = [
+    ("a missing field", lambda f: f.pop("learned_threshold"), "learned stage fields incomplete"),
+    ("damaged network bytes", lambda f: f.update(learned_onnx=np.frombuffer(b"\x08\x07garbage" * 20, np.uint8)), "learned_onnx"),
+    ("network bytes as text", lambda f: f.update(learned_onnx=np.array("abc")), "learned_onnx"),
+    ("threshold out of (0, 1)", lambda f: f.update(learned_threshold=np.array(1.5)), "threshold"),
+    ("a fractional stride", lambda f: f.update(learned_stride=np.array(2.5)), "learned_stride"),
+    ("max side too small", lambda f: f.update(learned_max_side_px=np.array(8)), "max_side_px"),
+    ("diameters out of order", lambda f: f.update(learned_diameter_range_px=np.array([30.0, 5.0])), "diameter_range_px"),
+    ("a stride the network does not have", lambda f: f.update(learned_stride=np.array(8)), "expected (4, 8, 8)"),
+    ("description not text", lambda f: f.update(learned_description=np.array(3.0)), "learned_description"),
+]
+
+
+@pytest.mark.parametrize("what, change, message", HOSTILE, ids=[h[0] for h in HOSTILE])
+def test_hostile_model_files_name_the_file_and_field(tmp_path, tiny_onnx, what, change, message):
+    base = BallSegmentationModel.load("data/models/ball_seg_default.npz")
+    path = _write(tmp_path, base, tiny_onnx, change)
+    with pytest.raises(ValueError) as e:
+        BallSegmentationModel.load(path)
+    assert str(path) in str(e.value) and message in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+def test_every_field_is_written(tmp_path, tiny_onnx):
+    base = BallSegmentationModel.load("data/models/ball_seg_default.npz")
+    fields = np.load(dataclasses.replace(base, learned=LearnedStage(tiny_onnx)).save(tmp_path / "m.npz"))
+    assert set(LEARNED_FIELDS) <= set(fields.files)
+
+
+def test_a_stage_pickles_and_runs_in_the_copy(tiny_onnx):
+    import pickle
+
+    stage = LearnedStage(tiny_onnx)
+    img = np.zeros((64, 64, 3), np.uint8)
+    stage.run(img)  # a session made in this thread
+    copy = pickle.loads(pickle.dumps(stage))
+    np.testing.assert_array_equal(copy.run(img), stage.run(img))
+
+
+def test_the_filter_refines_the_network_centre_where_it_sees_the_ball(bright_spot_onnx):
+    """A candidate 1.5 px off an orange disc: the filter's blob centroid replaces the centre (the disc's own); off
+    any blob the filter sees (a white square for an orange filter), the network's centre stays."""
+    from tracker.detection.synthetic import hand_made_model, synthetic_scene
+
+    class Off(LearnedStage):  # the network's answer, 1.5 px off each given centre
+        def candidates(self, image, window=None, k=4, threshold=None, frame_shape=None):
+            return self.at.copy(), np.full(len(self.at), 0.9), np.full(len(self.at), self.d)
+
+    base = hand_made_model()
+    image, centers, diams = synthetic_scene(np.random.default_rng(4), size_hw=(96, 128), n_balls=1, diameter_px=(12, 12))
+    stage = Off(bright_spot_onnx)
+    object.__setattr__(stage, "at", centers + np.array([[1.5, 0.0]]))
+    object.__setattr__(stage, "d", float(diams[0]))
+    model = dataclasses.replace(base, learned=stage)
+    refined = BallDetector(model).detect(image).uv_px[0]
+    filt = BallDetector(base).detect(image).uv_px[0]
+    np.testing.assert_allclose(refined, filt, atol=1e-9)
+    assert np.linalg.norm(refined - centers[0]) < 0.5
+    raw = BallDetector(model, DetectorOptions(refine_with_filter=False)).detect(image).uv_px[0]
+    np.testing.assert_allclose(raw, centers[0] + [1.5, 0.0])
+    white = np.full((96, 128, 3), 60, np.uint8)
+    white[40:52, 60:72] = 250
+    object.__setattr__(stage, "at", np.array([[66.0, 46.0]]))
+    np.testing.assert_allclose(BallDetector(model).detect(white).uv_px[0], [66.0, 46.0])

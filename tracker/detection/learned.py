@@ -1,0 +1,291 @@
+"""The learned detector stage: a small fully convolutional heatmap network that sees shape and context.
+
+The paper's single 5x5 filter tests one pixel's colour; it cannot tell a white ball from a lamp, a
+shelf or a white sneaker. This stage is a CenterNet-like network (a few convolutions, ~7k weights):
+from an RGB frame it computes, on a grid of ``stride`` pixels, a ball *heat* logit (is a ball centre
+in this cell?), the centre's sub-cell offset and the ball's log diameter. Candidates are the local
+maxima of the heat above ``threshold``, best first; centres are sub-pixel (cell + offset), boxes and
+areas come from the diameter (so the pipeline's 3D size test reads them like Algorithm 1's blobs).
+
+Scale. Frames whose longer side exceeds ``max_side_px`` are shrunk (``cv2.INTER_AREA``) so that the
+longer side is ``max_side_px``: the cost of a full frame is bounded (a VGA frame's) and the balls meet
+the network at the sizes it was trained on (``diameter_range_px``, network pixels). A window search
+takes the window plus ``context_px`` network pixels around it (what the network needs to see the
+ball's surroundings), at the same scale.
+
+Full frames in two passes (``coarse_side_px`` < ``max_side_px``): the network first runs on the frame
+shrunk to ``coarse_side_px`` (a quarter of the pixels at half the side) with ``coarse_threshold``; each
+of its ``coarse_candidates`` best peaks is then searched as a window at the full scale, where the stage's
+own threshold decides and the centre is refined. A full VGA frame then costs about a third of one pass
+at full scale (``rt2 bench detector``), which is what lets a tracker search every camera's whole frame
+at the camera rate while it has no ball.
+
+Inference is ONNX Runtime on the CPU, one intra-op thread per call (the pipeline runs cameras on its
+own threads): the fastest of the torch-free runtimes we measured for this network (OpenCV's dnn module
+took 1.5-2.2x as long, a numpy im2col version longer still). The ONNX graph (exported by ``rt2 train``
+from torch) takes the uint8 RGB frame as ``(1, H, W, 3)`` and does the conversion itself; its bytes
+live in the model's ``.npz`` beside the 5x5 filter (``learned_*`` fields).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from checks.per_thread import PerThread
+
+__all__ = ["LearnedStage", "LEARNED_FIELDS", "decode_heatmap", "learned_scale"]
+
+#: the model file's fields of this stage (all or none)
+LEARNED_FIELDS = ("learned_onnx", "learned_stride", "learned_max_side_px", "learned_threshold", "learned_diameter_range_px",
+                  "learned_context_px", "learned_description")
+
+
+def learned_scale(height: int, width: int, max_side_px: int) -> float:
+    """The factor a frame of ``height x width`` is resized by before the network (1 = as it is)."""
+    side = max(int(height), int(width))
+    return 1.0 if side <= max_side_px else max_side_px / side
+
+
+def decode_heatmap(out: np.ndarray, threshold_logit: float, k: int, stride: int):
+    """Candidates of one network output.
+
+    out : (4, h, w) float32: heat logit, offset u, offset v (cells), log diameter (network pixels)
+    returns (uv (n, 2) network pixels, heat logits (n,), diameters (n,) network pixels), best first, n <= k:
+    the local maxima (3x3) of the heat above ``threshold_logit``
+    """
+    heat = np.ascontiguousarray(out[0])
+    peaks = (heat >= cv2.dilate(heat, np.ones((3, 3), np.uint8))) & (heat > threshold_logit)
+    rows, cols = np.nonzero(peaks)
+    if len(rows) == 0:
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    vals = heat[rows, cols]
+    order = np.argsort(-vals, kind="stable")[:k]
+    rows, cols, vals = rows[order], cols[order], vals[order]
+    # cell (r, c) covers pixels [stride*c, stride*c + stride); its centre is pixel stride*(c + 0.5) - 0.5
+    u = (cols + 0.5 + out[1, rows, cols].astype(np.float64)) * stride - 0.5
+    v = (rows + 0.5 + out[2, rows, cols].astype(np.float64)) * stride - 0.5
+    d = np.exp(np.clip(out[3, rows, cols].astype(np.float64), -2.0, 6.0))
+    return np.stack([u, v], axis=1), vals.astype(np.float64), d
+
+
+@dataclass(frozen=True, eq=False)
+class LearnedStage:
+    """The heatmap network of a model file and how to run it.
+
+    onnx : the network, ONNX bytes (input ``(1, H, W, 3)`` uint8 RGB; output ``(1, 4, H/stride, W/stride)``)
+    stride : output cell size, network pixels
+    max_side_px : frames with a longer side are shrunk to it first
+    threshold : a candidate's heat probability at least (the network's operating point, chosen by training)
+    diameter_range_px : (2,) ball diameters it was trained on, network pixels
+    context_px : network pixels searched around a window (the surroundings the network sees)
+    description : how it was trained, on what
+    coarse_side_px : full frames: the longer side of the first, coarse pass (0 = one pass at ``max_side_px``)
+    coarse_threshold : the coarse pass's heat threshold (a probability)
+    coarse_candidates : the coarse peaks searched again at full scale
+    """
+
+    onnx: bytes
+    stride: int = 4
+    max_side_px: int = 640
+    threshold: float = 0.5
+    diameter_range_px: tuple = (4.0, 40.0)
+    context_px: int = 24
+    description: str = ""
+    coarse_side_px: int = 0
+    coarse_threshold: float = 0.1
+    coarse_candidates: int = 8
+
+    def __post_init__(self):
+        where = "LearnedStage"
+        if not isinstance(self.onnx, (bytes, bytearray)) or len(self.onnx) < 16:
+            raise ValueError(f"{where}: onnx must be the network's ONNX bytes, got {type(self.onnx).__name__} of length "
+                             f"{len(self.onnx) if hasattr(self.onnx, '__len__') else '?'}")
+        for name in ("stride", "max_side_px", "context_px", "coarse_side_px", "coarse_candidates"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name in ("context_px", "coarse_side_px") else 1):
+                raise ValueError(f"{where}: {name} must be a positive integer, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        if self.coarse_side_px and not 8 * self.stride <= self.coarse_side_px < self.max_side_px:
+            raise ValueError(f"{where}: coarse_side_px must be 0 or in [{8 * self.stride}, max_side_px = {self.max_side_px}), got {self.coarse_side_px}")
+        if self.max_side_px < 8 * self.stride:
+            raise ValueError(f"{where}: max_side_px ({self.max_side_px}) must be at least 8 strides ({8 * self.stride})")
+        for name in ("threshold", "coarse_threshold"):
+            t = getattr(self, name)
+            if isinstance(t, bool) or not isinstance(t, (int, float, np.floating)) or not 0.0 < float(t) < 1.0:
+                raise ValueError(f"{where}: {name} must be a probability in (0, 1), got {t!r}")
+            object.__setattr__(self, name, float(t))
+        d = np.asarray(self.diameter_range_px, np.float64).reshape(-1)
+        if d.shape != (2,) or not np.isfinite(d).all() or not 0 < d[0] <= d[1]:
+            raise ValueError(f"{where}: diameter_range_px must be [min, max] with 0 < min <= max, got {self.diameter_range_px!r}")
+        object.__setattr__(self, "diameter_range_px", (float(d[0]), float(d[1])))
+        object.__setattr__(self, "onnx", bytes(self.onnx))
+        object.__setattr__(self, "_sessions", PerThread(_SessionFactory(self.onnx)))
+        object.__setattr__(self, "_threshold_logit", math.log(self.threshold / (1.0 - self.threshold)))
+
+    # -- inference -------------------------------------------------------------------------------
+    def run(self, image: np.ndarray) -> np.ndarray:
+        """(4, h, w) float32 network output of an (H, W, 3) uint8 RGB image at the network's scale (no resizing)."""
+        sess = self._sessions.get()
+        return sess.run(None, {"image": np.ascontiguousarray(image)[None]})[0][0]
+
+    def scale_of(self, height: int, width: int) -> float:
+        return learned_scale(height, width, self.max_side_px)
+
+    def candidates(self, image: np.ndarray, window=None, k: int = 4, threshold: float | None = None, frame_shape=None):
+        """Ball candidates of a trusted (H, W, 3) uint8 RGB image, or of one box of it.
+
+        window : None or ``(x0, y0, x1, y1)``: only candidates whose centre lies in the box (the network also
+            sees ``context_px`` network pixels around it)
+        threshold : heat probability at least (None: the stage's own)
+        frame_shape : when ``image`` is a part of a camera frame (a tracker's neighbourhood view), that frame's
+            shape: the part is searched at the frame's scale, in one pass
+        returns (uv (n, 2) image pixels, scores (n,) heat probabilities, diameters (n,) image pixels), best first
+        """
+        h, w = image.shape[:2] if frame_shape is None else frame_shape[:2]
+        scale = learned_scale(h, w, self.max_side_px)
+        if window is None and frame_shape is None and self.coarse_side_px and max(h, w) > self.coarse_side_px:
+            return self._two_passes(image, k, threshold)
+        return self._one_pass(image, window, k, threshold, scale)
+
+    def _two_passes(self, image, k: int, threshold):
+        """Full frame: the coarse pass's best peaks, each searched again as a window at full scale (module docstring)."""
+        h, w = image.shape[:2]
+        uv, _, d = self._one_pass(image, None, self.coarse_candidates, self.coarse_threshold, learned_scale(h, w, self.coarse_side_px))
+        if len(uv) == 0:
+            return uv, np.zeros(0), d
+        s = self.scale_of(h, w)
+        found = []
+        for (u, v), dd in zip(uv, d):
+            half = max(2 * self.stride / s, 0.75 * dd)  # the coarse centre is within a coarse cell; the ball fits
+            x0, y0 = max(0, int(math.floor(u - half))), max(0, int(math.floor(v - half)))
+            x1, y1 = min(w, int(math.ceil(u + half)) + 1), min(h, int(math.ceil(v + half)) + 1)
+            if x0 < x1 and y0 < y1:
+                found.append(self._one_pass(image, (x0, y0, x1, y1), 1, threshold, s))
+        found = [f for f in found if len(f[1])]
+        if not found:
+            return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+        uv = np.concatenate([f[0] for f in found])
+        sc = np.concatenate([f[1] for f in found])
+        d = np.concatenate([f[2] for f in found])
+        order = np.argsort(-sc, kind="stable")
+        uv, sc, d = uv[order], sc[order], d[order]
+        keep = []  # two coarse peaks on one ball find it twice: keep the better
+        for i in range(len(sc)):
+            if all(np.hypot(*(uv[i] - uv[j])) > 0.5 * max(d[i], d[j]) for j in keep):
+                keep.append(i)
+        keep = keep[:k]
+        return uv[keep], sc[keep], d[keep]
+
+    def _one_pass(self, image, window, k: int, threshold, s: float):
+        """Candidates of ``image`` (or of ``window`` in it, with the context) with the image shrunk by ``s``."""
+        h, w = image.shape[:2]
+        th = self._threshold_logit if threshold is None else math.log(threshold / (1.0 - threshold))
+        if window is None:
+            x0 = y0 = 0
+            x1, y1 = w, h
+        else:
+            x0, y0, x1, y1 = (int(v) for v in window)
+        # the box the network sees, in image pixels: the window plus the context, inside the image
+        m = self.context_px / s
+        bx0, by0 = max(0, int(math.floor(x0 - m))), max(0, int(math.floor(y0 - m)))
+        bx1, by1 = min(w, int(math.ceil(x1 + m))), min(h, int(math.ceil(y1 + m)))
+        crop = image[by0:by1, bx0:bx1]
+        if s != 1.0:
+            nw, nh = max(1, int(round((bx1 - bx0) * s))), max(1, int(round((by1 - by0) * s)))
+            crop = cv2.resize(crop, (nw, nh), interpolation=cv2.INTER_AREA)
+            sx, sy = (bx1 - bx0) / nw, (by1 - by0) / nh
+        else:
+            sx = sy = 1.0
+        ch, cw = crop.shape[:2]
+        st = self.stride
+        ph, pw = (-ch) % st, (-cw) % st  # the network's input is a whole number of cells
+        if ph or pw:
+            crop = cv2.copyMakeBorder(crop, 0, ph, 0, pw, cv2.BORDER_REFLECT_101 if min(ch, cw) > 1 else cv2.BORDER_REPLICATE)
+        kk = 4 * k if window is not None else k  # some peaks of the context may fall outside the window
+        uv, heat, d = decode_heatmap(self.run(crop), th, kk, st)
+        if len(heat) == 0:
+            return uv, heat, d
+        # network pixels -> image pixels (pixel centres: u_img + 0.5 = (u_net + 0.5) * sx + bx0)
+        uv = np.stack([(uv[:, 0] + 0.5) * sx - 0.5 + bx0, (uv[:, 1] + 0.5) * sy - 0.5 + by0], axis=1)
+        d = d * 0.5 * (sx + sy)
+        inside = (uv[:, 0] > x0 - 0.5) & (uv[:, 0] < x1 - 0.5) & (uv[:, 1] > y0 - 0.5) & (uv[:, 1] < y1 - 0.5)
+        if window is not None or not inside.all():
+            uv, heat, d = uv[inside][:k], heat[inside][:k], d[inside][:k]
+        return uv, 1.0 / (1.0 + np.exp(-heat)), d
+
+    # -- files (fields of the model's .npz) ----------------------------------------------------------
+    def to_fields(self) -> dict:
+        return dict(learned_onnx=np.frombuffer(self.onnx, np.uint8), learned_stride=np.array(self.stride),
+                    learned_max_side_px=np.array(self.max_side_px), learned_threshold=np.array(self.threshold),
+                    learned_diameter_range_px=np.array(self.diameter_range_px), learned_context_px=np.array(self.context_px),
+                    learned_description=np.array(self.description),
+                    learned_coarse=np.array([self.coarse_side_px, self.coarse_threshold, self.coarse_candidates], np.float64))
+
+    @classmethod
+    def from_fields(cls, data: dict, src: str) -> "LearnedStage | None":
+        """The stage stored in a model file's fields, or None when the file has none."""
+        present = [k for k in LEARNED_FIELDS if k in data]
+        if not present:
+            return None
+        missing = [k for k in LEARNED_FIELDS if k not in data]
+        if missing:
+            raise ValueError(f"{src}: learned stage fields incomplete, missing {missing}")
+        onnx = data["learned_onnx"]
+        if onnx.dtype != np.uint8 or onnx.ndim != 1:
+            raise ValueError(f"{src}: field 'learned_onnx' must be the ONNX bytes as a uint8 vector, got dtype {onnx.dtype} shape {onnx.shape}")
+        for k in LEARNED_FIELDS[1:-1]:
+            if data[k].dtype.kind not in "biuf":
+                raise ValueError(f"{src}: field {k!r} must be numbers, got dtype {data[k].dtype}")
+        for k in ("learned_stride", "learned_max_side_px", "learned_context_px"):
+            if data[k].shape != () or not float(data[k]).is_integer():
+                raise ValueError(f"{src}: field {k!r} must be an integer, got {data[k]!r}")
+        if data["learned_description"].dtype.kind != "U":
+            raise ValueError(f"{src}: field 'learned_description' must be a string, got dtype {data['learned_description'].dtype}")
+        coarse = {}
+        if "learned_coarse" in data:  # optional: [side px, threshold, candidates] of the coarse pass
+            c = data["learned_coarse"]
+            if c.dtype.kind not in "biuf" or c.shape != (3,) or not np.isfinite(c).all() or not float(c[0]).is_integer() or not float(c[2]).is_integer():
+                raise ValueError(f"{src}: field 'learned_coarse' must be [side px, threshold, candidates] (integers, a probability), got {c!r}")
+            coarse = dict(coarse_side_px=int(c[0]), coarse_threshold=float(c[1]), coarse_candidates=int(c[2]))
+        try:
+            stage = cls(onnx=onnx.tobytes(), stride=int(data["learned_stride"]), max_side_px=int(data["learned_max_side_px"]),
+                        threshold=float(data["learned_threshold"]), diameter_range_px=tuple(np.asarray(data["learned_diameter_range_px"], float).reshape(-1)),
+                        context_px=int(data["learned_context_px"]), description=str(data["learned_description"]), **coarse)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{src}: {exc}") from None
+        problem = stage.check()
+        if problem:
+            raise ValueError(f"{src}: field 'learned_onnx': {problem}")
+        return stage
+
+    def check(self) -> str | None:
+        """None when the network loads and maps a small frame to the expected output; else what is wrong."""
+        try:
+            out = self.run(np.zeros((8 * self.stride, 8 * self.stride, 3), np.uint8))
+        except Exception as exc:  # a damaged graph: ONNX Runtime's own message, on one line
+            return f"not a network this rt2 can run ({type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''})"
+        if out.shape != (4, 8, 8):
+            return f"the network maps a {8 * self.stride}x{8 * self.stride} frame to shape {out.shape}, expected (4, 8, 8)"
+        if not np.isfinite(out).all():
+            return "the network's output is not finite"
+        return None
+
+
+class _SessionFactory:
+    """Makes one ONNX Runtime session per thread (a module-level class: pickles as its bytes)."""
+
+    def __init__(self, onnx: bytes):
+        self.onnx = onnx
+
+    def __call__(self):
+        import onnxruntime as ort
+
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = 1  # the pipeline parallelises over cameras
+        so.inter_op_num_threads = 1
+        so.log_severity_level = 3
+        return ort.InferenceSession(self.onnx, so, providers=["CPUExecutionProvider"])
