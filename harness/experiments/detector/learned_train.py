@@ -391,7 +391,7 @@ def max_side_for(labelled, base_max_side: int | None = None) -> int:
     if len(d) == 0:
         return int(min(side, 640))
     target = side * min(1.0, TARGET_DIAMETER_PX / float(np.median(d)))
-    return int(max(256, min(side, 32 * round(target / 32))))
+    return int(min(side, max(256, 32 * round(target / 32))))
 
 
 def _best_threshold(truth, cands, k: int, min_diameter_px: float):

@@ -78,7 +78,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     weights += [1.0] * len(drawn)
     sources.append(f"{len(drawn)} frames with drawn {colour} balls (caliscope cameras 0-1, rally {rally_range} painted out)")
     if colour == "white":
-        pasted = _pasted(rally_train, bg, seed, frames_per_video, diameter_px, log)
+        pasted = _pasted(rally_range, bg, seed, frames_per_video, diameter_px, log)
         if pasted:
             pairs += pasted
             weights += [1.0] * len(pasted)
@@ -110,17 +110,17 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     return model, dict(validation=s, threshold=th, sources=sources)
 
 
-def _pasted(rally_train, bg_sources, seed: int, n_per_video: int, diameter_px, log):
-    """Frames of the background sources with the rally's real ball crops pasted in (nothing where the crop module is absent)."""
-    try:
-        from harness.sim.render import ball_crops
-    except ImportError:
-        return []
+def _pasted(rally_range: str, bg_sources, seed: int, n_per_video: int, diameter_px, log):
+    """Frames of the background sources (VGA) with the rally's real ball crops (its training part, clean mattes only)
+    pasted in at random size, place, motion blur and defocus; a fifth of them stay ball-free."""
+    import cv2
+
     from harness.experiments.detector.backgrounds import read_backgrounds
     from harness.experiments.detector.coco import LabelledImage
     from harness.experiments.detector.train import load_image
+    from harness.sim.render.ball_crops import MIN_FIT, cut_ball_crops, paste_ball
 
-    crops = ball_crops.cut_ball_crops(RALLY, names=[str(li.path) for li in rally_train])
+    crops = [c for c in cut_ball_crops(RALLY, rally_range) if c.fit >= MIN_FIT]
     if not crops:
         return []
     frames = read_backgrounds(bg_sources, n_per_video, load_image=load_image)
@@ -129,20 +129,19 @@ def _pasted(rally_train, bg_sources, seed: int, n_per_video: int, diameter_px, l
         rng = np.random.default_rng([seed, 7, i])
         h, w = im.shape[:2]
         s = 640 / max(h, w)
-        import cv2
-
         im = cv2.resize(im, (int(round(w * s)), int(round(h * s))), interpolation=cv2.INTER_AREA)
         h, w = im.shape[:2]
         boxes, centers = [], []
         if rng.random() > 0.2:
             d = float(math.exp(rng.uniform(math.log(diameter_px[0]), math.log(diameter_px[1]))))
             c = rng.uniform([d, d], [w - 1 - d, h - 1 - d])
-            crop = crops[int(rng.integers(len(crops)))]
-            im, center, box = ball_crops.paste_ball(im, crop, c, d, rng=rng)
-            boxes.append(box)
-            centers.append(center)
+            blur = rng.normal(0, 0.35 * d, 2) if rng.random() < 0.5 else (0.0, 0.0)
+            r = paste_ball(im, crops[int(rng.integers(len(crops)))], c, d, rng, blur_px=blur, defocus_px=float(rng.uniform(0, 1.2)))
+            im = r.image
+            boxes.append(r.box_xywh)
+            centers.append(r.center_px)
         out.append((im, LabelledImage(f"pasted/{seed}/{i:05d}.png", w, h, np.array(boxes, float).reshape(-1, 4), np.array(centers, float).reshape(-1, 2))))
-    log(f"{len(out)} frames with real rally ball crops pasted in")
+    log(f"{len(out)} frames with the rally's real ball crops ({len(crops)} clean ones of {rally_range}) pasted in")
     return out
 
 
