@@ -162,6 +162,19 @@ def test_paste_puts_the_ball_where_asked(tmp_path, diameter, blur, defocus, angl
                 assert abs(axis @ want) / np.linalg.norm(want) > np.cos(np.radians(5))
 
 
+def test_a_small_paste_moves_smoothly_with_its_centre(tmp_path):
+    """Shrunk 3-4x, a ball moved by sub-pixel steps keeps its mass and moves by the step (no aliasing)."""
+    video(tmp_path, n=2)
+    crop = cut_ball_crops(tmp_path)[0]
+    masses, shifts = [], []
+    for du in np.arange(0.0, 1.01, 0.125):
+        a, _ = pasted_alpha(crop, (100.0 + du, 90.3), 6.0)
+        masses.append(a.sum())
+        shifts.append(centroid(a)[0] - (100.0 + du))
+    assert np.ptp(masses) < 0.01 * np.mean(masses)
+    assert np.ptp(shifts) < 0.05
+
+
 def test_paste_is_seeded_and_random_where_asked(tmp_path):
     video(tmp_path, n=2)
     crop = cut_ball_crops(tmp_path)[0]
