@@ -23,7 +23,8 @@ real rally frames of ``../shared/data/real/phone_rally``) and returns per ball a
    ``sqrt(12 (lambda_max - lambda_min))`` pixels along the major axis (a segment of length L adds L^2 / 12).
 
 :func:`paste_ball` puts a crop into another image at a given centre and diameter: the matte and the
-premultiplied foreground resampled by ``cv2.warpAffine`` (sub-pixel placement, scale, optional turn), optional motion blur along a
+premultiplied foreground resampled by ``cv2.warpAffine`` (bilinear: sub-pixel placement, scale, optional
+turn; low-passed first when shrunk, so small balls do not alias), optional motion blur along a
 path (the average of ``ceil(2 |path|)`` shifted copies, at least 2) and defocus (Gaussian), the
 ball's brightness moved part of the way to the destination's local light (the white level of
 :func:`harness.sim.render.composite.local_look`), a gain and colour jitter, composited in
@@ -60,6 +61,7 @@ BLOB_ALPHA = 0.3
 SUPPORT_GROW_PX = 3
 ALPHA_FULL = 0.6  #: the size is measured on min(alpha / ALPHA_FULL, 1): a ball's shaded rim counts as ball
 MIN_CONTRAST = 1e-3  #: |C - B|^2 in linear light (0..1) below which a pixel's alpha is 0
+ANTIALIAS_SIGMA = 0.5  #: a crop shrunk by s < 1 is first blurred by this x sqrt(1 / s^2 - 1) source pixels
 MIN_FIT = 0.9  #: ``BallCrop.fit`` of a clean ball (a suggestion: 71 of the 83 rally balls reach it; the others are in a hand, on a bat, half hidden)
 
 
@@ -351,14 +353,15 @@ def paste_ball(image: np.ndarray, crop: BallCrop, center_px, diameter_px: float,
     if x1 <= x0 or y1 <= y0:
         return PasteResult(out, np.array([cu, cv]), box, full_alpha)
     layers = np.dstack([crop.foreground, crop.alpha])  # (h, w, 4): premultiplied colour and alpha
+    if s < 1.0:  # shrinking: low-pass first (warpAffine samples bilinearly; it has no area mode), or small balls alias
+        layers = cv2.GaussianBlur(layers, (0, 0), ANTIALIAS_SIGMA * math.sqrt(1.0 / (s * s) - 1.0), borderType=cv2.BORDER_CONSTANT)
     n = max(2, int(math.ceil(2 * math.hypot(bu, bv)))) if (bu or bv) else 1
     acc = np.zeros((y1 - y0, x1 - x0, 4), np.float32)
     for t in (np.linspace(-0.5, 0.5, n) if n > 1 else [0.0]):
         tu, tv = cu + t * bu - x0, cv + t * bv - y0  # crop centre -> this window's point
         A = s * rot
         M = np.hstack([A, (np.array([tu, tv]) - A @ crop.center_px)[:, None]]).astype(np.float32)
-        interp = cv2.INTER_AREA if s < 0.7 else cv2.INTER_LINEAR
-        acc += cv2.warpAffine(layers, M, (x1 - x0, y1 - y0), flags=interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        acc += cv2.warpAffine(layers, M, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     acc /= n
     if defocus_px > 0.05:
         acc = cv2.GaussianBlur(acc, (0, 0), float(defocus_px))
