@@ -404,28 +404,28 @@ def state_of_onnx(onnx_bytes: bytes) -> dict:
     return {t.name: torch.from_numpy(numpy_helper.to_array(t).copy()) for t in graph.initializer if t.name.endswith((".weight", ".bias"))}
 
 
-def train_stage(labelled, *, base: LearnedStage | None, seed: int, n_folds: int = 3, k: int = 4, min_diameter_px: float = 6.0,
+def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int, k: int = 4, min_diameter_px: float = 6.0,
                 finetune_steps: int = 150, scratch_steps: int = 400, batch: int = 16, patch_px: int = 96, extra=(),
                 log=print, progress: bool = False):
     """The learned stage ``rt2 train`` writes, chosen by cross-validation; returns ``(stage, info)``.
 
-    labelled : ``LabelledImage`` list (the user's labels); base : the shipped (or ``--from``) model's stage, or None
+    labelled : ``LabelledImage`` list (the user's labels); images : their (H, W, 3) uint8 RGB images
+    folds : lists of indices of ``labelled``, time-contiguous (:func:`harness.experiments.detector.train.cv_folds`)
+    base : the shipped (or ``--from``) model's stage, or None
     extra : more ``(image, LabelledImage)`` pairs trained on in every fit, never scored (e.g. ball-free backgrounds)
-    Over ``n_folds`` time-contiguous folds (:func:`harness.experiments.detector.train.cv_folds`) the base stage as it
+    Over the folds the base stage as it
     is, the base fine-tuned (``finetune_steps``) and a stage from scratch (``scratch_steps``) are scored on the frames
     each fit did not see (top-K candidates, each at its best threshold); the best by recall - outliers is refitted on
     every image (the base itself when it wins) with that threshold. ``info``: the choices' figures, the chosen one.
     """
     from harness.experiments.detector.scores import truth_of
-    from harness.experiments.detector.train import cv_folds, load_image
 
     if not any(li.n_balls for li in labelled):
         raise ValueError(f"no ball boxes among the {len(labelled)} images: the learned stage has nothing to learn")
     max_side = max_side_for(labelled, None if base is None else base.max_side_px)
-    pairs = [(load_image(li), li) for li in labelled]
+    pairs = list(zip(images, labelled))
     items = items_at_scale(pairs, max_side)
     extra_items = items_at_scale(list(extra), max_side, weight=0.5)
-    folds = cv_folds(labelled, n_folds)
     base_state = None if base is None else state_of_onnx(base.onnx)
     names = (["shipped", "fine-tuned"] if base is not None else []) + ["scratch"]
     oof = {n: [None] * len(labelled) for n in names}

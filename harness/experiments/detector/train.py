@@ -724,7 +724,8 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     if opts.learned == "auto":
         from harness.experiments.detector.learned_train import train_stage
 
-        stage, l_info = train_stage(labelled, base=None if base is None else base.learned, seed=opts.seed, n_folds=opts.learned_folds,
+        stage, l_info = train_stage(labelled, [load_image(li) for li in labelled], cv_folds(labelled, opts.learned_folds),
+                                    base=None if base is None else base.learned, seed=opts.seed,
                                     scratch_steps=opts.learned_steps, finetune_steps=max(1, opts.learned_steps * 3 // 8),
                                     extra=backgrounds, log=log, progress=progress)
         c = l_info["chosen"]
