@@ -72,12 +72,17 @@ def _scene_with_distractors(X_ball, seed: int) -> Scene:
                  boxes=tuple(o for o in objects if isinstance(o, Box)))
 
 
+@pytest.fixture(scope="module")
+def lab8_renderer():
+    return Renderer(resolve_rig("lab8_vga"), RenderOptions(supersample=1), seed=0)  # the static lab ray-cast once per pixel: quicker
+
+
 @pytest.mark.parametrize("stem, cameras", [("lab8_vga", None), ("lab9_ace", ["ace0", "ace4", "ace8"])])
-def test_rendered_with_distractors_and_tracked(stem, cameras):
+def test_rendered_with_distractors_and_tracked(stem, cameras, lab8_renderer):
     rig = resolve_rig(stem)
     rig = rig if cameras is None else rig.subset(cameras)  # three of Ace's nine: each costs ~5 VGA images
     X = np.array([-1.3, 0.15, 1.15])  # in the hitting region
-    renderer = Renderer(rig, RenderOptions(supersample=1), seed=0)  # the static lab ray-cast once per pixel: quicker
+    renderer = lab8_renderer if stem == "lab8_vga" else Renderer(rig, RenderOptions(supersample=1), seed=0)
     images = renderer.render(_scene_with_distractors(X, seed=1))
     assert [im.shape for im in images] == [(c.image_size[1], c.image_size[0], 3) for c in rig]
     tracker = Tracker(rig, kind="rt2")
@@ -85,3 +90,51 @@ def test_rendered_with_distractors_and_tracked(stem, cameras):
     assert obs.status is Status.OK, obs.notes
     assert np.linalg.norm(obs.position_m - X) < 0.01
     assert obs.support >= len(rig) - 1
+
+
+# -- the full-frame fallback on eight cameras: only the cameras that need it ---------------------------
+def _track(renderer, positions, **options):
+    tracker = Tracker(renderer.rig, kind="rt2", workers=2, **options)
+    out = []
+    for k, X in enumerate(positions):
+        images = renderer.render(Scene(balls=(Ball(X, colour="orange"),), frame_index=k))
+        searches = tracker.stats.full_frame_searches
+        obs = tracker.process(FrameSet(t_s=k / 200, images=images))
+        out.append((obs, tracker.stats.full_frame_searches - searches))
+    tracker.close()
+    return out
+
+
+def test_fallback_searches_four_full_frames_and_windows_for_the_rest(lab8_renderer):
+    """One track (no ball hypotheses): a ball 1 m from where the last one's motion says (a new serve). The
+    windows miss it; the fallback searches the full frames of two batches of two cameras, confirms it with
+    >= 3 of them and finds it in the other cameras' windows at its pixels; every camera in full at once
+    finds the same."""
+    v = np.array([-4.0, 0.3, 0.0])
+    X0 = np.array([-0.9, 0.1, 1.2])
+    positions = [X0 + v * k / 200 for k in range(8)] + [np.array([-1.6, -0.4, 1.0])]
+    staged = _track(lab8_renderer, positions, hypotheses=None)
+    at_once = _track(lab8_renderer, positions, hypotheses=None, retry_confirm_support=None)
+    assert all(o.status is Status.OK for o, _ in staged[:-1])
+    (obs, full), (obs_all, full_all) = staged[-1], at_once[-1]
+    assert obs.status is obs_all.status is Status.OK, obs.notes
+    assert full == 4 and full_all == 8
+    assert any("windows at the ball found in" in n for n in obs.notes), obs.notes
+    assert obs.support >= 7 and obs.support == obs_all.support
+    np.testing.assert_allclose(obs.position_m, obs_all.position_m, atol=1e-3)
+    assert np.linalg.norm(obs.position_m - positions[-1]) < 0.01
+
+
+def test_fallback_searches_every_camera_for_a_new_ball_with_hypotheses(lab8_renderer):
+    """The same new ball with the ball hypotheses (rt2's default): every camera's full frame, as they ask
+    for it to see every ball in view; the next frame set's windows are where the new ball is (its motion
+    starts anew, no velocity across the jump: no second fallback)."""
+    v = np.array([-4.0, 0.3, 0.0])
+    X0 = np.array([-0.9, 0.1, 1.2])
+    X1 = np.array([-1.6, -0.4, 1.0])
+    positions = [X0 + v * k / 200 for k in range(8)] + [X1, X1 + v / 200]
+    (obs, full), (obs_next, full_next) = _track(lab8_renderer, positions)[-2:]
+    assert obs.status is Status.OK and full == 8
+    assert np.linalg.norm(obs.position_m - positions[-2]) < 0.01
+    assert obs_next.status is Status.OK and full_next == 0, obs_next.notes
+    assert np.linalg.norm(obs_next.position_m - positions[-1]) < 0.01
