@@ -44,8 +44,10 @@ test: $(STAMP) $(NODE_CLIENTS)
 
 # `make test` RUNS times in a row (default 5); lists every test that failed at least once, and the slowest 20.
 # e.g. `make flaky RUNS=2 TESTS=tests/harness/common/test_progress.py` to try it on a subset.
+# COLD=1 empties numba's kernel cache before each run (`make clean-numba`): every run starts as a fresh clone's first.
+COLD   ?=
 flaky: $(STAMP)
-	$(PY) tests/flaky_runs.py --runs $(RUNS) --tests "$(TESTS)"
+	$(PY) tests/flaky_runs.py --runs $(RUNS) --tests "$(TESTS)" $(if $(COLD),--cold)
 
 # The 20 slowest tests of `make test`'s parallel part (narrow with TESTS=...).
 slowest: $(STAMP)

@@ -54,4 +54,5 @@ def test_quoted_command_parses(source, command):
         args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse printed the reason to stderr
         pytest.fail(f"{source}: `{command}` does not parse (exit {exc.code})")
-    assert hasattr(args, "_run"), f"{source}: `{command}` names no command"
+    parsed = tuple(w for w in (args.command, getattr(args, "subcommand", None)) if w)
+    assert parsed == words, f"{source}: `{command}` names no command (parsed as {parsed})"

@@ -79,6 +79,14 @@ class TrackerOptions:
         occluded, out of view or gone; measured: 1 of 141 retries on ``rt2 track --source sim``
         confirmed the ball, none right after a failed one), yet each costs the window pass plus full
         frames. 0 = retry at every such frame set
+    retry_confirm_support : the full-frame fallback goes a batch of cameras at a time (``max(2, workers)``: one
+        per thread), the cameras that see most of the rig's workspace first, and stops once the consensus is
+        ``OK`` with at least this many cameras; the cameras left are searched in windows around that position's
+        pixels (the windows' usual search, then the full frame if that does not confirm it). With at most
+        ``retry_confirm_support + 1`` cameras, and with ``hypotheses`` unless the ball found is the ball in play
+        near its prediction (else they want every camera's full frame), every camera is searched in full, as
+        without it. None = every
+        camera that searched a window is searched in full at once
     workers : threads that run the detector calls of one frame set (1 = the calling thread only)
     threads_for_roi : use the threads also when every camera searches a window (off: measured
         slower, the thread hand-off costs more than a 64x64 window, see docs/pipeline.md)
@@ -118,6 +126,7 @@ class TrackerOptions:
     max_gap_s: float = 0.05
     retry_full_frame: bool = True
     retry_backoff_sets: int = 4
+    retry_confirm_support: int | None = 3
     workers: int = 1
     threads_for_roi: bool = False
     eps_px: float | None = None
@@ -140,6 +149,9 @@ class TrackerOptions:
         b = self.retry_backoff_sets
         if isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 0:
             raise ValueError(f"TrackerOptions.retry_backoff_sets must be an integer >= 0 (0 = retry at every frame set), got {b!r}")
+        c = self.retry_confirm_support
+        if c is not None and (isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 2):
+            raise ValueError(f"TrackerOptions.retry_confirm_support must be an integer >= 2 or None (every camera at once), got {c!r}")
         w = self.workers
         if isinstance(w, bool) or not isinstance(w, (int, np.integer)) or w < 1:
             raise ValueError(f"TrackerOptions.workers must be an integer >= 1, got {w!r}")

@@ -29,7 +29,11 @@ from tracker.rig import Rig
 from tracker.robust import RobustTriangulator
 from tracker.size_test import SizeTest
 
-__all__ = ["SegmentationEngine"]
+__all__ = ["JUMP_M", "SegmentationEngine"]
+
+#: a ball the full-frame fallback finds this far from the prediction (m) starts a new motion: a new serve,
+#: or a ball the windows lost; a ball at 30 m/s moves 0.15 m in a 200 Hz period
+JUMP_M = 0.25
 
 
 class SegmentationEngine:
@@ -51,6 +55,8 @@ class SegmentationEngine:
         self.kind, self.n_cams, self.options, self.stats = kind, len(rig), options, stats
         self.roi = spec.roi_default if options.roi is None else bool(options.roi)
         self._names = rig.names
+        self._rig = rig
+        self._search_order = _search_order(rig)  # the full-frame fallback's order: most of the workspace first
         self._wh = np.array([tuple(c.image_size) for c in rig], np.int64)  # (n_cams, 2) width, height
         model = load_model(model)
         self.detector = BallDetector(model, detector_options_for(kind, spec.detector_method, detector_options))
@@ -134,13 +140,10 @@ class SegmentationEngine:
             elif redo:
                 retried = True
                 self.stats.full_frame_retries += 1
-                notes.append(f"window search gave {info.status.value}; full frame searched in {', '.join(self._names[i] for i in redo)}")
                 self._uv[redo] = np.nan
                 self._scores[redo] = np.nan
                 self._areas[redo] = np.nan
-                used_roi[redo] = False
-                self._detect(redo, roi_px, used_roi)
-                X, info, size_ratio = self._estimate(notes)
+                X, info, size_ratio = self._retry(t_s, redo, roi_px, used_roi, info.status, notes)
                 if info.status is not Status.OK and self.options.retry_backoff_sets > 0:
                     self._retry_wait = self._retry_gap
                     self._retry_gap = min(2 * self._retry_gap, self.options.retry_backoff_sets)
@@ -157,6 +160,8 @@ class SegmentationEngine:
         if X is not None and self.handover is not None and math.isfinite(t_s):
             X = self._hand_over(t_s, X, info, uv_px, ok, notes)
         if ok and math.isfinite(t_s):
+            if retried and self._jumped(t_s, X):
+                self._motion.reset()  # a new ball, or one far from where it was: no velocity across the jump
             self._motion.update(t_s, X)  # only confirmed estimates feed the prediction
         self.stats.positions += X is not None
         self.stats.ok += ok
@@ -176,6 +181,68 @@ class SegmentationEngine:
             notes=tuple(notes),
         )
         return obs, pinfo
+
+    def _retry(self, t_s: float, redo: list[int], roi_px: np.ndarray, used_roi: np.ndarray, window_status: Status, notes: list):
+        """The full-frame fallback over the cameras ``redo`` (their rows cleared): a batch of
+        ``max(2, workers)`` cameras at a time in :attr:`_search_order` (one per thread), until the consensus
+        is ``OK`` with ``retry_confirm_support`` cameras; then, unless the ball hypotheses want every camera's
+        full frame for it (:meth:`_windows_will_do`), the cameras left search windows around that position's pixels (``roi_px`` and ``used_roi`` updated), and the full frame only if they do not
+        confirm it (``TrackerOptions.retry_confirm_support``). Returns ``(X, info, ratio)``."""
+        need = self.options.retry_confirm_support
+        if need is None or len(redo) <= need + 1:  # every camera at once
+            notes.append(f"window search gave {window_status.value}; full frame searched in {', '.join(self._names[i] for i in redo)}")
+            used_roi[redo] = False
+            self._detect(redo, roi_px, used_roi)
+            return self._estimate(notes)
+        batch = max(2, self.options.workers)
+        left = [i for i in self._search_order if i in redo]
+        full: list[int] = []
+        X = info = ratio = None
+        while left:
+            step, left = left[:batch], left[batch:]
+            used_roi[step] = False
+            self._detect(step, roi_px, used_roi)
+            full += step
+            X, info, ratio = self._estimate(notes)
+            if left and info.status is Status.OK and info.support >= need and self._windows_will_do(t_s, X):
+                roi_px[left] = self._project(X, left)
+                used_roi[left] = np.isfinite(roi_px[left, 0])
+                rest = [i for i in left if used_roi[i]]  # a camera the ball is behind is not searched
+                self._detect(rest, roi_px, used_roi)
+                X2, info2, ratio2 = self._estimate(notes)
+                if info2.status is Status.OK:
+                    notes.append(f"window search gave {window_status.value}; full frame searched in "
+                                 f"{', '.join(self._names[i] for i in sorted(full))}, windows at the ball found in "
+                                 f"{', '.join(self._names[i] for i in rest)}")
+                    return X2, info2, ratio2
+                self._uv[rest] = np.nan  # the windows did not confirm it: the rest in full as well
+                self._scores[rest] = np.nan
+                self._areas[rest] = np.nan
+        notes.append(f"window search gave {window_status.value}; full frame searched in {', '.join(self._names[i] for i in sorted(full))}")
+        return X, info, ratio
+
+    def _windows_will_do(self, t_s: float, X: np.ndarray) -> bool:
+        """Whether the cameras the fallback has not searched yet may search windows at ``X`` (3,): always without
+        ball hypotheses; with them only for the ball in play found near its prediction (a new ball, or no ball in
+        play: they search every camera's full frame for the balls in view, at the next frame set if not now)."""
+        hyp = self.hypotheses
+        return hyp is None or (hyp.lead_in_play and not self._jumped(t_s, X))
+
+    def _jumped(self, t_s: float, X: np.ndarray) -> bool:
+        """Whether ``X`` (3,), found by the full-frame fallback, lies more than :data:`JUMP_M` from the
+        predicted position: the windows searched the wrong place, and the velocity from the estimate
+        before to this one would place the next windows wrong too."""
+        predicted = self._motion.predict(t_s)
+        return predicted is not None and float(np.linalg.norm(X - predicted)) > JUMP_M
+
+    def _project(self, X: np.ndarray, cams: list[int]) -> np.ndarray:
+        """(len(cams), 2) distorted pixels of the world point ``X`` (3,) in the cameras ``cams``; NaN behind a camera."""
+        out = np.full((len(cams), 2), np.nan)
+        for j, i in enumerate(cams):
+            cam = self._rig[i]
+            if cam.depth(X[None])[0] > 0:
+                out[j] = cam.project(X[None])[0]
+        return out
 
     def _hand_over(self, t_s: float, X: np.ndarray, info, uv_px: np.ndarray, ok: bool, notes: list) -> np.ndarray:
         """An estimate from fewer cameras than the last confirmed ones, moved by those cameras' offset
@@ -270,6 +337,24 @@ class SegmentationEngine:
                 dets[i] = det.detect(images[i])  # the full frame
             else:  # the neighbourhood: its window first, then at most the whole neighbourhood
                 dets[i] = search_around(det, images[i][y0:y1, x0:x1], roi_px[i] - boxes[i, :2], images[i].shape)
+
+
+def _search_order(rig: Rig) -> list[int]:
+    """Camera indices, those that see most of the rig's workspace box first (a 5x5x5 grid of points whose
+    pixel falls in the image, in front of the camera); rig order among equals and without a workspace."""
+    if rig.workspace_m is None:
+        return list(range(len(rig)))
+    lo, hi = np.asarray(rig.workspace_m, float)
+    axes = [np.linspace(a, b, 5) for a, b in zip(lo, hi)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    seen = []
+    for cam in rig:
+        uv = cam.project(grid)
+        w, h = cam.image_size
+        with np.errstate(invalid="ignore"):
+            inside = (cam.depth(grid) > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+        seen.append(int(inside.sum()))
+    return sorted(range(len(rig)), key=lambda i: (-seen[i], i))
 
 
 def _sized_detectors(rig: Rig, detector: BallDetector) -> list[BallDetector]:

@@ -185,7 +185,7 @@ class RTBlobDetector:
         ``min_score``), and score, the peak response in [0, 1]
         """
         self._check(image)
-        return self._detect(image)
+        return self.detect_unchecked(image)
 
     # -- hot path (inputs trusted) ----------------------------------------------------------------
     def _check(self, image) -> None:
@@ -218,7 +218,8 @@ class RTBlobDetector:
             S = cv2.idft(F, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE, nonzeroRows=H)
         return S[:H, :W]
 
-    def _detect(self, image: np.ndarray) -> tuple[np.ndarray, float]:
+    def detect_unchecked(self, image: np.ndarray) -> tuple[np.ndarray, float]:
+        """:meth:`detect` on an image the caller has already checked (the tracker's frame-set boundary)."""
         S = self._response(image)
         H, W = S.shape
         y, x = divmod(int(np.argmax(S)), W)

@@ -173,7 +173,7 @@ class RTBlobTracker:
         uv = np.full((n, 2), np.nan)
         scores = np.full(n, np.nan)
         for i in todo:  # Eq. (1)-(3): one disk correlation per image
-            uv[i], scores[i] = self.detectors[i]._detect(images[i])
+            uv[i], scores[i] = self.detectors[i].detect_unchecked(images[i])
             if np.isnan(uv[i, 0]):
                 notes.append(f"camera {rig[i].name}: no ball (peak {scores[i]:.3f} < min_score {opts.min_score:g})")
         X_pairs = triangulate_fixed_pairs(rig, uv, self.pairs)  # Eq. (4), every pair in one batch

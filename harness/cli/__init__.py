@@ -73,7 +73,7 @@ GROUP_HELP = {
 
 def _build_parser(argv: list[str]) -> tuple[argparse.ArgumentParser, dict]:
     parser = argparse.ArgumentParser(prog="rt2", description="Reliable real-time multi-camera ball tracking.")
-    top = parser.add_subparsers(dest="_cmd0", metavar="COMMAND", required=True)
+    top = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     groups: dict[str, argparse._SubParsersAction] = {}
     leaves: dict[tuple[str, ...], argparse.ArgumentParser] = {}
     for words, (module, help_text) in COMMANDS.items():
@@ -83,14 +83,12 @@ def _build_parser(argv: list[str]) -> tuple[argparse.ArgumentParser, dict]:
         group = words[0]
         if group not in groups:
             gp = top.add_parser(group, help=GROUP_HELP.get(group, ""))
-            groups[group] = gp.add_subparsers(dest="_cmd1", metavar="SUBCOMMAND", required=True)
+            groups[group] = gp.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", required=True)
         leaves[words] = groups[group].add_parser(words[1], help=help_text, description=help_text)
     # Import and configure only the command being run.
     for words, sub in leaves.items():
         if list(words) == argv[: len(words)]:
-            mod = importlib.import_module(COMMANDS[words][0])
-            mod.add_arguments(sub)
-            sub.set_defaults(_run=mod.run)
+            importlib.import_module(COMMANDS[words][0]).add_arguments(sub)
     return parser, leaves
 
 
@@ -102,9 +100,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser, _ = _build_parser(argv)
     args = parser.parse_args(argv)
-    cmd = " ".join(w for w in (getattr(args, "_cmd0", None), getattr(args, "_cmd1", None)) if w)
+    words = tuple(w for w in (args.command, getattr(args, "subcommand", None)) if w)
+    cmd = " ".join(words)
     try:
-        return int(args._run(args) or 0)
+        return int(importlib.import_module(COMMANDS[words][0]).run(args) or 0)
     except BrokenPipeError:  # output piped into `head` & co.: stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0

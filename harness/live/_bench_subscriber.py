@@ -2,9 +2,10 @@
 ``python -m harness.live._bench_subscriber ADDR OUT.json [FIRST_TIMEOUT_S]``.
 
 Connects a plain SUB socket to rt2's rich stream, prints ``ready``, and for every message records its
-number, the frame set's first host arrival stamp and its own receive stamp ``time.monotonic()``
+number, frame id, status, position, the frame set's first host arrival stamp and its own receive stamp ``time.monotonic()``
 (one host: both processes read the same CLOCK_MONOTONIC). Stops at the ``{"end": true}`` message
-or after 10 s without any message (``FIRST_TIMEOUT_S``, default 300, before the first), then writes ``{"num": [...], "t_first_host_s": [...], "t_recv_s": [...]}``.
+or after 10 s without any message (``FIRST_TIMEOUT_S``, default 300, before the first), then writes ``{"num": [...], "frame_id": [...], "status": [...], "position_m": [...], "t_first_host_s": [...],
+"t_recv_s": [...]}``.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ def main(argv: list[str]) -> int:
     s.connect(addr)
     s.setsockopt(zmq.SUBSCRIBE, b"")
     print("ready", flush=True)
-    num, t_first, t_recv = [], [], []
+    num, t_first, t_recv, frame_id, status, position = [], [], [], [], [], []
     while s.poll(10_000 if num else first_timeout_ms):
         msg = s.recv()
         t = time.monotonic()
@@ -37,8 +38,12 @@ def main(argv: list[str]) -> int:
         num.append(doc["num"])
         t_first.append(doc["t_first_host_s"])
         t_recv.append(t)
+        frame_id.append(doc.get("frame_id", -1))
+        status.append(doc.get("status"))
+        position.append(doc.get("position_m"))
     with open(out, "w") as f:
-        json.dump({"num": num, "t_first_host_s": t_first, "t_recv_s": t_recv}, f)
+        json.dump({"num": num, "frame_id": frame_id, "status": status, "position_m": position, "t_first_host_s": t_first,
+                   "t_recv_s": t_recv}, f)
     s.close(linger=0)
     ctx.term()
     return 0

@@ -60,23 +60,32 @@ class ServiceOptions:
             raise ValueError(f"switch_interval_s must be in [1e-6, 0.1] seconds or None, got {sw!r}")
 
 
+#: the made-up ball of :func:`warm_up`: a 40 mm ball's radius, metres
+WARM_UP_BALL_RADIUS_M = 0.02
+
+
 def warm_up(tracker, rig, *, n: int = 3) -> None:
-    """Run ``tracker`` on ``n`` made-up frame sets (an orange disk where a ball at the centre of the
-    rig's workspace would be: the first a full-frame search, the next window searches), build and
-    encode their messages without sending them, and forget them, so the first real frame sets do not
-    pay for compiled kernels, first-call allocations and lazy imports."""
+    """Run ``tracker`` on ``n`` made-up frame sets (an orange disk of a ball's size where a ball at the
+    centre of the rig's workspace would be: the first a full-frame search that confirms it, the next window
+    searches around its prediction), build and encode their messages without sending them, and forget them,
+    so the first real frame sets do not pay for compiled kernels (loaded from numba's cache or compiled),
+    first-call allocations and lazy imports."""
     import json
 
     import cv2
 
     lo, hi = np.asarray(rig.workspace_m, float) if getattr(rig, "workspace_m", None) is not None else (np.zeros(3), np.ones(3))
-    uv = np.asarray(rig.project((lo + hi) / 2), float).reshape(len(rig), 2)
+    X = (lo + hi) / 2
+    uv = np.asarray(rig.project(X), float).reshape(len(rig), 2)
     images = []
     for cam, (u, v) in zip(rig, uv):
         w, h = cam.image_size
         img = np.zeros((h, w, 3), np.uint8)
-        if np.isfinite(u) and np.isfinite(v):
-            cv2.circle(img, (int(round(u)), int(round(v))), 6, (255, 120, 0), -1)
+        depth = float(cam.depth(X[None])[0])
+        if np.isfinite(u) and np.isfinite(v) and depth > 0:  # a ball's size there: confirmed, so the next sets predict
+            diameter_px = (cam.K[0, 0] + cam.K[1, 1]) * WARM_UP_BALL_RADIUS_M / depth
+            radius_px = max(2, int(round((diameter_px - 3.8) / 2)))  # a hard disc's blob is ~3.8 px wider than a ball's
+            cv2.circle(img, (int(round(u)), int(round(v))), radius_px, (255, 120, 0), -1)
         images.append(img)
     n_cams = len(images)
     for k in range(n):

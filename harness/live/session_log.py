@@ -95,6 +95,6 @@ class LiveLog:
 
     def close(self, figures: dict | None = None, error: str | None = None) -> None:
         """Write the figures, drain the queue and finish the file (footer, summary)."""
-        if figures is not None and not self.bg._closed:
+        if figures is not None and not self.bg.closed:
             self.bg.write_figures("track", figures)
         self.bg.close(error=error)

@@ -134,6 +134,11 @@ class BackgroundLogWriter:
 
     # -- lifetime -------------------------------------------------------------------------------
     @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` was called."""
+        return self._closed
+
+    @property
     def pending(self) -> int:
         return self._queue.qsize()
 

@@ -160,6 +160,14 @@ class PacedFeed:
         while self._closers:
             self._closers.pop()()
 
+    def closing(self) -> bool:
+        """Whether :meth:`close` was called: a producer stops at once."""
+        return self._stop.is_set()
+
+    def wait_closing(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` seconds or until :meth:`close` is called; returns whether it was."""
+        return self._stop.wait(timeout_s)
+
     def add_closer(self, fn: Callable[[], None]) -> None:
         """Call ``fn`` when the feed closes (after its threads have stopped), e.g. to end a child process."""
         self._closers.append(fn)

@@ -239,7 +239,7 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
                 return
             got = None
             while got is None:
-                if feed._stop.is_set():
+                if feed.closing():
                     return
                 got = process.result(0.1)
             k_done, slot, rendered = got
@@ -271,7 +271,7 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
                 if n_total is not None and k >= n_total:
                     break
             t_exp = origin + k * period
-            if t_exp > now and feed._stop.wait(t_exp - now):
+            if t_exp > now and feed.wait_closing(t_exp - now):
                 return
             scene = provider(t_exp, k)
             if not isinstance(scene, Scene):

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+import threading
+import time
 
 import pytest
 
@@ -33,6 +36,36 @@ def _config(*argv: str) -> TrackConfig:
     return track_config(_track_args(*argv))
 
 
+def _run_until(live, n_sets: int, *, cap_s: float = 300.0) -> dict:
+    """``live``'s service run until it has tracked ``n_sets`` frame sets (a generous cap: a loaded machine, a cold
+    kernel cache, any speed of the first call; the figures are ``rt2 bench live``'s business)."""
+    stop = threading.Event()
+
+    def watch():
+        t_end = time.monotonic() + cap_s
+        while live.service.stats.n < n_sets and time.monotonic() < t_end and not stop.is_set():
+            time.sleep(0.01)
+        stop.set()
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    live.assembler.start()
+    try:
+        return live.service.run(live.assembler, stop=stop)
+    finally:
+        stop.set()
+        watcher.join()
+
+
+def _kernel_versions() -> dict:
+    """Compiled versions of every numba kernel of ours loaded so far, by name."""
+    from numba.core.registry import CPUDispatcher
+
+    return {f"{name}.{k}": len(v.signatures) for name, mod in list(sys.modules.items())
+            if name.split(".")[0] in ("tracker", "harness", "policies", "checks")
+            for k, v in list(vars(mod).items()) if isinstance(v, CPUDispatcher)}
+
+
 # -- smoke -------------------------------------------------------------------------------------------
 def test_open_service_from_python_tracks_the_simulated_lab():
     config = TrackConfig(publish=None, prerender_s=0.1, status_period_s=0, duration_s=1.0)
@@ -40,9 +73,21 @@ def test_open_service_from_python_tracks_the_simulated_lab():
     with open_service(config, status=None) as live:
         service = live.service
         assert service.publisher is None and service.log is None and service.view is None
-        live.assembler.start()
-        summary = service.run(live.assembler, duration_s=config.duration_s)
-    assert summary["frame_sets"] > 0 and summary["tracker"] == "rt2"
+        summary = _run_until(live, 20)
+    assert summary["frame_sets"] >= 20 and summary["tracker"] == "rt2"
+
+
+@pytest.mark.parametrize("rig", ["lab4_vga", "lab8_vga"])
+def test_the_warm_up_leaves_no_kernel_to_compile_while_tracking(rig):
+    """open_service warms the tracker up on a made-up ball it confirms and then predicts, so that no compiled
+    kernel is built (or loaded from numba's cache) while the clock runs: on a fresh clone's first run that took
+    seconds, and the first frame sets waited for it."""
+    with open_service(TrackConfig(rig=rig, publish=None, prerender_s=0.1, status_period_s=0), status=None) as live:
+        before = _kernel_versions()
+        summary = _run_until(live, 40)
+        after = _kernel_versions()
+    assert summary["frame_sets"] >= 40 and summary["status"].get("ok", 0) > 0
+    assert {k: (before.get(k), n) for k, n in after.items() if n != before.get(k)} == {}
 
 
 def test_bench_live_from_python_gives_one_row_per_mode():
@@ -73,6 +118,29 @@ def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
     doc = json.loads(out.read_text())
     assert doc["prerender_s"] == 0.5 and doc["goals_met"] is None  # the sim source's default pre-render
     assert [r["mode"] for r in doc["modes"]] == ["full"] and doc["modes"][0]["frame_sets_published"] > 0
+
+
+def test_rt2_bench_live_rigs_gives_a_row_per_rig_on_the_same_scene(tmp_path, capsys):
+    out = tmp_path / "rigs.json"
+    assert rt2(["bench", "live", "--rigs", "lab4_vga", "lab4_vga_v1", "--duration", "2", "--warmup", "0.5", "--modes", "roi",
+                "--prerender", "0.1", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    rows = [line.split() for line in printed.splitlines() if line.startswith(("lab4_vga ", "lab4_vga_v1 "))]
+    assert [r[:3] for r in rows] == [["lab4_vga", "4", "roi"], ["lab4_vga_v1", "4", "roi"]]
+    assert "goals (lab4_vga, roi at 200 Hz)" in printed and "goals (lab4_vga_v1, roi at 200 Hz)" in printed
+    docs = json.loads(out.read_text())["rigs"]
+    assert [d["rig"] for d in docs] == ["lab4_vga", "lab4_vga_v1"] and [d["cameras"] for d in docs] == [4, 4]
+    for d in docs:
+        row = d["modes"][0]
+        assert 0 <= row["ok_share"] <= 1 and row["frame_sets_measured"] > 0
+        assert row["error_3d_mm"]["n"] >= 0 and d["image_size"] == [640, 480]
+
+
+def test_goals_are_the_rigs_own():
+    from harness.live.bench import GOALS, goals_for
+
+    assert goals_for("lab8_vga") == GOALS and goals_for("data/rigs/lab4_vga.yaml") == GOALS
+    assert goals_for("lab9_ace")["p99_ms"] == 8.0 and goals_for("lab9_ace")["max_ms"] is None
 
 
 def test_stream_addresses_follow_the_tennicam_port():
@@ -181,6 +249,9 @@ def test_check_options_names_the_option():
     (["--max-backlog", "0"], "--max-backlog must be a whole number of frame sets in [1, 50]"),
     (["--max-backlog", "51"], "--max-backlog must be a whole number of frame sets in [1, 50]"),
     (["--max-backlog", "9", "--queue-s", "0.01"], "--max-backlog must be a whole number of frame sets in [1, 8]"),
+    (["--rigs", "lab4_vga", "lab5_nope"], "unknown rig 'lab5_nope'"),  # every rig checked before the first runs
+    (["--rigs", ""], "--rig must name a rig"),
+    (["--rigs", "lab8_vga", "--max-backlog", "0"], "--max-backlog must be a whole number of frame sets in [1, 50]"),
 ])
 def test_rt2_bench_live_bad_input_is_one_line(argv, message, capsys):
     assert rt2(["bench", "live", "--duration", "1", "--warmup", "0", *argv]) == 2
