@@ -405,9 +405,9 @@ def module_reaches(tree: ast.AST, module: str, owned: dict[str, set[str]]):
                 yield line, name, owners[0]
 
 
-#: module reach-ins left in code another branch is rewriting (file, attribute): the detector calls its model's
-#: compiled logits passes; tracker/detection/ gets its learned stage on another branch, which names them
-MODULE_REACH_INS_KNOWN = {("tracker/detection/detector.py", "_logits"), ("tracker/detection/detector.py", "_logits_window")}
+#: module reach-ins known and accepted (file, attribute): none (the detector calls its model's logits passes by
+#: their public names, ``logits_trusted`` / ``logits_window_trusted``)
+MODULE_REACH_INS_KNOWN: set = set()
 
 
 def test_no_private_attribute_of_another_module():

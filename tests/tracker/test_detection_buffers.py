@@ -27,8 +27,8 @@ def test_workspace_logits_are_the_same_bytes_as_fresh_arrays(transform):
     work = LogitWorkspace()
     for shape in [(48, 64, 3), (48, 64, 3), (31, 17, 3), (1, 1, 3), (48, 64, 3)]:  # reuse, then new sizes, then back
         image = rng.integers(0, 256, shape, dtype=np.uint8)
-        want = model._logits(image)
-        got = model._logits(image, work)
+        want = model.logits_trusted(image)
+        got = model.logits_trusted(image, work)
         assert got.dtype == np.float32 and got.shape == shape[:2]
         assert got.tobytes() == want.tobytes()
 

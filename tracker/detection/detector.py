@@ -225,10 +225,10 @@ class BallDetector:
         work = self._work.get()  # a detector may serve several cameras on several threads
         if window is None:
             x0 = y0 = 0
-            logits = self.model._logits(image, work.logits)  # into this thread's buffers: no allocation
+            logits = self.model.logits_trusted(image, work.logits)  # into this thread's buffers: no allocation
         else:
             x0, y0, x1, y1 = window
-            logits = np.ascontiguousarray(self.model._logits_window(image, x0, y0, x1, y1))
+            logits = np.ascontiguousarray(self.model.logits_window_trusted(image, x0, y0, x1, y1))
         blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, queues=work.queues(logits.size), **self._blob_kw)
         return self._verified(image, _to_detections(blobs, x0, y0, window is not None))
 
@@ -258,7 +258,7 @@ class BallDetector:
             x1, y1 = min(int(math.ceil(u + r)) + 1, w), min(int(math.ceil(v + r)) + 1, h)
             if x1 - x0 < 2 or y1 - y0 < 2:
                 continue
-            lg = self.model._logits_window(image, x0, y0, x1, y1)
+            lg = self.model.logits_window_trusted(image, x0, y0, x1, y1)
             blobs = find_blobs(lg, self._th_logit, self._tl_logit, max_blobs=1, max_seeds=2, backend=self.options.backend, overwrite=True)
             if len(blobs.areas_px) == 0:
                 continue

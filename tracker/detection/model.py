@@ -208,18 +208,18 @@ class BallSegmentationModel:
         """
         check_image(image)
         if window is None:
-            return self._logits(image)
+            return self.logits_trusted(image)
         x0, y0, x1, y1 = (int(v) for v in window)
         h, w = image.shape[:2]
         if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
             raise ValueError(f"window must satisfy 0 <= x0 < x1 <= {w} and 0 <= y0 < y1 <= {h}, got {tuple(window)}")
-        return self._logits_window(image, x0, y0, x1, y1)
+        return self.logits_window_trusted(image, x0, y0, x1, y1)
 
     def probability(self, image: np.ndarray, window=None) -> np.ndarray:
         """Per-pixel ball probability ``B`` (paper Algorithm 1 input): (h, w) float32 in [0, 1]."""
         return sigmoid(self.logits(image, window)).astype(np.float32)
 
-    def _logits(self, image: np.ndarray, work: "LogitWorkspace | None" = None) -> np.ndarray:
+    def logits_trusted(self, image: np.ndarray, work: "LogitWorkspace | None" = None) -> np.ndarray:
         """(H, W) float32 logits of a trusted image; into ``work``'s buffers when given (its ``out``,
         overwritten by the next call with it), else into new arrays. Same operations either way, so
         the same bytes: the buffers only spare the allocations (a VGA frame's logits: ~300 page faults)."""
@@ -231,7 +231,7 @@ class BallSegmentationModel:
         correlate_5x5x3(np.ascontiguousarray(image), self._lut, self._kernel_crgb, np.float32(self._bias_eff), 0, 0, w, h, t, out)
         return out
 
-    def _logits_window(self, image, x0, y0, x1, y1) -> np.ndarray:
+    def logits_window_trusted(self, image, x0, y0, x1, y1) -> np.ndarray:
         """(y1 - y0, x1 - x0) float32 logits of a trusted window of a trusted image (the pixels around
         the window are read too: the values are the full frame's there, bit for bit)."""
         h, w = y1 - y0, x1 - x0
@@ -349,7 +349,7 @@ def _scalar(data: dict, key: str, kind: type, src: str):
 
 
 class LogitWorkspace:
-    """Reusable buffers for :meth:`BallSegmentationModel._logits` on full frames of one size at a time.
+    """Reusable buffers for :meth:`BallSegmentationModel.logits_trusted` on full frames of one size at a time.
 
     One per thread (the buffers are overwritten by every call); ``buffers(shape)`` returns the float32
     scratch of the transformed rows (:func:`tracker.detection._correlate.scratch_shape`) and the (H, W)

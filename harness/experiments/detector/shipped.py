@@ -17,8 +17,9 @@ model's description):
   the rally's own ball, cut from the training frames with its matte, at random scale and blur;
 * **renders** of the simulated lab (orange; ``--renders DIR``: an ``rt2 sim dataset`` set).
 
-The stage's threshold is chosen on a validation set made the same way from other frames (cameras 0-1's later
-frames with other seeds), never on held-out data: recall - outliers, top-K candidates.
+The stage's threshold (recall - outliers, top-K candidates) is chosen on the real training frames where there
+are any (white: the rally's training part), else on a validation set of balls drawn into other frames with other
+seeds; never on held-out data.
 """
 
 from __future__ import annotations
@@ -97,19 +98,22 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0))
     _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
     stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px, coarse_side_px=max_side // 2)
-    # threshold on a validation set made like the training frames, from other frames and seeds
-    vids = [str(p) for p in CALISCOPE_VIDEOS if p.is_file()]
-    val = _drawn(vids, 24, seed + 1000, colour, diameter_px, log)
+    # the threshold: on the real training frames where there are any (white: the rally's training part, never its
+    # held-out frames), else on a validation set made like the drawn training frames from other frames and seeds
     if colour == "white":
-        val += _pasted(rally_range, vids, seed + 1000, 24, diameter_px, log)
+        val = [(im, li) for im, li in pairs[: len(rally_train)]]
+        val_what = f"the {len(val)} real rally training frames ({rally_range})"
+    else:
+        val = _drawn([str(p) for p in CALISCOPE_VIDEOS if p.is_file()], 24, seed + 1000, colour, diameter_px, log)
+        val_what = f"{len(val)} validation frames (drawn balls, other frames and seeds)"
     truth = ([truth_of(li)[0] for _, li in val], [truth_of(li)[1] for _, li in val])
     cands = [stage.candidates(im, None, k=16, threshold=0.05)[:2] for im, _ in val]
     th, s = _best_threshold(truth, cands, 4, 6.0)
     stage = dataclasses.replace(stage, threshold=th, description=(
         f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps}` on " + "; ".join(sources)
-        + f"; {steps} steps of {opts.batch} patches of {opts.patch_px} px; threshold {th:g} chosen on {len(val)} validation frames "
-        f"(drawn balls, other frames and seeds): recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%"))
-    log(f"validation ({len(val)} frames): threshold {th:g}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
+        + f"; {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to {max_side} px, coarse pass at {max_side // 2} px; "
+        f"threshold {th:g} chosen on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%"))
+    log(f"threshold {th:g} on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
         f"median {s.median_center_error_px:.2f} px")
     model = dataclasses.replace(base, learned=stage, ball_colour=colour if colour == "white" else base.ball_colour,
                                 description=base.description + f"; learned stage: {stage.description}")
