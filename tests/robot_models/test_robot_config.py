@@ -50,9 +50,9 @@ def test_missing_file():
     (lambda d: d.update(format="rt2.rig"), r"expected format: rt2.robot"),
     (lambda d: d.update(mounting={}), r"unknown field\(s\) \['mounting'\]"),
     (lambda d: d["mount"].update(xyz=[0, 0, 0]), r"unknown field\(s\) \['xyz'\] in mount"),
-    (lambda d: d["limits"].update(qdot_max_rad_s=[1, 2, 3]), r"qdot_max_rad_s must have 7 values, got 3"),
+    (lambda d: d["limits"].update(qdot_max_rad_s=[1, 2, 3]), r"qdot_max_rad_s must have 7 values \(one per joint, as q_home_rad\), got 3"),
     (lambda d: d["limits"].update(qddot_max_rad_s2=[1, 2, 3, 4, 5, 6, -1]), r"qddot_max_rad_s2 must be positive"),
-    (lambda d: d.update(q_home_rad=["a"] * 7), r"q_home_rad must be 7 numbers"),
+    (lambda d: d.update(q_home_rad=["a"] * 7), r"q_home_rad must be a list of numbers"),
     (lambda d: d.update(mount=[1, 2]), r"mount must be a mapping"),
 ])
 def test_bad_fields_name_file_and_field(tmp_path, mutate, match):
