@@ -219,6 +219,17 @@ class ArmKinematics:
         """The WAM of ``data/robot/wam.yaml`` (URDF ``robot_models/wam7.urdf``)."""
         return cls.from_config(None)
 
+    @property
+    def reach_bound_m(self) -> float:
+        """How far the racket can get from the base link's origin at most, m: the lengths of the chain's steps
+        (base to joint 1, joint to joint, last joint to racket) and the prismatic joints' travel added up."""
+        base = self.model.frames[self.frame_id("base")].placement.translation
+        steps = [np.linalg.norm(self._placements[1][:3, 3] - base)]
+        steps += [np.linalg.norm(self._placements[j][:3, 3]) for j in range(2, self.model.njoints)]
+        steps.append(np.linalg.norm(self._frame_placements[self.frame_id("racket")][:3, 3]))
+        travel = np.maximum(np.abs(self.q_min), np.abs(self.q_max))[self._kinds[1:] == PRISMATIC]
+        return float(np.sum(steps) + np.sum(travel))
+
     # -- validation ------------------------------------------------------------------------------
     def frame_id(self, frame: str) -> int:
         """The model's frame id of ``frame``: rt2's ``base``/``flange`` (the config's links) or any frame name."""
