@@ -25,7 +25,9 @@ format is documented in docs/robots.md)::
 
 ``n`` is the number of joints from ``base_link`` to ``flange_link``; the lengths are checked against each
 other here and against the URDF when the kinematics load it. Every field but ``format``/``version`` has a
-default, the WAM's (the values below). Lengths metres, angles radians, roll-pitch-yaw as in URDF:
+default, the WAM's (the values below); a config of another URDF must give ``q_home_rad``,
+``limits.qddot_max_rad_s2`` and ``render.link_radii_m`` (a URDF has no such thing), and its velocity limits
+default to the URDF's. Lengths metres, angles radians, roll-pitch-yaw as in URDF:
 ``R = Rz(yaw) Ry(pitch) Rx(roll)``.
 """
 
@@ -101,8 +103,8 @@ class RobotConfig:
     #: optional position limits narrower than the URDF's (None: the URDF's)
     q_min: tuple | None = None
     q_max: tuple | None = None
-    #: measured on a table-tennis WAM; Barrett publishes none
-    qdot_max_rad_s: tuple = (3.2, 6.3, 10.0, 10.0, 24.0, 19.0, 27.0)
+    #: measured on a table-tennis WAM; Barrett publishes none (None: the URDF's velocity limits)
+    qdot_max_rad_s: tuple | None = (3.2, 6.3, 10.0, 10.0, 24.0, 19.0, 27.0)
     qddot_max_rad_s2: tuple = (6.8, 11.5, 17.0, 21.5, 84.0, 110.0, 100.0)
     #: optional jerk limits (None: the motion rule's, qddot_max / jerk_ramp_s)
     qdddot_max_rad_s3: tuple | None = None
@@ -126,7 +128,7 @@ class RobotConfig:
             raise ValueError("q_home_rad must have one value per joint, got none")
         for name in _PER_JOINT:
             value = getattr(self, name)
-            if value is not None or name in ("qdot_max_rad_s", "qddot_max_rad_s2"):
+            if value is not None or name == "qddot_max_rad_s2":
                 object.__setattr__(self, name, _numbers(name, value, n, " (one per joint, as q_home_rad)"))
         object.__setattr__(self, "link_radii_m", _numbers("link_radii_m", self.link_radii_m, n + 1,
                                                           " (one per joint + 1, as q_home_rad)"))
@@ -268,6 +270,14 @@ def load_robot_config(path: str | Path | None = None) -> RobotConfig:
                 kw[attr] = sub[key]
     if doc.get("q_home_rad") is not None:
         kw["q_home_rad"] = doc["q_home_rad"]
+    if "urdf_path" in kw and kw["urdf_path"] != DEFAULT_URDF_PATH:  # another arm: what a URDF cannot say is required
+        given = {"q_home_rad": "q_home_rad" in kw, "limits.qddot_max_rad_s2": "qddot_max_rad_s2" in kw,
+                 "render.link_radii_m": "link_radii_m" in kw}
+        missing = [k for k, v in given.items() if not v]
+        if missing:
+            raise ValueError(f"{path}: {', '.join(missing)} must be given for an arm other than the WAM (a URDF has no "
+                             "such field; docs/robots.md)")
+        kw.setdefault("qdot_max_rad_s", None)  # the URDF's velocity limits
     sim = doc.get("simulator")
     if sim is not None and not isinstance(sim, dict):
         raise ValueError(f"{path}: simulator must be a mapping, got {sim!r}")

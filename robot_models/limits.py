@@ -240,7 +240,8 @@ class JointLimits:
         names = tuple(j.name for j in joints)
         q_min, q_max = config_limits(config, names, np.array([j.lower for j in joints]),
                                      np.array([j.upper for j in joints]), [j.kind for j in joints])
-        return cls(names, q_min, q_max, np.asarray(config.qdot_max_rad_s, float),
+        qdot = [j.velocity for j in joints] if config.qdot_max_rad_s is None else config.qdot_max_rad_s
+        return cls(names, q_min, q_max, np.asarray(qdot, float),
                    np.asarray(config.qddot_max_rad_s2, float), config.qdddot_max_rad_s3)
 
     def check_q(self, q, name: str = "q", *, limits: bool = True, tol_rad: float = 1e-9) -> np.ndarray:

@@ -117,7 +117,7 @@ _PRISMATIC_URDF = """<robot name="slide_arm">
 """
 
 
-def _slide_config(tmp_path, **changes):
+def slide_config(tmp_path, **changes):
     urdf = tmp_path / "slide.urdf"
     urdf.write_text(_PRISMATIC_URDF)
     doc = {"format": "rt2.robot", "version": 1, "urdf": str(urdf), "base_link": "root", "flange_link": "tip",
@@ -135,7 +135,7 @@ def _slide_config(tmp_path, **changes):
 
 
 def test_prismatic_chain_fk_all_methods_agree(tmp_path):
-    kin = ArmKinematics.from_config(_slide_config(tmp_path))
+    kin = ArmKinematics.from_config(slide_config(tmp_path))
     assert kin.joint_names == ("slide", "turn") and kin.link_chain == ("base", "carriage", "arm", "flange")
     Q = np.random.default_rng(2).uniform(kin.q_min, kin.q_max, (50, 2))
     ref = kin.fk_batch(Q, "racket", method="pinocchio")
@@ -164,14 +164,14 @@ def test_prismatic_chain_fk_all_methods_agree(tmp_path):
      r"slide\.yaml: urdf: package 'no-such-robot-package' is not installed"),
 ])
 def test_hostile_configs_name_file_and_field(tmp_path, changes, match):
-    path = _slide_config(tmp_path, **changes)
+    path = slide_config(tmp_path, **changes)
     with pytest.raises(ValueError, match=match) as err:
         ArmKinematics.from_config(path)
     assert "\n" not in str(err.value)
 
 
 def test_joint_without_limits_names_the_joint(tmp_path):
-    path = _slide_config(tmp_path)
+    path = slide_config(tmp_path)
     urdf = tmp_path / "slide.urdf"
     urdf.write_text(_PRISMATIC_URDF.replace('type="revolute"', 'type="continuous"'))
     with pytest.raises(ValueError, match=r"slide\.yaml: .*slide\.urdf: joint 'turn' is 'continuous': it has no position limits"):

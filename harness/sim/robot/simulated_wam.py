@@ -33,6 +33,8 @@ from robot_models.robot_interface import JointSamples, JointState, check_joint_t
 __all__ = ["SimSamples", "SimWamOptions", "SimulatedWam"]
 
 _N = 7  #: the WAM's joints: the per-joint defaults below are its
+#: per-joint defaults of an arm of another joint count whose robot config does not give them (one value for all)
+OTHER_ARM_DEFAULTS = {"bandwidth_hz": 8.0, "gear_ratio": 100.0, "encoder_noise_std_rad": 2e-5, "zero_offset_std_deg": 0.2}
 
 
 def _per_joint(value, name: str, n: int) -> tuple[float, ...]:
@@ -90,13 +92,15 @@ class SimWamOptions:
     @classmethod
     def from_mapping(cls, mapping: dict, where: str = "simulator", *, n_joints: int = _N) -> "SimWamOptions":
         """Options from a mapping such as ``RobotConfig.simulator`` for an arm of ``n_joints``; unknown keys
-        raise, naming ``where``."""
+        raise, naming ``where``. Per-joint fields it does not give are the WAM's for 7 joints, else
+        :data:`OTHER_ARM_DEFAULTS`."""
         valid = {f.name for f in fields(cls)} - {"n_joints"}
         unknown = sorted(set(mapping) - valid)
         if unknown:
             raise ValueError(f"{where}: unknown field(s) {unknown}; valid: {sorted(valid)}")
         try:
-            return cls(**mapping, n_joints=n_joints)
+            fill = {} if n_joints == _N else {k: v for k, v in OTHER_ARM_DEFAULTS.items() if k not in mapping}
+            return cls(**{**mapping, **fill}, n_joints=n_joints)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from exc
 
