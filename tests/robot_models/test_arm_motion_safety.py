@@ -49,7 +49,7 @@ def hostile_scaled(kin, q, t0):
     Q = np.repeat(q_near[None], ramp_t.size, 0)
     Q[:, 0] = np.minimum(q_near[0] + kin.qdot_max[0] * (ramp_t - t0), kin.q_max[0])
     out["limit_at_full_speed"] = (ramp_t, Q, None, names[0], "")
-    v_step = 3.0 * kin.qddot_max[0] * 0.05  # three times the start blend the rule allows
+    v_step = min(3.0 * kin.qddot_max[0] * 0.05, 0.9 * kin.qdot_max[0])  # past the start blend, within the limit
     lin_t = np.array([t0, t0 + 0.5])
     out["velocity_step"] = (lin_t, np.stack([q, q + _unit(n, 0, v_step * 0.5)]), np.stack([_unit(n, 0, v_step)] * 2),
                             names[0], "starts at")
@@ -101,3 +101,41 @@ def test_an_arms_own_jerk_limits_are_used():
     strict = dataclasses.replace(limits, qdddot_max=np.full(7, 20.0))  # an arm whose jerk limit is 20 rad/s^3
     with pytest.raises(ValueError, match=r"panda_joint1 jerk .* exceeds its limit 20"):
         check_motion(strict, t, Q, Qd, now_s=1.0, start=(q, np.zeros(7)))
+
+
+# -- both ends over the link: a 7-joint arm behind `rt2 robot serve --sim --robot X` in its own process -------
+@pytest.mark.parametrize("name", ["panda", "xarm7"])
+def test_the_bridge_and_the_client_of_another_arm_refuse_the_scaled_table(name):
+    from harness.link import WamClient
+    from tests.harness.link.robot_link_util import STARVED_OK, BridgeProcess
+    from tests.harness.link.test_motion_safety import _raw_trajectory
+
+    kin, _ = _arm(name)
+    bridge = BridgeProcess("--robot", name, "--seed", "5", "--publish-truth")
+    try:
+        with WamClient(bridge.address, kinematics=kin, heartbeat_s=None, **STARVED_OK) as listener:
+            assert listener.n_joints == 7
+            listener.advance_to(listener.t_s + 0.05)
+            listener.take_sim_truth()
+            q = listener.sim_true_q()
+            t0 = listener.t_s + 20.0  # far enough ahead for a loaded machine: each case is judged before it starts
+            cases = hostile_scaled(kin, q, t0)
+            for rid, (case, (t, Q, Qd, joint, _)) in enumerate(cases.items(), start=100):
+                reply = _raw_trajectory(bridge.address, rid, t, Q, Qd)  # past the client: the bridge's own check
+                assert reply["type"] == "error" and joint in reply["reason"] and "sample" in reply["reason"], (case, reply)
+                with pytest.raises(ValueError, match="sample"):
+                    listener.command_trajectory(t, Q, Qd)  # the client's check, before sending
+            listener.advance_to(listener.t_s + 0.3)
+            _, q_true = listener.take_sim_truth()
+            assert np.abs(q_true - q).max() < 1e-9  # the arm never moved
+    finally:
+        bridge.stop()
+
+
+def test_an_arm_the_link_cannot_carry_is_refused_in_one_line(capsys):
+    _arm("ur10")
+    from harness.cli import main
+
+    assert main(["robot", "serve", "--sim", "--robot", "ur10", "--duration", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "ur10.yaml: the robot link carries 7-joint vectors; ur10 has 6 joints" in err
