@@ -40,7 +40,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("sim", "wam"): ("harness.cli.sim_wam", "simulated WAM on a seeded ball-mount trajectory: tracking and reported-vs-true ball error"),
     ("bench", "policy"): ("harness.experiments.play.bench", "ms per planning step of the hitting policy (first plans, re-plans), fast vs reference planner"),
     ("bench", "link-flood"): ("harness.cli.bench_link", "a hostile peer floods the simulated robot bridge: a good client's state rate, gaps, bridge memory"),
-    ("bench", "robot"): ("harness.cli.bench_robot", "run time of batched FK, Jacobian, IK and simulated WAM ticks (numba vs numpy)"),
+    ("bench", "robot"): ("harness.cli.bench_robot", "run time of an arm's batched FK, Jacobian, IK and simulated ticks (numba vs numpy; --robot NAME)"),
     ("sim", "fit-flight"): ("harness.experiments.studies.fit_flight", "fit the ball flight/bounce model to 88 real launcher flights; held-out prediction error"),
     ("learn", "promp"): ("harness.experiments.studies.learn_promp", "learn the WAM hitting ProMP from the scripted teacher (MAP vs ML, held-out fit)"),
     ("play",): ("harness.cli.play", "playing sessions: served balls, tracker, filter, ProMP hitting policy, simulated WAM; success rates (`rt2 play compare`)"),
