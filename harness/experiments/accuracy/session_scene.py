@@ -147,17 +147,20 @@ class SessionScene:
         WAM's 9); ball_world_m : (3,)."""
         P = np.asarray(links_world_m, float)
         r = self.link_radii_m
-        last = len(r) - 1  # the segment that ends at the tool plate
-        if P.shape != (last + 2, 3):
-            raise ValueError(f"links_world_m must have shape ({last + 2}, 3) for {len(r)} link radii, got {P.shape}")
+        if P.shape != (len(r) + 1, 3):
+            raise ValueError(f"links_world_m must have shape ({len(r) + 1}, 3) for {len(r)} link radii, got {P.shape}")
+        tip = P[-1]  # the tool plate
+        last = len(r) - 1  # the segment that ends at the tool plate: the last link whose origin is not the plate
+        while last > 0 and np.linalg.norm(P[last] - tip) < 1e-9:  # (the xArm7's link7 is its flange: its full cap
+            last -= 1                                            # would swallow the ball)
         caps = [Capsule(self.mount_world_m * [1, 1, 0], self.mount_world_m - [0, 0, 0.12], 0.12, "robot_grey", 0.1)]
         for i in range(last):
             caps.append(Capsule(P[i], P[i + 1], r[i], "robot_grey" if i < 3 else "robot_black", 0.25))
-        axis = _unit(np.asarray(ball_world_m) - P[last + 1])
-        end = P[last + 1] - r[last] * axis  # the last link's cap ends at the tool plate
+        axis = _unit(np.asarray(ball_world_m) - tip)
+        end = tip - r[last] * axis  # the last link's cap ends at the tool plate
         start = P[last] if np.linalg.norm(end - P[last]) > 1e-9 else end
         caps.append(Capsule(start, end, r[last], "robot_grey", 0.25))
-        caps.append(Capsule(P[last + 1], np.asarray(ball_world_m) - 0.016 * axis, 0.005, "robot_grey", 0.2))
+        caps.append(Capsule(tip, np.asarray(ball_world_m) - 0.016 * axis, 0.005, "robot_grey", 0.2))
         return caps
 
     def scene_at(self, frame_index: int, t_s: float, links_world_m, ball_world_m, ball_velocity_mps) -> Scene:

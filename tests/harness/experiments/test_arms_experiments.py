@@ -69,3 +69,28 @@ def test_the_wams_promp_is_refused_for_another_arm(tmp_path, capsys):
                  "--promp", str(wam)]) == 2
     err = capsys.readouterr().err
     assert "'wam7'" in err and "'ur10'" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("name", ["wam", "panda", "ur10", "xarm7"])
+def test_the_arms_capsules_leave_the_mounted_ball_visible(name):
+    """The renderer draws each arm's links as capsules; the links at the tool plate never enclose the ball on the
+    flange (the xArm7's link7 is its flange: drawn whole, its cap would swallow the ball), on random
+    configurations (far links can, where a random configuration folds the arm into itself)."""
+    import numpy as np
+
+    from harness.experiments.accuracy.session_scene import SessionScene
+    from robot_models import ArmKinematics
+
+    if name != "wam":
+        _needs_robot_data()
+    kin = ArmKinematics.from_config(name)
+    scene = SessionScene(kin.link_radii_m, kin.T_base_to_world[:3, 3])
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(kin.q_min, kin.q_max, (50, kin.n_joints)):
+        ball = kin.position(q, "ball_mount")
+        caps = scene.arm_capsules(kin.link_points(q), ball)
+        assert len(caps) >= kin.n_joints + 1
+        for cap in caps[-3:-1]:  # the last two links; the stick holding the ball (the last cap) ends at its surface
+            a, b = np.asarray(cap.p0_m), np.asarray(cap.p1_m)
+            s = np.clip((ball - a) @ (b - a) / max((b - a) @ (b - a), 1e-12), 0.0, 1.0)
+            assert np.linalg.norm(ball - (a + s * (b - a))) >= cap.radius_m + 0.02, (name, cap)  # the whole 40 mm ball out
