@@ -21,9 +21,10 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e ".[train,test]"
-	# camera drivers and Ray are optional extras; their tests run where they install, skip elsewhere
+	# camera drivers, Ray and the other arms' URDFs are optional extras; their tests run where they install, skip elsewhere
 	$(PY) -m pip install -q -e ".[cameras]" || echo "rt2: camera drivers (rt2[cameras]) did not install here; their tests will be skipped"
 	$(PY) -m pip install -q -e ".[cluster]" || echo "rt2: Ray (rt2[cluster]) did not install here; its tests will be skipped"
+	$(PY) -m pip install -q -e ".[robots]" || echo "rt2: example-robot-data (rt2[robots]) did not install here; the panda, ur10 and xarm7 tests will be skipped"
 	touch $(STAMP)
 
 $(NODE_CLIENTS):

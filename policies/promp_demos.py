@@ -89,7 +89,7 @@ def collect_demonstrations(teacher, n: int, rng: np.random.Generator, dist: HitD
         while len(demos) < n:
             if attempts >= max_attempts:
                 raise ValueError(f"only {len(demos)} of {n} demonstrations after {attempts} requests; the hitting "
-                                 f"distribution is mostly infeasible for the WAM: {reasons}")
+                                 f"distribution is mostly infeasible for the arm: {reasons}")
             attempts += 1
             req = dist.sample(rng)
             try:

@@ -1,4 +1,4 @@
-"""A scripted teacher: varied table-tennis hitting movements of the WAM for varied hitting points.
+"""A scripted teacher: varied table-tennis hitting movements of an arm (the WAM by default) for varied hitting points.
 
 It stands in for the human who, in Gomez-Gonzalez et al. 2020 (Sec. VI), moved the robot by hand
 to teach hitting movements. One demonstration, for a requested hitting point ``x_hit`` (3,) m,
@@ -190,8 +190,8 @@ class ScriptedTeacher:
             q = self._refine_posture(q, x_hit, n)
         if rng is not None and self.options.null_space_std_rad > 0:
             A = self._task_jacobian(q)
-            null = np.eye(7) - np.linalg.pinv(A) @ A
-            q_pert = q + null @ rng.normal(0.0, self.options.null_space_std_rad, 7)
+            null = np.eye(self.kin.n_joints) - np.linalg.pinv(A) @ A
+            q_pert = q + null @ rng.normal(0.0, self.options.null_space_std_rad, self.kin.n_joints)
             q2, info2 = self._ik(x_hit, n, np.clip(q_pert, self.kin.q_min, self.kin.q_max))
             if info2.success:
                 q, info = q2, info2
@@ -222,7 +222,7 @@ class ScriptedTeacher:
         cost, grad = self._posture_cost(q)
         for _ in range(self.options.posture_refine_iters):
             A = self._task_jacobian(q)
-            step = -(np.eye(7) - np.linalg.pinv(A) @ A) @ grad
+            step = -(np.eye(self.kin.n_joints) - np.linalg.pinv(A) @ A) @ grad
             size = float(np.abs(step).max())
             if size < 1e-9:
                 break
@@ -266,10 +266,10 @@ class ScriptedTeacher:
             raise ValueError(f"{where}: racket velocity {v_hit.round(2).tolist()} m/s needs {kin.joint_names[j]} at "
                              f"{qd_hit[j]:.3g} rad/s, above its limit {vmax[j]:.3g} rad/s")
         jitter = np.clip(1.0 + opt.timing_jitter * rng.standard_normal(3), 0.5, 1.5)
-        q_rest0 = kin.q_home + rng.normal(0.0, opt.rest_std_rad, 7)
-        q_rest1 = kin.q_home + rng.normal(0.0, opt.rest_std_rad, 7)
+        q_rest0 = kin.q_home + rng.normal(0.0, opt.rest_std_rad, kin.n_joints)
+        q_rest1 = kin.q_home + rng.normal(0.0, opt.rest_std_rad, kin.n_joints)
         low, high = kin.q_min + _LIMIT_PAD_RAD, kin.q_max - _LIMIT_PAD_RAD
-        zero = np.zeros(7)
+        zero = np.zeros(kin.n_joints)
         swing = SWINGS[opt.swing]
         h_b, q_back, qd_back, qd_hit = swing(self, q_rest0, q_hit, qd_hit, t_hit, opt.backswing_frac * jitter[0] * t_hit,
                                              vmax, amax, where, v_hit)
@@ -317,7 +317,7 @@ def _swing_backswing(teacher, q_rest, q_hit, qd_hit, t_hit, h_habit, vmax, amax,
     limits, take the one nearest the teacher's habit ``h_habit``. Returns (h_b, q_back, qd_back = 0, qd_hit)."""
     opt, kin = teacher.options, teacher.kin
     low, high = kin.q_min + _LIMIT_PAD_RAD, kin.q_max - _LIMIT_PAD_RAD
-    zero = np.zeros(7)
+    zero = np.zeros(kin.n_joints)
     if t_hit - opt.min_prepare_s <= 0.05 * t_hit:
         raise ValueError(f"{where}: hitting time {t_hit:.3g} s is too short: it leaves no time to prepare "
                          f"(min_prepare_s = {opt.min_prepare_s:g} s)")
@@ -343,12 +343,12 @@ def _swing_direct(teacher, q_rest, q_hit, qd_hit, t_hit, h_habit, vmax, amax, wh
     Returns (h_b, q_back, qd_back, qd_hit)."""
     kin = teacher.kin
     A = teacher._task_jacobian(q_hit)
-    N = np.eye(7) - np.linalg.pinv(A) @ A
+    N = np.eye(kin.n_joints) - np.linalg.pinv(A) @ A
     d, T, W = q_hit - q_rest, t_hit, 1.0 / amax
     c0, c1 = 6 * d / T**2 - 2 * qd_hit / T, -6 * d / T**2 + 4 * qd_hit / T
     M = np.vstack([(-2.0 / T) * W[:, None] * N, (4.0 / T) * W[:, None] * N])
     zeta = np.linalg.lstsq(M, -np.concatenate([W * c0, W * c1]), rcond=None)[0]
-    zero = np.zeros(7)
+    zero = np.zeros(kin.n_joints)
     for qd in (qd_hit + N @ zeta, qd_hit):  # with the swing-through habit; without it if that leaves the limits
         if _segment_ok(q_rest, zero, q_hit, qd, np.array([T]), vmax, amax, kin.q_min, kin.q_max)[0]:
             qd_hit = qd
@@ -375,10 +375,11 @@ def _segment_ok(p0, v0, p1, v1, h, vmax, amax, low, high, n_samples: int = 17) -
     h = np.asarray(h, float)
     H = h[:, None, None]
     s = np.linspace(0.0, 1.0, n_samples)[None, :, None]
-    p0 = np.broadcast_to(np.asarray(p0, float), (h.size, 7))[:, None, :]
-    d = np.broadcast_to(np.asarray(p1, float), (h.size, 7))[:, None, :] - p0
-    v0 = np.broadcast_to(v0, (h.size, 7))[:, None, :]
-    v1 = np.broadcast_to(v1, (h.size, 7))[:, None, :]
+    n = np.shape(low)[-1]  # the arm's joints
+    p0 = np.broadcast_to(np.asarray(p0, float), (h.size, n))[:, None, :]
+    d = np.broadcast_to(np.asarray(p1, float), (h.size, n))[:, None, :] - p0
+    v0 = np.broadcast_to(v0, (h.size, n))[:, None, :]
+    v1 = np.broadcast_to(v1, (h.size, n))[:, None, :]
     # the cubic Hermite segment and its time derivatives at s = t / h in [0, 1]
     pos = p0 + d * (3 * s**2 - 2 * s**3) + H * v0 * (s - 2 * s**2 + s**3) + H * v1 * (s**3 - s**2)
     vel = d * (6 * s - 6 * s**2) / H + v0 * (1 - 4 * s + 3 * s**2) + v1 * (3 * s**2 - 2 * s)

@@ -1,4 +1,5 @@
-"""rt2 robot models: the 7-DOF Barrett WAM's URDF, its configuration, kinematics and IK over Pinocchio, and the
+"""rt2 robot models: any serial arm's kinematics and IK over Pinocchio from its URDF and robot config
+(``ArmKinematics``; ``data/robot/*.yaml``: the 7-DOF Barrett WAM, whose URDF is here, the default), and the
 robot interface contract (``robot_interface.py``: ``WamInterface`` and the joint types) that policies act through,
 and the joint reference a robot side follows between commanded trajectories (``joint_reference.py``).
 
@@ -12,8 +13,9 @@ bridge runs them under a system Python that has numpy, SciPy and PyYAML only (do
 from checks.lazy import lazy_attributes
 
 _WHERE = {
-    "DEFAULT_CONFIG_PATH": "config", "DEFAULT_URDF_PATH": "config", "RobotConfig": "config",
-    "load_robot_config": "config", "mount_transform": "config",
+    "DEFAULT_CONFIG_PATH": "config", "DEFAULT_ROBOT": "config", "DEFAULT_URDF_PATH": "config", "RobotConfig": "config",
+    "load_robot_config": "config", "mount_transform": "config", "resolve_robot_config": "config",
+    "robot_names": "config", "ArmKinematics": "kinematics",
     "IkInfo": "ik", "IkOptions": "ik", "solve_ik": "ik",
     "LINK_CHAIN": "kinematics", "REQUIRED_FRAMES": "kinematics", "WamKinematics": "kinematics",
     "PiecewiseReference": "joint_reference", "JointLimits": "limits",

@@ -1,8 +1,9 @@
-"""The WAM's joint limits without its kinematics: what a robot-side bridge checks commands against.
+"""An arm's joint limits without its kinematics: what a robot-side bridge checks commands against.
 
-:class:`JointLimits` carries the joint names and the position and velocity limits that
-:class:`robot_models.WamKinematics` has, read from the same robot configuration (the URDF's
-``<limit lower upper>`` and ``limits.qdot_max_rad_s`` of ``data/robot/wam.yaml``), but needs only numpy,
+:class:`JointLimits` carries the joint names and the position, velocity and acceleration limits that
+:class:`robot_models.ArmKinematics` has, read from the same robot configuration (the URDF's
+``<limit lower upper>`` of the joints from ``base_link`` to ``flange_link``, narrowed by ``limits.q_min`` /
+``q_max``, and ``limits.qdot_max_rad_s`` of ``data/robot/*.yaml``), but needs only numpy,
 PyYAML and the standard library's XML parser -- no Pinocchio. ``check_joint_trajectory`` accepts
 either. The robot link's bridge for ROS ``wam_node`` (``harness.link.bridge_ros``), which runs
 under a system Python with Debian's ROS packages, uses it.
@@ -18,7 +19,7 @@ import numpy as np
 
 from robot_models.config import RobotConfig, load_robot_config
 
-__all__ = ["JointLimits", "check_joint_angles", "urdf_joint_limits"]
+__all__ = ["JointLimits", "UrdfJoint", "check_joint_angles", "config_limits", "urdf_chain", "urdf_joint_limits"]
 
 
 def check_joint_angles(joint_names, q_min: np.ndarray, q_max: np.ndarray, q, name: str = "q", *,
@@ -51,36 +52,141 @@ def check_joint_angles(joint_names, q_min: np.ndarray, q_max: np.ndarray, q, nam
     return arr
 
 
-def urdf_joint_limits(path: str | Path) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray]:
-    """Names and limits of the movable joints of a URDF, in file order (Pinocchio's order for a serial arm).
+@dataclass(frozen=True)
+class UrdfJoint:
+    """One movable joint of a URDF chain: name, ``kind`` (``revolute`` or ``prismatic``), limits (rad or m;
+    rad/s or m/s), parent and child link."""
 
-    Returns ``(joint_names, q_min (n,) rad, q_max (n,) rad, velocity (n,) rad/s)``. Raises ValueError naming
-    the file and joint for a joint that is not a revolute joint with a complete ``<limit>``.
-    """
-    path = Path(path)
+    name: str
+    kind: str
+    lower: float
+    upper: float
+    velocity: float
+    parent: str
+    child: str
+
+
+def _parse_urdf(path: Path):
     try:
-        root = ET.parse(path).getroot()
+        return ET.parse(path).getroot()
     except OSError as exc:
         raise ValueError(f"cannot read URDF {str(path)!r}: {exc.strerror or exc}") from None
     except ET.ParseError as exc:
         raise ValueError(f"{path}: not a valid URDF ({exc})") from None
-    names, rows = [], []
-    for joint in root.iter("joint"):
-        kind, name = joint.get("type"), joint.get("name")
-        if kind == "fixed":
-            continue
-        if kind != "revolute":
-            raise ValueError(f"{path}: joint {name!r} is {kind!r}; only revolute joints with limits are supported")
-        limit = joint.find("limit")
-        try:
-            rows.append([float(limit.get(k)) for k in ("lower", "upper", "velocity")])
-        except (AttributeError, TypeError, ValueError):
-            raise ValueError(f"{path}: joint {name!r} needs <limit lower= upper= velocity=> numbers") from None
-        names.append(name)
-    if not names:
+
+
+def _movable(joint, path: Path) -> UrdfJoint:
+    kind, name = joint.get("type"), joint.get("name")
+    if kind == "continuous":
+        raise ValueError(f"{path}: joint {name!r} is 'continuous': it has no position limits; make it a revolute "
+                         "joint with <limit lower= upper=> in the URDF")
+    if kind not in ("revolute", "prismatic"):
+        raise ValueError(f"{path}: joint {name!r} is {kind!r}; only revolute and prismatic joints with limits are supported")
+    limit = joint.find("limit")
+    try:
+        lower, upper, velocity = (float(limit.get(k)) for k in ("lower", "upper", "velocity"))
+    except (AttributeError, TypeError, ValueError):
+        raise ValueError(f"{path}: joint {name!r} needs <limit lower= upper= velocity=> numbers") from None
+    if not (np.isfinite([lower, upper, velocity]).all() and lower < upper and velocity > 0):
+        raise ValueError(f"{path}: joint {name!r} limits must be finite with lower < upper and velocity > 0, got "
+                         f"lower={lower:g} upper={upper:g} velocity={velocity:g}")
+    parent, child = joint.find("parent"), joint.find("child")
+    return UrdfJoint(name, kind, lower, upper, velocity, parent.get("link") if parent is not None else "",
+                     child.get("link") if child is not None else "")
+
+
+def urdf_chain(path: str | Path, base_link: str, flange_link: str) -> list[UrdfJoint]:
+    """The movable joints from ``base_link`` to ``flange_link`` of a URDF, base first.
+
+    Raises ValueError naming the file and the link or joint: a link not in the URDF (the links present are
+    listed), a flange that does not hang below the base, a joint without limits (``continuous``, no
+    ``<limit>``) or of another type than revolute and prismatic.
+    """
+    path = Path(path)
+    root = _parse_urdf(path)
+    links = [link.get("name") for link in root.iter("link")]
+    for field, link in (("base_link", base_link), ("flange_link", flange_link)):
+        if link not in links:
+            shown = links if len(links) <= 30 else links[:30] + ["..."]
+            raise ValueError(f"{path}: {field}: link {link!r} is not in the URDF; links: {shown}")
+    up = {j.find("child").get("link"): j for j in root.iter("joint") if j.find("child") is not None}
+
+    def to_root(link):  # [(link, joint above it)], the link first, up to the root
+        path_up, seen = [], set()
+        while link in up and link not in seen:
+            seen.add(link)
+            path_up.append((link, up[link]))
+            link = up[link].find("parent").get("link")
+        return path_up, link
+
+    flange_up, _ = to_root(flange_link)
+    base_up, _ = to_root(base_link)
+    above_base = {base_link} | {j.find("parent").get("link") for _, j in base_up}
+    chain, common = [], None
+    for link, joint in flange_up:  # flange side, up to the first link the base also hangs from
+        if link in above_base:
+            common = link
+            break
+        if joint.get("type") != "fixed":
+            chain.append(joint)
+        if joint.find("parent").get("link") in above_base:
+            common = joint.find("parent").get("link")
+            break
+    if common is None and flange_link not in above_base:
+        raise ValueError(f"{path}: flange_link: link {flange_link!r} is not connected to base_link {base_link!r}")
+    for link, joint in base_up:  # the base must be fixed to that common link: no joint moves it
+        if link == common:
+            break
+        if joint.get("type") != "fixed":
+            raise ValueError(f"{path}: base_link: link {base_link!r} is moved by joint {joint.get('name')!r}; the base must be "
+                             "fixed to the links the arm hangs from")
+    if not chain:
+        raise ValueError(f"{path}: no movable joint between {base_link!r} and {flange_link!r}")
+    return [_movable(j, path) for j in reversed(chain)]
+
+
+def urdf_joint_limits(path: str | Path, base_link: str | None = None, flange_link: str | None = None
+                      ) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray]:
+    """Names and limits of the movable joints of a URDF: those from ``base_link`` to ``flange_link`` (base
+    first), or without the links every movable joint in file order (Pinocchio's order for a serial arm).
+
+    Returns ``(joint_names, q_min (n,), q_max (n,), velocity (n,))`` (rad or m). Raises ValueError naming the
+    file and joint for a joint that is not a revolute or prismatic joint with a complete ``<limit>``.
+    """
+    path = Path(path)
+    if base_link is not None and flange_link is not None:
+        joints = urdf_chain(path, base_link, flange_link)
+    else:
+        joints = [_movable(j, path) for j in _parse_urdf(path).iter("joint") if j.get("type") != "fixed"]
+    if not joints:
         raise ValueError(f"{path}: no revolute joint found")
-    arr = np.array(rows, dtype=float)
-    return tuple(names), arr[:, 0].copy(), arr[:, 1].copy(), arr[:, 2].copy()
+    arr = np.array([[j.lower, j.upper, j.velocity] for j in joints], dtype=float)
+    return tuple(j.name for j in joints), arr[:, 0].copy(), arr[:, 1].copy(), arr[:, 2].copy()
+
+
+def config_limits(config: RobotConfig, names, q_min: np.ndarray, q_max: np.ndarray, kinds=None):
+    """The position limits of ``config``: the URDF's ``q_min``, ``q_max`` (n,) narrowed by ``limits.q_min`` /
+    ``limits.q_max``. Raises ValueError naming the file and field for a count that differs from the URDF's
+    joints or an override beyond the URDF's range (rad, or m for a ``prismatic`` joint of ``kinds``)."""
+    n = len(names)
+    if config.n_joints != n:
+        raise ValueError(f"{config.where}: q_home_rad: {config.n_joints} values, but the URDF has {n} joints from "
+                         f"{config.base_link!r} to {config.flange_link!r}: {list(names)}")
+    lo, hi = np.array(q_min, float), np.array(q_max, float)
+    for field, given, sign in (("limits.q_min", config.q_min, -1.0), ("limits.q_max", config.q_max, 1.0)):
+        if given is None:
+            continue
+        urdf = q_min if sign < 0 else q_max
+        for j, value in enumerate(given):
+            if sign * (value - urdf[j]) > 1e-12:
+                unit = "m" if kinds is not None and kinds[j] == "prismatic" else "rad"
+                raise ValueError(f"{config.where}: {field}: {names[j]} = {value:g} {unit} is beyond the URDF's range "
+                                 f"[{q_min[j]:g}, {q_max[j]:g}] {unit}")
+        (lo if sign < 0 else hi)[:] = given
+    if (lo > hi).any():
+        j = int(np.argmax(lo > hi))
+        raise ValueError(f"{config.where}: limits: {names[j]} has q_min {lo[j]:g} above q_max {hi[j]:g}")
+    return lo, hi
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,10 +204,13 @@ class JointLimits:
     q_max: np.ndarray
     qdot_max: np.ndarray
     qddot_max: np.ndarray = None
+    qdddot_max: np.ndarray | None = None  #: optional jerk limits (n,) rad/s^3; None: the motion rule's
 
     def __post_init__(self):
         n = len(self.joint_names)
-        for name in ("q_min", "q_max", "qdot_max", "qddot_max"):
+        for name in ("q_min", "q_max", "qdot_max", "qddot_max", "qdddot_max"):
+            if name == "qdddot_max" and self.qdddot_max is None:
+                continue
             if name == "qddot_max" and self.qddot_max is None:
                 raise ValueError(f"JointLimits.qddot_max (acceleration limits, rad/s^2) must be given: {n} numbers")
             arr = np.array(getattr(self, name), dtype=float)
@@ -127,11 +236,13 @@ class JointLimits:
             config = load_robot_config(config)
         if not config.urdf_path.is_file():
             raise FileNotFoundError(f"URDF not found: {config.urdf_path}")
-        names, q_min, q_max, _ = urdf_joint_limits(config.urdf_path)
-        if len(names) != len(config.qdot_max_rad_s):
-            raise ValueError(f"{config.urdf_path}: {len(names)} joints, but qdot_max_rad_s has {len(config.qdot_max_rad_s)}")
-        return cls(names, q_min, q_max, np.asarray(config.qdot_max_rad_s, float),
-                   np.asarray(config.qddot_max_rad_s2, float))
+        joints = urdf_chain(config.urdf_path, config.base_link, config.flange_link)
+        names = tuple(j.name for j in joints)
+        q_min, q_max = config_limits(config, names, np.array([j.lower for j in joints]),
+                                     np.array([j.upper for j in joints]), [j.kind for j in joints])
+        qdot = [j.velocity for j in joints] if config.qdot_max_rad_s is None else config.qdot_max_rad_s
+        return cls(names, q_min, q_max, np.asarray(qdot, float),
+                   np.asarray(config.qddot_max_rad_s2, float), config.qdddot_max_rad_s3)
 
     def check_q(self, q, name: str = "q", *, limits: bool = True, tol_rad: float = 1e-9) -> np.ndarray:
         """As :meth:`robot_models.WamKinematics.check_q`: q (n,) or (N, n) rad, validated; ValueError naming ``name``."""

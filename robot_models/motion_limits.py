@@ -13,7 +13,8 @@ interpolation of its samples):
   segments' midpoints, and the same of the given ``qdot`` (when given) over each segment, within
   ``qddot_max * (1 + tol)``;
 * **jerk**: the change of that acceleration over ``jerk_window_s`` (10 ms, so that a short interval where
-  a planner joins two pieces does not divide a rounding error by a millisecond), within
+  a planner joins two pieces does not divide a rounding error by a millisecond), within the arm's own jerk
+  limits where its robot config gives them (``limits.qdddot_max_rad_s3``: ``limits.qdddot_max``), else
   ``qddot_max / jerk_ramp_s`` (the acceleration limit reached from rest in ``jerk_ramp_s``): an acceleration
   step of more than the limit is refused;
 * **start**: the position at ``t_on`` within ``start_tol_rad`` of where the arm is driven at ``t_on`` (the
@@ -36,7 +37,7 @@ to zero together within ``hold_decel_share`` (90 %) of each joint's deceleration
 
 Numpy, and scipy's spline for a trajectory without ``qdot`` (the ROS bridge runs it under a system Python
 with python3-scipy). ``limits`` is anything with ``joint_names``,
-``q_min``, ``q_max``, ``qdot_max`` and ``qddot_max`` (:class:`robot_models.WamKinematics`,
+``q_min``, ``q_max``, ``qdot_max``, ``qddot_max`` and optionally ``qdddot_max`` (:class:`robot_models.ArmKinematics`,
 :class:`robot_models.limits.JointLimits`).
 """
 
@@ -113,6 +114,10 @@ def check_motion(limits, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray | None
     names = limits.joint_names
     qd_max = np.asarray(limits.qdot_max, float)
     qdd_max = np.asarray(limits.qddot_max, float)
+    own_jerk = getattr(limits, "qdddot_max", None)  # an arm's published jerk limits, else the rule's ramp
+    jerk_max = None if not rule.jerk_ramp_s and own_jerk is None else (
+        np.asarray(own_jerk, float) if own_jerk is not None else qdd_max / rule.jerk_ramp_s)
+    jerk_how = "its limit" if own_jerk is not None else f"its limit (acceleration limit / {rule.jerk_ramp_s:g} s"
     t_all, Q_all = np.asarray(t_s, float), np.asarray(q, float)
     Qd_all = None if qdot is None else np.asarray(qdot, float)
     slopes_all = Qd_all if Qd_all is not None else _spline_slopes(t_all, Q_all)  # the reference's velocity at samples
@@ -144,7 +149,7 @@ def check_motion(limits, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray | None
     if hit:
         fail(base + hit[0] + 1, hit[1], "velocity", v[hit], "rad/s", qd_max[hit[1]] * tol,
              f"its limit (x{tol:g} tolerance, finite difference to the previous sample)")
-    _check_cubic(names, t, Q, slopes, base, qd_max * tol, qdd_max * tol, qdd_max / rule.jerk_ramp_s if rule.jerk_ramp_s else None)
+    _check_cubic(names, t, Q, slopes, base, qd_max * tol, qdd_max * tol, jerk_max)
     v_last = v[-1] if Qd is None else Qd[-1]  # the velocity at the last sample
     if start is not None:
         dv = v_on - qd0
@@ -161,16 +166,15 @@ def check_motion(limits, t_s: np.ndarray, q: np.ndarray, qdot: np.ndarray | None
         if hit:
             fail(base + hit[0] + 1, hit[1], "acceleration", a[hit], "rad/s^2", qdd_max[hit[1]] * tol,
                  f"its limit (x{tol:g} tolerance, finite difference of the neighbouring samples)")
-        if a.shape[0] >= 2 and rule.jerk_ramp_s > 0:
+        if a.shape[0] >= 2 and jerk_max is not None:
             ta = t[1:-1]  # the stamps of the accelerations
             later = np.searchsorted(ta, ta + rule.jerk_window_s - 1e-9)  # the first stamp a window later
             i = np.flatnonzero(later < ta.shape[0])
             jerk = (a[later[i]] - a[i]) / (ta[later[i]] - ta[i])[:, None]
-            jerk_max = qdd_max / rule.jerk_ramp_s
             hit = _first_over(jerk, jerk_max)
             if hit:
-                fail(base + int(i[hit[0]]) + 1, hit[1], "jerk", jerk[hit], "rad/s^3", jerk_max[hit[1]],
-                     f"its limit (acceleration limit / {rule.jerk_ramp_s:g} s, over {rule.jerk_window_s:g} s)")
+                how = f"{jerk_how}, over {rule.jerk_window_s:g} s" + (")" if own_jerk is None else "")
+                fail(base + int(i[hit[0]]) + 1, hit[1], "jerk", jerk[hit], "rad/s^3", jerk_max[hit[1]], how)
     if Qd is not None:
         ad = np.diff(Qd, axis=0) / dt[:, None]
         hit = _first_over(ad / qdd_max, np.full(ad.shape[1], tol))

@@ -37,11 +37,11 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("labels", "convert"): ("harness.cli.labels_convert", "convert ball labels between COCO, YOLO, labelme, CVAT and Label Studio (images linked in)"),
     ("log", "info"): ("harness.cli.log_info", "topics, counts, duration and provenance of a session log; recovery of unfinished logs"),
     ("bench", "log"): ("harness.experiments.studies.bench_log", "session-log write/read throughput, 4 VGA cameras at 200 Hz, per image format"),
-    ("sim", "reach"): ("harness.cli.sim_reach", "WAM racket reachability over the hitting region (IK on a grid)"),
+    ("sim", "reach"): ("harness.cli.sim_reach", "an arm's racket reachability over the hitting region (IK on a grid; --robot NAME|PATH.yaml)"),
     ("sim", "wam"): ("harness.cli.sim_wam", "simulated WAM on a seeded ball-mount trajectory: tracking and reported-vs-true ball error"),
     ("bench", "policy"): ("harness.experiments.play.bench", "ms per planning step of the hitting policy (first plans, re-plans), fast vs reference planner"),
     ("bench", "link-flood"): ("harness.cli.bench_link", "a hostile peer floods the simulated robot bridge: a good client's state rate, gaps, bridge memory"),
-    ("bench", "robot"): ("harness.cli.bench_robot", "run time of batched FK, Jacobian, IK and simulated WAM ticks (numba vs numpy)"),
+    ("bench", "robot"): ("harness.cli.bench_robot", "run time of an arm's batched FK, Jacobian, IK and simulated ticks (numba vs numpy; --robot NAME)"),
     ("sim", "fit-flight"): ("harness.experiments.studies.fit_flight", "fit the ball flight/bounce model to 88 real launcher flights; held-out prediction error"),
     ("learn", "promp"): ("harness.experiments.studies.learn_promp", "learn the WAM hitting ProMP from the scripted teacher (MAP vs ML, held-out fit)"),
     ("play",): ("harness.cli.play", "playing sessions: served balls, tracker, filter, ProMP hitting policy, simulated WAM; success rates (`rt2 play compare`)"),
@@ -57,6 +57,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("robot", "serve"): ("harness.cli.robot_serve", "serve the simulated WAM in real time behind the robot link (ZeroMQ; docs/robot_link.md)"),
     ("robot", "check"): ("harness.cli.robot_check", "measure a robot link: state rate, gaps, delivery delay, clock offset, round trips, command to motion"),
     ("robot", "record"): ("harness.cli.robot_record", "record a robot's joint states over the link to a session log, in segments across link losses"),
+    ("robot", "check-config"): ("harness.cli.robot_check_config", "check an arm's robot config (data/robot/NAME.yaml or PATH.yaml): links, limits, reach of the hitting region"),
 }
 
 GROUP_HELP = {
@@ -67,7 +68,7 @@ GROUP_HELP = {
     "labels": "labelled image sets: convert between labelling tools' formats",
     "learn": "learn movement primitives from demonstrations",
     "calib": "calibrate cameras (intrinsics, extrinsics) and the robot's base into the camera frame",
-    "robot": "the WAM over the network: the robot link (docs/robot_link.md)",
+    "robot": "the robot: its link over the network (docs/robot_link.md) and its config (docs/robots.md)",
 }
 
 

@@ -4,6 +4,7 @@
     rt2 accuracy --seed 0 --out out/accuracy   # the default run (4000 frame sets, the README's figures)
     rt2 accuracy --inject-faults --json errs.json --log-images all
     rt2 accuracy --ideal                       # exact calibration and synchronised clocks (the old, ideal run)
+    rt2 accuracy --quick --robot panda         # the ball on another arm (data/robot/*.yaml, docs/robots.md)
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from harness.experiments.accuracy.session_scene import SCENES
 from harness.experiments.accuracy.stats import BASELINE_WORDS, TRACKER_KINDS, check_baseline, fmt, format_goals, format_table, rt2_goals
 from harness.common.executor import add_sweep_arguments, options_from_args
 from harness.logs.codecs import IMAGE_FORMATS
+from harness.sim.robot.arms import is_link_address, load_arm
 
 __all__ = ["add_arguments", "events_line", "format_report", "realism_line", "run"]
 
@@ -41,10 +43,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="default (person in white, white clutter), harsh (orange shirt, orange cup, box and juggling ball), clean (arm and ball only)")
     parser.add_argument("--inject-faults", action="store_true",
                         help="a camera without frames for a stretch, wrong-size frames, a timestamp going back")
-    parser.add_argument("--robot", default=None, metavar="ADDR|sim",
-                        help="run the robot over the robot link (docs/robot_link.md): a bridge serving its simulation truth "
-                             "(rt2 robot serve --sim --publish-truth) at ADDR, or 'sim' to start one for this run; "
-                             "default: the simulated WAM in this process")
+    parser.add_argument("--robot", default=None, metavar="NAME|PATH.yaml|ADDR|sim",
+                        help="the arm carrying the ball: a shipped arm (wam, panda, ur10, xarm7; default wam) or a robot "
+                             "config (docs/robots.md), simulated in this process; or run the WAM over the robot link "
+                             "(docs/robot_link.md): a bridge serving its simulation truth (rt2 robot serve --sim "
+                             "--publish-truth) at ADDR (tcp://HOST:PORT), or 'sim' to start one for this run")
     lv = parser.add_argument_group("live: robot, cameras + tracker and the experiment as separate processes (docs/accuracy.md, 'Live')")
     lv.add_argument("--live", action="store_true",
                     help="score the observations of rt2 track's stream against the robot's reported joints; alone (or with "
@@ -73,9 +76,11 @@ def config_from_args(args) -> AccuracyConfig:
     frames = args.frames if args.frames is not None else (QUICK_FRAMES if args.quick else DEFAULT_FRAMES)
     if args.model is not None and not Path(args.model).is_file():
         raise FileNotFoundError(f"--model {args.model!r}: no such file")
+    arm = "wam" if args.robot is None or is_link_address(args.robot) else args.robot
+    load_arm(arm)  # a bad arm: one line naming the file and field, before anything runs
     config = AccuracyConfig(seed=args.seed, n_frames=frames, rate_hz=args.rate_hz, rig=args.rig, model=args.model,
                             trackers=tuple(args.trackers), eps_px=args.eps_px, inject_faults=args.inject_faults,
-                            scene=SCENES[args.scene])
+                            scene=SCENES[args.scene], robot=arm)
     if args.reprojection_px is not None:
         if args.ideal or args.no_calibration_error:
             raise ValueError("--reprojection-px sets the calibration error: it cannot go with --ideal or --no-calibration-error")
@@ -166,7 +171,9 @@ def _run_live(args, config) -> int:
 
     if not args.live:
         raise ValueError("--tracker-stream goes with --live")
-    local = args.robot in (None, "sim")
+    if not is_link_address(args.robot) and config.robot != "wam":
+        raise ValueError(f"--live runs the WAM (the simulated bridge's arm), not --robot {args.robot}")
+    local = args.robot in (None, "sim", "wam")
     if local != (args.tracker_stream is None):
         raise ValueError("--live takes both --robot ADDR and --tracker-stream ADDR (processes you started), or neither "
                          "(it starts the simulated bridge and rt2 track itself)")
@@ -212,7 +219,7 @@ def run(args) -> int:
     if args.live or args.tracker_stream is not None:
         return _run_live(args, config)
     motion_source = None
-    if args.robot is not None:
+    if is_link_address(args.robot):
         from harness.experiments.accuracy.link_motion import link_motion_source
 
         motion_source = link_motion_source(args.robot)
@@ -225,7 +232,7 @@ def run(args) -> int:
     header = (f"rt2 accuracy: seed {config.seed}, {config.n_frames} frame sets at {config.rate_hz:g} Hz "
               f"({config.n_frames / config.rate_hz:.1f} s), rig {config.rig}, {args.workers} worker(s), "
               f"{res.timing['wall_s']:.0f} s\n"
-              f"robot: {m['via_points']} via points, ball speed median {m['ball_speed_mps']['median']:.2f} m/s "
+              f"robot {config.robot}: {m['via_points']} via points, ball speed median {m['ball_speed_mps']['median']:.2f} m/s "
               f"(max {m['ball_speed_mps']['max']:.2f}); ground truth (FK of reported joints) vs true ball: "
               f"median {m['gt_vs_true_mm']['median']:.1f} mm, max {m['gt_vs_true_mm']['max']:.1f} mm\n"
               f"{realism_line(config, res.calibration_error, m)}\n{events_line(res.scene_events)}"

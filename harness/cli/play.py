@@ -3,6 +3,7 @@
     rt2 play --tracker rt2 --filter raw --balls 100 --seed 0 [--source synthetic|vision] [--workers 2] [--ray [ADDRESS]]
     rt2 play compare --balls 500 --seed 0 [--trackers rt2 rtblob] [--filters raw ransac_kalman]
     rt2 play profile --balls 20 --seed 0            # measure the synthetic profiles from the vision source
+    rt2 play --balls 200 --robot panda              # another arm (data/robot/*.yaml) with its own ProMP
 
 ``compare`` plays the same served balls (same seed) with every tracker x filter combination. Output: a
 table on stdout, ``--json PATH`` (a list of objects with keys tracker, filter, balls, successes,
@@ -63,7 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "paper (the paper's real-robot RTBlob outliers); see harness/experiments/play/profiles.py")
     parser.add_argument("--profile-json", type=Path, default=None, help="synthetic profiles from this JSON (rt2 play profile --json), "
                         "on top of --profiles")
-    parser.add_argument("--promp", type=Path, default=DEFAULT_PROMP, help=f"hitting ProMP (default {DEFAULT_PROMP})")
+    parser.add_argument("--promp", type=Path, default=None,
+                        help=f"hitting ProMP (default data/promp/NAME_hitting.npz of the --robot: {DEFAULT_PROMP.name} for the WAM)")
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     parser.add_argument("--out", type=Path, default=Path("out/play"), help="figure and session logs (default out/play)")
     parser.add_argument("--no-log", action="store_true", help="write no session logs")
@@ -75,7 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     live.add_argument("--live", action="store_true", help="play in real time: the policy in this process over the "
                       "tracker stream and the robot link; without --robot it starts the simulated world+robot and the "
                       "synthetic tracker as child processes")
-    live.add_argument("--robot", default=None, help="--live: the robot link's command endpoint (tcp://HOST:PORT)")
+    parser.add_argument("--robot", default=None, metavar="NAME|PATH.yaml|ADDR",
+                        help="the arm that plays: a shipped one (wam, panda, ur10, xarm7; default wam) or a robot config "
+                             "(docs/robots.md); with --live (the WAM): the robot link's command endpoint (tcp://HOST:PORT)")
     live.add_argument("--tracker-stream", default=None, help="--live: the tracker's rt2 stream (tcp://HOST:PORT)")
     live.add_argument("--world-stream", default=None, help="--live / observe: the world's serve and outcome events "
                       "(tcp://HOST:PORT, the world bridge's ready line)")
@@ -107,6 +111,18 @@ def _check(args) -> None:
 
     if args.planner not in PLANNERS:
         raise ValueError(f"unknown --planner {args.planner!r}; valid: {list(PLANNERS)}")
+    from harness.experiments.studies.learn_promp import default_promp
+    from harness.sim.robot.arms import is_link_address, load_arm
+
+    link = is_link_address(args.robot)
+    args.arm = load_arm(None if link else args.robot)  # a bad arm: one line naming the file and the field
+    if args.live and args.arm.name != "wam":
+        raise ValueError(f"--live plays the WAM (the simulated world's arm), not --robot {args.robot}")
+    if args.promp is None:
+        args.promp = default_promp(args.arm.name)
+        if not args.promp.is_file():
+            raise FileNotFoundError(f"no hitting ProMP for {args.arm.name} at {args.promp}: learn one with "
+                                    f"`rt2 learn promp --robot {args.robot}` or pass --promp PATH")
     if not args.promp.is_file():
         raise FileNotFoundError(f"--promp: no such file {args.promp}")
     for f in ([args.filter] if args.mode == "play" else args.filters):
@@ -128,7 +144,8 @@ def _check(args) -> None:
             raise ValueError(f"--plan-lead-ms must be in [0, 500], got {args.plan_lead_ms}")
         from harness.live.publish import parse_address
 
-        given = {"--robot": args.robot, "--tracker-stream": args.tracker_stream, "--world-stream": args.world_stream}
+        given = {"--robot": args.robot if link else None, "--tracker-stream": args.tracker_stream,
+                 "--world-stream": args.world_stream}
         if args.mode == "observe":
             given = {"--truth": args.truth, "--world-stream": args.world_stream}
             missing = [k for k, v in given.items() if v is None]
@@ -160,12 +177,22 @@ def _configs(args, profiles) -> list[PlayConfig]:
         prof = profile_for(tracker, profiles).with_timing(args.rate_hz, None if args.latency_ms is None else args.latency_ms / 1e3)
         out.append(PlayConfig(tracker, filt, args.source, prof, str(args.promp), scene=args.scene, record=not args.no_log,
                               record_images_every=args.log_images, plan_latency_s=args.plan_latency_ms / 1e3,
-                              policy={"planner": args.planner}))
+                              policy={"planner": args.planner}, robot=_robot_spec(args)))
     return out
 
 
+def _robot_spec(args) -> str:
+    """The arm of the sessions as PlayConfig keeps it: a shipped arm's name or a robot config's path."""
+    arm = getattr(args, "arm", None)
+    if arm is None or arm.config.path is None:
+        return "wam"
+    from robot_models.config import ROBOT_CONFIG_DIR
+
+    return arm.name if arm.config.path.resolve() == (ROBOT_CONFIG_DIR / f"{arm.name}.yaml") else str(arm.config.path)
+
+
 def _open_log(args, config: PlayConfig):
-    from harness.logs import SessionLogWriter
+    from harness.logs import LogWriterOptions, SessionLogWriter
 
     args.out.mkdir(parents=True, exist_ok=True)
     live = "_live" if getattr(args, "live", False) else ""
@@ -173,8 +200,11 @@ def _open_log(args, config: PlayConfig):
     meta = {"kind": "play", "seed": args.seed, "ball_slot_s": 10.0, "live": bool(live),
             "config": {"tracker": config.tracker, "filter": config.filter, "source": config.source, "scene": config.scene,
                        "profiles": args.profiles, "plan_latency_s": config.plan_latency_s, "policy": config.policy,
-                       "balls": args.balls, "profile": config.resolved_profile().__dict__, "promp": config.promp_path}}
-    log = SessionLogWriter(path, metadata=meta, log_images="all" if args.log_images else "none", overwrite=True)
+                       "balls": args.balls, "profile": config.resolved_profile().__dict__, "promp": config.promp_path,
+                       "robot": config.robot}}
+    joints = args.arm.kin.joint_names if getattr(args, "arm", None) is not None else None
+    log = SessionLogWriter(path, metadata=meta, log_images="all" if args.log_images else "none", overwrite=True,
+                           options=LogWriterOptions(joint_names=tuple(joints)) if joints else None)
     return log, path
 
 
@@ -198,9 +228,8 @@ def run(args) -> int:
 
         return run_live(args, _configs(args, profiles)[0], _open_log, _print)
     from policies.promp import ProMP
-    from robot_models import WamKinematics
 
-    kin = WamKinematics.default()
+    kin = args.arm.kin
     ProMP.load(args.promp, robot_id=str(kin.model.name), joint_names=kin.joint_names)  # fails here, not in a worker
     if not args.no_log:  # load the kernel the session log draws the arm with now, not while a signal stops the run
         kin.link_points([0.0] * kin.n_joints, check_limits=False)
@@ -284,13 +313,13 @@ def _run_observe(args, profiles) -> int:
 
 
 def _title(args) -> str:
-    return (f"rt2 play {args.mode}: {args.balls} balls, seed {args.seed}, {args.source} observations "
+    return (f"rt2 play {args.mode}: {args.arm.name}, {args.balls} balls, seed {args.seed}, {args.source} observations "
             f"({datetime.date.today().isoformat()})")
 
 
 def _print(rows, args) -> None:
     what = f"profiles {args.profiles}" if args.source == "synthetic" else f"scene {args.scene}"
-    print(f"rt2 play {args.mode}  source {args.source} ({what})  balls {args.balls}  seed {args.seed}")
+    print(f"rt2 play {args.mode}  robot {args.arm.name}  source {args.source} ({what})  balls {args.balls}  seed {args.seed}")
     print(f"{'tracker':<10} {'filter':<14} {'Hz':>5} {'success':>9} {'rate':>6} {'95% CI (Wilson)':>17}  outcomes")
     for r in rows:
         outcomes = ", ".join(f"{k} {v}" for k, v in sorted(r["outcomes"].items(), key=lambda kv: -kv[1]))

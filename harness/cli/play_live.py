@@ -42,9 +42,9 @@ def run_live(args, config, open_log, print_rows) -> int:
     from harness.link.client import LinkLostError, WamClient
     from policies.hitting import HittingOptions
     from policies.promp import ProMP
-    from robot_models import WamKinematics
+    from harness.sim.robot.arms import is_link_address
 
-    kin = WamKinematics.default()
+    kin = args.arm.kin  # the WAM: `rt2 play` checked that --live has no other arm
     promp = ProMP.load(args.promp, robot_id=str(kin.model.name), joint_names=kin.joint_names)
     player = prepare_policy(kin, promp, config.filter, HittingOptions(**config.policy))  # before any process or link
     log, path = open_log(args, config) if not args.no_log else (None, None)
@@ -75,7 +75,7 @@ def run_live(args, config, open_log, print_rows) -> int:
         return run
 
     try:
-        if args.robot is None:
+        if not is_link_address(args.robot):  # no address (or --robot wam): the simulated world and tracker here
             play_live_local(balls=args.balls, seed=args.seed, profile=config.resolved_profile(), run_policy=run_policy,
                             observe_args=["--profiles", args.profiles] + (
                                 ["--profile-json", str(args.profile_json)] if args.profile_json else []),

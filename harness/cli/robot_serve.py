@@ -1,4 +1,6 @@
-"""``rt2 robot serve --sim``: the simulated WAM in its own process, in real time, behind the robot link.
+"""``rt2 robot serve --sim [--robot NAME|PATH.yaml]``: a simulated arm (the WAM by default) in its own process,
+in real time, behind the robot link. The link's messages carry 7-joint vectors (harness/link/protocol.py): a
+7-joint arm (wam, panda, xarm7) is served; another joint count is refused with one line.
 
 Prints one line when it is ready (``--ready-json``: a JSON object with the bound endpoints, the pid and
 the robot clock's epoch, for scripts and tests) and serves until SIGINT / SIGTERM or ``--duration``.
@@ -17,8 +19,9 @@ import sys
 from harness.link.bridge_core import check_endpoint
 from harness.common.fast_exit import exit_at_once_when_done
 from harness.link.bridge_sim import BridgeOptions, SimBridge
+from harness.link.protocol import N_JOINTS
+from harness.sim.robot.arms import load_arm
 from harness.sim.robot.simulated_wam import SimulatedWam, SimWamOptions
-from robot_models import DEFAULT_CONFIG_PATH, WamKinematics, load_robot_config
 
 __all__ = ["add_arguments", "run"]
 
@@ -34,7 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=None, help="control rate, Hz (default: the robot YAML's, 500)")
     parser.add_argument("--seed", type=int, default=0, help="seeds the simulated WAM's zero offsets and encoder noise "
                         "(--world play: the session's seed, serves and per-ball robots as `rt2 play --seed`)")
-    parser.add_argument("--config", default=None, help="robot YAML (default data/robot/wam.yaml)")
+    parser.add_argument("--robot", "--config", dest="robot", default=None, metavar="NAME|PATH.yaml",
+                        help="the arm: a shipped one (wam, panda, xarm7: 7 joints; default wam) or a robot config (docs/robots.md)")
     parser.add_argument("--watchdog", type=float, default=0.3, help="hold after this many seconds without a "
                         "command or heartbeat (default 0.3, as wam_node)")
     parser.add_argument("--clock-skew-ms", type=float, default=0.0,
@@ -61,12 +65,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     logging.basicConfig(level=logging.INFO, stream=sys.stderr,
                         format="%(asctime)s rt2 robot serve: %(levelname)s %(message)s")
-    cfg = load_robot_config(args.config)
-    kin = WamKinematics.from_config(cfg)
+    arm = load_arm(args.robot, check_reach=False)
+    cfg, kin = arm.config, arm.kin
+    if kin.n_joints != N_JOINTS:
+        raise ValueError(f"{cfg.where}: the robot link carries {N_JOINTS}-joint vectors; {cfg.name} has {kin.n_joints} "
+                         "joints (docs/robots.md)")
     sim_map = dict(cfg.simulator)
     if args.rate is not None:
         sim_map["control_rate_hz"] = args.rate
-    sim_opts = SimWamOptions.from_mapping(sim_map, where=f"{args.config or DEFAULT_CONFIG_PATH}: simulator (--rate)")
+    sim_opts = SimWamOptions.from_mapping(sim_map, where=f"{cfg.where}: simulator (--rate)", n_joints=kin.n_joints)
     if args.duration is not None and not args.duration > 0:
         raise ValueError(f"--duration must be > 0 s, got {args.duration!r}")
     for flag, value in (("--bind", args.bind), ("--state-bind", args.state_bind), ("--truth-stream", args.truth_stream),
@@ -80,6 +87,8 @@ def run(args) -> int:
     if args.world == "play":
         from harness.experiments.play.world import WorldBridge, WorldOptions
 
+        if arm.name != "wam":
+            raise ValueError(f"--world play runs the WAM (rt2 play --live's world), not --robot {args.robot}")
         # the in-process session's simulated WAM (SimWamOptions()) so that live and in-process runs agree
         play_sim = SimWamOptions() if args.rate is None else SimWamOptions(control_rate_hz=args.rate)
         bridge = WorldBridge(kin, WorldOptions(balls=args.balls, seed=args.seed, truth_bind=args.truth_stream or "tcp://127.0.0.1:*",

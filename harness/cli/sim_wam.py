@@ -16,14 +16,15 @@ __all__ = ["add_arguments", "run"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", default=None, help="robot YAML (default data/robot/wam.yaml)")
+    parser.add_argument("--robot", "--config", dest="robot", default=None, metavar="NAME|PATH.yaml",
+                        help="the arm: a shipped one (wam, panda, ur10, xarm7; default wam) or a robot config (docs/robots.md)")
     parser.add_argument("--seed", type=int, default=0, help="seeds the trajectory, the bias and the noise")
     parser.add_argument("--n-via", type=int, default=8, help="via points of the trajectory")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
 def run(args) -> int:
-    r = simulate(args.config, seed=args.seed, n_via=args.n_via)
+    r = simulate(args.robot, seed=args.seed, n_via=args.n_via)
     if args.json:
         print(json.dumps(r, indent=1))
         return 0

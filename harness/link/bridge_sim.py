@@ -155,7 +155,8 @@ class SimBridge(BridgeCore):
     # -- BridgeCore ---------------------------------------------------------------------------------
     def welcome_fields(self) -> dict:
         k = self.kin
-        return {"robot": "rt2 simulated WAM", "joint_names": list(k.joint_names),
+        return {"robot": "rt2 simulated WAM" if k.name == "wam" else f"rt2 simulated arm {k.name}",
+                "joint_names": list(k.joint_names),
                 "control_rate_hz": float(self.wam.control_rate_hz), "q_min": np.asarray(k.q_min, float).tolist(),
                 "q_max": np.asarray(k.q_max, float).tolist(), "qdot_max": np.asarray(k.qdot_max, float).tolist()}
 

@@ -61,8 +61,11 @@ def test_bad_limits_and_urdf_name_the_problem(tmp_path):
     bad.write_text('<robot name="r"><joint name="j" type="revolute"><limit lower="-1" upper="x"/></joint></robot>')
     with pytest.raises(ValueError, match=r"bad.urdf: joint 'j' needs <limit lower= upper= velocity=> numbers"):
         urdf_joint_limits(bad)
-    bad.write_text('<robot name="r"><joint name="p" type="prismatic"/></robot>')
-    with pytest.raises(ValueError, match=r"joint 'p' is 'prismatic'"):
+    bad.write_text('<robot name="r"><joint name="p" type="floating"/></robot>')
+    with pytest.raises(ValueError, match=r"joint 'p' is 'floating'; only revolute and prismatic"):
+        urdf_joint_limits(bad)
+    bad.write_text('<robot name="r"><joint name="c" type="continuous"/></robot>')
+    with pytest.raises(ValueError, match=r"joint 'c' is 'continuous': it has no position limits"):
         urdf_joint_limits(bad)
     bad.write_text("<robot")
     with pytest.raises(ValueError, match=r"bad.urdf: not a valid URDF"):

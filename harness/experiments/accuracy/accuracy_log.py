@@ -30,12 +30,13 @@ import numpy as np
 from harness.experiments.accuracy.evaluate import fault_plan_of
 from harness.experiments.accuracy.trackers import DETECTION_SUFFIX, DETECTOR_METHOD, detections_camera
 from harness.logs import SessionLogWriter
+from harness.logs import LogWriterOptions
 from robot_models import LINK_CHAIN
 from tracker import DetectorOptions
 
 __all__ = ["AccuracyLogWriter", "ARM_FRAMES", "RIG_ATTACHMENTS", "candidates_per_camera", "session_metadata"]
 
-#: frames of the arm written to /tf each frame set (children of ``world``)
+#: the WAM's frames written to /tf each frame set (children of ``world``); another arm's: its link_chain + ball_mount
 ARM_FRAMES = LINK_CHAIN + ("ball_mount",)
 
 
@@ -77,7 +78,7 @@ class AccuracyLogWriter:
 
     path : the .mcap file; rig : the rig the trackers used (``rig.yaml``); true_rig : the rig the images
     were rendered with (``rig_true.yaml``, when calibration_error is enabled); calibration_error : its info;
-    kin : robot_models.WamKinematics (arm frames for /tf)
+    kin : robot_models.ArmKinematics (arm frames for /tf, joint names)
     log_images : "all", "none" or N; image_format : "png" (default: lossless, re-evaluation from images
     is exact), "jpeg" or "raw"; flush_period_s : a crash loses at most about this much (docs/logging.md)
     """
@@ -86,7 +87,8 @@ class AccuracyLogWriter:
                  log_images=50, image_format: str = "png", overwrite: bool = False, flush_period_s: float = 1.0):
         meta = session_metadata(config, rig, motion, rtblob_calibration, calibration_error)
         self.writer = SessionLogWriter(path, metadata=meta, log_images=log_images, image_format=image_format,
-                                       overwrite=overwrite, flush_period_s=flush_period_s)
+                                       overwrite=overwrite, flush_period_s=flush_period_s,
+                                       options=LogWriterOptions(joint_names=tuple(kin.joint_names)))
         self.path = Path(path)
         self.names = rig.names
         self.motion = motion
@@ -103,7 +105,8 @@ class AccuracyLogWriter:
         w.write_scene_static(0.0, rig)
         # the reported arm (what the robot says), all frames at once: (n, len(ARM_FRAMES), 4, 4)
         Q = motion.q_reported
-        self._arm_T = np.stack([kin.fk_batch(Q, f, check_limits=False) for f in ARM_FRAMES], axis=1)
+        self.arm_frames = tuple(kin.link_chain) + ("ball_mount",)
+        self._arm_T = np.stack([kin.fk_batch(Q, f, check_limits=False) for f in self.arm_frames], axis=1)
 
     @property
     def image_every(self) -> int:
@@ -125,8 +128,8 @@ class AccuracyLogWriter:
             w.write_observation(t, kind, obs, k)
         w.write_ground_truth(t, m.gt_world_m[k], m.q_reported[k], m.qdot_reported[k], m.q_command[k], k)
         T = self._arm_T[k]
-        w.write_transforms(t, [("world", name, T[j]) for j, name in enumerate(ARM_FRAMES)])
-        w.write_scene_arm(t, T[: len(LINK_CHAIN), :3, 3])
+        w.write_transforms(t, [("world", name, T[j]) for j, name in enumerate(self.arm_frames)])
+        w.write_scene_arm(t, T[: len(self.arm_frames) - 1, :3, 3])
         w.write_scene_balls(t, m.gt_world_m[k], {kind: obs.position_m for kind, obs in fr.observations.items()})
 
     def finish(self, figures: dict, extra: dict | None = None) -> None:

@@ -53,6 +53,8 @@ class AccuracyConfig:
         segment can run in any worker process and the result does not depend on ``--workers``
     inject_faults : camera faults of :class:`harness.experiments.accuracy.faults.FaultPlan`
     rtblob_setup : one of RTBLOB_SETUPS
+    robot : the arm carrying the ball: a shipped arm's name (``wam``, ``panda``, ``ur10``, ``xarm7``) or a robot
+        config's path (``robot_models.load_robot_config``)
     motion : the robot's trajectory, ground-truth sampling and camera-to-robot clock error (MotionOptions)
     scene : what the cameras see besides the ball (SceneOptions)
     calibration_error : the error of the rig the trackers get (the renderer uses the true rig), see
@@ -73,6 +75,7 @@ class AccuracyConfig:
     warmup_s: float = 0.5
     inject_faults: bool = False
     rtblob_setup: str = "calibrated"
+    robot: str = "wam"
     motion: MotionOptions = field(default_factory=MotionOptions)
     scene: SceneOptions = field(default_factory=SceneOptions)
     registration: RegistrationOptions = field(default_factory=RegistrationOptions)
@@ -104,6 +107,8 @@ class AccuracyConfig:
             raise ValueError(f"AccuracyConfig.register_block_s must be in (0, 3600] s, got {b!r}")
         if self.rtblob_setup not in RTBLOB_SETUPS:
             raise ValueError(f"unknown AccuracyConfig.rtblob_setup {self.rtblob_setup!r}; valid: {list(RTBLOB_SETUPS)}")
+        if not isinstance(self.robot, str) or not self.robot:
+            raise ValueError(f"AccuracyConfig.robot must be an arm's name or a robot config's path, got {self.robot!r}")
         if self.model is not None and not isinstance(self.model, str):
             raise ValueError(f"AccuracyConfig.model must be a path string or None, got {self.model!r}")
         for name, cls in _NESTED.items():

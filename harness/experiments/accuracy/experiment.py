@@ -41,7 +41,7 @@ from harness.logs import check_log_images
 from harness.common.outputs import atomic_write_json, check_output_dir
 from tracker.rig_files import resolve_rig
 from harness.sim.robot import SimWamOptions
-from robot_models import WamKinematics, load_robot_config
+from robot_models import ArmKinematics, load_robot_config
 
 __all__ = ["AccuracyResult", "run_accuracy", "write_outputs"]
 
@@ -75,9 +75,9 @@ class AccuracyResult:
 
 
 def _robot(config):
-    cfg = load_robot_config()
-    kin = WamKinematics.from_config(cfg)
-    sim = SimWamOptions.from_mapping(dict(cfg.simulator), where="data/robot/wam.yaml: simulator")
+    cfg = load_robot_config(config.robot)
+    kin = ArmKinematics.from_config(cfg)
+    sim = SimWamOptions.from_mapping(dict(cfg.simulator), where=f"{cfg.where}: simulator", n_joints=kin.n_joints)
     return kin, sim
 
 

@@ -67,7 +67,7 @@ def register_from_log(path, tracker=None, *, frames: str = "register", bootstrap
     pos_std = registration_std(A, info.rms_m, A)
     nominal_deg, nominal_m = transform_difference(T, T_nom)
     return {
-        "T_base_to_world": T.tolist(), "tracker": name, "pairs": info.n_pairs, "inliers": info.n_inliers,
+        "T_base_to_world": T.tolist(), "robot": cfg.get("robot", "wam"), "tracker": name, "pairs": info.n_pairs, "inliers": info.n_inliers,
         "rms_mm": 1000 * info.rms_m, "max_mm": 1000 * info.max_m,
         "std_rotation_deg": float(np.sqrt(np.mean(np.square(rots)))) if rots else None,
         "std_translation_mm": (1000 * np.std(trans, axis=0)).tolist() if trans else None,

@@ -110,7 +110,7 @@ def _unit(v):
 class SessionScene:
     """The fixed part of a session's scene plus the per-frame composition (see the module docstring).
 
-    link_radii_m : (8,) capsule radii of the arm (``WamKinematics.link_radii_m``)
+    link_radii_m : (n + 1,) capsule radii of an arm of n joints (``ArmKinematics.link_radii_m``; the WAM's 8)
     mount_world_m : (3,) where the arm's base plate is (top of the pedestal), world
     """
 
@@ -119,8 +119,8 @@ class SessionScene:
             raise ValueError(f"options must be SceneOptions, got {type(options).__name__}")
         self.options = options
         self.link_radii_m = np.asarray(link_radii_m, float)
-        if self.link_radii_m.shape != (8,):
-            raise ValueError(f"link_radii_m must have shape (8,), got {self.link_radii_m.shape}")
+        if self.link_radii_m.ndim != 1 or len(self.link_radii_m) < 2 or not (self.link_radii_m > 0).all():
+            raise ValueError(f"link_radii_m must be (n + 1,) positive radii, got {self.link_radii_m.tolist()}")
         self.mount_world_m = np.asarray(mount_world_m, float)
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 2]))
         self.shirt = options.shirt or SHIRTS[int(rng.integers(len(SHIRTS)))]
@@ -143,21 +143,28 @@ class SessionScene:
         return self.hand_centre_m + self.hand_amp_m * wave
 
     def arm_capsules(self, links_world_m, ball_world_m) -> list:
-        """Pedestal, links and the ball stick of one arm pose. links_world_m : (9, 3); ball_world_m : (3,)."""
+        """Pedestal, links and the ball stick of one arm pose. links_world_m : (n + 2, 3) (``link_points``; the
+        WAM's 9); ball_world_m : (3,)."""
         P = np.asarray(links_world_m, float)
         r = self.link_radii_m
+        if P.shape != (len(r) + 1, 3):
+            raise ValueError(f"links_world_m must have shape ({len(r) + 1}, 3) for {len(r)} link radii, got {P.shape}")
+        tip = P[-1]  # the tool plate
+        last = len(r) - 1  # the segment that ends at the tool plate: the last link whose origin is not the plate
+        while last > 0 and np.linalg.norm(P[last] - tip) < 1e-9:  # (the xArm7's link7 is its flange: its full cap
+            last -= 1                                            # would swallow the ball)
         caps = [Capsule(self.mount_world_m * [1, 1, 0], self.mount_world_m - [0, 0, 0.12], 0.12, "robot_grey", 0.1)]
-        for i in range(7):
+        for i in range(last):
             caps.append(Capsule(P[i], P[i + 1], r[i], "robot_grey" if i < 3 else "robot_black", 0.25))
-        axis = _unit(np.asarray(ball_world_m) - P[8])
-        end = P[8] - r[7] * axis  # the last link's cap ends at the tool plate
-        start = P[7] if np.linalg.norm(end - P[7]) > 1e-9 else end
-        caps.append(Capsule(start, end, r[7], "robot_grey", 0.25))
-        caps.append(Capsule(P[8], np.asarray(ball_world_m) - 0.016 * axis, 0.005, "robot_grey", 0.2))
+        axis = _unit(np.asarray(ball_world_m) - tip)
+        end = tip - r[last] * axis  # the last link's cap ends at the tool plate
+        start = P[last] if np.linalg.norm(end - P[last]) > 1e-9 else end
+        caps.append(Capsule(start, end, r[last], "robot_grey", 0.25))
+        caps.append(Capsule(tip, np.asarray(ball_world_m) - 0.016 * axis, 0.005, "robot_grey", 0.2))
         return caps
 
     def scene_at(self, frame_index: int, t_s: float, links_world_m, ball_world_m, ball_velocity_mps) -> Scene:
-        """Frame ``frame_index`` at time ``t_s``: the arm (links_world_m (9, 3), true), the ball (3,), its velocity (3,)."""
+        """Frame ``frame_index`` at time ``t_s``: the arm (links_world_m (n + 2, 3), true), the ball (3,), its velocity (3,)."""
         caps = self.arm_capsules(links_world_m, ball_world_m)
         spheres, boxes, balls = [], [], [Ball(ball_world_m, ball_velocity_mps, "orange")]
         for d in self.distractors:

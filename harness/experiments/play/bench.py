@@ -50,12 +50,15 @@ class _TimedPolicy:
 
 
 def bench_policy(balls: int = 10, seed: int = 0, *, tracker: str = "rt2", filter_name: str = "raw",
-                 progress: bool = True) -> dict:
-    """{planner: {"first": ms list, "replan": ms list, "successes": int}} over ``balls`` balls of ``seed``."""
+                 progress: bool = True, robot: str = "wam") -> dict:
+    """{planner: {"first": ms list, "replan": ms list, "successes": int}} over ``balls`` balls of ``seed``.
+
+    robot : the arm (a shipped arm's name; its ProMP ``data/promp/NAME_hitting.npz``)."""
     from threadpoolctl import threadpool_limits
     from harness.common.progress import progress_bar
 
     from harness.experiments.play.experiment import PlayConfig, ball_seeds, build_session
+    from harness.experiments.studies.learn_promp import default_promp
     from harness.sim.launcher import BallLauncher
 
     if balls < 2:
@@ -63,7 +66,8 @@ def bench_policy(balls: int = 10, seed: int = 0, *, tracker: str = "rt2", filter
     threadpool_limits(1)  # as the play workers and the live policy process: one core
     sessions, out = {}, {}
     for planner in PLANNERS:
-        built = build_session(PlayConfig(tracker, filter_name, policy={"planner": planner}))
+        built = build_session(PlayConfig(tracker, filter_name, policy={"planner": planner}, robot=robot,
+                                         promp_path=str(default_promp(robot))))
         out[planner] = {"first": [], "replan": [], "successes": 0}
         built["session"].policy = _TimedPolicy(built["session"].policy, out[planner])
         sessions[planner] = built
@@ -129,6 +133,8 @@ def add_arguments(parser) -> None:
                         "steps are left out: it pays the one-time costs)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the serves and the session noise, as rt2 play (default 0)")
     parser.add_argument("--filter", default="raw", help="ball filter (default raw)")
+    parser.add_argument("--robot", default="wam", metavar="NAME",
+                        help="the arm (wam, panda, ur10, xarm7; default wam) with its ProMP data/promp/NAME_hitting.npz")
     parser.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the figures as JSON")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -141,13 +147,20 @@ def run(args) -> int:
 
     if args.filter not in FILTERS:
         raise ValueError(f"unknown --filter {args.filter!r}; valid: {sorted(FILTERS)}")
-    rows = summarise(bench_policy(args.balls, args.seed, filter_name=args.filter, progress=not args.no_progress))
+    from harness.experiments.studies.learn_promp import default_promp
+    from harness.sim.robot.arms import load_arm
+
+    load_arm(args.robot, check_reach=False)  # a bad arm: one line naming the file and the field
+    if not default_promp(args.robot).is_file():
+        raise FileNotFoundError(f"no hitting ProMP {default_promp(args.robot)}: rt2 learn promp --robot {args.robot}")
+    rows = summarise(bench_policy(args.balls, args.seed, filter_name=args.filter, progress=not args.no_progress,
+                                  robot=args.robot))
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-    print(f"Planning steps of the hitting policy (rt2 + {args.filter}, synthetic source, seed {args.seed}, "
+    print(f"Planning steps of the hitting policy ({args.robot}, rt2 + {args.filter}, synthetic source, seed {args.seed}, "
           f"{args.balls - 1} balls after the first), wall ms, one BLAS thread; {os.cpu_count()} cores, load average {load}.\n")
     print(format_table(rows, args.balls))
     if args.json:
-        atomic_write_json(args.json, {"balls": args.balls, "seed": args.seed, "filter": args.filter,
+        atomic_write_json(args.json, {"robot": args.robot, "balls": args.balls, "seed": args.seed, "filter": args.filter,
                                       "goal_p95_ms": GOAL_P95_MS, "planners": rows}, "--json")
         print(f"\nwrote {args.json}")
     return 0

@@ -42,6 +42,7 @@ class PlayConfig:
     record_images_every: int = 0
     policy: dict = field(default_factory=dict)
     plan_latency_s: float = 0.0  #: the policy's modelled planning time (SessionOptions.plan_latency_s)
+    robot: str = "wam"  #: the arm: a shipped arm's name or a robot config's path (harness.sim.robot.arms.load_arm)
 
     def resolved_profile(self) -> TrackerProfile:
         return self.profile if self.profile is not None else profile_for(self.tracker, PROFILES)
@@ -81,10 +82,11 @@ def build_session(config: PlayConfig, *, wrap_source=None) -> dict:
     from policies.filters import make_filter
     from policies.hitting import HittingOptions
     from policies.promp import ProMP
-    from robot_models import WamKinematics
+    from harness.sim.robot.arms import load_arm
 
     threadpool_limits(1)  # 140 x 140 linear algebra: BLAS threads only contend with the other workers
-    kin = WamKinematics.default()
+    arm = load_arm(config.robot, check_reach=False)
+    kin = arm.kin
     promp = ProMP.load(config.promp_path, robot_id=str(kin.model.name), joint_names=kin.joint_names)
     rig = resolve_rig(config.rig)
     profile = config.resolved_profile()
@@ -100,7 +102,7 @@ def build_session(config: PlayConfig, *, wrap_source=None) -> dict:
     if wrap_source is not None:
         source = wrap_source(source)
     session = PlaySession(kin, promp, source, lambda: make_filter(config.filter), profile,
-                          policy_options=HittingOptions(**config.policy),
+                          policy_options=HittingOptions(**config.policy), sim_options=arm.sim_options,
                           options=SessionOptions(plan_latency_s=config.plan_latency_s))
     return {"config": config, "session": session, "launcher_params": BallParams.load()}
 

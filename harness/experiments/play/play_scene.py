@@ -115,22 +115,23 @@ class PlayScene:
         self._mount = np.asarray(kinematics.T_base_to_world[:3, 3], float)
 
     def arm(self, q_true) -> tuple[list, list]:
-        """Capsules (pedestal, links, handle) and the racket disk of the arm at joint angles q_true (7,)."""
+        """Capsules (pedestal, links, handle) and the racket disk of the arm at joint angles q_true (n,)."""
         kin = self.kin
         P = kin.link_points(np.asarray(q_true, float), check_limits=False)
         r = kin.link_radii_m
+        tip = len(r)  # the flange's point
         caps = [Capsule(self._mount * [1, 1, 0], self._mount - [0, 0, 0.12], 0.12, "robot_grey", 0.1)]
-        for i in range(8):
+        for i in range(len(r)):
             if np.linalg.norm(P[i + 1] - P[i]) > 1e-6 or i == 0:
                 caps.append(Capsule(P[i], P[i + 1], r[i], "robot_grey" if i < 3 else "robot_black", 0.25))
         T, _ = kin.fk_and_jacobian(np.asarray(q_true, float), self._fid)
         centre, normal = T[:3, 3], T[:3, 2]
-        rim = centre - 0.075 * (centre - P[8]) / max(np.linalg.norm(centre - P[8]), 1e-9)
-        caps.append(Capsule(P[8], rim, 0.013, "wood", 0.05))
+        rim = centre - 0.075 * (centre - P[tip]) / max(np.linalg.norm(centre - P[tip]), 1e-9)
+        caps.append(Capsule(P[tip], rim, 0.013, "wood", 0.05))
         return caps, [Disk(centre, normal, 0.075, self.options.racket_front, self.options.racket_back)]
 
     def scene_at(self, frame_index: int, t_s: float, q_true, ball_m, ball_velocity_mps) -> Scene:
-        """Frame set ``frame_index`` at time ``t_s``: the arm at q_true (7,), the ball (3,) with velocity (3,)."""
+        """Frame set ``frame_index`` at time ``t_s``: the arm at q_true (n,), the ball (3,) with velocity (3,)."""
         caps, disks = self.arm(q_true)
         spheres, boxes = [], []
         for d in self.distractors:

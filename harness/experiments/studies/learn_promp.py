@@ -1,4 +1,7 @@
-"""``rt2 learn promp``: learn the WAM's hitting ProMP from the scripted teacher, and measure the fit.
+"""``rt2 learn promp``: learn an arm's hitting ProMP from the scripted teacher, and measure the fit.
+
+The arm is ``--robot NAME|PATH.yaml`` (default the WAM; ``panda``, ``ur10``, ``xarm7`` or a robot config of
+your own, docs/robots.md); the teacher moves that arm within its limits, from its home posture.
 
 1. Draw ``--demos`` training and ``--held-out`` test requests (hitting point in x -1.6..-1.1,
    y -0.7..0.7, z 0.8..1.4 m, lab world; hitting time, racket normal and velocity, see
@@ -10,7 +13,8 @@
    chosen so the hit falls at the demonstrations' mean hit phase), on the racket position and on
    position + normal; report the racket error of the conditioned mean, the joint-limit excess of the
    conditioned mean trajectory and its distance to the teacher's own hitting posture.
-4. Save the MAP primitive (all training demos) to ``--out`` (default ``data/promp/wam_hitting.npz``).
+4. Save the MAP primitive (all training demos) to ``--out`` (default ``data/promp/NAME_hitting.npz``, the
+   file ``rt2 play --robot NAME`` loads: ``wam_hitting.npz`` for the WAM).
 
 Same ``--seed``, same demonstrations, same primitive, same figures.
 """
@@ -25,7 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
-DEFAULT_OUT = Path(__file__).resolve().parents[3] / "data" / "promp" / "wam_hitting.npz"
+PROMP_DIR = Path(__file__).resolve().parents[3] / "data" / "promp"
+DEFAULT_OUT = PROMP_DIR / "wam_hitting.npz"
+
+
+def default_promp(robot_name: str) -> Path:
+    """The shipped hitting ProMP of an arm (``data/promp/NAME_hitting.npz``), what ``rt2 learn promp --robot NAME``
+    writes and ``rt2 play --robot NAME`` loads."""
+    return PROMP_DIR / f"{robot_name}_hitting.npz"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,9 +46,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--n-basis", type=int, default=20, help="RBFs per joint (default 20)")
     parser.add_argument("--pseudo-demos", type=float, default=2.0, help="prior strength n0 of Sigma_w (default 2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the requests and the teacher's variability")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"where to save the primitive (default {DEFAULT_OUT})")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="where to save the primitive (default data/promp/NAME_hitting.npz of the --robot)")
     parser.add_argument("--no-save", action="store_true", help="measure only, write nothing")
-    parser.add_argument("--config", default=None, help="robot YAML (default data/robot/wam.yaml)")
+    parser.add_argument("--robot", "--config", dest="robot", default=None, metavar="NAME|PATH.yaml",
+                        help="the arm: a shipped one (wam, panda, ur10, xarm7; default wam) or a robot config (docs/robots.md)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
 
 
@@ -50,6 +63,11 @@ def _check_args(args) -> None:
         raise ValueError(f"--few must be in [2, --demos = {args.demos}], got {args.few}")
     if args.pseudo_demos <= 0:
         raise ValueError(f"--pseudo-demos must be > 0, got {args.pseudo_demos}")
+    from harness.sim.robot.arms import load_arm
+
+    args.arm = load_arm(args.robot)  # a bad arm: one line naming the file and the field
+    if args.out is None:
+        args.out = default_promp(args.arm.name)
     if args.out.suffix != ".npz":
         raise ValueError(f"--out must end in .npz, got {args.out}")
     if not args.no_save:
@@ -116,10 +134,8 @@ def run(args) -> int:
     from policies.promp_demos import HitDistribution, collect_demonstrations
     from policies.promp import NIWPrior
     from policies.teacher import ScriptedTeacher, TeacherOptions
-    from robot_models import WamKinematics
-
     _check_args(args)
-    kin = WamKinematics.from_config(args.config) if args.config else WamKinematics.default()
+    kin = args.arm.kin
     teacher = ScriptedTeacher(kin, TeacherOptions())
     dist = HitDistribution()
     rng = np.random.default_rng(args.seed)
@@ -139,7 +155,7 @@ def run(args) -> int:
                 "n_demos": len(train), "rejected_requests": rejected, "hit_phase_mean": result["hit_phase_mean"],
                 "hit_phase_std": result["hit_phase_std"], "prior": dataclasses.asdict(prior),
                 "hit_distribution": dataclasses.asdict(dist), "teacher": dataclasses.asdict(teacher.options),
-                "robot_urdf": Path(kin.source).name, "robot_config": str(args.config or "data/robot/wam.yaml")}
+                "robot_urdf": Path(kin.source).name, "robot_config": _config_name(args.arm.config)}
         promp = dataclasses.replace(promp, metadata=meta)
         result["saved"] = str(promp.save(args.out))
     if args.json:
@@ -147,6 +163,14 @@ def run(args) -> int:
         return 0
     _print(result)
     return 0
+
+
+def _config_name(config) -> str:
+    """The robot config as the metadata names it: ``data/robot/NAME.yaml`` for a shipped arm, else its path."""
+    from robot_models.config import ROBOT_CONFIG_DIR
+
+    path = config.path
+    return f"data/robot/{path.name}" if path is not None and path.resolve().parent == ROBOT_CONFIG_DIR else str(path)
 
 
 def _print(r) -> None:

@@ -8,20 +8,18 @@ import sys
 
 import numpy as np
 from harness.common.progress import progress_bar
+from harness.sim.robot.arms import HITTING_REGION_M
 
-from robot_models import IkOptions, WamKinematics
+from robot_models import ArmKinematics, IkOptions
 
 __all__ = ["HITTING_REGION_M", "OPPONENT_TARGET_M", "reachability"]
-
-
-HITTING_REGION_M = ((-1.6, -0.7, 0.8), (-1.1, 0.7, 1.4))
 
 
 #: where the racket normal points: the centre of the opponent's half, 15 cm above the table
 OPPONENT_TARGET_M = (0.685, 0.0, 0.91)
 
 
-def reachability(kin: WamKinematics, region_m, n_per_axis=(5, 7, 5), *, normal: str = "opponent",
+def reachability(kin: ArmKinematics, region_m, n_per_axis=(5, 7, 5), *, normal: str = "opponent",
                  seed: int = 0, options: IkOptions = IkOptions(), progress: bool = False) -> dict:
     """IK on a grid over ``region_m`` (2, 3); returns points (N, 3), success (N,) and errors per point.
 

@@ -1,25 +1,28 @@
-"""The simulated WAM on a seeded ball-mount trajectory (``rt2 sim wam``): tracking errors, and the ball
-position from the *reported* joints against the true one (zero-offset bias, encoder quantisation, noise)."""
+"""A simulated arm (the WAM by default) on a seeded ball-mount trajectory (``rt2 sim wam [--robot NAME]``):
+tracking errors with its own gains and limits, and the ball position from the *reported* joints against the
+true one (zero-offset bias, encoder quantisation, noise)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from harness.sim.robot.arms import load_arm
 from harness.sim.robot.simulated_wam import SimulatedWam, SimWamOptions
 from harness.sim.trajectories import BALL_BOX_WORLD_M, TrajectoryOptions, random_via_trajectory
-from robot_models import DEFAULT_CONFIG_PATH, WamKinematics, load_robot_config
 
 __all__ = ["simulate"]
 
 
 def simulate(config=None, *, seed: int = 0, n_via: int = 8, backend: str | None = None) -> dict:
-    """Run one session; returns the figures printed by ``rt2 sim wam`` (floats, mm and mrad)."""
-    cfg = load_robot_config(config)
-    kin = WamKinematics.from_config(cfg)
+    """Run one session of the arm ``config`` (a name, a robot YAML path; None = the WAM); returns the figures
+    printed by ``rt2 sim wam`` (floats, mm and mrad)."""
+    arm = load_arm(config, check_reach=False)
+    kin, cfg = arm.kin, arm.config
     sim_map = dict(cfg.simulator)
     if backend is not None:
         sim_map["backend"] = backend
-    sim = SimulatedWam(kin, SimWamOptions.from_mapping(sim_map, where=f"{config or DEFAULT_CONFIG_PATH}: simulator"), seed=seed)
+    sim = SimulatedWam(kin, SimWamOptions.from_mapping(sim_map, where=f"{cfg.where}: simulator", n_joints=kin.n_joints),
+                       seed=seed)
     traj, info = random_via_trajectory(kin, BALL_BOX_WORLD_M, q_start=kin.q_home,
                                        options=TrajectoryOptions(n_via=n_via), seed=seed)
     start = 0.1

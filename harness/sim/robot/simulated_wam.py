@@ -1,4 +1,6 @@
-"""A simulated WAM behind :class:`robot_models.robot_interface.WamInterface`: tracking, limits, encoders and zero offsets.
+"""A simulated arm (the WAM by default) behind :class:`robot_models.robot_interface.WamInterface`: tracking,
+limits, encoders and zero offsets. Any arm of ``data/robot/`` runs here with its own gains and limits: the
+``simulator`` section of its robot config (``SimWamOptions.from_mapping(config.simulator, n_joints=n)``).
 
 Error model (defaults in :class:`SimWamOptions`, the ``simulator`` section of ``data/robot/wam.yaml``
 and docs/robot.md):
@@ -30,20 +32,22 @@ from robot_models.robot_interface import JointSamples, JointState, check_joint_t
 
 __all__ = ["SimSamples", "SimWamOptions", "SimulatedWam"]
 
-_N = 7
+_N = 7  #: the WAM's joints: the per-joint defaults below are its
+#: per-joint defaults of an arm of another joint count whose robot config does not give them (one value for all)
+OTHER_ARM_DEFAULTS = {"bandwidth_hz": 8.0, "gear_ratio": 100.0, "encoder_noise_std_rad": 2e-5, "zero_offset_std_deg": 0.2}
 
 
-def _seven(value, name: str) -> tuple[float, ...]:
+def _per_joint(value, name: str, n: int) -> tuple[float, ...]:
     arr = np.asarray(value, dtype=float)
-    arr = np.full(_N, float(arr)) if arr.ndim == 0 else arr
-    if arr.shape != (_N,) or not np.isfinite(arr).all():
-        raise ValueError(f"SimWamOptions.{name} must be one number or {_N} finite numbers, got {value!r}")
+    arr = np.full(n, float(arr)) if arr.ndim == 0 else arr
+    if arr.shape != (n,) or not np.isfinite(arr).all():
+        raise ValueError(f"SimWamOptions.{name} must be one number or {n} finite numbers (one per joint), got {value!r}")
     return tuple(float(v) for v in arr)
 
 
 @dataclass(frozen=True)
 class SimWamOptions:
-    """Simulator parameters. Per-joint fields take one number or 7 (joint_1 .. joint_7)."""
+    """Simulator parameters. Per-joint fields take one number or ``n_joints`` (the defaults are the WAM's 7)."""
 
     control_rate_hz: float = 500.0  #: WAM control loop rate
     bandwidth_hz: tuple = (6.0, 6.0, 8.0, 8.0, 12.0, 12.0, 12.0)  #: closed-loop natural frequency per joint
@@ -55,10 +59,13 @@ class SimWamOptions:
     zero_offset_std_deg: tuple = (0.5, 0.5, 0.3, 0.3, 0.2, 0.2, 0.2)  #: per-session zero-offset bias std
     velocity_filter_hz: float = 100.0  #: low-pass cut-off of the reported velocity
     backend: str = "numba"  #: tracking kernel, a key of harness.sim.robot._tracking.TRACKERS
+    n_joints: int = _N  #: the arm's joints (from its kinematics, not its YAML file)
 
     def __post_init__(self):
+        if isinstance(self.n_joints, bool) or not isinstance(self.n_joints, int) or self.n_joints < 1:
+            raise ValueError(f"SimWamOptions.n_joints must be an integer >= 1, got {self.n_joints!r}")
         for name in ("bandwidth_hz", "gear_ratio", "encoder_noise_std_rad", "zero_offset_std_deg"):
-            object.__setattr__(self, name, _seven(getattr(self, name), name))
+            object.__setattr__(self, name, _per_joint(getattr(self, name), name, self.n_joints))
         for name in ("control_rate_hz", "damping_ratio", "velocity_filter_hz"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"SimWamOptions.{name} must be > 0, got {getattr(self, name)!r}")
@@ -83,14 +90,17 @@ class SimWamOptions:
         return 2 * np.pi / (self.encoder_counts_per_rev * np.asarray(self.gear_ratio))
 
     @classmethod
-    def from_mapping(cls, mapping: dict, where: str = "simulator") -> "SimWamOptions":
-        """Options from a mapping such as ``RobotConfig.simulator``; unknown keys raise, naming ``where``."""
-        valid = {f.name for f in fields(cls)}
+    def from_mapping(cls, mapping: dict, where: str = "simulator", *, n_joints: int = _N) -> "SimWamOptions":
+        """Options from a mapping such as ``RobotConfig.simulator`` for an arm of ``n_joints``; unknown keys
+        raise, naming ``where``. Per-joint fields it does not give are the WAM's for 7 joints, else
+        :data:`OTHER_ARM_DEFAULTS`."""
+        valid = {f.name for f in fields(cls)} - {"n_joints"}
         unknown = sorted(set(mapping) - valid)
         if unknown:
             raise ValueError(f"{where}: unknown field(s) {unknown}; valid: {sorted(valid)}")
         try:
-            return cls(**mapping)
+            fill = {} if n_joints == _N else {k: v for k, v in OTHER_ARM_DEFAULTS.items() if k not in mapping}
+            return cls(**{**mapping, **fill}, n_joints=n_joints)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}: {exc}") from exc
 
@@ -108,21 +118,23 @@ class SimulatedWam:
     """Simulated WAM (see module docstring). Satisfies :class:`robot_models.robot_interface.WamInterface`.
 
     kinematics : :class:`robot_models.WamKinematics` (limits, home posture)
-    q0 : (7,) rad true start posture (default ``kinematics.q_home``), at rest
+    q0 : (n,) rad true start posture (default ``kinematics.q_home``), at rest
     """
 
     def __init__(self, kinematics, options: SimWamOptions = SimWamOptions(), *, seed: int = 0, q0=None):
         if not isinstance(options, SimWamOptions):
             raise ValueError(f"options must be SimWamOptions, got {options!r}")
-        if kinematics.n_joints != _N:
-            raise ValueError(f"SimulatedWam needs a {_N}-joint arm, got {kinematics.n_joints} joints")
+        n = kinematics.n_joints
+        if options.n_joints != n:
+            raise ValueError(f"SimulatedWam: the options are for {options.n_joints} joints, the arm has {n} "
+                             "(SimWamOptions.from_mapping(config.simulator, n_joints=kin.n_joints))")
         self.kinematics = kinematics
         self.options = options
         self.control_rate_hz = float(options.control_rate_hz)
         self.dt_s = 1.0 / self.control_rate_hz
-        self.n_joints = _N
+        self.n_joints = n
         bias_seq, noise_seq = np.random.SeedSequence(seed).spawn(2)
-        self.bias_rad = np.deg2rad(options.zero_offset_std_deg) * np.random.default_rng(bias_seq).standard_normal(_N)
+        self.bias_rad = np.deg2rad(options.zero_offset_std_deg) * np.random.default_rng(bias_seq).standard_normal(n)
         self.bias_rad.setflags(write=False)
         self._noise_rng = np.random.default_rng(noise_seq)
         self._track = TRACKERS[options.backend]
@@ -131,15 +143,15 @@ class SimulatedWam:
         self._alpha = float(np.exp(-2 * np.pi * options.velocity_filter_hz * self.dt_s))
         q_start = kinematics.check_q(kinematics.q_home if q0 is None else q0, "q0")
         if q_start.ndim != 1:
-            raise ValueError(f"q0 must have shape ({_N},), got {q_start.shape}")
+            raise ValueError(f"q0 must have shape ({n},), got {q_start.shape}")
         self._tick = 0
         self._q = q_start.copy()
-        self._qd = np.zeros(_N)
+        self._qd = np.zeros(n)
         self._reference = PiecewiseReference(q_start)
         self._q_meas = self._measure(self._q[None])[0]
-        self._qd_meas = np.zeros(_N)
-        self.saturated_ticks = np.zeros(_N, dtype=np.int64)  #: per joint, ticks with a saturated command
-        self.limit_ticks = np.zeros(_N, dtype=np.int64)  #: per joint, ticks spent against a hard stop
+        self._qd_meas = np.zeros(n)
+        self.saturated_ticks = np.zeros(n, dtype=np.int64)  #: per joint, ticks with a saturated command
+        self.limit_ticks = np.zeros(n, dtype=np.int64)  #: per joint, ticks spent against a hard stop
 
     # -- clock -----------------------------------------------------------------------------------
     @property
@@ -190,7 +202,7 @@ class SimulatedWam:
 
     def _run(self, n: int) -> SimSamples:
         if n == 0:
-            empty = np.zeros((0, _N))
+            empty = np.zeros((0, self.n_joints))
             return SimSamples(np.zeros(0), empty, empty, q_true=empty, qdot_true=empty, q_ref=empty)
         t_all = (self._tick + np.arange(n + 1)) * self.dt_s  # the current tick and the n ticks to run
         q_ref, qd_ref, qdd_ref = self._reference.evaluate(t_all)

@@ -21,6 +21,8 @@ from harness.link.spawn_bridge import SimBridgeProcess
 
 @pytest.mark.parametrize("extra, needle", [
     (["--robot", "nonsense", "--tracker-stream", "tcp://127.0.0.1:7661", "--world-stream", "tcp://127.0.0.1:7663"],
+     "unknown robot 'nonsense'"),  # not an address: an arm's name, and no such arm
+    (["--robot", "tcp://nowhere", "--tracker-stream", "tcp://127.0.0.1:7661", "--world-stream", "tcp://127.0.0.1:7663"],
      "--robot must be an endpoint"),
     (["--robot", "tcp://127.0.0.1:7650"], "missing --tracker-stream, --world-stream"),
     (["--robot", "tcp://127.0.0.1:7650", "--tracker-stream", "tcp://127.0.0.1:99999", "--world-stream",
