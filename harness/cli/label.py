@@ -32,6 +32,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--min-train", type=int, default=8, help="labelled frames before the page offers training (default 8)")
     parser.add_argument("--train-epochs", type=int, default=None, help="epochs of the page's `rt2 train` run (default: rt2 train's)")
     parser.add_argument("--train-seed", type=int, default=0, help="seed of the page's `rt2 train` run (default 0)")
+    parser.add_argument("--ball-colour", choices=("any", "orange", "white"), default=None,
+                        help="the ball colour the page's training uses (rt2 train --ball-colour; default: the page asks)")
+    parser.add_argument("--confirm-below", type=float, default=0.9,
+                        help="accepting a proposal scored below this takes a second key press (default 0.9; 0 = never)")
     parser.add_argument("--verbose", action="store_true", help="print every HTTP request on stderr")
 
 
@@ -42,6 +46,7 @@ def run(args) -> int:
     from harness.label.frames import open_frames
     from harness.label.server import LabelServer
     from harness.label.session import LabelOptions, LabelSession
+    from harness.label.store import lock_folder
     from tracker import BallSegmentationModel
 
     if args.train_epochs is not None and args.train_epochs < 1:
@@ -49,9 +54,11 @@ def run(args) -> int:
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port must be in [0, 65535], got {args.port}")
     train_args = ["--seed", str(args.train_seed)] + ([] if args.train_epochs is None else ["--epochs", str(args.train_epochs)])
-    options = LabelOptions(n_suggestions=args.suggestions, min_train_labels=args.min_train, train_args=tuple(train_args))
+    options = LabelOptions(n_suggestions=args.suggestions, min_train_labels=args.min_train, train_args=tuple(train_args),
+                           confirm_below=args.confirm_below, ball_colour=args.ball_colour)
     model = BallSegmentationModel.load(args.model)
     out = check_output_dir(args.out, "--out")
+    lock = lock_folder(out)  # one writer per folder, before a frame is extracted into it
     bars: dict = {}
 
     def progress_of(what):
@@ -65,11 +72,18 @@ def run(args) -> int:
 
     try:
         frames = open_frames(args.source, out, camera=args.camera, every=args.every, max_frames=args.max_frames, progress=progress_of("frames"))
-        session = LabelSession(frames, out, model, args.model, options, progress=progress_of("proposals"))
+        session = LabelSession(frames, out, model, args.model, options, progress=progress_of("proposals"), lock=lock)
+    except BaseException:
+        lock.close()
+        raise
     finally:
         for bar in bars.values():
             bar.close()
-    server = LabelServer(session, args.port, verbose=args.verbose)
+    try:
+        server = LabelServer(session, args.port, verbose=args.verbose)
+    except BaseException:
+        session.close()
+        raise
 
     stop = threading.Event()
 
@@ -80,9 +94,15 @@ def run(args) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     c = session.store.counts()
     print(json.dumps({"url": server.url, "port": server.port, "pid": os.getpid(), "frames": len(frames),
-                      "annotations": str(session.store.json_path), "labelled": c["labelled"]}), flush=True)
+                      "annotations": str(session.store.json_path), "labelled": c["labelled"], "auto": c["auto"],
+                      "skipped": [name for name, _ in frames.skipped]}), flush=True)
     print(f"rt2 label: {len(frames)} frames of {frames.kind} {args.source}; {c['labelled']} already labelled in "
           f"{session.store.json_path}; open {server.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+    for name, why in frames.skipped:
+        print(f"rt2 label: skipped {name}: {why}", file=sys.stderr, flush=True)
+    if session.store.backup is not None:
+        print(f"rt2 label: {session.store.json_path} was written by another tool; continuing it (its fields kept), the original "
+              f"copied to {session.store.backup}", file=sys.stderr, flush=True)
     try:
         server.serve_forever()
     except KeyboardInterrupt:
