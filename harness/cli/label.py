@@ -143,11 +143,10 @@ def run(args) -> int:
 
 def run_auto(args) -> int:
     """``rt2 label --auto``: the consensus pass, then (only when something was kept) the images and the COCO file."""
-    from tqdm import tqdm
-
     from harness.common.outputs import check_output_dir
+    from harness.common.progress import progress_bar
     from harness.experiments.autolabel.consensus import AutoOptions, auto_label
-    from harness.experiments.autolabel.framesets import read_framesets
+    from harness.experiments.autolabel.framesets import check_cameras, read_framesets
     from harness.experiments.autolabel.output import per_camera_counts, write_auto_labels
     from harness.label.store import lock_folder
     from tracker import BallSegmentationModel
@@ -171,7 +170,8 @@ def run_auto(args) -> int:
     model = BallSegmentationModel.load(args.model)
     spec = list(args.source_spec)
     kind = spec[0]
-    with tqdm(desc="consensus", unit="frame set", file=sys.stderr, leave=False) as bar:
+    check_cameras(spec, rig)  # before any progress line
+    with progress_bar(desc="consensus", unit="frame set", leave=False) as bar:
         kept, counts = auto_label(read_framesets(spec, rig, every=args.every, max_sets=args.max_frames), rig, model, options,
                                   progress=lambda n: bar.update(n - bar.n))
     source = " ".join(spec)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["AUTO_SOURCES", "RecordedSet", "read_framesets", "source_cameras"]
+__all__ = ["AUTO_SOURCES", "RecordedSet", "check_cameras", "read_framesets", "source_cameras"]
 
 #: the ``--source`` kinds ``rt2 label --auto`` reads (recordings; live cameras cannot be read twice)
 AUTO_SOURCES = ("replay", "video")
@@ -71,6 +71,14 @@ def source_cameras(spec) -> list[str]:
     return names
 
 
+def check_cameras(spec, rig) -> None:
+    """ValueError (one line) unless the recording ``spec`` holds images of exactly the cameras of ``rig``."""
+    have = source_cameras(spec)
+    if sorted(rig.names) != have:
+        raise ValueError(f"--rig has {len(rig.names)} cameras {list(rig.names)} but --source {' '.join(map(str, spec))} "
+                         f"has {len(have)} {have}: they must be the same cameras")
+
+
 def read_framesets(spec, rig, *, every: int = 1, max_sets: int | None = None, counts: dict | None = None):
     """Yield :class:`RecordedSet` of ``spec`` (``["replay", "LOG.mcap"]`` or ``["video", "DIR"]``) in rig camera order.
 
@@ -80,10 +88,7 @@ def read_framesets(spec, rig, *, every: int = 1, max_sets: int | None = None, co
     """
     from harness.live.sources import open_sources
 
-    have = source_cameras(spec)
-    if sorted(rig.names) != have:
-        raise ValueError(f"--rig has {len(rig.names)} cameras {list(rig.names)} but --source {' '.join(map(str, spec))} "
-                         f"has {len(have)} {have}: they must be the same cameras")
+    check_cameras(spec, rig)
     counts = {} if counts is None else counts
     counts.update(read=0, incomplete=0)
     sources = open_sources(spec, rig, speed=None)
