@@ -21,7 +21,7 @@ import numpy as np
 from harness.common.outputs import atomic_path
 from harness.experiments.detector.coco import LabelledImage, write_coco
 
-__all__ = ["AUTO_DESCRIPTION", "image_key", "per_camera_counts", "write_auto_labels"]
+__all__ = ["AUTO_DESCRIPTION", "auto_support", "image_key", "keep_supported", "per_camera_counts", "write_auto_labels"]
 
 AUTO_DESCRIPTION = "ball labels made with rt2 label --auto"
 
@@ -80,3 +80,36 @@ def write_auto_labels(out_dir, kind: str, rig, kept, framesets, info: dict) -> P
     return write_coco(out_dir, images, extra, image_extra=image_extra,
                       info={"description": f"{AUTO_DESCRIPTION} from {info.get('source', '')}".strip(), **info,
                             "no_ball_images": "an image without annotations shows no ball"})
+
+
+def auto_support(data) -> dict:
+    """Resolved image path -> the smallest ``support`` of its auto labels, for every COCO file among ``data``
+    (folders or JSON files; other label formats and hand-labelled images have none)."""
+    import json
+
+    from harness.experiments.detector.coco import ANNOTATIONS_FILE
+
+    out = {}
+    for d in data:
+        path = Path(d)
+        path = path / ANNOTATIONS_FILE if path.is_dir() else path
+        if path.suffix.lower() != ".json" or not path.is_file():
+            continue
+        try:
+            doc = json.loads(path.read_text())
+            files = {im["id"]: (path.parent / im["file_name"]).resolve() for im in doc["images"]}
+            for ann in doc["annotations"]:
+                if ann.get("source") == "auto" and isinstance(ann.get("support"), int) and ann.get("image_id") in files:
+                    f = files[ann["image_id"]]
+                    out[f] = min(out.get(f, ann["support"]), ann["support"])
+        except (ValueError, KeyError, TypeError, OSError):
+            continue  # not a COCO file of ours: its reader reports what is wrong with it
+    return out
+
+
+def keep_supported(labelled, data, min_support: int) -> list:
+    """``labelled`` without the images whose auto labels have a support below ``min_support`` (hand labels are kept)."""
+    if isinstance(min_support, bool) or not isinstance(min_support, int) or min_support < 2:
+        raise ValueError(f"--min-support must be an integer >= 2, got {min_support!r}")
+    support = auto_support(data)
+    return [li for li in labelled if support.get(Path(li.path).resolve(), min_support) >= min_support]

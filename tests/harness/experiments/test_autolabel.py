@@ -177,3 +177,19 @@ def test_eval_autolabel_same_seed_same_figures(tmp_path, capsys):
     a, b = (json.loads((tmp_path / f"{r}.json").read_text()) for r in ("a", "b"))
     assert a == b and a["figures"]["frame_sets"] == 12
     assert "rt2 eval autolabel --scene lab: 12 frame sets" in capsys.readouterr().out
+
+
+def test_rt2_train_min_support_keeps_only_the_surest_auto_labels(labelled, tmp_path, capsys):
+    from harness.experiments.autolabel.output import auto_support, keep_supported
+
+    support = auto_support([labelled])
+    images = read_coco(labelled)
+    assert len(support) == len(images) and min(support.values()) >= 3
+    top = max(support.values())
+    assert len(keep_supported(images, [labelled], top)) == sum(s == top for s in support.values())
+    assert keep_supported(images, [labelled], top + 1) == []
+    # the flag: every auto label below the support asked for leaves no image to train on
+    assert main(["train", "--data", str(labelled), "--out", str(tmp_path / "m.npz"), "--min-support", str(top + 1)]) == 2
+    assert not (tmp_path / "m.npz").exists()
+    assert main(["train", "--data", str(labelled), "--out", str(tmp_path / "m.npz"), "--min-support", "1"]) == 2
+    assert "--min-support must be an integer >= 2" in capsys.readouterr().err
