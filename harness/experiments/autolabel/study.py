@@ -253,7 +253,7 @@ def run(args) -> int:
         up = (a["recall"] > b["recall"] or b["recall"] == 1.0 == a["recall"]) and a["outlier_rate"] <= b["outlier_rate"]
         print(f"  trained on {t['train_images']} auto labels of the other cameras, scored on {t['held_out_balls']} true balls of "
               f"{t['held_out']}: recall {100 * b['recall']:.1f}% -> {100 * a['recall']:.1f}%, outliers {100 * b['outlier_rate']:.1f}% -> "
-              f"{100 * a['outlier_rate']:.1f}%{' (the guard kept the base)' if t['kept_base'] else ''}: goal (recall up, outliers not up) "
+              f"{100 * a['outlier_rate']:.1f}%{' (the guard kept the base)' if t['kept_base'] else ''}: goal (recall up or already 100%, outliers not up) "
               f"{'met' if up else 'NOT met'}")
         result["held_out_training"] = t
     if args.json:
