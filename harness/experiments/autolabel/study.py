@@ -111,6 +111,16 @@ def score_labels(kept, truths: list) -> dict:
     }
 
 
+def _scene_rig_names(scene: str) -> list:
+    if scene == "lab":
+        from tracker.rig_files import resolve_rig
+
+        return list(resolve_rig("lab4_vga").names)
+    from harness.sim.semireal import session_rig
+
+    return list(session_rig().names)
+
+
 def _scene(scene, frames, seed, rate_hz, flight_frames):
     return _lab(frames, seed, rate_hz) if scene == "lab" else _caliscope(frames, seed, rate_hz, flight_frames)
 
@@ -241,6 +251,10 @@ def run(args) -> int:
 
     check_output_file(args.json, "--json")
     options = AutoOptions(flight_window=args.flight_window)
+    if args.train_held_out is not None:  # checked before the consensus pass, not after it
+        names = _scene_rig_names(args.scene)
+        if args.train_held_out not in names:
+            raise ValueError(f"--train-held-out {args.train_held_out!r}: the {args.scene} rig's cameras are {names}")
     kept: list = []
     fig, counts = study(args.scene, args.frames, args.seed, rate_hz=args.rate_hz, flight_frames=args.flight_frames, model=args.model,
                         options=options, kept_out=kept)

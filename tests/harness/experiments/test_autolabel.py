@@ -193,3 +193,9 @@ def test_rt2_train_min_support_keeps_only_the_surest_auto_labels(labelled, tmp_p
     assert not (tmp_path / "m.npz").exists()
     assert main(["train", "--data", str(labelled), "--out", str(tmp_path / "m.npz"), "--min-support", "1"]) == 2
     assert "--min-support must be an integer >= 2" in capsys.readouterr().err
+
+
+def test_eval_autolabel_refuses_an_unknown_held_out_camera_before_the_work(tmp_path, capsys):
+    assert main(["eval", "autolabel", "--scene", "lab", "--frames", "5", "--train-held-out", "cam9"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["rt2 eval autolabel: error: --train-held-out 'cam9': the lab rig's cameras are ['cam0', 'cam1', 'cam2', 'cam3']"]
