@@ -29,6 +29,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("train-shipped",): ("harness.experiments.detector.shipped", "train the shipped models' learned stage (white or orange) from the shared real data, drawn and pasted balls"),
     ("eval", "detector"): ("harness.experiments.studies.eval_detector", "ball detector recall, outlier rate and centre error on labelled images"),
     ("eval", "selection"): ("harness.cli.eval_selection", "do the frames rt2 label suggests train a better detector than consecutive ones? (one recording, later frames held out)"),
+    ("eval", "autolabel"): ("harness.experiments.autolabel.study", "how good are rt2 label --auto's labels? kept frame sets, centre error and wrong labels against the truth (sim lab, caliscope)"),
     ("eval", "framesets"): ("harness.experiments.studies.eval_framesets", "trackers on random rendered frame sets: 3D recall and wrong positions (what the cameras together make of detector outliers)"),
     ("eval", "filters"): ("harness.experiments.studies.eval_filters", "ball filters raw vs ransac_kalman: prediction error on real/simulated flights, clean and with outliers"),
     ("bench", "detector"): ("harness.experiments.studies.bench_detector", "ms per VGA frame of the ball detector, full frame and ROI, vs torch"),

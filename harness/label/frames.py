@@ -4,7 +4,8 @@ Every frame gets a stable key (the same key on every start, so labels resume) an
 COCO data set will name, inside the output folder ``OUT``:
 
 * folder ``DIR``: the images directly in ``DIR`` (``IMAGE_SUFFIXES``, name order); key = file name;
-  a labelled image is copied to ``OUT/images/<file name>`` when its label is saved.
+  a labelled image is copied to ``OUT/images/<file name>`` when its label is saved. An image that cannot
+  be read (damaged, not an image, a truncated JPEG or PNG) is skipped and listed in ``FrameSet.skipped``.
 * video ``FILE`` (anything ``cv2.VideoCapture`` opens): every ``every``-th frame, at most ``max_frames``;
   key ``<stem>_f<index>``; decoded once at start to ``OUT/images/<key>.png`` (lossless).
 * session log ``LOG.mcap`` (``rt2 track --log``): the images on ``/camera/<name>/image`` of one camera
@@ -26,7 +27,7 @@ import numpy as np
 
 from harness.common.outputs import atomic_path
 
-__all__ = ["IMAGE_SUFFIXES", "Frame", "FrameSet", "open_frames"]
+__all__ = ["IMAGE_SUFFIXES", "Frame", "FrameSet", "check_complete", "open_frames"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 IMAGES_DIR = "images"
@@ -56,6 +57,7 @@ class FrameSet:
     kind: str  # "folder", "video" or "log"
     spec: str  # the source as the user named it
     frames: tuple
+    skipped: tuple = ()  # (file name, why) of the images that could not be read (folders), in name order
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -111,14 +113,45 @@ def _folder(src: Path, out_dir: Path) -> FrameSet:
     files = sorted(p for p in src.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
         raise ValueError(f"{str(src)!r}: no images ({', '.join(IMAGE_SUFFIXES)}) directly in this folder")
-    frames = []
+    frames, skipped = [], []
     for p in files:
-        size = _image_size(p)
+        try:
+            size = _image_size(p)
+        except ValueError as exc:  # one bad file does not stop the others: skipped and listed
+            skipped.append((p.name, str(exc)))
+            continue
         frames.append(Frame(p.name, out_dir / IMAGES_DIR / p.name, p, *size))
-    return FrameSet("folder", str(src), tuple(frames))
+    if not frames:
+        raise ValueError(f"{str(src)!r}: none of its {len(files)} images can be read; the first: {skipped[0][1]}")
+    return FrameSet("folder", str(src), tuple(frames), tuple(skipped))
+
+
+def check_complete(path: Path) -> None:
+    """ValueError naming ``path`` when a JPEG or PNG file ends before its end marker (a truncated copy or upload).
+
+    Files without the format's signature are left to OpenCV (which refuses what is not an image).
+
+    OpenCV decodes a truncated JPEG without an error, the missing part grey: labelled, such a frame
+    teaches the detector a grey background. JPEG ends with EOI (FF D9; trailing padding allowed), PNG with IEND.
+    """
+    suffix = path.suffix.lower()
+    if suffix not in (".jpg", ".jpeg", ".png"):
+        return
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+        fh.seek(0, 2)
+        size = fh.tell()
+        fh.seek(max(0, size - 4096))
+        tail = fh.read()
+    if head == b"\x89PNG\r\n\x1a\n":
+        if b"IEND" not in tail[-16:]:
+            raise ValueError(f"{path}: the PNG file is truncated (no IEND chunk at its end)")
+    elif head[:2] == b"\xff\xd8" and not tail.rstrip(b"\x00\r\n\t ").endswith(b"\xff\xd9"):
+        raise ValueError(f"{path}: the JPEG file is truncated (no end-of-image marker)")
 
 
 def _image_size(path: Path) -> tuple[int, int]:
+    check_complete(path)
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
         raise ValueError(f"{path}: cannot read the image (not an image format OpenCV reads, or damaged)")

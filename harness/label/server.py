@@ -8,14 +8,16 @@ Routes (JSON bodies and answers; an error is ``{"error": "<one line>"}`` with it
 ``GET /api/frame/<i>``       one frame: size, labels (null = not labelled, [] = no ball), proposals
 ``GET /api/image/<i>``       the frame as JPEG
 ``POST /api/label``          ``{"frame": i, "boxes": [[x, y, w, h], ...]}`` (COCO pixels; [] = no ball)
-``POST /api/undo``           take back the last change of this session
-``POST /api/train``          start ``rt2 train`` on the labels; ``GET /api/train`` its status
+``POST /api/undo``           take back the last change of this tab (``{"tab": name, "revision": n}``)
+``POST /api/train``          ``{"ball_colour": c}``: start ``rt2 train`` on the labels; ``GET /api/train`` its status
 ===========================  =====================================================================
 
 Refused: an unknown path or frame (404), a method a path does not take (405), a body that is not
 ``application/json`` (415), without a length (411), larger than ``MAX_BODY_BYTES`` (413), not JSON or
 with a wrong field (400), a ``Host`` other than this server's loopback address (403: a web page
-elsewhere cannot reach the server through DNS rebinding), training that cannot start (409).
+elsewhere cannot reach the server through DNS rebinding), training that cannot start (409), a change
+made on an older ``revision`` than the labels' (409 with ``"conflict": true``: another tab changed them;
+the page reloads).
 Only the three files in ``static/`` are served: no path is ever joined to a request's.
 """
 
@@ -28,7 +30,7 @@ from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
-from harness.label.session import LabelSession
+from harness.label.session import LabelSession, RevisionConflict, TrainRefused
 
 __all__ = ["MAX_BODY_BYTES", "LabelServer"]
 
@@ -104,6 +106,8 @@ class _Handler(BaseHTTPRequestHandler):
         except _HttpError as exc:
             self.close_connection = True  # a body may be left unread: never parse it as the next request
             self._json({"error": str(exc)}, exc.status)
+        except RevisionConflict as exc:
+            self._json({"error": str(exc), "conflict": True, "revision": self.session.store.revision}, HTTPStatus.CONFLICT)
         except LookupError as exc:
             self._json({"error": str(exc.args[0]) if exc.args else "not found"}, HTTPStatus.NOT_FOUND)
         except ValueError as exc:
@@ -152,7 +156,7 @@ class _Handler(BaseHTTPRequestHandler):
             raise _HttpError(HTTPStatus.NOT_FOUND, f"no page {path[:200]!r}")
 
     def _post(self, path: str) -> None:
-        routes = {"/api/label": self.session.label, "/api/undo": lambda body: self.session.undo(), "/api/train": self._train}
+        routes = {"/api/label": self.session.label, "/api/undo": self.session.undo, "/api/train": self._train}
         if path not in routes:
             if path in STATIC or path == "/api/state" or _FRAME_ROUTE.match(path):
                 raise _HttpError(HTTPStatus.METHOD_NOT_ALLOWED, f"{path} takes GET")
@@ -161,8 +165,8 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _train(self, body):
         try:
-            return self.session.train()
-        except ValueError as exc:
+            return self.session.train(body)
+        except TrainRefused as exc:
             raise _HttpError(HTTPStatus.CONFLICT, str(exc)) from None
 
 

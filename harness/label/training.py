@@ -3,12 +3,16 @@
 The child is ``python -m harness.cli train --data OUT --out OUT/<model> ...``: the same command a user
 types, so its checks, its atomic model write and its messages are the ones documented for ``rt2 train``.
 Its stdout and stderr go to ``OUT/train.log``; :meth:`TrainingJob.status` reports the state, the last
-lines (tqdm's carriage-return updates split into lines) and, when it ends, the exit code.
+lines (tqdm's carriage-return updates split into lines), the held-out figures ``rt2 train`` printed
+(its cross-validated or validation-split recall and outliers, and the base model's on the same images),
+and, when it ends, the exit code and, for a failure, the last line the child wrote on stderr (``rt2
+train``'s one-line reason: too few balls of the colour, a model too weak to write, ...).
 """
 
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -18,6 +22,8 @@ __all__ = ["TrainingJob"]
 
 LOG_FILE = "train.log"
 TAIL_CHARS = 4000
+#: a line of rt2 train's held-out figures (not an epoch's progress line)
+_FIGURES = re.compile(r"^(?!epoch ).*\bours recall [0-9.]+%")
 
 
 class TrainingJob:
@@ -34,39 +40,80 @@ class TrainingJob:
         self.extra_args = [str(a) for a in extra_args]
         self._proc: subprocess.Popen | None = None
         self._log = None
+        self._stderr_thread: threading.Thread | None = None
+        self._last_err = ""
         self._lock = threading.Lock()
         self.runs = 0
+        self.ball_colour: str | None = None
 
-    def start(self) -> None:
-        """Start training; ValueError if a run is still going."""
+    def start(self, ball_colour: str) -> None:
+        """Start training on balls of ``ball_colour`` (``rt2 train --ball-colour``); ValueError if a run is still going."""
         with self._lock:
             if self._proc is not None and self._proc.poll() is None:
                 raise ValueError("training is already running; wait for it to end")
-            if self._log is not None:
-                self._log.close()
-            cmd = [sys.executable, "-m", "harness.cli", "train", "--data", str(self.out_dir), "--out", str(self.model_path), *self.extra_args]
-            self._log = open(self.log_path, "w")
-            self._log.write("$ rt2 " + " ".join(cmd[3:]) + "\n")
-            self._log.flush()
-            self._proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            self._close_log()
+            cmd = [sys.executable, "-m", "harness.cli", "train", "--data", str(self.out_dir), "--out", str(self.model_path),
+                   "--ball-colour", ball_colour, *self.extra_args]
+            with open(self.log_path, "w") as fh:
+                fh.write("$ rt2 " + " ".join(cmd[3:]) + "\n")
+            self._log = open(self.log_path, "a")  # O_APPEND: the child's stdout and the stderr copy below never overwrite each other
+            self._last_err = ""
+            self._proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
                                           env={**os.environ, "PYTHONUNBUFFERED": "1"})
+            self._stderr_thread = threading.Thread(target=self._copy_stderr, args=(self._proc, self._log), daemon=True,
+                                                   name="rt2 train stderr")
+            self._stderr_thread.start()
+            self.ball_colour = ball_colour
             self.runs += 1
 
+    def _copy_stderr(self, proc: subprocess.Popen, log) -> None:
+        """The child's stderr into the log, remembering its last line (the reason of a failure)."""
+        pending = ""
+        for chunk in iter(lambda: proc.stderr.read1(4096), b""):
+            text = chunk.decode(errors="replace")
+            try:
+                log.write(text)
+                log.flush()
+            except (OSError, ValueError):  # the log was closed (server stopping)
+                pass
+            pending = (pending + text)[-TAIL_CHARS:]
+            lines = [ln.strip() for ln in pending.replace("\r", "\n").split("\n") if ln.strip()]
+            if lines:
+                self._last_err = lines[-1]
+        proc.stderr.close()
+
     def status(self) -> dict:
-        """``{"state": "idle"|"running"|"done"|"failed", "returncode", "log_tail", "model"}``."""
+        """``{"state": "idle"|"running"|"done"|"failed", "returncode", "log_tail", "model", "figures", "error", "ball_colour"}``.
+
+        figures : rt2 train's held-out figure lines so far (list of str); error : a failed run's last stderr line
+        """
         with self._lock:
-            proc = self._proc
+            proc, thread = self._proc, self._stderr_thread
         if proc is None:
-            return {"state": "idle", "returncode": None, "log_tail": "", "model": None}
+            return {"state": "idle", "returncode": None, "log_tail": "", "model": None, "figures": [], "error": None,
+                    "ball_colour": None}
         rc = proc.poll()
+        if rc is not None and thread is not None:
+            thread.join(timeout=5)  # the last stderr line is in before the run is reported as ended
         state = "running" if rc is None else ("done" if rc == 0 else "failed")
         try:
-            text = self.log_path.read_text(errors="replace")[-TAIL_CHARS:]
+            text = self.log_path.read_text(errors="replace")
         except OSError:
             text = ""
         lines = [ln.rstrip() for ln in text.replace("\r", "\n").split("\n") if ln.strip()]
+        figures = [ln.strip() for ln in lines if _FIGURES.match(ln.strip())][-2:]
         model = str(self.model_path) if state == "done" and self.model_path.is_file() else None
-        return {"state": state, "returncode": rc, "log_tail": "\n".join(lines[-12:]), "model": model}
+        error = (self._last_err or f"rt2 train ended with exit code {rc}") if state == "failed" else None
+        return {"state": state, "returncode": rc, "log_tail": "\n".join(lines[-12:]), "model": model, "figures": figures,
+                "error": error, "ball_colour": self.ball_colour}
+
+    def _close_log(self) -> None:
+        if self._stderr_thread is not None:
+            self._stderr_thread.join(timeout=5)
+            self._stderr_thread = None
+        if self._log is not None:
+            self._log.close()
+            self._log = None
 
     def stop(self) -> None:
         """End a running child (the server is shutting down)."""
@@ -79,6 +126,4 @@ class TrainingJob:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-        if self._log is not None:
-            self._log.close()
-            self._log = None
+        self._close_log()

@@ -10,7 +10,7 @@ and the detector's boxes in red (its first candidate) and orange (its other top-
 
 "Hits" is ``rt2 eval detector``'s rule (scores.py): within one ball diameter of the labelled centre.
 Tiles are in image order, misses first; at most ``max_tiles`` are drawn and the header says how many of each
-there were.
+there were. A miss in an image where the detector had no candidate at all says "no detection" on its tile.
 """
 
 from __future__ import annotations
@@ -131,4 +131,7 @@ def _tile(image: np.ndarray, li, boxes: np.ndarray, f: Failure, tile_px: int) ->
         rect(b, _GREEN, 2)
     for k, b in enumerate(boxes):
         rect(b, _RED if k == 0 else _ORANGE, 2 if k == 0 else 1)
+    if not len(boxes):  # nothing to draw would look like a drawing that failed: say it
+        cv2.putText(tile, "no detection", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(tile, "no detection", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 0), 1, cv2.LINE_AA)
     return tile

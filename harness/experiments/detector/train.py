@@ -801,6 +801,8 @@ def add_arguments(parser) -> None:
                              f"held-out images (cross-validation or the validation split) by more than {PRIOR_MARGIN_BALLS} balls' worth; "
                              "'never' always writes the fine-tuned one")
     parser.add_argument("--cv-folds", type=int, default=TrainOptions.cv_folds, help="folds of --thresholds cv (default 4)")
+    parser.add_argument("--min-support", type=int, default=None,
+                        help="leave out images whose rt2 label --auto labels have fewer agreeing cameras than this (hand labels are kept)")
     parser.add_argument("--time-range", default=None,
                         help="use only images START:STOP in time order (file names sorted as frame numbers), e.g. 0:58; "
                              "keeps later frames out of training")
@@ -848,6 +850,10 @@ def run(args) -> int:
     base, origin = resolve_base(args.from_model, args.ball_colour)
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     labelled = take_range(labelled, args.time_range)
+    if args.min_support is not None:  # rt2 label --auto's labels: only the surest
+        from harness.experiments.autolabel.output import keep_supported
+
+        labelled = keep_supported(labelled, args.data, args.min_support)
     if args.max_images is not None:
         labelled = labelled[: args.max_images]
     augment = args.augment if args.augment is not None else (3 if base is not None else 0)

@@ -120,7 +120,9 @@ def format_table(scores) -> str:
 def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80)) -> Path:
     """Write the paper's probability-image figure: per row an image crop around a ball, the
     probability image ``B`` (black 0, white 1) and the crop with our detection's box (green; the
-    paper method's in red where it differs). Uses the first ``n`` images with a ball >= 8 px.
+    paper method's in red where it differs) and the label's (blue). Uses the first ``n`` images with a
+    ball >= 8 px. Each column has a title, the figure a legend, and a crop where a method found
+    nothing says "no detection" (ours, or the paper's) instead of showing no box at all.
     """
     import cv2
 
@@ -130,7 +132,7 @@ def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80)) -
     ours = BallDetector(model, DetectorOptions(max_candidates=1))
     paper = BallDetector(model, DetectorOptions(method="paper"))
     hh, hw = half_hw
-    rows = []
+    rows, empty = [], []
     for li in labelled:
         if len(rows) == n:
             break
@@ -144,14 +146,20 @@ def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80)) -
         prob = cv2.copyMakeBorder((255 * model.probability(image)).astype(np.uint8), hh, hh, hw, hw, cv2.BORDER_CONSTANT)
         prob = cv2.cvtColor(prob[v : v + 2 * hh, u : u + 2 * hw], cv2.COLOR_GRAY2RGB)
         boxed = crop.copy()
-        for det, colour in ((paper.detect(image), (255, 0, 0)), (ours.detect(image), (0, 255, 0))):
-            for x, y, w, h in det.boxes_xywh[:1].astype(int):
-                x0, y0 = x - u + hw, y - v + hh
-                cv2.rectangle(boxed, (x0 - 1, y0 - 1), (x0 + w, y0 + h), colour, 1)
+        x, y, w, h = np.rint(li.boxes_xywh[big[0]]).astype(int)
+        cv2.rectangle(boxed, (x - u + hw - 1, y - v + hh - 1), (x - u + hw + w, y - v + hh + h), (60, 140, 255), 1)
+        missing = []
+        for name, det, colour in (("paper", paper.detect(image), (255, 0, 0)), ("ours", ours.detect(image), (0, 255, 0))):
+            if not len(det.boxes_xywh):
+                missing.append(name)
+            for bx, by, bw, bh in det.boxes_xywh[:1].astype(int):
+                x0, y0 = bx - u + hw, by - v + hh
+                cv2.rectangle(boxed, (x0 - 1, y0 - 1), (x0 + bw, y0 + bh), colour, 1)
         rows.append(np.hstack([crop, prob, boxed]))
+        empty.append(missing)
     if not rows:
         raise ValueError("no labelled ball of at least 8 px to draw")
-    fig = cv2.resize(np.vstack(rows), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+    fig = _titled(cv2.resize(np.vstack(rows), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST), empty, 4 * hw, 4 * hh)
     from harness.common.outputs import atomic_path
 
     path = Path(path)
@@ -159,6 +167,33 @@ def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80)) -
         if not cv2.imwrite(str(tmp), cv2.cvtColor(fig, cv2.COLOR_RGB2BGR)):
             raise ValueError(f"cannot write the figure to {str(path)!r} (use .png; or the disk is full)")
     return path
+
+
+#: the probability figure's column titles and legend
+FIGURE_TITLES = ("image (crop around a labelled ball)", "probability B (black 0, white 1)", "detection")
+FIGURE_LEGEND = "blue: label   green: ours (first candidate)   red: the paper's method   'no detection': the method found nothing"
+
+
+def _titled(fig: np.ndarray, empty: list, col_w: int, row_h: int) -> np.ndarray:
+    """``fig`` (rows of 3 columns ``col_w`` x ``row_h`` px) with column titles above, a legend below and "no detection"
+    written into the detection column of each row where a method found nothing (``empty``: per row the methods' names)."""
+    import cv2
+
+    font, black = cv2.FONT_HERSHEY_SIMPLEX, (0, 0, 0)
+    title_h, legend_h = 28, 26
+    width = max(fig.shape[1], 820)
+    out = np.full((title_h + fig.shape[0] + legend_h, width, 3), 255, np.uint8)
+    out[title_h : title_h + fig.shape[0], : fig.shape[1]] = fig
+    for k, title in enumerate(FIGURE_TITLES):
+        cv2.putText(out, title, (k * col_w + 6, 19), font, 0.45, black, 1, cv2.LINE_AA)
+    for r, missing in enumerate(empty):
+        for j, name in enumerate(missing):
+            at = (2 * col_w + 8, title_h + r * row_h + 22 + 22 * j)
+            text = f"no detection ({name})"
+            cv2.putText(out, text, at, font, 0.6, (0, 0, 0), 3, cv2.LINE_AA)  # a dark outline: readable on any crop
+            cv2.putText(out, text, at, font, 0.6, (255, 255, 0), 1, cv2.LINE_AA)
+    cv2.putText(out, FIGURE_LEGEND, (6, title_h + fig.shape[0] + 18), font, 0.42, black, 1, cv2.LINE_AA)
+    return out
 
 
 def failure_sheet(model, labelled, path, *, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None):

@@ -1,6 +1,7 @@
 // rt2 label: the page. Keyboard first; the mouse clicks a centre or drags a box. Every change is a POST
 // that the server answers only once the label is on disk. Boxes are COCO pixels [x, y, w, h]: the
-// image covers [0, width] x [0, height].
+// image covers [0, width] x [0, height]. Each tab has its own name (undo takes back only its own changes)
+// and sends the revision of the labels it shows: a change made on an older one is refused and the tab reloads.
 "use strict";
 
 const rt2label = (() => {
@@ -10,6 +11,8 @@ const rt2label = (() => {
   const S = {
     state: null, cur: null, frame: null, img: null, edit: null, proposal: 0,
     lastSize: null, busy: false, placed: false, view: { scale: 1, ox: 0, oy: 0 }, drag: null, trainPoll: null,
+    tab: "tab-" + Math.random().toString(36).slice(2, 12) + Date.now().toString(36), revision: null,
+    fromProposal: null, confirm: null,
   };
 
   function message(text, kind) {
@@ -29,7 +32,12 @@ const rt2label = (() => {
       throw new Error("the server does not answer (is rt2 label still running?)");
     }
     const data = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
-    if (!r.ok) throw new Error(data.error || `HTTP ${r.status}`);
+    if (!r.ok) {
+      const err = new Error(data.error || `HTTP ${r.status}`);
+      err.conflict = Boolean(data.conflict);
+      throw err;
+    }
+    if (typeof data.revision === "number") S.revision = data.revision;
     return data;
   }
 
@@ -75,7 +83,8 @@ const rt2label = (() => {
     if (!S.frame || !S.img) return;
     const v = S.view;
     ctx.drawImage(S.img, v.ox, v.oy, S.frame.width * v.scale, S.frame.height * v.scale);
-    S.frame.proposals.forEach((p, k) => strokeBox(p.box, "#f2cc60", [5, 4], `${k + 1}: ${p.score.toFixed(2)}`));
+    S.frame.proposals.forEach((p, k) => strokeBox(p.box, p.auto ? "#d2a8ff" : "#f2cc60", [5, 4],
+      p.auto ? `${k + 1}: cameras ${p.score.toFixed(2)} (${p.support} agree)` : `${k + 1}: ${p.score.toFixed(2)}`));
     const labels = S.frame.labels;
     if (labels) labels.forEach((b) => strokeBox(b, "#7ee787", [], "label", true));
     if (labels && labels.length === 0) {
@@ -130,6 +139,9 @@ const rt2label = (() => {
       $("frame-info").textContent = `frame ${f.i + 1}/${st.n_frames} · ${f.key} · ${lab}`;
     }
     $("paths").textContent = `source: ${st.source} · labels: ${st.annotations} · proposals by ${st.model}`;
+    const sk = st.skipped || [];
+    $("skipped").textContent = sk.length ? `${sk.length} unreadable image(s) skipped: ` + sk.map((x) => `${x.file} (${x.why})`).join("; ") : "";
+    if (!$("colour").value && st.ball_colour) $("colour").value = st.ball_colour;
     renderTraining(st.training, st.can_train);
   }
 
@@ -138,10 +150,12 @@ const rt2label = (() => {
     if (canTrain !== undefined) S.state.can_train = canTrain;
     $("train-btn").disabled = !S.state.can_train || t.state === "running";
     const need = `label ${S.state.min_train_labels} frames (2 with a ball) to train`;
-    let text = { idle: S.state.can_train ? "ready to train" : need, running: "training…",
-      done: `done: wrote ${t.model}`, failed: `failed (exit code ${t.returncode})` }[t.state];
+    const colour = t.ball_colour ? ` (${t.ball_colour} balls)` : "";
+    let text = { idle: S.state.can_train ? "ready to train" : need, running: `training${colour}…`,
+      done: `done${colour}: wrote ${t.model}`, failed: `failed${colour}, no model written (exit code ${t.returncode}): ${t.error}` }[t.state];
     $("train-state").textContent = text;
     $("train-state").className = t.state;
+    $("train-figures").textContent = (t.figures || []).length ? "held-out figures: " + t.figures.join(" | ") : "";
     $("train-log").textContent = t.log_tail || "";
     if (t.state === "running" && !S.trainPoll) {
       S.trainPoll = setInterval(async () => {
@@ -159,19 +173,22 @@ const rt2label = (() => {
     S.state = await api("/api/state");
   }
 
+  // the cyan box: the label, else the best proposal, else none (no box at a made-up place)
   function defaultEdit(f) {
     if (f.labels && f.labels.length) return f.labels[0].slice();
     if (f.proposals.length) return f.proposals[0].box.slice();
-    const s = S.lastSize || [24, 24];
-    return [f.width / 2 - s[0] / 2, f.height / 2 - s[1] / 2, s[0], s[1]];
+    return null;
   }
 
-  async function show(i) {
+  // keep: the message stays (it is about the change that led here); a move by the user clears it
+  async function show(i, keep) {
     const f = await api(`/api/frame/${i}`);
     const img = new Image();
     await new Promise((ok, fail) => { img.onload = ok; img.onerror = () => fail(new Error(`frame ${i}: the image did not load`)); img.src = `/api/image/${i}`; });
-    S.cur = i; S.frame = f; S.img = img; S.proposal = 0; S.edit = defaultEdit(f);
+    S.cur = i; S.frame = f; S.img = img; S.proposal = 0; S.edit = defaultEdit(f); S.confirm = null;
+    S.fromProposal = !(f.labels && f.labels.length) && f.proposals.length ? 0 : null;
     S.placed = Boolean(f.proposals.length || (f.labels && f.labels.length));  // a box someone (model or user) put there
+    if (!keep) message("");
     renderPanels();
     draw();
     canvas.dataset.frame = String(i);
@@ -198,14 +215,14 @@ const rt2label = (() => {
     S.busy = true;
     try {
       const i = S.cur;
-      const r = await api("/api/label", { frame: i, boxes });
+      const r = await api("/api/label", { frame: i, boxes, tab: S.tab, revision: S.revision });
       if (boxes.length) S.lastSize = [boxes[0][2], boxes[0][3]];
       message(boxes.length ? `saved frame ${i + 1}: ball at (${(boxes[0][0] + boxes[0][2] / 2).toFixed(1)}, ${(boxes[0][1] + boxes[0][3] / 2).toFixed(1)})` : `saved frame ${i + 1}: no ball`, "ok");
       await refreshState();
       const next = r.suggestions.find((j) => j !== i);
-      await show(next === undefined ? i : next);
+      await show(next === undefined ? i : next, true);
     } catch (e) {
-      message(e.message, "error");
+      await failed(e);
     } finally {
       S.busy = false;
     }
@@ -215,34 +232,54 @@ const rt2label = (() => {
     if (S.busy) return;
     S.busy = true;
     try {
-      const r = await api("/api/undo", {});
+      const r = await api("/api/undo", { tab: S.tab, revision: S.revision });
       await refreshState();
-      if (r.frame === null) message("nothing to undo", "");
-      else { message(`undid the change to frame ${r.frame + 1}`, "ok"); await show(r.frame); }
-    } catch (e) { message(e.message, "error"); } finally { S.busy = false; }
+      if (r.frame === null) message("nothing of this tab's to undo", "");
+      else { message(`undid the change to frame ${r.frame + 1}`, "ok"); await show(r.frame, true); }
+    } catch (e) { await failed(e); } finally { S.busy = false; }
+  }
+
+  // a refused change: say why; a revision conflict (another tab changed the labels) reloads what is on disk
+  async function failed(e) {
+    if (!e.conflict) { message(e.message, "error"); return; }
+    try {
+      await refreshState();
+      await show(S.cur, true);
+    } catch (x) { /* the message below still says what happened */ }
+    message(e.message, "error");
   }
 
   async function train() {
+    const colour = $("colour").value;
+    if (!colour) { message("choose the ball colour to train on (orange, white or any) next to the Train button", "error"); $("colour").focus(); return; }
     try {
-      const t = await api("/api/train", {});
-      message("training started", "ok");
+      const t = await api("/api/train", { ball_colour: colour });
+      message(`training started on ${colour} balls`, "ok");
       renderTraining(t);
     } catch (e) { message(e.message, "error"); }
   }
 
   function acceptEdit() {
-    if (!S.placed) {
-      message("no proposal in this frame: click the ball, move the box with i j k l, or press n for no ball", "error");
+    if (!S.placed || !S.edit) {
+      message("no proposal in this frame: click the ball, or press n for no ball", "error");
       return;
     }
     const b = clip(S.edit);
     if (b[2] < 1 || b[3] < 1) { message("the box is outside the image; move it in (i j k l) or press n for no ball", "error"); return; }
+    const p = S.fromProposal === null ? null : S.frame.proposals[S.fromProposal];
+    if (p && p.score < S.state.confirm_below && S.confirm !== S.cur) {  // an unsure proposal as it is: a second key
+      S.confirm = S.cur;
+      message(`proposal ${S.fromProposal + 1} is scored ${p.score.toFixed(2)}, below ${S.state.confirm_below}: look again; ` +
+        "press Enter again to accept it, correct the box, or press n for no ball", "warn");
+      return;
+    }
     save([b]);
   }
 
   // -- input ---------------------------------------------------------------------------------
   function onKey(ev) {
     if (!S.frame || ev.ctrlKey && ev.key !== "z" || ev.metaKey || ev.altKey) return;
+    if (ev.target && ev.target.tagName === "SELECT") return;
     const step = ev.shiftKey ? 10 : 1;
     const e = S.edit;
     let handled = true;
@@ -256,18 +293,23 @@ const rt2label = (() => {
       case "ArrowLeft": case ",": if (S.cur > 0) show(S.cur - 1); break;
       case "Home": show(0); break;
       case "End": show(S.state.n_frames - 1); break;
-      case "Tab": if (S.frame.proposals.length) { S.proposal = (S.proposal + 1) % S.frame.proposals.length; S.edit = S.frame.proposals[S.proposal].box.slice(); } break;
-      case "i": case "I": e[1] -= step; break;
-      case "k": case "K": e[1] += step; break;
-      case "j": case "J": e[0] -= step; break;
-      case "l": case "L": e[0] += step; break;
-      // + and - grow / shrink by 1 px on each side (Shift is how many keyboards type "+": it does not change the step)
-      case "+": case "=": e[0] -= 1; e[1] -= 1; e[2] += 2; e[3] += 2; break;
-      case "-": case "_": if (e[2] > 3 && e[3] > 3) { e[0] += 1; e[1] += 1; e[2] -= 2; e[3] -= 2; } break;
+      case "Tab": if (S.frame.proposals.length) {
+        S.proposal = (S.proposal + 1) % S.frame.proposals.length; S.edit = S.frame.proposals[S.proposal].box.slice();
+        S.fromProposal = S.proposal; S.confirm = null; S.placed = true;
+      } break;
       case "t": train(); break;
-      default: handled = false;
+      default:
+        if (e && "ijklIJKL+=-_".includes(ev.key)) {  // moving or resizing needs a box (none without a proposal: click the ball)
+          if ("iI".includes(ev.key)) e[1] -= step;
+          else if ("kK".includes(ev.key)) e[1] += step;
+          else if ("jJ".includes(ev.key)) e[0] -= step;
+          else if ("lL".includes(ev.key)) e[0] += step;
+          // + and - grow / shrink by 1 px on each side (Shift is how many keyboards type "+": it does not change the step)
+          else if ("+=".includes(ev.key)) { e[0] -= 1; e[1] -= 1; e[2] += 2; e[3] += 2; }
+          else if (e[2] > 3 && e[3] > 3) { e[0] += 1; e[1] += 1; e[2] -= 2; e[3] -= 2; }
+          S.placed = true; S.fromProposal = null;
+        } else handled = false;
     }
-    if (handled && "ijklIJKL+=-_".includes(ev.key)) S.placed = true;
     if (handled) { ev.preventDefault(); draw(); }
   }
 
@@ -290,7 +332,7 @@ const rt2label = (() => {
     let box;
     if (Math.hypot(ev.clientX - d.screen[0], ev.clientY - d.screen[1]) < 4) {  // a click: the ball's centre
       // the size of the last label (else of the cyan box), shrunk about the centre at the image's border
-      const size = S.lastSize || [S.edit[2], S.edit[3]];
+      const size = S.lastSize || (S.edit ? [S.edit[2], S.edit[3]] : [24, 24]);
       const hw = Math.min(size[0] / 2, p[0], S.frame.width - p[0]), hh = Math.min(size[1] / 2, p[1], S.frame.height - p[1]);
       box = [p[0] - hw, p[1] - hh, 2 * hw, 2 * hh];
     } else {
@@ -298,6 +340,7 @@ const rt2label = (() => {
     }
     S.edit = box;
     S.placed = true;
+    S.fromProposal = null;
     draw();
     acceptEdit();
   }
@@ -317,6 +360,7 @@ const rt2label = (() => {
   window.addEventListener("mouseup", onUp);
   window.addEventListener("resize", draw);
   $("train-btn").addEventListener("click", train);
+  $("colour").addEventListener("change", () => { canvas.focus(); });
   start();
   return S;
 })();

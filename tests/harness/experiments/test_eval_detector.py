@@ -175,3 +175,27 @@ def test_ball_diameter_widens_the_area_and_large_balls_are_named(synthetic_ball_
     for bad in ("20", "a:b", "0:10", "30:20"):
         assert main(["eval", "detector", "--data", data, "--model", str(path), "--ball-diameter-px", bad]) == 2
         assert "--ball-diameter-px must be LO:HI" in capsys.readouterr().err
+
+
+def test_probability_figure_has_titles_a_legend_and_says_no_detection(synthetic_ball_coco, tmp_path):
+    import dataclasses
+
+    import cv2
+
+    from harness.experiments.studies.eval_detector import probability_figure
+
+    labelled = read_coco(synthetic_ball_coco(30, 1))
+    model = hand_made_model()
+    blind = dataclasses.replace(model, bias=-50.0)  # every probability ~0: neither method finds anything
+
+    def yellow_text(path):  # "no detection" is written in yellow with a dark outline, in the detection column only
+        rgb = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+        mask = (rgb[..., 0] > 230) & (rgb[..., 1] > 230) & (rgb[..., 2] < 40)
+        return rgb, mask
+
+    rgb, mask = yellow_text(probability_figure(blind, labelled, tmp_path / "blind.png"))
+    assert mask[:, 2 * 320 :].sum() > 50 and not mask[:, : 2 * 320].any()
+    title_band, legend_band = rgb[:28], rgb[-26:]
+    assert (title_band < 100).all(axis=2).sum() > 100 and (legend_band < 100).all(axis=2).sum() > 100  # dark text on white
+    _, seen = yellow_text(probability_figure(model, labelled, tmp_path / "sees.png"))
+    assert not seen.any()  # where the model finds the ball, no "no detection"

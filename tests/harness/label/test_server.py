@@ -76,6 +76,7 @@ def test_restart_resumes_from_the_file_and_keeps_labels_of_other_sources(serve, 
     key = session.frames.frames[1].key
     request(server, "POST", "/api/label", {"frame": 1, "boxes": [ball_truth[key][0].tolist()]})
     server.close()
+    session.close()  # lets go of the folder: one writer at a time
     # a second source into the same folder: the first source's label is kept, the new one appended
     other = tmp_path / "other"
     other.mkdir()
@@ -85,23 +86,150 @@ def test_restart_resumes_from_the_file_and_keeps_labels_of_other_sources(serve, 
     request(server2, "POST", "/api/label", {"frame": 0, "boxes": []})
     assert [li.path.name for li in read_coco(out)] == [key, "x.png"]
     server2.close()
+    session2.close()
     _, session3 = serve(ball_folder, out)
     assert session3.store.counts()["labelled"] == 1 and session3.store.counts()["kept_from_file"] == 1
     np.testing.assert_allclose(session3.store.boxes(1), ball_truth[key])
 
 
-def test_a_coco_file_of_another_tool_is_not_taken_over(ball_folder, tmp_path):
+def test_a_coco_file_of_another_tool_is_continued_its_fields_kept_and_the_original_copied(ball_folder, tmp_path):
+    import json
+
     out = tmp_path / "theirs"
     out.mkdir()
-    (out / "annotations.json").write_text((ball_folder / "annotations.json").read_text().replace(str(ball_folder), str(out)))
+    doc = json.loads((ball_folder / "annotations.json").read_text())
+    doc["info"] = {"description": "exported by another tool", "contributor": "lab"}
+    doc["images"][0]["camera"] = "cam3"
+    for ann in doc["annotations"]:
+        ann["reviewer"] = "ana"
+    (out / "annotations.json").write_text(json.dumps(doc))
     for p in ball_folder.glob("*.png"):
         (out / p.name).write_bytes(p.read_bytes())
     before = (out / "annotations.json").read_bytes()
-    with pytest.raises(ValueError, match=r"annotations.json was not written by rt2 label; .* label into a new --out folder"):
-        LabelSession(open_frames(ball_folder, out), out, BallSegmentationModel.load(DEFAULT_MODEL), DEFAULT_MODEL)
-    assert (out / "annotations.json").read_bytes() == before
+    session = LabelSession(open_frames(out, out), out, BallSegmentationModel.load(DEFAULT_MODEL), DEFAULT_MODEL)
+    try:
+        n = len(doc["images"])
+        assert session.store.counts()["labelled"] == n and session.store.counts()["kept_from_file"] == 0
+        assert (out / "annotations.before-rt2-label.json").read_bytes() == before
+        last = len(session.frames) - 1
+        relabelled = session.frames.frames[last].key
+        session.label({"frame": last, "boxes": []})  # a person's change: that image's boxes lose the file's per-box fields
+    finally:
+        session.close()
+    after = json.loads((out / "annotations.json").read_text())
+    first = next(im for im in after["images"] if im["file_name"] == doc["images"][0]["file_name"])
+    assert after["info"]["contributor"] == "lab" and first["camera"] == "cam3"
+    kept = [a for a in after["annotations"] if a.get("reviewer") == "ana"]
+    theirs = [a for a in doc["annotations"] if not doc["images"][a["image_id"] - 1]["file_name"].endswith(relabelled)]
+    assert len(kept) == len(theirs) > 0
+    assert sorted(li.path.name for li in read_coco(out)) == sorted(li.path.name for li in read_coco(ball_folder))
 
 
+def test_a_set_round_tripped_by_rt2_labels_convert_is_continued(serve, ball_folder, ball_truth, tmp_path):
+    out = tmp_path / "labels"
+    server, session = serve(ball_folder, out)
+    for i in (0, 1):
+        key = session.frames.frames[i].key
+        request(server, "POST", "/api/label", {"frame": i, "boxes": [b.tolist() for b in ball_truth[key]]})
+    server.close()
+    session.close()
+    assert rt2_main(["labels", "convert", str(out), "--to", "yolo", "--out", str(tmp_path / "yolo")]) == 0
+    assert rt2_main(["labels", "convert", str(tmp_path / "yolo"), "--to", "coco", "--out", str(tmp_path / "back")]) == 0
+    server2, session2 = serve(ball_folder, tmp_path / "back")
+    assert session2.store.counts()["labelled"] == 2 and session2.store.counts()["kept_from_file"] == 0
+    for i in (0, 1):
+        np.testing.assert_allclose(session2.store.boxes(i), ball_truth[session2.frames.frames[i].key], atol=0.01)
+    assert request(server2, "POST", "/api/label", {"frame": 5, "boxes": []})[0] == 200
+    assert len(read_coco(tmp_path / "back")) == 3
+
+
+# -- one writer, tabs, undo per tab -------------------------------------------------------------------
+def test_a_second_writer_on_one_folder_is_refused_in_one_line(ball_folder, tmp_path, capsys):
+    from harness.common.spawn import ReadyProcess
+
+    out = tmp_path / "labels"
+    first = ReadyProcess(["label", str(ball_folder), "--out", str(out), "--port", "0"], what="rt2 label", timeout_s=180)
+    try:
+        assert rt2_main(["label", str(ball_folder), "--out", str(out), "--port", "0"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"another rt2 label (pid {first.ready['pid']}) is writing this folder" in err[0], err
+    finally:
+        first.kill()  # SIGKILL: the kernel's lock goes with the process
+        first.stop()
+    again = LabelSession(open_frames(ball_folder, out), out, BallSegmentationModel.load(DEFAULT_MODEL), DEFAULT_MODEL)  # free again
+    again.close()
+
+
+def test_a_change_on_an_old_revision_is_refused_and_undo_is_per_tab(serve, ball_folder, ball_truth):
+    server, session = serve(ball_folder)
+    keys = [f.key for f in session.frames.frames]
+    _, state = request(server, "GET", "/api/state")
+    rev = state["revision"]
+    box = ball_truth[keys[0]][0].tolist()
+    status, a = request(server, "POST", "/api/label", {"frame": 0, "boxes": [box], "tab": "A", "revision": rev})
+    assert status == 200 and a["revision"] == rev + 1
+    # tab B still shows the old revision: its change of frame 0 is refused, the file keeps A's box
+    status, b = request(server, "POST", "/api/label", {"frame": 0, "boxes": [], "tab": "B", "revision": rev})
+    assert status == 409 and b["conflict"] and b["revision"] == rev + 1 and "changed in another tab" in b["error"]
+    np.testing.assert_allclose(read_coco(session.store.json_path)[0].boxes_xywh, [box])
+    # B reloaded: labels frame 4; undo in A takes back A's change only, B's label stays
+    status, b = request(server, "POST", "/api/label", {"frame": 4, "boxes": [], "tab": "B", "revision": rev + 1})
+    assert status == 200
+    status, u = request(server, "POST", "/api/undo", {"tab": "A", "revision": b["revision"]})
+    assert status == 200 and u["frame"] == 0
+    assert [li.path.name for li in read_coco(session.store.json_path)] == [keys[4]]
+    status, u = request(server, "POST", "/api/undo", {"tab": "A", "revision": u["revision"]})
+    assert status == 200 and u["frame"] is None  # nothing more of A's: B's label is not A's to undo
+    # B's undo of frame 4 after A changed frame 4: refused, A's label stays
+    status, a = request(server, "POST", "/api/label", {"frame": 4, "boxes": [box], "tab": "A", "revision": u["revision"]})
+    status, u = request(server, "POST", "/api/undo", {"tab": "B", "revision": a["revision"]})
+    assert status == 409 and "was changed since, in another tab" in u["error"]
+    np.testing.assert_allclose(read_coco(session.store.json_path)[0].boxes_xywh, [box])
+
+
+# -- unreadable images ---------------------------------------------------------------------------------
+def test_unreadable_images_are_skipped_and_listed(serve, ball_folder, tmp_path):
+    import cv2
+
+    src = tmp_path / "mixed"
+    src.mkdir()
+    names = sorted(p.name for p in ball_folder.glob("*.png"))
+    for name in names[:4]:
+        (src / name).write_bytes((ball_folder / name).read_bytes())
+    ok, jpg = cv2.imencode(".jpg", cv2.imread(str(ball_folder / names[0])))
+    (src / "whole.jpg").write_bytes(jpg.tobytes())
+    (src / "truncated.jpg").write_bytes(jpg.tobytes()[: len(jpg) * 15 // 100])  # OpenCV decodes it, the rest grey
+    assert cv2.imread(str(src / "truncated.jpg")) is not None
+    (src / "truncated.png").write_bytes((ball_folder / names[1]).read_bytes()[:-40])
+    (src / "notanimage.png").write_bytes(b"\x89PNG not really")
+    server, session = serve(src)
+    assert sorted(f.key for f in session.frames.frames) == sorted(names[:4] + ["whole.jpg"])
+    _, state = request(server, "GET", "/api/state")
+    skipped = {s["file"]: s["why"] for s in state["skipped"]}
+    assert set(skipped) == {"truncated.jpg", "truncated.png", "notanimage.png"}
+    assert "JPEG file is truncated" in skipped["truncated.jpg"] and "PNG file is truncated" in skipped["truncated.png"]
+
+
+def test_the_page_trains_on_the_chosen_colour_and_reports_a_failure_line(serve, ball_folder, ball_truth):
+    import time
+
+    server, session = serve(ball_folder)
+    for i, f in enumerate(session.frames.frames):
+        request(server, "POST", "/api/label", {"frame": i, "boxes": [b.tolist() for b in ball_truth[f.key]]})
+    status, body = request(server, "POST", "/api/train", {})
+    assert status == 400 and "choose the ball colour" in body["error"]
+    status, body = request(server, "POST", "/api/train", {"ball_colour": "purple"})
+    assert status == 400 and "choose the ball colour" in body["error"]
+    (session.out_dir / "model.npz").mkdir()  # rt2 train refuses to write its model there: a real failure of the child
+    status, body = request(server, "POST", "/api/train", {"ball_colour": "white"})
+    assert status == 200 and body["ball_colour"] == "white"
+    deadline = time.monotonic() + 120
+    while (t := request(server, "GET", "/api/train")[1])["state"] == "running" and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert t["state"] == "failed" and t["returncode"] == 2
+    assert t["error"].startswith("rt2 train: error: --out") and "model.npz" in t["error"], t
+    assert "--ball-colour white" in (session.out_dir / "train.log").read_text().splitlines()[0]
+    assert session.ball_colour() == "white"  # remembered in the file for the next start
 def test_suggestions_skip_labelled_frames_and_state_reports_counts(serve, ball_folder):
     server, session = serve(ball_folder)
     _, state = request(server, "GET", "/api/state")
@@ -111,13 +239,13 @@ def test_suggestions_skip_labelled_frames_and_state_reports_counts(serve, ball_f
     assert first not in body["suggestions"] and body["counts"]["no_ball"] == 1
 
 
-def test_video_and_log_frames_are_extracted_and_keyed(serve, ball_video, ball_log):
-    _, video = serve(ball_video, every=2)
+def test_video_and_log_frames_are_extracted_and_keyed(serve, ball_video, ball_log, tmp_path):
+    _, video = serve(ball_video, tmp_path / "v", every=2)
     assert [f.key for f in video.frames.frames] == [f"rally_f{i:06d}" for i in range(0, 12, 2)]
     assert all(f.image_path.is_file() and (f.width, f.height) == (128, 96) for f in video.frames.frames)
-    _, log = serve(ball_log, camera="cam1")
+    _, log = serve(ball_log, tmp_path / "l1", camera="cam1")
     assert [f.key for f in log.frames.frames] == [f"cam1_s{k:06d}" for k in range(6)]
-    _, both = serve(ball_log)
+    _, both = serve(ball_log, tmp_path / "l2")
     assert len(both.frames) == 12
 
 
@@ -156,6 +284,14 @@ HOSTILE = [
     ("POST", "/api/frame/1", {}, {}, 405, "takes GET"),
     ("GET", "/api/state", None, {"Host": "evil.example:80"}, 403, "is not this server's address"),
     ("POST", "/api/train", {}, {}, 409, "label at least 4 frames"),
+    ("POST", "/api/train", {"ball_colour": "white", "x": 1}, {}, 400, "the request body must be"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [], "tab": "a b"}, {}, 400, "'tab' must be a name"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [], "tab": "x" * 65}, {}, 400, "'tab' must be a name"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [], "revision": -1}, {}, 400, "'revision' must be a non-negative integer"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [], "revision": "0"}, {}, 400, "'revision' must be a non-negative integer"),
+    ("POST", "/api/label", {"frame": 1, "boxes": [], "revision": 7}, {}, 409, "changed in another tab"),
+    ("POST", "/api/undo", {"revision": 3}, {}, 409, "changed in another tab"),
+    ("POST", "/api/undo", {"frame": 1}, {}, 400, "takes only the optional fields"),
 ]
 
 
@@ -213,7 +349,7 @@ BAD_SOURCES = [
     (["nowhere"], "'.*nowhere': no such folder, video or session log"),
     (["empty"], "'.*empty': no images"),
     (["notes.txt"], "'.*notes.txt': OpenCV cannot open this file as a video"),
-    (["badpng"], r"a.png: cannot read the image"),
+    (["badpng"], r"none of its 1 images can be read; the first: .*a.png: cannot read the image"),
     (["junk.mcap"], "junk.mcap"),
     (["noimages.mcap"], "holds no camera images"),
     (["LOG", "--camera", "cam7"], r"--camera 'cam7': .* has images of \['cam0', 'cam1'\] only"),

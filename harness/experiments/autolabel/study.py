@@ -1,0 +1,275 @@
+"""``rt2 eval autolabel``: how good are the labels ``rt2 label --auto`` makes, against the truth.
+
+Two scenes with a known ball, read as a recording would be (frame sets in time order, flights):
+
+* ``lab``: the simulated lab as ``rt2 track --source sim`` renders it (:class:`~harness.live.sources.sim.LauncherFlights`
+  of ``--seed``, the lab rig ``lab4_vga``), frame set k at ``k / rate_hz``, rendered offline so that a busy
+  machine drops none;
+* ``caliscope``: semi-real flights (:mod:`harness.sim.semireal`): a ball of known flight drawn into the real
+  frames of the real 4-camera caliscope session with its real calibration; flights of ``--flight-frames``
+  frame sets at ``--rate-hz``, a second apart.
+
+Figures (the goals in brackets): of the frame sets where the ball is visible (``BallTruth.visible``) in >= 3
+cameras, the share kept (>= 95 %); of the labels on a visible ball, the share whose centre is within 1.5 px of
+the truth (>= 95 %); wrong labels, a label where the ball is not visible or whose centre is off the ball
+(farther than its radius) (< 1 %); the same split by whether the camera's detector had found it (hard
+positives). Same seed, same figures (a test says so).
+
+``--train-held-out CAM`` then asks whether the labels teach the detector: the kept labels of every camera
+but ``CAM`` (images written losslessly to a temporary folder) train a model as ``rt2 train`` would (fine-tuned
+from the model the labels started from, 3 augmented copies, its guard that keeps the base unless fine-tuning
+beats it), and both models are scored by ``rt2 eval detector``'s rule (method ``ours``) on ``CAM``'s frames where
+the truth shows the ball: recall up and outliers not up is the goal.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from harness.experiments.autolabel.consensus import AutoOptions, auto_label
+from harness.experiments.autolabel.framesets import RecordedSet
+
+__all__ = ["GOALS", "SCENES", "format_report", "score_labels", "study"]
+
+SCENES = ("lab", "caliscope")
+GOALS = {"kept": 0.95, "within_1_5px": 0.95, "wrong": 0.01}
+
+
+def _lab(frames: int, seed: int, rate_hz: float):
+    from harness.live.sources.sim import LauncherFlights
+    from harness.sim.render import Renderer
+    from tracker.rig_files import resolve_rig
+
+    rig = resolve_rig("lab4_vga")
+    renderer, flights = Renderer(rig, seed=seed), LauncherFlights(seed)
+
+    def sets():
+        for k in range(frames):
+            images, truths = renderer.render_labelled(flights(k / rate_hz))
+            yield RecordedSet(k, k, k / rate_hz, tuple(images)), [t[0] if t else None for t in truths]
+
+    return rig, sets
+
+
+def _caliscope(frames: int, seed: int, rate_hz: float, flight_frames: int):
+    from harness.sim.semireal import SemiRealSession
+
+    session = SemiRealSession(seed=seed)
+
+    def sets():
+        k = 0
+        for n in range(math.ceil(frames / flight_frames)):
+            flight = session.flight(n, flight_frames, rate_hz)
+            for j in range(flight_frames):
+                if k == frames:
+                    return
+                images, truths, _, _ = session.flight_frameset(n, j, flight)
+                yield RecordedSet(k, k, n * (flight_frames / rate_hz + 1.0) + j / rate_hz, tuple(images)), [t[0] for t in truths]
+                k += 1
+
+    return session.rig, sets
+
+
+def score_labels(kept, truths: list) -> dict:
+    """The figures (module docstring) of ``kept`` (FrameSetLabels) against ``truths`` (per frame set, per camera a BallTruth or None)."""
+    visible = np.array([[t is not None and t.visible for t in row] for row in truths], bool).reshape(len(truths), -1)
+    eligible = visible.sum(axis=1) >= 3
+    kept_idx = {fs.index for fs in kept}
+    n_eligible = int(eligible.sum())
+    kept_eligible = sum(1 for i in np.flatnonzero(eligible) if int(i) in kept_idx)
+    errors, wrong, labels = {True: [], False: []}, {True: 0, False: 0}, {True: 0, False: 0}
+    for fs in kept:
+        for j, t in enumerate(truths[fs.index]):
+            if not np.isfinite(fs.diameter_px[j]):
+                continue
+            det = bool(fs.inliers[j])
+            labels[det] += 1
+            if t is None or not t.visible:
+                wrong[det] += 1
+                continue
+            e = float(np.linalg.norm(fs.center_px[j] - t.center_px))
+            errors[det].append(e)
+            wrong[det] += int(e > t.diameter_px / 2)
+    all_err = np.array(errors[True] + errors[False])
+    n_labels = labels[True] + labels[False]
+
+    def share(x, n):
+        return None if n == 0 else x / n
+
+    return {
+        "frame_sets": len(truths), "eligible": n_eligible, "kept": len(kept), "kept_eligible": kept_eligible,
+        "kept_share": share(kept_eligible, n_eligible), "kept_not_eligible": len(kept_idx) - kept_eligible,
+        "labels": n_labels, "hard_positives": labels[False],
+        "within_1_5px": share(int(np.sum(all_err <= 1.5)), n_labels),
+        "median_error_px": float(np.median(all_err)) if len(all_err) else None,
+        "p95_error_px": float(np.percentile(all_err, 95)) if len(all_err) else None,
+        "wrong": share(wrong[True] + wrong[False], n_labels), "wrong_labels": wrong[True] + wrong[False],
+        "hard_positive_within_1_5px": share(int(np.sum(np.array(errors[False]) <= 1.5)), labels[False]),
+        "hard_positive_wrong": share(wrong[False], labels[False]),
+    }
+
+
+def _scene_rig_names(scene: str) -> list:
+    if scene == "lab":
+        from tracker.rig_files import resolve_rig
+
+        return list(resolve_rig("lab4_vga").names)
+    from harness.sim.semireal import session_rig
+
+    return list(session_rig().names)
+
+
+def _scene(scene, frames, seed, rate_hz, flight_frames):
+    return _lab(frames, seed, rate_hz) if scene == "lab" else _caliscope(frames, seed, rate_hz, flight_frames)
+
+
+def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *, rate_hz: float = 100.0, flight_frames: int = 20,
+                      model=None, epochs: int | None = None) -> dict:
+    """Train on the ``kept`` labels of every camera but ``held_out``; score base and trained on ``held_out``'s true balls."""
+    import tempfile
+    from pathlib import Path
+
+    import cv2
+
+    from harness.experiments.detector.coco import LabelledImage
+    from harness.experiments.detector.train import TrainOptions, train
+    from harness.experiments.studies.eval_detector import evaluate
+    from tracker.pipeline import load_model
+
+    base = load_model(model)
+    rig, sets = _scene(scene, frames, seed, rate_hz, flight_frames)
+    if held_out not in rig.names:
+        raise ValueError(f"--train-held-out {held_out!r}: the {scene} rig's cameras are {list(rig.names)}")
+    h = rig.names.index(held_out)
+    by_index = {fs.index: fs for fs in kept}
+    with tempfile.TemporaryDirectory(prefix="rt2-autolabel-") as tmp:
+        root = Path(tmp)
+        train_set, test_set = [], []
+
+        def save(img, name):
+            path = root / f"{name}.png"
+            cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+            return path
+
+        for rs, truth in sets():  # the same frame sets again (they depend only on the seed)
+            t = truth[h]
+            if t is not None and t.visible:
+                box = np.array([t.box_xywh], float)
+                test_set.append(LabelledImage(save(rs.images[h], f"test_{rs.index:06d}"), *rig[h].image_size, box, t.center_px[None, :]))
+            fs = by_index.get(rs.index)
+            for j, cam in enumerate(rig):
+                if fs is None or j == h or not np.isfinite(fs.diameter_px[j]):
+                    continue
+                w, hh = cam.image_size
+                b = fs.box_xywh(j)
+                x0, y0 = max(0.0, b[0]), max(0.0, b[1])
+                box = np.array([[x0, y0, min(float(w), b[0] + b[2]) - x0, min(float(hh), b[1] + b[3]) - y0]])
+                train_set.append(LabelledImage(save(rs.images[j], f"f{rs.index:06d}_{cam.name}"), w, hh, box, fs.center_px[j][None, :]))
+        if not train_set or not test_set:
+            raise ValueError(f"--train-held-out {held_out}: {len(train_set)} training labels, {len(test_set)} held-out balls: nothing to compare")
+        opts = TrainOptions(seed=seed, ball_colour="any", augment_copies=3, **({} if epochs is None else {"epochs": epochs}))
+        trained, info = train(train_set, opts, base=base, progress=False, log=lambda *a, **k: None)
+        before = {s.method: s for s in evaluate(base, test_set, methods=("ours",), progress=False)}["ours"]
+        after = {s.method: s for s in evaluate(trained, test_set, methods=("ours",), progress=False)}["ours"]
+    return {"held_out": held_out, "train_images": len(train_set), "held_out_balls": len(test_set), "kept_base": bool(info.get("kept_base")),
+            "base": {"recall": before.recall, "outlier_rate": before.outlier_rate},
+            "trained": {"recall": after.recall, "outlier_rate": after.outlier_rate}}
+
+
+def study(scene: str, frames: int, seed: int, *, rate_hz: float = 100.0, flight_frames: int = 20, model=None,
+          options: AutoOptions = AutoOptions(), kept_out: list | None = None) -> tuple[dict, dict]:
+    """Run ``rt2 label --auto``'s consensus over ``frames`` frame sets of ``scene``; returns (figures, consensus counts)."""
+    from tracker.pipeline import load_model
+
+    if scene not in SCENES:
+        raise ValueError(f"unknown --scene {scene!r}; valid: {list(SCENES)}")
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        raise ValueError(f"--frames must be a positive integer, got {frames!r}")
+    if not (math.isfinite(rate_hz) and 0 < rate_hz <= 1000):
+        raise ValueError(f"--rate-hz must be in (0, 1000], got {rate_hz!r}")
+    if isinstance(flight_frames, bool) or not isinstance(flight_frames, int) or flight_frames < 3:
+        raise ValueError(f"--flight-frames must be an integer >= 3, got {flight_frames!r}")
+    model = load_model(model)
+    rig, sets = _scene(scene, frames, seed, rate_hz, flight_frames)
+    truths = []
+
+    def recorded():
+        for rs, truth in sets():
+            truths.append(truth)
+            yield rs
+
+    kept, counts = auto_label(recorded(), rig, model, options)
+    if kept_out is not None:
+        kept_out.extend(kept)
+    return score_labels(kept, truths), counts
+
+
+def format_report(scene: str, fig: dict, counts: dict) -> str:
+    def pct(x):
+        return "n/a" if x is None else f"{100 * x:.1f}%"
+
+    def px(x):
+        return "n/a" if x is None else f"{x:.2f} px"
+
+    met = lambda ok: "met" if ok else "NOT met"  # noqa: E731
+    k, w, e = fig["kept_share"], fig["within_1_5px"], fig["wrong"]
+    return "\n".join([
+        f"rt2 eval autolabel --scene {scene}: {fig['frame_sets']} frame sets, {fig['eligible']} with the ball visible in >= 3 cameras; "
+        f"consensus: {counts['agreed']} agreed, {counts['kept']} kept after the flight test",
+        f"  kept {fig['kept_eligible']} of {fig['eligible']} ({pct(k)}; goal >= {100 * GOALS['kept']:.0f}%: {met(k is not None and k >= GOALS['kept'])}); "
+        f"{fig['kept_not_eligible']} kept where fewer than 3 cameras see the ball",
+        f"  {fig['labels']} labels ({fig['hard_positives']} hard positives, the detector had missed them): centre within 1.5 px "
+        f"{pct(w)} (goal >= {100 * GOALS['within_1_5px']:.0f}%: {met(w is not None and w >= GOALS['within_1_5px'])}), "
+        f"median {px(fig['median_error_px'])}, p95 {px(fig['p95_error_px'])}",
+        f"  wrong labels (ball not visible there, or centre off the ball) {fig['wrong_labels']} = {pct(e)} "
+        f"(goal < {100 * GOALS['wrong']:.0f}%: {met(e is not None and e < GOALS['wrong'])}); hard positives: within 1.5 px "
+        f"{pct(fig['hard_positive_within_1_5px'])}, wrong {pct(fig['hard_positive_wrong'])}",
+    ])
+
+
+# -- command line ----------------------------------------------------------------------------------
+def add_arguments(parser) -> None:
+    parser.add_argument("--scene", choices=SCENES, default="lab",
+                        help="lab: the simulated lab's launcher flights (as rt2 track --source sim renders them); caliscope: semi-real "
+                             "flights drawn into the real caliscope session")
+    parser.add_argument("--frames", type=int, default=200, help="frame sets (default 200)")
+    parser.add_argument("--seed", type=int, default=0, help="the scene's seed (default 0)")
+    parser.add_argument("--rate-hz", type=float, default=100.0, help="frame rate of the flights (default 100)")
+    parser.add_argument("--flight-frames", type=int, default=20, help="caliscope: frame sets per flight (default 20)")
+    parser.add_argument("--model", default=None, help="the detector's weights (default: the shipped model)")
+    parser.add_argument("--flight-window", type=int, default=AutoOptions.flight_window, help="as rt2 label --auto (default 3)")
+    parser.add_argument("--train-held-out", default=None, metavar="CAM",
+                        help="also train on the labels of the other cameras and score the base and the trained model on CAM's true balls")
+    parser.add_argument("--epochs", type=int, default=None, help="--train-held-out: rt2 train's epochs (default its own)")
+    parser.add_argument("--json", default=None, help="also write the figures as JSON to this path")
+
+
+def run(args) -> int:
+    from harness.common.outputs import atomic_write_json, check_output_file
+
+    check_output_file(args.json, "--json")
+    options = AutoOptions(flight_window=args.flight_window)
+    if args.train_held_out is not None:  # checked before the consensus pass, not after it
+        names = _scene_rig_names(args.scene)
+        if args.train_held_out not in names:
+            raise ValueError(f"--train-held-out {args.train_held_out!r}: the {args.scene} rig's cameras are {names}")
+    kept: list = []
+    fig, counts = study(args.scene, args.frames, args.seed, rate_hz=args.rate_hz, flight_frames=args.flight_frames, model=args.model,
+                        options=options, kept_out=kept)
+    print(format_report(args.scene, fig, counts))
+    result = {"scene": args.scene, "seed": args.seed, "frames": args.frames, "figures": fig, "counts": counts}
+    if args.train_held_out is not None:
+        t = held_out_training(args.scene, args.frames, args.seed, args.train_held_out, kept, rate_hz=args.rate_hz,
+                              flight_frames=args.flight_frames, model=args.model, epochs=args.epochs)
+        b, a = t["base"], t["trained"]
+        up = (a["recall"] > b["recall"] or b["recall"] == 1.0 == a["recall"]) and a["outlier_rate"] <= b["outlier_rate"]
+        print(f"  trained on {t['train_images']} auto labels of the other cameras, scored on {t['held_out_balls']} true balls of "
+              f"{t['held_out']}: recall {100 * b['recall']:.1f}% -> {100 * a['recall']:.1f}%, outliers {100 * b['outlier_rate']:.1f}% -> "
+              f"{100 * a['outlier_rate']:.1f}%{' (the guard kept the base)' if t['kept_base'] else ''}: goal (recall up or already 100%, outliers not up) "
+              f"{'met' if up else 'NOT met'}")
+        result["held_out_training"] = t
+    if args.json:
+        atomic_write_json(args.json, result, "--json")
+    return 0

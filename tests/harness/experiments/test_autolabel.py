@@ -1,0 +1,201 @@
+"""rt2 label --auto: the cameras label each other on a recorded simulated-lab session log; the labels against the
+truth, the page showing them as proposals, rt2 train on them; the hostile-input table (one line, exit 2, nothing
+written); rt2 eval autolabel's determinism."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from harness.cli import main
+from harness.experiments.detector.coco import read_coco
+
+RATE_HZ = 100.0
+N_SETS = 24
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """A session log of the simulated lab (lab4_vga, launcher flights of seed 0, frame sets k / 100 Hz, PNG images), and
+    the truth: per frame set, per camera the BallTruth (None without a ball)."""
+    from harness.live.sources.sim import LauncherFlights
+    from harness.logs import SessionLogWriter
+    from harness.sim.render import Renderer
+    from tracker.rig_files import resolve_rig
+
+    rig = resolve_rig("lab4_vga")
+    renderer, flights = Renderer(rig, seed=0), LauncherFlights(0)
+    path = tmp_path_factory.mktemp("autolabel") / "lab.mcap"
+    truths = []
+    with SessionLogWriter(path, metadata={"kind": "test"}, image_format="png") as w:
+        for k in range(N_SETS):
+            images, truth = renderer.render_labelled(flights(k / RATE_HZ))
+            truths.append([t[0] if t else None for t in truth])
+            for cam, img in zip(rig, images):
+                w.write_image(k / RATE_HZ, cam.name, np.ascontiguousarray(img), k)
+    return path, truths
+
+
+@pytest.fixture(scope="module")
+def labelled(recording, tmp_path_factory):
+    path, _ = recording
+    out = tmp_path_factory.mktemp("auto") / "labels"
+    assert main(["label", "--auto", "--source", "replay", str(path), "--rig", "lab4_vga", "--out", str(out)]) == 0
+    return out
+
+
+def test_auto_labels_every_camera_near_the_truth_with_their_fields(recording, labelled, capsys):
+    _, truths = recording
+    images = read_coco(labelled)
+    doc = json.loads((labelled / "annotations.json").read_text())
+    assert len(images) >= 3 * N_SETS // 2
+    for im, li in zip(doc["images"], images):
+        assert im["camera"] in ("cam0", "cam1", "cam2", "cam3") and isinstance(im["frame_id"], int)
+        assert im["rt2_frame"] == f"{im['camera']}_s{im['frame_id']:06d}" and li.path.name == im["rt2_frame"] + ".png"
+        t = truths[im["frame_id"]][int(im["camera"][3:])]
+        assert t is not None and t.visible
+        assert np.linalg.norm(li.centers_px[0] - t.center_px) < 1.5
+        assert isinstance(im["hard_negatives"], list)
+    for ann in doc["annotations"]:
+        assert ann["source"] == "auto" and ann["support"] >= 3 and 0 < ann["confidence"] <= 1 and isinstance(ann["detected"], bool)
+    assert doc["info"]["description"].startswith("ball labels made with rt2 label --auto from replay")
+
+
+def test_auto_prints_labels_per_camera(recording, tmp_path, capsys):
+    path, _ = recording
+    assert main(["label", "--auto", "--source", "replay", str(path), "--rig", "lab4_vga", "--out", str(tmp_path / "o"),
+                 "--max-frames", "8"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("rt2 label --auto: ") and " of 8 frame sets kept" in out
+    for cam in ("cam0", "cam1", "cam2", "cam3"):
+        assert f"  {cam}: " in out and " labels (" in out
+    n = sum(int(line.split(": ")[1].split(" labels")[0]) for line in out.splitlines() if line.startswith("  cam"))
+    assert n == len(read_coco(tmp_path / "o"))
+
+
+def test_the_page_shows_auto_labels_as_proposals_least_sure_first_until_accepted(labelled, tmp_path):
+    import shutil
+
+    from harness.experiments.studies.eval_detector import DEFAULT_MODEL
+    from harness.label.frames import open_frames
+    from harness.label.session import LabelOptions, LabelSession
+    from tracker import BallSegmentationModel
+
+    out = tmp_path / "review"
+    shutil.copytree(labelled, out)
+    session = LabelSession(open_frames(out / "images", out), out, BallSegmentationModel.load(DEFAULT_MODEL), DEFAULT_MODEL,
+                           LabelOptions(n_suggestions=5))
+    try:
+        state = session.state()
+        n = len(read_coco(out))
+        assert state["counts"]["auto"] == n and state["counts"]["labelled"] == 0 and state["can_train"]
+        conf = {i: a[0]["confidence"] for i, a in session.store.auto().items()}
+        assert state["suggestions"] == sorted(conf, key=lambda i: (conf[i], i))[:5]  # least sure first
+        first = state["suggestions"][0]
+        frame = session.frame(first)
+        assert frame["labels"] is None and frame["auto"] and frame["proposals"][0]["auto"]
+        assert frame["proposals"][0]["score"] == pytest.approx(conf[first]) and frame["fields"]["camera"]
+        session.label({"frame": first, "boxes": [frame["proposals"][0]["box"]]})  # a person accepts it
+        assert session.state()["counts"]["auto"] == n - 1 and session.state()["counts"]["labelled"] == 1
+        assert first not in session.suggestions()
+    finally:
+        session.close()
+    doc = json.loads((out / "annotations.json").read_text())
+    assert sum(a.get("source") == "auto" for a in doc["annotations"]) == n - 1  # the others keep their fields
+    assert all("camera" in im for im in doc["images"])
+
+
+def test_rt2_train_trains_on_the_auto_labels(labelled, tmp_path, capsys):
+    from tracker import BallSegmentationModel
+
+    assert main(["train", "--data", str(labelled), "--out", str(tmp_path / "m.npz"), "--epochs", "1", "--max-images", "12",
+                 "--ball-colour", "orange"]) == 0
+    assert "training from" in capsys.readouterr().out
+    BallSegmentationModel.load(tmp_path / "m.npz")
+
+
+# -- hostile inputs: one line, exit 2, nothing written ------------------------------------------------
+@pytest.fixture(scope="module")
+def hostile(recording, tmp_path_factory):
+    from harness.logs import SessionLogWriter
+    from tracker.rig_files import resolve_rig
+
+    root = tmp_path_factory.mktemp("hostile")
+    rig = resolve_rig("lab4_vga")
+    rig.subset(["cam0", "cam1", "cam2"]).save(root / "three.yaml")
+    with SessionLogWriter(root / "noimages.mcap", metadata={"kind": "test"}) as w:
+        w.write_detections(0.0, "cam0", np.zeros((1, 2)), np.ones(1), 0)
+    with SessionLogWriter(root / "noball.mcap", metadata={"kind": "test"}, image_format="png") as w:
+        grey = np.full((480, 640, 3), 90, np.uint8)
+        for k in range(6):
+            for cam in rig:
+                w.write_image(k / RATE_HZ, cam.name, grey, k)
+    (root / "taken").mkdir()
+    (root / "taken" / "annotations.json").write_text("{}")
+    return root
+
+
+HOSTILE = [
+    (["--source", "replay", "LOG", "--rig", "ROOT/three.yaml"], r"--rig has 3 cameras .* but --source replay .* has 4 .*: they must be the same cameras"),
+    (["--source", "replay", "ROOT/noimages.mcap", "--rig", "lab4_vga"], r"the log holds no camera images .* needs the images"),
+    (["--source", "replay", "ROOT/noball.mcap", "--rig", "lab4_vga"], r"none of its 6 frame sets has 3 or more cameras agreeing on a ball"),
+    (["--source", "replay", "ROOT/nowhere.mcap", "--rig", "lab4_vga"], r"no such session log"),
+    (["--source", "video", "ROOT/nothing", "--rig", "lab4_vga"], r"--source video .*nothing: no such folder"),
+    (["--source", "sim", "--rig", "lab4_vga"], r"--source sim: rt2 label --auto reads a recording"),
+    (["--source", "replay", "LOG"], r"--auto needs --source SPEC .* and --rig RIG"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--min-support", "2"], r"AutoOptions.min_support must be an integer >= 3"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--flight-window", "-1"], r"AutoOptions.flight_window must be"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--out", "ROOT/taken"], r"already holds annotations.json"),
+    (["--source", "replay", "LOG", "--rig", "nosuchrig"], r"nosuchrig"),
+    (["SOURCE", "--source", "replay", "LOG", "--rig", "lab4_vga"], r"--auto takes the recording as --source SPEC"),
+]
+
+
+@pytest.mark.parametrize("args, message", HOSTILE, ids=[" ".join(a)[:60] for a, _ in HOSTILE])
+def test_hostile_auto_input_is_one_line_exit_2_and_nothing_written(recording, hostile, tmp_path, capsys, args, message):
+    import re
+
+    path, _ = recording
+    out = tmp_path / "new"
+    argv = ["label", "--auto"] + [str(path) if a == "LOG" else a.replace("ROOT", str(hostile)) for a in args]
+    if "--out" not in argv:
+        argv += ["--out", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    errors = [line for line in err if "error" in line.lower() or "Traceback" in line]
+    assert len(errors) == 1 and err[-1] == errors[0], err  # one line (a progress line may come before it)
+    assert err[-1].startswith("rt2 label: error: ") and re.search(message, err[-1]), err
+    assert not out.exists()
+    assert (hostile / "taken" / "annotations.json").read_text() == "{}"
+
+
+def test_eval_autolabel_same_seed_same_figures(tmp_path, capsys):
+    for run in ("a", "b"):
+        assert main(["eval", "autolabel", "--scene", "lab", "--frames", "12", "--seed", "3", "--json", str(tmp_path / f"{run}.json")]) == 0
+    a, b = (json.loads((tmp_path / f"{r}.json").read_text()) for r in ("a", "b"))
+    assert a == b and a["figures"]["frame_sets"] == 12
+    assert "rt2 eval autolabel --scene lab: 12 frame sets" in capsys.readouterr().out
+
+
+def test_rt2_train_min_support_keeps_only_the_surest_auto_labels(labelled, tmp_path, capsys):
+    from harness.experiments.autolabel.output import auto_support, keep_supported
+
+    support = auto_support([labelled])
+    images = read_coco(labelled)
+    assert len(support) == len(images) and min(support.values()) >= 3
+    top = max(support.values())
+    assert len(keep_supported(images, [labelled], top)) == sum(s == top for s in support.values())
+    assert keep_supported(images, [labelled], top + 1) == []
+    # the flag: every auto label below the support asked for leaves no image to train on
+    assert main(["train", "--data", str(labelled), "--out", str(tmp_path / "m.npz"), "--min-support", str(top + 1)]) == 2
+    assert not (tmp_path / "m.npz").exists()
+    assert main(["train", "--data", str(labelled), "--out", str(tmp_path / "m.npz"), "--min-support", "1"]) == 2
+    assert "--min-support must be an integer >= 2" in capsys.readouterr().err
+
+
+def test_eval_autolabel_refuses_an_unknown_held_out_camera_before_the_work(tmp_path, capsys):
+    assert main(["eval", "autolabel", "--scene", "lab", "--frames", "5", "--train-held-out", "cam9"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["rt2 eval autolabel: error: --train-held-out 'cam9': the lab rig's cameras are ['cam0', 'cam1', 'cam2', 'cam3']"]
