@@ -131,6 +131,7 @@ def sample_patches(items: list[LearnedItem], n: int, rng: np.random.Generator, o
     weights = np.array([it.weight for it in items], np.float64)
     weights /= weights.sum()
     with_ball = [i for i, it in enumerate(items) if len(it.centers)]
+    w_b = weights[with_ball] / weights[with_ball].sum() if with_ball else None  # once, not per patch
     imgs = np.empty((n, p, p, 3), np.uint8)
     g = p // STRIDE
     heat = np.empty((n, g, g), np.float32)
@@ -141,7 +142,6 @@ def sample_patches(items: list[LearnedItem], n: int, rng: np.random.Generator, o
     for k in range(n):
         on_ball = with_ball and rng.random() < opts.p_ball
         if on_ball:
-            w_b = weights[with_ball] / weights[with_ball].sum()
             it = items[with_ball[int(rng.choice(len(with_ball), p=w_b))]]
             j = int(rng.integers(len(it.centers)))
             s = math.exp(rng.uniform(lo, hi))
