@@ -178,8 +178,23 @@ def test_the_live_service_runs_the_rtblob_tracker():
     from harness.live.config import TrackConfig
     from harness.live.run import open_service
 
-    with open_service(TrackConfig(tracker="rtblob", publish=None, prerender_s=0.1, duration_s=0.5), status=None) as live:
+    import threading
+
+    # Run until a few frame sets went through (not for a fixed time: a loaded CI machine may need seconds for
+    # the first frame set); the generous cap only ends a hung run.
+    with open_service(TrackConfig(tracker="rtblob", publish=None, prerender_s=0.1, duration_s=60.0), status=None) as live:
         assert live.service.tracker.kind == "rtblob"
+        stop = threading.Event()
+
+        def watch():
+            while not stop.wait(0.02):
+                if live.service.stats.n >= 3:
+                    stop.set()
+
+        watcher = threading.Thread(target=watch, daemon=True)
+        watcher.start()
         live.assembler.start()
-        summary = live.service.run(live.assembler, duration_s=0.5)
-    assert summary["frame_sets"] > 0 and summary["tracker"] == "rtblob"
+        summary = live.service.run(live.assembler, stop=stop, duration_s=60.0)
+        stop.set()
+        watcher.join()
+    assert summary["frame_sets"] >= 3 and summary["tracker"] == "rtblob"
