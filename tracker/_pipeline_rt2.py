@@ -59,7 +59,10 @@ class SegmentationEngine:
         self._search_order = _search_order(rig)  # the full-frame fallback's order: most of the workspace first
         self._wh = np.array([tuple(c.image_size) for c in rig], np.int64)  # (n_cams, 2) width, height
         model = load_model(model)
-        self.detector = BallDetector(model, detector_options_for(kind, spec.detector_method, detector_options))
+        dopts = detector_options_for(kind, spec.detector_method, detector_options)
+        if dopts.learned and dopts.learned_threshold is None and model.learned is not None and model.learned.track_threshold is not None:
+            dopts = replace(dopts, learned_threshold=model.learned.track_threshold)  # the stage's operating point in a rig
+        self.detector = BallDetector(model, dopts)
         self.detectors = _sized_detectors(rig, self.detector) if options.size_from_rig else [self.detector] * len(rig)
         self._roi_half = np.array([d.options.roi_half_size_px for d in self.detectors], np.int64)[:, None]  # (n_cams, 1)
         self.estimator = RobustTriangulator(rig, estimator_options_for(estimator_options, options.eps_px), method=spec.estimator_method)

@@ -120,6 +120,11 @@ HOSTILE = [
     ("diameters out of order", lambda f: f.update(learned_diameter_range_px=np.array([30.0, 5.0])), "diameter_range_px"),
     ("a stride the network does not have", lambda f: f.update(learned_stride=np.array(8)), "expected (4, 8, 8)"),
     ("description not text", lambda f: f.update(learned_description=np.array(3.0)), "learned_description"),
+    ("track threshold as text", lambda f: f.update(learned_track_threshold=np.array("low")), "learned_track_threshold"),
+    ("track threshold out of (0, 1)", lambda f: f.update(learned_track_threshold=np.array(1.5)), "track_threshold"),
+    ("track threshold as a vector", lambda f: f.update(learned_track_threshold=np.array([0.2, 0.3])), "learned_track_threshold"),
+    ("refine flag as a number", lambda f: f.update(learned_refine=np.array(1.0)), "learned_refine"),
+    ("refine flag as a vector", lambda f: f.update(learned_refine=np.array([True, False])), "learned_refine"),
 ]
 
 
@@ -137,6 +142,12 @@ def test_every_field_is_written(tmp_path, tiny_onnx):
     base = BallSegmentationModel.load("data/models/ball_seg_default.npz")
     fields = np.load(dataclasses.replace(base, learned=LearnedStage(tiny_onnx)).save(tmp_path / "m.npz"))
     assert set(LEARNED_FIELDS) <= set(fields.files)
+    back = BallSegmentationModel.load(dataclasses.replace(base, learned=LearnedStage(tiny_onnx, filter_refines=False)).save(tmp_path / "r.npz"))
+    assert back.learned.filter_refines is False
+    old = dict(fields)
+    old.pop("learned_refine")  # files written before the flag: the filter refines
+    np.savez(tmp_path / "old.npz", **old)
+    assert BallSegmentationModel.load(tmp_path / "old.npz").learned.filter_refines is True
 
 
 def test_a_stage_pickles_and_runs_in_the_copy(tiny_onnx):
@@ -170,7 +181,62 @@ def test_the_filter_refines_the_network_centre_where_it_sees_the_ball(bright_spo
     assert np.linalg.norm(refined - centers[0]) < 0.5
     raw = BallDetector(model, DetectorOptions(refine_with_filter=False)).detect(image).uv_px[0]
     np.testing.assert_allclose(raw, centers[0] + [1.5, 0.0])
+    other = Off(bright_spot_onnx, filter_refines=False)  # a file whose filter is of another colour: never refines
+    for name in ("at", "d"):
+        object.__setattr__(other, name, getattr(stage, name))
+    np.testing.assert_allclose(BallDetector(dataclasses.replace(base, learned=other)).detect(image).uv_px[0], centers[0] + [1.5, 0.0])
     white = np.full((96, 128, 3), 60, np.uint8)
     white[40:52, 60:72] = 250
     object.__setattr__(stage, "at", np.array([[66.0, 46.0]]))
     np.testing.assert_allclose(BallDetector(model).detect(white).uv_px[0], [66.0, 46.0])
+
+
+def test_the_compiled_heatmap_decoder_agrees_with_the_numpy_reference():
+    """Random maps (with ties: integer heats), thresholds, k and sizes down to one cell: the same peaks, order and values."""
+    rng = np.random.default_rng(3)
+    for trial in range(400):
+        h, w = (int(v) for v in rng.integers(1, 30, 2))
+        out = (2 * rng.standard_normal((4, h, w))).astype(np.float32)
+        if trial % 3 == 0:
+            out[0] = np.round(out[0])
+        th, k, stride = float(rng.uniform(-2, 3)), int(rng.integers(1, 12)), int(rng.choice([2, 4, 8]))
+        a, b = decode_heatmap(out, th, k, stride, backend="numpy"), decode_heatmap(out, th, k, stride)
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]), trial
+        np.testing.assert_allclose(a[2], b[2], rtol=1e-12)
+    with pytest.raises(ValueError, match="backend"):
+        decode_heatmap(out, 0.0, 1, 4, backend="torch")
+
+
+def test_full_frames_take_the_coarse_pass_only_where_it_removes_most_pixels(bright_spot_onnx, monkeypatch):
+    from tracker.detection import learned
+
+    stage = LearnedStage(bright_spot_onnx, max_side_px=960, threshold=0.5, coarse_side_px=480)
+    calls = []
+    real = LearnedStage._two_passes
+    monkeypatch.setattr(LearnedStage, "_two_passes", lambda self, *a: calls.append(a[0].shape) or real(self, *a))
+    vga, full_hd = np.zeros((480, 640, 3), np.uint8), np.zeros((1080, 1920, 3), np.uint8)
+    vga[200:204, 300:304] = 255  # one whole cell
+    uv, sc, _ = stage.candidates(vga)
+    assert calls == [] and len(sc) == 1  # 640 < 1.5 x 480: one pass
+    np.testing.assert_allclose(uv[0], [301.5, 201.5])
+    stage.candidates(full_hd)  # 960 (shrunk) >= 1.5 x 480: coarse first
+    assert calls == [full_hd.shape]
+    assert learned.COARSE_MIN_RATIO == 1.5
+
+
+def test_a_tracker_runs_the_stage_at_its_tracking_threshold_unless_told_otherwise(tmp_path, tiny_onnx):
+    """The file's track threshold round-trips; rt2 trackers use it, an explicit learned_threshold wins, rt2-paper has no stage."""
+    from tracker import Rig
+    from tracker.pipeline import Tracker
+
+    base = BallSegmentationModel.load("data/models/ball_seg_default.npz")
+    model = BallSegmentationModel.load(dataclasses.replace(base, learned=LearnedStage(tiny_onnx, threshold=0.4, track_threshold=0.2)).save(tmp_path / "m.npz"))
+    assert model.learned.track_threshold == 0.2
+    rig = Rig.load("data/rigs/lab4_vga.yaml")
+    assert Tracker(rig, "rt2", model=model).engine.detector.options.learned_threshold == 0.2
+    told = Tracker(rig, "rt2", model=model, detector_options=DetectorOptions(learned_threshold=0.6))
+    assert told.engine.detector.options.learned_threshold == 0.6
+    plain = BallSegmentationModel.load(dataclasses.replace(base, learned=LearnedStage(tiny_onnx, threshold=0.4)).save(tmp_path / "p.npz"))
+    assert plain.learned.track_threshold is None
+    assert Tracker(rig, "rt2", model=plain).engine.detector.options.learned_threshold is None  # the stage's own threshold
+    assert Tracker(rig, "rt2-paper", model=model).engine.detector.learned is None

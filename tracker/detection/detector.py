@@ -243,7 +243,7 @@ class BallDetector:
         if not keep.all():
             uv, scores, d, areas = uv[keep], scores[keep], d[keep], areas[keep]
         uv, scores, d, areas = uv[: o.max_candidates], scores[: o.max_candidates], d[: o.max_candidates], areas[: o.max_candidates]
-        if o.refine_with_filter and len(uv):
+        if o.refine_with_filter and self.learned.filter_refines and len(uv):
             uv = self._refined(image, uv, d)
         boxes = np.concatenate([uv + 0.5 - d[:, None] / 2, np.repeat(d[:, None], 2, axis=1)], axis=1) if len(d) else np.zeros((0, 4))
         return Detections(uv, scores, boxes, np.rint(areas).astype(np.int64), window is not None)

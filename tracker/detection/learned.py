@@ -14,11 +14,11 @@ takes the window plus ``context_px`` network pixels around it (what the network 
 ball's surroundings), at the same scale.
 
 Full frames in two passes (``coarse_side_px`` < ``max_side_px``): the network first runs on the frame
-shrunk to ``coarse_side_px`` (a quarter of the pixels at half the side) with ``coarse_threshold``; each
-of its ``coarse_candidates`` best peaks is then searched as a window at the full scale, where the stage's
-own threshold decides and the centre is refined. A full VGA frame then costs about a third of one pass
-at full scale (``rt2 bench detector``), which is what lets a tracker search every camera's whole frame
-at the camera rate while it has no ball.
+shrunk to ``coarse_side_px`` with ``coarse_threshold``; each of its ``coarse_candidates`` best peaks is then
+searched as a window at the full scale, where the stage's own threshold decides and the centre is refined.
+The coarse pass pays only where it removes most of the pixels: it is taken when the frame at the network's
+scale is at least ``COARSE_MIN_RATIO`` times the coarse side (a 1080p frame at 960 px: a quarter of the
+pixels); a VGA frame takes one pass, which ``rt2 bench detector`` measured faster than two there.
 
 Inference is ONNX Runtime on the CPU, one intra-op thread per call (the pipeline runs cameras on its
 own threads): the fastest of the torch-free runtimes we measured for this network (OpenCV's dnn module
@@ -33,6 +33,7 @@ import math
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from checks.per_thread import PerThread
@@ -44,32 +45,89 @@ LEARNED_FIELDS = ("learned_onnx", "learned_stride", "learned_max_side_px", "lear
                   "learned_context_px", "learned_description")
 
 
+#: a full frame takes the coarse pass first when its longer side at the network's scale is at least this
+#: many times ``coarse_side_px`` (module docstring)
+COARSE_MIN_RATIO = 1.5
+
+
 def learned_scale(height: int, width: int, max_side_px: int) -> float:
     """The factor a frame of ``height x width`` is resized by before the network (1 = as it is)."""
     side = max(int(height), int(width))
     return 1.0 if side <= max_side_px else max_side_px / side
 
 
-def decode_heatmap(out: np.ndarray, threshold_logit: float, k: int, stride: int):
+#: the 3x3 neighbourhood of a heat peak
+_NEIGHBOURS = np.ones((3, 3), np.uint8)
+
+
+def decode_heatmap(out: np.ndarray, threshold_logit: float, k: int, stride: int, backend: str = "numba"):
     """Candidates of one network output.
 
     out : (4, h, w) float32: heat logit, offset u, offset v (cells), log diameter (network pixels)
+    backend : "numba" (compiled, the default: a window's map in a few microseconds) or "numpy" (the reference;
+        tests check they agree)
     returns (uv (n, 2) network pixels, heat logits (n,), diameters (n,) network pixels), best first, n <= k:
-    the local maxima (3x3) of the heat above ``threshold_logit``
+    the local maxima (3x3) of the heat above ``threshold_logit`` (compared in float32; ties in row-major order)
     """
+    if backend == "numba":
+        return _decode_numba(np.ascontiguousarray(out, dtype=np.float32), np.float32(threshold_logit), int(k), float(stride))
+    if backend != "numpy":
+        raise ValueError(f"backend must be 'numba' or 'numpy', got {backend!r}")
     heat = np.ascontiguousarray(out[0])
-    peaks = (heat >= cv2.dilate(heat, np.ones((3, 3), np.uint8))) & (heat > threshold_logit)
-    rows, cols = np.nonzero(peaks)
-    if len(rows) == 0:
+    flat = heat.ravel()
+    above = np.flatnonzero(flat > np.float32(threshold_logit))  # few cells: the peak test only there
+    if len(above) == 0:
         return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
-    vals = heat[rows, cols]
-    order = np.argsort(-vals, kind="stable")[:k]
-    rows, cols, vals = rows[order], cols[order], vals[order]
+    vals = flat[above]
+    peak = vals >= cv2.dilate(heat, _NEIGHBOURS).ravel()[above]
+    idx, vals = above[peak], vals[peak]
+    if len(idx) > 1:
+        order = np.argsort(-vals, kind="stable")[:k]
+        idx, vals = idx[order], vals[order]
+    rows, cols = np.divmod(idx, heat.shape[1])
+    o = out.reshape(4, -1)[1:, idx].astype(np.float64)
     # cell (r, c) covers pixels [stride*c, stride*c + stride); its centre is pixel stride*(c + 0.5) - 0.5
-    u = (cols + 0.5 + out[1, rows, cols].astype(np.float64)) * stride - 0.5
-    v = (rows + 0.5 + out[2, rows, cols].astype(np.float64)) * stride - 0.5
-    d = np.exp(np.clip(out[3, rows, cols].astype(np.float64), -2.0, 6.0))
-    return np.stack([u, v], axis=1), vals.astype(np.float64), d
+    uv = np.empty((len(idx), 2))
+    uv[:, 0] = (cols + 0.5 + o[0]) * stride - 0.5
+    uv[:, 1] = (rows + 0.5 + o[1]) * stride - 0.5
+    return uv, vals.astype(np.float64), np.exp(np.clip(o[2], -2.0, 6.0))
+
+
+@numba.njit(cache=True, nogil=True)
+def _decode_numba(out, th, k, stride):
+    """:func:`decode_heatmap` compiled: the same peaks, order and values."""
+    _, h, w = out.shape
+    idx = np.empty(h * w, np.int64)
+    vals = np.empty(h * w, np.float32)
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            v = out[0, r, c]
+            if not v > th:
+                continue
+            peak = True
+            for rr in range(max(r - 1, 0), min(r + 2, h)):
+                for cc in range(max(c - 1, 0), min(c + 2, w)):
+                    if out[0, rr, cc] > v:
+                        peak = False
+            if peak:
+                idx[n] = r * w + c
+                vals[n] = v
+                n += 1
+    order = np.argsort(-vals[:n], kind="mergesort")[:k]
+    m = len(order)
+    uv = np.empty((m, 2))
+    sc = np.empty(m)
+    d = np.empty(m)
+    for j in range(m):
+        i = idx[order[j]]
+        r = i // w
+        c = i - r * w
+        uv[j, 0] = (c + 0.5 + np.float64(out[1, r, c])) * stride - 0.5
+        uv[j, 1] = (r + 0.5 + np.float64(out[2, r, c])) * stride - 0.5
+        sc[j] = np.float64(vals[order[j]])
+        d[j] = math.exp(min(max(np.float64(out[3, r, c]), -2.0), 6.0))
+    return uv, sc, d
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,6 +144,13 @@ class LearnedStage:
     coarse_side_px : full frames: the longer side of the first, coarse pass (0 = one pass at ``max_side_px``)
     coarse_threshold : the coarse pass's heat threshold (a probability)
     coarse_candidates : the coarse peaks searched again at full scale
+    track_threshold : the heat probability a tracker's cameras report candidates down to (None: ``threshold``).
+        Lower than ``threshold``, the single image's operating point: in a rig the robust consensus (three
+        cameras that agree, the 3D size test) rejects a camera's false alarms, while a camera that misses the
+        ball costs the frame set that camera's evidence
+    filter_refines : whether the model's 5x5 filter sees this stage's balls (it refines their centres,
+        :class:`~tracker.detection.detector.DetectorOptions` ``refine_with_filter``); False where the file's
+        filter is of another colour (the white model keeps the orange filter for ``rt2-paper``)
     """
 
     onnx: bytes
@@ -98,6 +163,8 @@ class LearnedStage:
     coarse_side_px: int = 0
     coarse_threshold: float = 0.1
     coarse_candidates: int = 8
+    filter_refines: bool = True
+    track_threshold: float | None = None
 
     def __post_init__(self):
         where = "LearnedStage"
@@ -113,8 +180,13 @@ class LearnedStage:
             raise ValueError(f"{where}: coarse_side_px must be 0 or in [{8 * self.stride}, max_side_px = {self.max_side_px}), got {self.coarse_side_px}")
         if self.max_side_px < 8 * self.stride:
             raise ValueError(f"{where}: max_side_px ({self.max_side_px}) must be at least 8 strides ({8 * self.stride})")
-        for name in ("threshold", "coarse_threshold"):
+        if not isinstance(self.filter_refines, (bool, np.bool_)):
+            raise ValueError(f"{where}: filter_refines must be True or False, got {self.filter_refines!r}")
+        object.__setattr__(self, "filter_refines", bool(self.filter_refines))
+        for name in ("threshold", "coarse_threshold", "track_threshold"):
             t = getattr(self, name)
+            if name == "track_threshold" and t is None:
+                continue
             if isinstance(t, bool) or not isinstance(t, (int, float, np.floating)) or not 0.0 < float(t) < 1.0:
                 raise ValueError(f"{where}: {name} must be a probability in (0, 1), got {t!r}")
             object.__setattr__(self, name, float(t))
@@ -147,7 +219,7 @@ class LearnedStage:
         """
         h, w = image.shape[:2] if frame_shape is None else frame_shape[:2]
         scale = learned_scale(h, w, self.max_side_px)
-        if window is None and frame_shape is None and self.coarse_side_px and max(h, w) > self.coarse_side_px:
+        if window is None and frame_shape is None and self.coarse_side_px and max(h, w) * scale >= COARSE_MIN_RATIO * self.coarse_side_px:
             return self._two_passes(image, k, threshold)
         return self._one_pass(image, window, k, threshold, scale)
 
@@ -209,9 +281,14 @@ class LearnedStage:
         uv, heat, d = decode_heatmap(self.run(crop), th, kk, st)
         if len(heat) == 0:
             return uv, heat, d
-        # network pixels -> image pixels (pixel centres: u_img + 0.5 = (u_net + 0.5) * sx + bx0)
-        uv = np.stack([(uv[:, 0] + 0.5) * sx - 0.5 + bx0, (uv[:, 1] + 0.5) * sy - 0.5 + by0], axis=1)
-        d = d * 0.5 * (sx + sy)
+        # network pixels -> image pixels (pixel centres: u_img + 0.5 = (u_net + 0.5) * sx + bx0); in place (uv is new)
+        if sx != 1.0 or sy != 1.0:
+            uv[:, 0] = (uv[:, 0] + 0.5) * sx - 0.5
+            uv[:, 1] = (uv[:, 1] + 0.5) * sy - 0.5
+            d *= 0.5 * (sx + sy)
+        if bx0 or by0:
+            uv[:, 0] += bx0
+            uv[:, 1] += by0
         inside = (uv[:, 0] > x0 - 0.5) & (uv[:, 0] < x1 - 0.5) & (uv[:, 1] > y0 - 0.5) & (uv[:, 1] < y1 - 0.5)
         if window is not None or not inside.all():
             uv, heat, d = uv[inside][:k], heat[inside][:k], d[inside][:k]
@@ -223,7 +300,9 @@ class LearnedStage:
                     learned_max_side_px=np.array(self.max_side_px), learned_threshold=np.array(self.threshold),
                     learned_diameter_range_px=np.array(self.diameter_range_px), learned_context_px=np.array(self.context_px),
                     learned_description=np.array(self.description),
-                    learned_coarse=np.array([self.coarse_side_px, self.coarse_threshold, self.coarse_candidates], np.float64))
+                    learned_coarse=np.array([self.coarse_side_px, self.coarse_threshold, self.coarse_candidates], np.float64),
+                    learned_refine=np.array(self.filter_refines),
+                    **({} if self.track_threshold is None else {"learned_track_threshold": np.array(self.track_threshold)}))
 
     @classmethod
     def from_fields(cls, data: dict, src: str) -> "LearnedStage | None":
@@ -251,6 +330,16 @@ class LearnedStage:
             if c.dtype.kind not in "biuf" or c.shape != (3,) or not np.isfinite(c).all() or not float(c[0]).is_integer() or not float(c[2]).is_integer():
                 raise ValueError(f"{src}: field 'learned_coarse' must be [side px, threshold, candidates] (integers, a probability), got {c!r}")
             coarse = dict(coarse_side_px=int(c[0]), coarse_threshold=float(c[1]), coarse_candidates=int(c[2]))
+        if "learned_refine" in data:  # optional: whether the file's filter refines the stage's centres (default yes)
+            r = data["learned_refine"]
+            if r.dtype != np.bool_ or r.shape != ():
+                raise ValueError(f"{src}: field 'learned_refine' must be a boolean, got dtype {r.dtype} shape {r.shape}")
+            coarse["filter_refines"] = bool(r)
+        if "learned_track_threshold" in data:  # optional: the tracker's operating point (default: the threshold)
+            t = data["learned_track_threshold"]
+            if t.dtype.kind not in "f" or t.shape != ():
+                raise ValueError(f"{src}: field 'learned_track_threshold' must be a probability (a float), got dtype {t.dtype} shape {t.shape}")
+            coarse["track_threshold"] = float(t)
         try:
             stage = cls(onnx=onnx.tobytes(), stride=int(data["learned_stride"]), max_side_px=int(data["learned_max_side_px"]),
                         threshold=float(data["learned_threshold"]), diameter_range_px=tuple(np.asarray(data["learned_diameter_range_px"], float).reshape(-1)),

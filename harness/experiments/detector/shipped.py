@@ -15,6 +15,10 @@ model's description):
   (white balance, exposure, gamma, lamp tint, blur, noise, JPEG), a quarter of the frames ball-free;
 * **real ball crops pasted into real frames** (white; :mod:`harness.sim.render.ball_crops` when present):
   the rally's own ball, cut from the training frames with its matte, at random scale and blur;
+* **semi-real frames** (white): the caliscope session's cameras 0 and 1 with the rally's real balls of the
+  training part flown through the rig in 3D (:class:`harness.sim.semireal.SemiRealSession`, as ``rt2 eval
+  framesets --scene caliscope --ball white`` makes them on cameras 2-3 with the held-out balls): exact centres and
+  apparent diameters, the flight's smear, the frame's own light (``--semireal-sets``);
 * **renders** of the simulated lab (orange; ``--renders DIR``: an ``rt2 sim dataset`` set).
 
 The stage's threshold (recall - outliers, top-K candidates) is chosen on the real training frames where there
@@ -30,6 +34,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+from harness.experiments.detector.learned_train import ARCHS, TRACK_THRESHOLD
 
 __all__ = ["add_arguments", "build", "run"]
 
@@ -53,11 +59,14 @@ def _drawn(sources, n_per_video: int, seed: int, colour: str, diameter_px, log):
 
 
 #: relative sampling weights of the sources (the real frames count most; the drawn balls, whose look is ours, least)
-WEIGHTS = {"real": 4.0, "pasted": 1.0, "drawn": 0.3, "renders": 1.0}
+WEIGHTS = {"real": 4.0, "pasted": 1.0, "drawn": 0.3, "renders": 1.0, "semireal": 1.0}
+#: the semi-real source's cameras (the caliscope session's; 2 and 3 stay held out for evaluation)
+SEMIREAL_CAMERAS = (0, 1)
 
 
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
-          diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, log=print, progress: bool = True):
+          diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, log=print,
+          progress: bool = True):
     """The model (base filter + trained learned stage) and a dict of what it was trained on and its validation figures."""
     from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.learned_train import (LearnedTrainOptions, _best_threshold, fit_learned, items_at_scale)
@@ -87,6 +96,11 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
             pairs += pasted
             weights += [WEIGHTS["pasted"]] * len(pasted)
             sources.append(f"{len(pasted)} frames with the rally's real ball crops pasted in")
+    if colour == "white" and semireal_sets:
+        semi = _semireal(rally_range, semireal_sets, seed, log)
+        pairs += semi
+        weights += [WEIGHTS["semireal"]] * len(semi)
+        sources.append(f"{len(semi)} semi-real frames (caliscope cameras 0-1, the rally's real balls {rally_range} flown in 3D)")
     if renders:
         r = read_labels(renders, "auto")
         pairs += [(load_image(li), li) for li in r]
@@ -95,9 +109,12 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     items = []
     for (im, li), w in zip(pairs, weights):
         items += items_at_scale([(im, li)], max_side, weight=w)
-    opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0))
+    opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0),
+                               **({} if arch is None else {"arch": arch}))
     _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
-    stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px, coarse_side_px=max_side // 2)
+    # the file keeps the base's filter (orange): it refines the stage's centres only for balls of its colour
+    stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px, coarse_side_px=max_side // 2,
+                         filter_refines=colour == "orange")
     # the threshold: on the real training frames where there are any (white: the rally's training part, never its
     # held-out frames), else on a validation set made like the drawn training frames from other frames and seeds
     if colour == "white":
@@ -109,15 +126,48 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     truth = ([truth_of(li)[0] for _, li in val], [truth_of(li)[1] for _, li in val])
     cands = [stage.candidates(im, None, k=16, threshold=0.05)[:2] for im, _ in val]
     th, s = _best_threshold(truth, cands, 4, 6.0)
-    stage = dataclasses.replace(stage, threshold=th, description=(
+    stage = dataclasses.replace(stage, threshold=th, track_threshold=min(th, TRACK_THRESHOLD), description=(
         f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps}` on " + "; ".join(sources)
-        + f"; {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to {max_side} px, coarse pass at {max_side // 2} px; "
-        f"threshold {th:g} chosen on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%"))
+        + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to {max_side} px, coarse pass at {max_side // 2} px; "
+        f"tracking threshold {min(th, TRACK_THRESHOLD):g}; threshold {th:g} chosen on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%"))
     log(f"threshold {th:g} on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
         f"median {s.median_center_error_px:.2f} px")
     model = dataclasses.replace(base, learned=stage, ball_colour=colour if colour == "white" else base.ball_colour,
                                 description=base.description + f"; learned stage: {stage.description}")
     return model, dict(validation=s, threshold=th, sources=sources)
+
+
+def _semireal(rally_range: str, n_sets: int, seed: int, log):
+    """Frames of the caliscope session's training cameras (``SEMIREAL_CAMERAS``) with the rally's real balls of
+    ``rally_range`` flown through the rig as ``rt2 eval framesets --scene caliscope --ball white`` flies them
+    (:class:`harness.sim.semireal.SemiRealSession`: projected centre and apparent diameter exact, the flight's
+    smear, the frame's light and sharpness); labels: the exact centre and a square of the apparent diameter.
+    A ball less than half inside a camera's image leaves that frame out (neither ball nor background)."""
+    from harness.experiments.detector.coco import LabelledImage
+    from harness.sim.semireal import DEFAULT_RALLY, DEFAULT_SESSION, SemiRealOptions, SemiRealSession
+
+    if not (DEFAULT_SESSION.is_dir() and DEFAULT_RALLY.is_dir()):
+        return []
+    session = SemiRealSession(DEFAULT_SESSION, SemiRealOptions(ball_colour="white", real_balls=DEFAULT_RALLY, crop_frames=rally_range,
+                                                               backgrounds=48, moving_backgrounds=False), seed=seed + 7000)
+    out = []
+    for f in range(n_sets):
+        images, truths, _, k = session.frameset(f)
+        for c in SEMIREAL_CAMERAS:
+            t, im = truths[c][0], images[c]
+            h, w = im.shape[:2]
+            if t.visibility >= 0.5 and np.isfinite(t.center_px).all():
+                d = float(t.diameter_px)
+                boxes, centers = [[t.center_px[0] + 0.5 - d / 2, t.center_px[1] + 0.5 - d / 2, d, d]], [t.center_px]
+            elif t.visibility > 0:
+                continue
+            else:
+                boxes, centers = [], []
+            out.append((im, LabelledImage(f"semireal/{seed}/{f:05d}_cam{c}.png", w, h, np.array(boxes, float).reshape(-1, 4),
+                                          np.array(centers, float).reshape(-1, 2))))
+    log(f"{len(out)} semi-real frames (caliscope cameras {', '.join(map(str, SEMIREAL_CAMERAS))}, {n_sets} frame sets, "
+        f"{len(session.real.crops)} real ball crops of {rally_range})")
+    return out
 
 
 def _pasted(rally_range: str, bg_sources, seed: int, n_per_video: int, diameter_px, log):
@@ -159,11 +209,15 @@ def add_arguments(parser) -> None:
     parser.add_argument("--colour", choices=("white", "orange"), required=True, help="the ball colour of the model")
     parser.add_argument("--out", required=True, help="weights file to write (.npz)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--steps", type=int, default=4000, help="optimiser steps of the learned stage (default 4000)")
+    parser.add_argument("--steps", type=int, default=3000, help="optimiser steps of the learned stage (default 3000, as shipped)")
     parser.add_argument("--base", default=str(DEFAULT_BASE), help="the model whose 5x5 filter the file keeps (default: the shipped orange model)")
     parser.add_argument("--rally-range", default="0:58", help="the rally frames trained on, in time order (default 0:58; the rest stays held out)")
     parser.add_argument("--renders", default=None, help="an rt2 sim dataset folder of renders added to training (e.g. for orange)")
     parser.add_argument("--frames-per-video", type=int, default=64, help="background frames taken from each video (default 64)")
+    parser.add_argument("--arch", default=None, choices=ARCHS, help="the network's layout (default: the training default)")
+    parser.add_argument("--semireal-sets", type=int, default=160,
+                        help="white: semi-real frame sets (caliscope cameras 0-1, the rally's training balls flown in 3D) added "
+                             "to training (default 160; 0 = none)")
     parser.add_argument("--max-side-px", type=int, default=960,
                         help="frames with a longer side are shrunk to it before the network (default 960: VGA frames as they are)")
 
@@ -176,7 +230,8 @@ def run(args) -> int:
         raise ValueError(f"--out must end in .npz, got {args.out!r}")
     check_output_file(out, "--out")
     model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,
-                        renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px)
+                        renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
+                        semireal_sets=args.semireal_sets, arch=args.arch)
     with atomic_path(out, "--out") as tmp:
         model.save(tmp)
     print(f"wrote {out}: learned stage threshold {info['threshold']:g}")

@@ -54,6 +54,28 @@ def test_the_same_seed_gives_the_same_network_bytes(synthetic_ball_coco):
     assert a == b and a != c
 
 
+def test_both_network_layouts_export_and_fine_tuning_keeps_the_layout_it_starts_from(synthetic_ball_coco):
+    """s8 and s16 run on frames whose size is a whole number of cells but not of stride-16 cells; a stage of
+    either layout fine-tunes (its state read back from the ONNX bytes) into a network of the same layout."""
+    from harness.experiments.detector.learned_train import ARCHS, arch_of_state, build_net, export_onnx, state_of_onnx
+    from tracker.detection.learned import LearnedStage
+
+    pytest.importorskip("onnx", reason="fine-tuning reads the ONNX initializers back (rt2[train])")
+    labelled = read_coco(synthetic_ball_coco(6, 0))
+    items = items_at_scale([(load_image(li), li) for li in labelled], 640)
+    for arch in ARCHS:
+        torch.manual_seed(0)
+        onnx_bytes = export_onnx(torch, build_net(torch, arch=arch))
+        assert LearnedStage(onnx_bytes).run(np.zeros((36, 52, 3), np.uint8)).shape == (4, 9, 13)
+        state = state_of_onnx(onnx_bytes)
+        assert arch_of_state(state) == arch
+        tuned, _ = fit_learned(items, LearnedTrainOptions(iterations=1, batch=2, patch_px=64, arch="s8" if arch == "s16" else "s16"),
+                               0, state=state, log=lambda m: None)
+        assert arch_of_state(tuned) == arch and set(tuned) == set(state)
+    with pytest.raises(ValueError, match="arch"):
+        LearnedTrainOptions(arch="s32")
+
+
 def test_no_ball_nothing_to_learn():
     items = [LearnedItem(np.zeros((64, 64, 3), np.uint8), np.zeros((0, 2)), np.zeros(0))]
     with pytest.raises(ValueError, match="no ball"):

@@ -69,17 +69,40 @@ def test_few_label_run_on_real_frames(tmp_path, capsys):
 # -- the shipped white model (learned stage) on the held-out rally frames: figures, not plumbing ---------------------
 def test_the_shipped_white_model_finds_the_held_out_rally_ball_without_false_ones():
     """README Results, "Real white balls with the learned stage": trained on frames 0:58 (and frames we made), scored on
-    the 25 held-out frames 58: and on the same frames with the ball painted out. Measured 2026-11-28: top-4 recall 88 %
-    (22 of 25), no outlier, median 4.15 px against the loose boxes; no alarm on the 25 ball-free frames. The 5x5 filter
-    finds none of these balls. The bounds leave one ball of slack for float differences between CPUs."""
+    the 25 held-out frames 58: and on the same frames with the ball painted out. Measured 2026-11-28: top-4 recall 84 %
+    (21 of 25), no outlier, median 4.61 px against the loose boxes; an alarm on 1 of the 25 ball-free frames. The 5x5
+    filter finds none of these balls. The bounds leave one ball (and one alarm) of slack for float differences between
+    CPUs."""
     from harness.experiments.studies.eval_detector import evaluate
 
     model = BallSegmentationModel.load("data/models/ball_seg_white.npz")
     held_out = take_range(read_coco(RALLY), LATE)
     topk = evaluate(model, held_out, methods=("topk",), progress=False)[0]
     assert topk.n_balls == 25
-    assert topk.recall >= 21 / 25 and topk.outlier_rate <= 1 / 22 and topk.median_center_error_px <= 5.0
+    assert topk.recall >= 20 / 25 and topk.outlier_rate <= 1 / 21 and topk.median_center_error_px <= 5.0
     free = evaluate(model, held_out, methods=("topk",), progress=False, ball_free_margin_px=4.0)[0]
-    assert free.n_false_alarm_images <= 1
+    assert free.n_false_alarm_images <= 2
     paper = evaluate(model, held_out, methods=("paper",), progress=False)[0]
     assert paper.recall == 0.0  # the filter of the same file: what the learned stage adds
+
+
+def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, capsys):
+    """rt2 train-shipped, cut short (2 steps, a few frames of each source): a white model with the learned stage, its
+    sources in the description (real frames, drawn, pasted and semi-real ones), the tracking threshold, the orange
+    filter never refining it; the same seed gives the same file; a wrong --out is one line."""
+    pytest.importorskip("torch", reason="training needs rt2[train]")
+    args = ["train-shipped", "--colour", "white", "--steps", "2", "--frames-per-video", "2", "--semireal-sets", "2",
+            "--rally-range", "40:46", "--seed", "3"]
+    a, b = tmp_path / "a.npz", tmp_path / "b.npz"
+    assert main([*args, "--out", str(a)]) == 0
+    assert main([*args, "--out", str(b)]) == 0
+    assert a.read_bytes() == b.read_bytes()
+    model = BallSegmentationModel.load(a)
+    stage = model.learned
+    assert model.ball_colour == "white" and stage.track_threshold == min(stage.threshold, 0.2) and not stage.filter_refines
+    for source in ("6 real rally frames (40:46)", "drawn white balls", "real ball crops pasted", "semi-real frames", "network layout s8"):
+        assert source in stage.description, source
+    capsys.readouterr()
+    assert main([*args, "--out", str(tmp_path / "m.txt")]) == 2
+    err = capsys.readouterr().err
+    assert "--out must end in .npz" in err and "Traceback" not in err
