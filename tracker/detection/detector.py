@@ -239,13 +239,19 @@ class BallDetector:
         uv, scores, d = self.learned.candidates(image, window, k=o.max_seeds if o.min_area_px or o.max_area_px else o.max_candidates,
                                                 threshold=o.learned_threshold, frame_shape=frame_shape)
         areas = np.pi / 4 * d * d
-        keep = (areas >= self.area_range_px[0]) & (areas <= self.area_range_px[1])
-        if not keep.all():
-            uv, scores, d, areas = uv[keep], scores[keep], d[keep], areas[keep]
-        uv, scores, d, areas = uv[: o.max_candidates], scores[: o.max_candidates], d[: o.max_candidates], areas[: o.max_candidates]
+        if len(d):
+            lo, hi = self.area_range_px
+            if areas.min() < lo or areas.max() > hi:
+                keep = (areas >= lo) & (areas <= hi)
+                uv, scores, d, areas = uv[keep], scores[keep], d[keep], areas[keep]
+            if len(d) > o.max_candidates:
+                m = o.max_candidates
+                uv, scores, d, areas = uv[:m], scores[:m], d[:m], areas[:m]
         if o.refine_with_filter and self.learned.filter_refines and len(uv):
             uv = self._refined(image, uv, d)
-        boxes = np.concatenate([uv + 0.5 - d[:, None] / 2, np.repeat(d[:, None], 2, axis=1)], axis=1) if len(d) else np.zeros((0, 4))
+        boxes = np.empty((len(d), 4))
+        boxes[:, :2] = uv + 0.5 - 0.5 * d[:, None]
+        boxes[:, 2] = boxes[:, 3] = d
         return Detections(uv, scores, boxes, np.rint(areas).astype(np.int64), window is not None)
 
     def _refined(self, image, uv, d) -> np.ndarray:

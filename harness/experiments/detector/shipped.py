@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.experiments.detector.learned_train import ARCHS, TRACK_THRESHOLD
+from harness.experiments.detector.learned_train import ARCHS, TRACK_THRESHOLD, WINDOW_CONTEXT_PX
 
 __all__ = ["add_arguments", "build", "run"]
 
@@ -114,7 +114,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
     # the file keeps the base's filter (orange): it refines the stage's centres only for balls of its colour
     stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px, coarse_side_px=max_side // 2,
-                         filter_refines=colour == "orange")
+                         context_px=WINDOW_CONTEXT_PX, filter_refines=colour == "orange")
     # the threshold: on the real training frames where there are any (white: the rally's training part, never its
     # held-out frames), else on a validation set made like the drawn training frames from other frames and seeds
     if colour == "white":
@@ -128,7 +128,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     th, s = _best_threshold(truth, cands, 4, 6.0)
     stage = dataclasses.replace(stage, threshold=th, track_threshold=min(th, TRACK_THRESHOLD), description=(
         f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps}` on " + "; ".join(sources)
-        + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to {max_side} px, coarse pass at {max_side // 2} px; "
+        + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to {max_side} px, coarse pass at {max_side // 2} px, windows with {WINDOW_CONTEXT_PX} px of context; "
         f"tracking threshold {min(th, TRACK_THRESHOLD):g}; threshold {th:g} chosen on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%"))
     log(f"threshold {th:g} on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
         f"median {s.median_center_error_px:.2f} px")

@@ -20,7 +20,7 @@ def test_bench_json_rows_rendered_frame(tmp_path, capsys):
     assert [(r["mode"], r["backend"]) for r in rows] == [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")]
     assert all(set(r) == {"mode", "backend", "median_ms"} and 0 < r["median_ms"] < 10_000 for r in rows)
     text = capsys.readouterr().out
-    assert "rendered lab4_vga cam0 frame (seed 0, scene" in text and "medians of 3 (ROI: 30) runs" in text
+    assert "rendered lab4_vga cam0 frame, orange ball (seed 0, scene" in text and "medians of 3 (ROI: 30) runs" in text
     # the table prints the measured figures the JSON holds, and the ratios are computed from them
     by = {(r["mode"], r["backend"]): r["median_ms"] for r in rows}
     for (mode, backend), ms in by.items():
@@ -89,3 +89,15 @@ def test_bench_bad_input(tmp_path, capsys):
     model = hand_made_model().save(tmp_path / "hand.npz")
     assert main(["bench", "detector", "--model", str(model), "--repeats", "0"]) == 2
     assert "--repeats must be >= 1" in capsys.readouterr().err
+
+
+def test_bench_of_the_white_model_times_a_white_ball_it_finds(tmp_path, capsys):
+    """The white model's bench frame shows a white ball its learned stage finds in the window (at the tracking
+    threshold, as a tracker searches); the learned rows come first and the goals line is printed."""
+    pytest.importorskip("onnxruntime")
+    out = tmp_path / "bench.json"
+    assert main(["bench", "detector", "--model", "data/models/ball_seg_white.npz", "--repeats", "2", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert [(r["mode"], r["backend"]) for r in rows][:2] == [("full", "learned"), ("roi", "learned")]
+    text = capsys.readouterr().out
+    assert "white ball (seed 0, scene" in text and "goals: with the learned stage, full frame <= 6 ms, ROI <= 0.3 ms" in text
