@@ -1,7 +1,7 @@
 """The learned detector stage: a small fully convolutional heatmap network that sees shape and context.
 
 The paper's single 5x5 filter tests one pixel's colour; it cannot tell a white ball from a lamp, a
-shelf or a white sneaker. This stage is a CenterNet-like network (a few convolutions, ~7k weights):
+shelf or a white sneaker. This stage is a CenterNet-like network (a few convolutions, ~10k weights):
 from an RGB frame it computes, on a grid of ``stride`` pixels, a ball *heat* logit (is a ball centre
 in this cell?), the centre's sub-cell offset and the ball's log diameter. Candidates are the local
 maxima of the heat above ``threshold``, best first; centres are sub-pixel (cell + offset), boxes and

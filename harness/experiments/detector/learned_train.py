@@ -5,7 +5,7 @@ The network (:func:`build_net`): the uint8 RGB frame in, ``x / 255 - 0.5``; a 4x
 (16 channels: every pixel of each 4x4 cell seen, so balls of a few pixels keep their shape); three 3x3
 convolutions at stride 8 (16 channels, dilations 1, 2, 4: what surrounds the ball, up to ~120 pixels);
 upsampled to stride 4 and joined to the stride-4 features; a 1x1 convolution to four maps: the heat
-logit, the centre's offset in the cell (u, v) and the log diameter. About 7k weights.
+logit, the centre's offset in the cell (u, v) and the log diameter. About 10k weights.
 
 Targets (:func:`targets`): a Gaussian bump on the heat at each ball's centre (sigma from its diameter,
 at least half a cell), offset and log diameter at the centre's cell. Loss: CenterNet's penalty-reduced
