@@ -36,6 +36,7 @@ import cv2
 import numba
 import numpy as np
 
+from checks.numba_cache import key_cache_on_callees
 from checks.per_thread import PerThread
 
 __all__ = ["LearnedStage", "LEARNED_FIELDS", "decode_heatmap", "learned_scale"]
@@ -378,3 +379,6 @@ class _SessionFactory:
         so.inter_op_num_threads = 1
         so.log_severity_level = 3
         return ort.InferenceSession(self.onnx, so, providers=["CPUExecutionProvider"])
+
+
+key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel
