@@ -240,9 +240,8 @@ class BallDetector:
                                                 threshold=o.learned_threshold, frame_shape=frame_shape)
         areas = np.pi / 4 * d * d
         if len(d):
-            lo, hi = self.area_range_px
-            if areas.min() < lo or areas.max() > hi:
-                keep = (areas >= lo) & (areas <= hi)
+            keep = (areas >= self.area_range_px[0]) & (areas <= self.area_range_px[1])  # a NaN diameter is never kept
+            if not keep.all():
                 uv, scores, d, areas = uv[keep], scores[keep], d[keep], areas[keep]
             if len(d) > o.max_candidates:
                 m = o.max_candidates
