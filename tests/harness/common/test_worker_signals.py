@@ -114,6 +114,23 @@ def _play(tmp_path, balls=60):
             "--out", str(tmp_path), "--no-figure", "--json", str(tmp_path / "play.json"))
 
 
+def _tiny_rig(tmp_path, name: str) -> str:
+    """The rig ``name`` at 160x120 (a 16th of VGA's pixels): its workers start in a fraction of the time (the static lab is
+    ray-cast once per pixel in each worker, 6 s for VGA) and still render and track the lab; what these tests check
+    (the stop, the files left) does not depend on the image size. A path to its file."""
+    import numpy as np
+
+    from tracker import Rig
+
+    d = Rig.load(ROOT / "data" / "rigs" / f"{name}.yaml").to_dict()
+    for cam in d["cameras"]:
+        cam["image_size"] = [160, 120]
+        cam["K"] = (np.array(cam["K"]) * [[0.25], [0.25], [1.0]]).tolist()
+    path = tmp_path / f"{name}_160x120.yaml"
+    Rig.from_dict(d).save(path)
+    return str(path)
+
+
 def _table1(tmp_path):
     return cli("sim", "table1", "--trials", "4000", "--cameras", "4", "8", "15", "30", "--workers", "2", "--seed", "0",
             "--json", str(tmp_path / "table1.json"))
@@ -189,8 +206,9 @@ def test_sigterm_accuracy_scores_the_finished_frames_and_closes_the_log(tmp_path
 # -- a data set is all or nothing: a signal leaves --out as it was ------------------------------------------
 def test_sigterm_sim_dataset_stops_fast_and_leaves_out_as_it_was(tmp_path):
     out = tmp_path / "set"
-    run = Run(cli("sim", "dataset", "--frames", "200", "--seed", "1", "--workers", "2", "--out", str(out)))
-    run.wait_progress(r"(\d+)/200", 8)
+    run = Run(cli("sim", "dataset", "--rig", _tiny_rig(tmp_path, "lab4_vga"), "--frames", "2000", "--seed", "1", "--workers", "2",
+                  "--out", str(out)))
+    run.wait_progress(r"(\d+)/2000", 8)
     stop(run, signal.SIGTERM)
     assert list(out.iterdir()) == []  # no annotations.json, no image, no staging folder left behind
 
@@ -210,9 +228,9 @@ def test_sigint_play_compare_keeps_the_configurations_done(tmp_path):
 
 
 def test_sigterm_eval_framesets_writes_the_finished_chunks(tmp_path):
-    run = Run(cli("eval", "framesets", "--frames", "400", "--seed", "0", "--workers", "2", "--trackers", "rt2",
-                  "--json", str(tmp_path / "framesets.json")))
-    run.wait_progress(r"(\d+)/400", 20)
+    run = Run(cli("eval", "framesets", "--rig", _tiny_rig(tmp_path, "lab4_vga_v1"), "--frames", "4000", "--seed", "0",
+                  "--workers", "2", "--trackers", "rt2", "--json", str(tmp_path / "framesets.json")))
+    run.wait_progress(r"(\d+)/4000", 20)  # one chunk (20 frame sets) finished
     out = stop(run, signal.SIGTERM)
     assert "PARTIAL (interrupted by SIGTERM)" in out
     rows = json.loads((tmp_path / "framesets.json").read_text())

@@ -86,8 +86,14 @@ def _play(tmp_path, name, *extra):
     return json.loads((out / "r.json").read_text())
 
 
-def test_session_json_deterministic_and_independent_of_workers(tmp_path, capsys):
-    a = _play(tmp_path, "a", "--no-log")
+@pytest.fixture(scope="module")
+def default_play(tmp_path_factory):
+    """The default session (3 balls, seed 4, one worker, no log): both tests below need it, played once."""
+    return _play(tmp_path_factory.mktemp("play"), "a", "--no-log")
+
+
+def test_session_json_deterministic_and_independent_of_workers(default_play, tmp_path, capsys):
+    a = default_play
     b = _play(tmp_path, "b", "--no-log", "--workers", "2")
     assert a == b  # same seed -> same results, whatever the number of workers
     (row,) = a
@@ -167,12 +173,12 @@ def test_late_commands_reach_the_robot_after_the_latency():
     assert samples.q_ref[-1][0] > q0[0] + 0.1  # following the delivered ramp
 
 
-def test_plan_latency_plans_ahead_and_is_reproducible(tmp_path):
+def test_plan_latency_plans_ahead_and_is_reproducible(default_play, tmp_path):
     """With a modelled planning time every plan is made for (step time + latency), the same seed gives the
     same figures, and a policy that needs long enough to plan misses balls the instantaneous one plays."""
     slow = _play(tmp_path, "slow", "--no-log", "--plan-latency-ms", "300")
     assert slow == _play(tmp_path, "slow2", "--no-log", "--plan-latency-ms", "300")
-    fast = _play(tmp_path, "fast", "--no-log")
+    fast = default_play  # the same session without a planning time
     assert slow[0]["plan_latency_ms"] == 300.0 and fast[0]["plan_latency_ms"] == 0.0
     assert slow[0]["successes"] < fast[0]["successes"]
     from harness.experiments.play.session import SessionOptions

@@ -6,7 +6,10 @@ in-process call. Local vs Ray: tests/harness/common/test_executor.py.
 
 Each test starts its own cold process (numba compiles that study's kernels there). accuracy, dataset and framesets render
 images and take minutes on a loaded 2-core machine: they are `slow` (`make test-all`); their worker-count
-tests in test_accuracy_run.py and test_sim_dataset.py stay in `make test`."""
+tests in test_accuracy_run.py and test_sim_dataset.py stay in `make test`. play is `slow` too (27 s alone, 75-97 s
+in the parallel suite: compiling every policy kernel cold): its worker-count test is
+test_play.py::test_session_json_deterministic_and_independent_of_workers, and table1 below keeps the cold-cache,
+fresh-process and CLI axes in `make test`."""
 
 from __future__ import annotations
 
@@ -55,7 +58,7 @@ def _differences(a: Path, b: Path) -> list[str]:
     return [f.name for f in sorted(a.rglob("*")) if f.is_file() and f.read_bytes() != (b / f.relative_to(a)).read_bytes()]
 
 
-SLOW = {"accuracy", "dataset", "framesets"}  # render images: minutes on a loaded 2-core machine
+SLOW = {"accuracy", "dataset", "framesets", "play"}  # render images / compile the policies cold: minutes on a loaded 2-core machine
 
 
 @pytest.mark.parametrize("study", [pytest.param(s, marks=[pytest.mark.slow] if s in SLOW else []) for s in STUDIES])

@@ -76,13 +76,15 @@ def test_rt2_robot_record_across_a_bridge_restart(tmp_path):
     rec = subprocess.Popen([sys.executable, "-m", "harness.cli", "robot", "record", "--robot", cmd_ep, "--log", str(path),
                             "--reconnect", "30"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
+        # > 400 states below: 500 Hz over these two waits, which were 0.5 s each (500 states, no slack for a
+        # recorder or bridge starved of CPU around the kill or the stop on a loaded machine); 1 s each: 1000
         assert rec.stdout.readline().startswith(f"recording {cmd_ep}")
-        time.sleep(0.5)
+        time.sleep(1.0)
         first.kill()
         assert "no joint state" in rec.stdout.readline()
         second = BridgeProcess(bind=cmd_ep, state_bind=state_ep)
         assert "reconnected" in rec.stdout.readline()
-        time.sleep(0.5)
+        time.sleep(1.0)
         rec.send_signal(signal.SIGTERM)
         out, _ = rec.communicate(timeout=20)
         assert rec.returncode == 0 and "in 2 segment(s)" in out

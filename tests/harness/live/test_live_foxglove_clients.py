@@ -131,7 +131,9 @@ def test_foxglove_classic_client_records_every_channel_of_rt2_track(tmp_path):
     ``rt2 track --source sim --foxglove`` advertises and records an MCAP; ``rt2 log info`` reads it and every
     advertised topic has messages with its schema."""
     out = tmp_path / "classic.mcap"
-    track = TrackProcess("--source", "sim", "--foxglove", "0", "--publish-rt2", "none", "--duration", "15",
+    # pre-rendered (a looped 0.1 s clip): the images come from this process, not from a renderer process that
+    # otherwise takes a second core for the whole run
+    track = TrackProcess("--source", "sim", "--prerender", "0.1", "--foxglove", "0", "--publish-rt2", "none", "--duration", "15",
                          "--status-period", "0", timeout_s=300)
     try:
         url = track.ready["live_view"]
