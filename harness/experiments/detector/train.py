@@ -41,6 +41,7 @@ from tracker.detection.model import BALL_COLOURS, INPUT_TRANSFORMS, logit, trans
 __all__ = [
     "BALL_COLOURS",
     "EXIT_WEAK_MODEL",
+    "FILTER_CHOICES",
     "LEARNED_CHOICES",
     "MIN_WRITE_RECALL",
     "KEEP_BASE_CHOICES",
@@ -53,10 +54,12 @@ __all__ = [
     "cv_recall",
     "load_image",
     "pixel_targets",
+    "keeps_filter",
     "run",
     "select_ball_colour",
     "split_groups",
     "train",
+    "written_scores",
 ]
 
 #: candidate thresholds searched on the validation split: T_h every 0.25 in logit from 0.5 to 0.999
@@ -73,6 +76,8 @@ PRIOR_MARGIN_BALLS = 2
 KEEP_BASE_CHOICES = ("auto", "never")
 #: ``TrainOptions.learned`` / ``rt2 train --learned``: train the learned detector stage too?
 LEARNED_CHOICES = ("auto", "off")
+#: ``TrainOptions.filter`` / ``rt2 train --filter``: fit the 5x5 filter, keep the base model's, or choose (see TrainOptions)
+FILTER_CHOICES = ("auto", "fit", "keep")
 #: rt2 train's exit status when the model it chose finds too few balls in cross-validation (not written without --force)
 EXIT_WEAK_MODEL = 3
 #: the cross-validated recall below which rt2 train does not write the model (without --force)
@@ -113,6 +118,11 @@ class TrainOptions:
         a base model's stage)
     learned_folds : time-contiguous folds of the learned stage's cross-validation
     learned_steps : optimiser steps of a learned stage from scratch (fine-tuning takes 3/8 of them)
+    filter : the 5x5 filter (Algorithm 1's model): "fit" trains it as above; "keep" writes the base model's filter
+        unchanged (needs a base and ``learned="auto"``: something must be trained); "auto" (default) keeps it when the
+        learned stage is trained too and the base's stage does not take the filter's refinement
+        (``LearnedStage.filter_refines`` False: the filter is of another ball, as the shipped white model's orange
+        filter; fitting it to these labels takes minutes for a filter ``rt2`` does not use on this ball), else fits it
     """
 
     epochs: int = 6
@@ -139,6 +149,7 @@ class TrainOptions:
     learned: str = "off"
     learned_folds: int = 3
     learned_steps: int = 400
+    filter: str = "auto"
 
     def __post_init__(self):
         if not 0.0 < self.val_fraction < 1.0:
@@ -170,6 +181,10 @@ class TrainOptions:
             raise ValueError(f"TrainOptions.learned_folds must be an integer >= 2, got {self.learned_folds!r}")
         if isinstance(self.learned_steps, bool) or not isinstance(self.learned_steps, int) or self.learned_steps < 1:
             raise ValueError(f"TrainOptions.learned_steps must be a positive integer, got {self.learned_steps!r}")
+        if self.filter not in FILTER_CHOICES:
+            raise ValueError(f"TrainOptions.filter must be one of {FILTER_CHOICES}, got {self.filter!r}")
+        if self.filter == "keep" and self.learned != "auto":
+            raise ValueError("TrainOptions.filter 'keep' with learned 'off' trains nothing: keep the filter only while training the learned stage")
 
 
 # -- data ------------------------------------------------------------------------------------------
@@ -603,14 +618,66 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     """
     import torch  # training only
 
-    from harness.experiments.detector.scores import truth_of
-
     torch.manual_seed(opts.seed)
     rng = np.random.default_rng(opts.seed)
     if base is not None and base.input_transform != opts.input_transform:
         opts = dataclasses.replace(opts, input_transform=base.input_transform, log_offset_dn=base.log_offset_dn)
-    base_area = None if base is None else tuple(float(v) for v in base.area_range_px)
     labelled = select_ball_colour(labelled, opts.ball_colour, progress=progress)
+    if keeps_filter(opts, base):
+        if base is None:
+            raise ValueError("--filter keep keeps the base model's filter: there is no base model (--from none)")
+        if not any(li.n_balls for li in labelled):
+            raise ValueError(f"no ball boxes among the {len(labelled)} images: nothing to learn")
+        why = ("--filter keep" if opts.filter == "keep" else
+               "its learned stage does not take the filter's refinement: the filter is of another ball; --filter fit trains it")
+        log(f"the 5x5 filter: the base model's kept unchanged (T_h={base.t_high:g}, T_l={base.t_low:g}; {why})")
+        desc = (f"{description}; " if description else "") + (
+            f"{opts.ball_colour} balls, the base model's 5x5 filter kept unchanged ({why}), {len(labelled)} images, seed {opts.seed}")
+        model = dataclasses.replace(base, description=desc)
+        finfo = dict(n_train=len(labelled), n_val=0, n_pos=0, n_neg=0, n_hard=0, history=[], best_epoch=None, t_high=base.t_high,
+                     t_low=base.t_low, area_range_px=tuple(float(v) for v in base.area_range_px), val_ours=None, val_paper=None,
+                     threshold_choice="kept", kept_base=False, base_ours=None, filter_kept=True)
+    else:
+        model, finfo, desc = _fit_filter(torch, labelled, opts, base, rng, progress=progress, log=log, description=description,
+                                         backgrounds=backgrounds)
+    v_info = None
+    if opts.verifier:
+        from harness.experiments.detector.augment import augment
+        from harness.experiments.detector.verifier_train import VerifierOptions, train_verifier
+
+        vrng = np.random.default_rng([opts.seed, 11])
+        originals = [(load_image(li), li) for li in labelled]
+        augmented = [(i, *augment(im, li, vrng)) for _ in range(opts.augment_copies) for i, (im, li) in enumerate(originals)]
+        verifier, v_info = train_verifier(model, originals, augmented, cv_folds(labelled, opts.cv_folds),
+                                          VerifierOptions(cv_folds=opts.cv_folds), seed=opts.seed, log=log, progress=progress)
+        s_v = v_info["cv"]
+        model = dataclasses.replace(model, verifier=verifier, description=desc + (
+            f"; verifier ({verifier.crop_px}x{verifier.crop_px} crops, {verifier.n_hidden} hidden units, threshold {verifier.threshold:g}): "
+            f"{len(labelled)}-image cv recall {100 * s_v.recall:.2f}%, outliers {100 * s_v.outlier_rate:.2f}%, "
+            f"median {s_v.median_center_error_px:.3f} px; candidates reach {100 * v_info['candidate_recall']:.1f}% of the balls"))
+    l_info = None
+    if opts.learned == "auto":
+        from harness.experiments.detector.learned_train import train_stage
+
+        stage, l_info = train_stage(labelled, [load_image(li) for li in labelled], cv_folds(labelled, opts.learned_folds),
+                                    base=None if base is None else base.learned, seed=opts.seed,
+                                    scratch_steps=opts.learned_steps, finetune_steps=max(1, opts.learned_steps * 3 // 8),
+                                    extra=backgrounds, log=log, progress=progress)
+        c = l_info["chosen"]
+        model = dataclasses.replace(model, learned=stage, description=model.description + (
+            f"; learned stage: {c.name} (of {', '.join(x.name for x in l_info['choices'])}) by {l_info['folds']}-fold cross-validation: "
+            + "; ".join(x.line() for x in l_info["choices"])))
+    elif model.learned is not None:
+        model = dataclasses.replace(model, learned=None)
+    info = dict(finfo, verifier=v_info, learned=l_info)
+    return model, info
+
+
+def _fit_filter(torch, labelled, opts: TrainOptions, base, rng, *, progress: bool, log, description: str, backgrounds):
+    """The 5x5 filter's part of :func:`train` (its docstring): returns ``(model, info, description)``."""
+    from harness.experiments.detector.scores import truth_of
+
+    base_area = None if base is None else tuple(float(v) for v in base.area_range_px)
     choice = _resolve_threshold_choice(labelled, opts)
     fitter = _Fitter(torch, opts, base, rng, progress)
     if choice == "split":
@@ -705,49 +772,35 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     desc += (f"{opts.ball_colour} balls, {opts.input_transform} input, {origin}, {n_train} train / {n_val} val images "
              f"(+{opts.augment_copies} augmented copies each), thresholds by {how}, seed {opts.seed}; {summary}")
     model = dataclasses.replace(base, description=desc) if kept_base else _to_model(r["w"], r["b"], r["norm"], opts, t_high, t_low, area, desc)
-    v_info = None
-    if opts.verifier:
-        from harness.experiments.detector.augment import augment
-        from harness.experiments.detector.verifier_train import VerifierOptions, train_verifier
-
-        vrng = np.random.default_rng([opts.seed, 11])
-        originals = [(load_image(li), li) for li in labelled]
-        augmented = [(i, *augment(im, li, vrng)) for _ in range(opts.augment_copies) for i, (im, li) in enumerate(originals)]
-        verifier, v_info = train_verifier(model, originals, augmented, cv_folds(labelled, opts.cv_folds),
-                                          VerifierOptions(cv_folds=opts.cv_folds), seed=opts.seed, log=log, progress=progress)
-        s_v = v_info["cv"]
-        model = dataclasses.replace(model, verifier=verifier, description=desc + (
-            f"; verifier ({verifier.crop_px}x{verifier.crop_px} crops, {verifier.n_hidden} hidden units, threshold {verifier.threshold:g}): "
-            f"{len(labelled)}-image cv recall {100 * s_v.recall:.2f}%, outliers {100 * s_v.outlier_rate:.2f}%, "
-            f"median {s_v.median_center_error_px:.3f} px; candidates reach {100 * v_info['candidate_recall']:.1f}% of the balls"))
-    l_info = None
-    if opts.learned == "auto":
-        from harness.experiments.detector.learned_train import train_stage
-
-        stage, l_info = train_stage(labelled, [load_image(li) for li in labelled], cv_folds(labelled, opts.learned_folds),
-                                    base=None if base is None else base.learned, seed=opts.seed,
-                                    scratch_steps=opts.learned_steps, finetune_steps=max(1, opts.learned_steps * 3 // 8),
-                                    extra=backgrounds, log=log, progress=progress)
-        c = l_info["chosen"]
-        model = dataclasses.replace(model, learned=stage, description=model.description + (
-            f"; learned stage: {c.name} (of {', '.join(x.name for x in l_info['choices'])}) by {l_info['folds']}-fold cross-validation: "
-            + "; ".join(x.line() for x in l_info["choices"])))
-    elif model.learned is not None:
-        model = dataclasses.replace(model, learned=None)
     info = dict(n_train=n_train, n_val=n_val, n_pos=r["n_pos"], n_neg=r["n_neg"], n_hard=r["n_hard"], history=r["history"],
                 best_epoch=epoch, t_high=t_high, t_low=t_low, area_range_px=area, val_ours=s_ours, val_paper=s_paper,
-                threshold_choice=choice, verifier=v_info, kept_base=kept_base,
-                base_ours=None if base_scores is None else base_scores[0], learned=l_info)
-    return model, info
+                threshold_choice=choice, kept_base=kept_base, base_ours=None if base_scores is None else base_scores[0], filter_kept=False)
+    return model, info, desc
+
+
+def keeps_filter(opts: TrainOptions, base) -> bool:
+    """Whether :func:`train` keeps the base model's 5x5 filter unchanged (``TrainOptions.filter``)."""
+    if opts.filter != "auto":
+        return opts.filter == "keep"
+    return (opts.learned == "auto" and base is not None and base.learned is not None
+            and not base.learned.filter_refines)
 
 
 def cv_recall(info) -> tuple[float, str]:
     """The (cross-)validated recall of what ``rt2 train`` writes and what it is: the learned stage's when one was
     trained, else the filter's (top-K)."""
+    scores, what = written_scores(info)
+    return float(np.nan_to_num(scores.recall)), what
+
+
+def written_scores(info):
+    """The held-out :class:`~harness.experiments.detector.scores.DetectorScores` of what ``rt2 train`` writes and what
+    it is: the learned stage's cross-validated ones when one was trained, else the filter's (validation split or
+    cross-validation)."""
     if info.get("learned"):
         c = info["learned"]["chosen"]
-        return float(np.nan_to_num(c.scores.recall)), f"the learned stage ({c.name}, {info['learned']['folds']}-fold cross-validation)"
-    return float(np.nan_to_num(info["val_ours"].recall)), f"the filter ({info['threshold_choice']})"
+        return c.scores, f"the learned stage ({c.name}, {info['learned']['folds']}-fold cross-validation)"
+    return info["val_ours"], f"the filter ({info['threshold_choice']})"
 
 
 # -- command line ----------------------------------------------------------------------------------
@@ -814,6 +867,10 @@ def add_arguments(parser) -> None:
                         help=f"folds of the learned stage's cross-validation (default {TrainOptions.learned_folds})")
     parser.add_argument("--learned-steps", type=int, default=TrainOptions.learned_steps,
                         help=f"optimiser steps of a learned stage from scratch; fine-tuning takes 3/8 of them (default {TrainOptions.learned_steps})")
+    parser.add_argument("--filter", choices=FILTER_CHOICES, default="auto",
+                        help="the 5x5 filter: 'fit' trains it; 'keep' writes the base model's unchanged (with --learned auto); 'auto' "
+                             "(default) keeps it when the base's learned stage does not take the filter's refinement (the shipped "
+                             "white model: its filter is of the orange ball), else fits it")
     parser.add_argument("--force", action="store_true",
                         help=f"write the model even when its cross-validated recall is below {100 * MIN_WRITE_RECALL:.0f}%% "
                              f"(otherwise rt2 train exits {EXIT_WEAK_MODEL} without writing it)")
@@ -870,27 +927,30 @@ def run(args) -> int:
                             ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
                             threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
                             keep_base=args.keep_base, learned=args.learned, learned_folds=args.learned_folds,
-                            learned_steps=args.learned_steps)
+                            learned_steps=args.learned_steps, filter=args.filter)
         sources = f"data {', '.join(map(str, args.data))}" + (f" (time range {args.time_range})" if args.time_range else "")
         if backgrounds:
             sources += f"; backgrounds {', '.join(map(str, args.backgrounds))} ({len(backgrounds)} ball-free images)"
         model, info = train(labelled, opts, description=f"trained by `{cmd}` from {origin}; {sources}", base=base, backgrounds=backgrounds)
         results.append((seed, model, info))
+    held_out = [written_scores(info)[0] for _, _, info in results]  # of what each seed would write
     if len(results) > 1:
-        print(f"{'seed':>5} {'recall':>8} {'outliers':>9} {'median px':>10}  ({results[0][2]['threshold_choice']} figures, ours)")
-        for seed, _, info in results:
-            s = info["val_ours"]
-            print(f"{seed:5d} {100 * s.recall:7.2f}% {100 * s.outlier_rate:8.2f}% {s.median_center_error_px:10.3f}")
-        rec = np.array([np.nan_to_num(i["val_ours"].recall) for _, _, i in results])
-        out_r = np.array([i["val_ours"].outlier_rate for _, _, i in results])
+        print(f"{'seed':>5} {'recall':>8} {'outliers':>9} {'median px':>10}  (held-out figures of {written_scores(results[0][2])[1]})")
+        for (seed, _, _), s in zip(results, held_out):
+            print(f"{seed:5d} {100 * np.nan_to_num(s.recall):7.2f}% {100 * s.outlier_rate:8.2f}% {s.median_center_error_px:10.3f}")
+        rec = np.array([np.nan_to_num(s.recall) for s in held_out])
+        out_r = np.array([s.outlier_rate for s in held_out])
         print(f"spread over {len(results)} seeds: recall {100 * rec.min():.2f}-{100 * rec.max():.2f}%, outliers {100 * out_r.min():.2f}-{100 * out_r.max():.2f}%")
-    best = max(results, key=lambda r: (np.nan_to_num(r[2]["val_ours"].recall) - r[2]["val_ours"].outlier_rate, -r[0]))
-    seed, model, info = best
+    b = max(range(len(results)), key=lambda i: (np.nan_to_num(held_out[i].recall) - held_out[i].outlier_rate, -results[i][0]))
+    seed, model, info = results[b]
     if len(results) > 1:
-        spread = ", ".join(f"seed {sd}: recall {100 * np.nan_to_num(i['val_ours'].recall):.1f}% outliers {100 * i['val_ours'].outlier_rate:.1f}%"
-                           for sd, _, i in results)
+        spread = ", ".join(f"seed {sd}: recall {100 * np.nan_to_num(s.recall):.1f}% outliers {100 * s.outlier_rate:.1f}%"
+                           for (sd, _, _), s in zip(results, held_out))
         model = dataclasses.replace(model, description=model.description + f"; kept seed {seed} of [{spread}]")
-    recall, what = cv_recall(info)
+    scores, what = written_scores(info)
+    recall = float(np.nan_to_num(scores.recall))
+    print(f"held-out figures of the model written ({what}): ours recall {100 * recall:.2f}%, outliers {100 * scores.outlier_rate:.2f}%, "
+          f"median {scores.median_center_error_px:.3f} px")
     if recall < MIN_WRITE_RECALL:
         line = (f"rt2 train: {args.out} not written: the cross-validated recall of {what} is {100 * recall:.1f}% < "
                 f"{100 * MIN_WRITE_RECALL:.0f}%; label more frames (with balls) or check --ball-colour; --force writes it anyway")
@@ -902,5 +962,6 @@ def run(args) -> int:
         model.save(tmp)
     print(f"wrote {out}: T_h={model.t_high:g}, T_l={model.t_low:g} ({info['n_train']} train / {info['n_val']} val images"
           f"{', thresholds by cross-validation' if info['threshold_choice'] == 'cv' else ''}{f', seed {seed}' if len(results) > 1 else ''})"
-          + ("; the base model unchanged: fine-tuning did not beat it on held-out images" if info.get("kept_base") else ""))
+          + ("; the base model unchanged: fine-tuning did not beat it on held-out images" if info.get("kept_base") else "")
+          + ("; the base model's 5x5 filter kept" if info.get("filter_kept") else ""))
     return 0

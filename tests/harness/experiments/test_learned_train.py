@@ -126,11 +126,71 @@ def test_rt2_train_chooses_between_the_base_stage_fine_tuned_and_scratch(synthet
     assert "(of shipped, fine-tuned, scratch) by 2-fold cross-validation" in model.description
 
 
+def test_a_base_whose_filter_does_not_see_its_ball_keeps_its_filter(synthetic_ball_coco, tmp_path, capsys):
+    """``--filter auto`` with a base whose stage the filter does not refine (the shipped white model's case): the 5x5
+    filter is written unchanged (no filter fit: minutes saved), the learned stage is trained and chosen as always, and
+    the output names both; ``--filter fit`` fits the filter anyway."""
+    import dataclasses
+
+    base_path = tmp_path / "base.npz"
+    assert main(["train", "--data", str(synthetic_ball_coco(30, 0)), "--out", str(base_path), "--epochs", "1", "--from", "none",
+                 "--learned-steps", "40", "--learned-folds", "2", "--force", "--seed", "0"]) == 0
+    base = BallSegmentationModel.load(base_path)
+    other = tmp_path / "other.npz"  # its filter "of another ball": the stage says the filter does not refine it
+    dataclasses.replace(base, learned=dataclasses.replace(base.learned, filter_refines=False)).save(other)
+    capsys.readouterr()
+    out = tmp_path / "m.npz"
+    data = str(synthetic_ball_coco(12, 1))
+    common = ["train", "--data", data, "--from", str(other), "--learned-steps", "16", "--learned-folds", "2", "--force", "--seed", "0"]
+    assert main([*common, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "the 5x5 filter: the base model's kept unchanged" in text and "epoch" not in text  # no filter fit
+    assert "held-out figures of the model written (the learned stage" in text and "the base model's 5x5 filter kept" in text
+    m = BallSegmentationModel.load(out)
+    np.testing.assert_array_equal(m.kernel, base.kernel)
+    assert (m.t_high, m.t_low, m.bias) == (base.t_high, base.t_low, base.bias) and m.learned is not None
+    assert not m.learned.filter_refines  # the stage still says so
+    assert "5x5 filter kept unchanged" in m.description
+    fit = tmp_path / "fit.npz"
+    assert main([*common, "--out", str(fit), "--filter", "fit", "--epochs", "1"]) == 0
+    assert "the base model's kept unchanged" not in capsys.readouterr().out
+
+
+def test_which_filter_train_keeps():
+    import dataclasses
+
+    from harness.experiments.detector.train import TrainOptions, keeps_filter
+    from tracker.detection.learned import LearnedStage
+
+    class Stage:  # what keeps_filter reads of a base's stage
+        def __init__(self, refines):
+            self.filter_refines = refines
+
+    class Base:
+        def __init__(self, learned):
+            self.learned = learned
+
+    auto = TrainOptions(learned="auto")
+    assert keeps_filter(auto, Base(Stage(False)))
+    assert not keeps_filter(auto, Base(Stage(True)))  # the filter sees the stage's ball: it is fitted
+    assert not keeps_filter(auto, Base(None)) and not keeps_filter(auto, None)
+    assert not keeps_filter(dataclasses.replace(auto, learned="off"), Base(Stage(False)))  # the filter is all that is trained
+    assert not keeps_filter(dataclasses.replace(auto, filter="fit"), Base(Stage(False)))
+    assert keeps_filter(dataclasses.replace(auto, filter="keep"), Base(Stage(True)))
+    for bad, message in ((dict(filter="maybe"), "TrainOptions.filter must be one of"),
+                         (dict(filter="keep", learned="off"), "trains nothing")):
+        with pytest.raises(ValueError, match=message):
+            TrainOptions(**{"learned": "auto", **bad})
+    assert "filter_refines" in {f.name for f in dataclasses.fields(LearnedStage)}  # the real stage has what keeps_filter reads
+
+
 def test_learned_options_hostile(synthetic_ball_coco, tmp_path, capsys):
     data = str(synthetic_ball_coco(12, 3))
     for extra, message in ((["--learned", "maybe"], "invalid choice"), (["--learned-steps", "0"], "learned_steps"),
-                           (["--learned-folds", "1"], "learned_folds")):
-        with pytest.raises(SystemExit) if extra[0] == "--learned" else _no_raise():
+                           (["--learned-folds", "1"], "learned_folds"), (["--filter", "maybe"], "invalid choice"),
+                           (["--filter", "keep", "--learned", "off"], "trains nothing"),
+                           (["--filter", "keep", "--from", "none"], "there is no base model")):
+        with pytest.raises(SystemExit) if extra[-1] == "maybe" else _no_raise():
             code = main(["train", "--data", data, "--out", str(tmp_path / "m.npz"), *extra])
             assert code == 2
         err = capsys.readouterr().err
