@@ -43,7 +43,7 @@ from policies.ball_model import simulate
 from tracker import Camera, Rig
 from tracker.calibration.poses import rigid_fit, rotation_angle_deg
 
-__all__ = ["DEFAULT_RALLY", "DEFAULT_SESSION", "EXPOSURES", "SemiRealOptions", "SemiRealSession", "aligned_rig", "common_view_box", "session_frames", "session_rig"]
+__all__ = ["DEFAULT_RALLY", "DEFAULT_SESSION", "EXPOSURES", "SemiRealOptions", "SemiRealSession", "aligned_rig", "ball_options", "common_view_box", "session_frames", "session_rig"]
 
 #: the caliscope session shipped beside the project (``../shared`` next to the repository)
 DEFAULT_SESSION = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "caliscope_4cam"
@@ -171,6 +171,28 @@ class SemiRealOptions:
             raise ValueError("crop_frames chooses among real_balls' frames; real_balls is None (the ball is drawn)")
         if self.moving_backgrounds not in (None, True, False):
             raise ValueError(f"moving_backgrounds must be None, True or False, got {self.moving_backgrounds!r}")
+
+
+def ball_options(ball: str | None, crops=None, crop_frames: str | None = None) -> dict:
+    """The command-line choice of the ball (``--ball``, ``--ball-crops``, ``--crop-frames``) as :class:`SemiRealOptions`
+    fields: ``{}`` for the drawn orange ball (None or "orange"), the real white rally balls pasted for "white"
+    (``crops``: their COCO set, default ``DEFAULT_RALLY``; ``crop_frames``: a ``START:STOP`` range of its time
+    order). Refuses, naming the option, what does not apply or does not exist."""
+    from checks.time_order import parse_range
+
+    if ball not in (None, "orange", "white"):
+        raise ValueError(f"--ball must be orange or white, got {ball!r}")
+    if ball != "white":
+        for name, value in (("--ball-crops", crops), ("--crop-frames", crop_frames)):
+            if value is not None:
+                raise ValueError(f"{name} applies to --ball white only")
+        return {}
+    if crop_frames is not None:
+        parse_range(crop_frames, "--crop-frames")
+    crops = Path(DEFAULT_RALLY if crops is None else crops)
+    if not (crops.is_file() or (crops / "annotations.json").is_file()):
+        raise FileNotFoundError(f"--ball-crops {str(crops)!r}: no COCO annotations.json there (the real rally frames are ../shared/data/real/phone_rally)")
+    return {"ball_colour": "white", "real_balls": str(crops), "crop_frames": crop_frames}
 
 
 class SemiRealSession:

@@ -53,10 +53,10 @@ def _lab(frames: int, seed: int, rate_hz: float):
     return rig, sets
 
 
-def _caliscope(frames: int, seed: int, rate_hz: float, flight_frames: int):
-    from harness.sim.semireal import SemiRealSession
+def _caliscope(frames: int, seed: int, rate_hz: float, flight_frames: int, ball: dict | None = None):
+    from harness.sim.semireal import SemiRealOptions, SemiRealSession
 
-    session = SemiRealSession(seed=seed)
+    session = SemiRealSession(options=SemiRealOptions(**(ball or {})), seed=seed)
 
     def sets():
         k = 0
@@ -121,12 +121,24 @@ def _scene_rig_names(scene: str) -> list:
     return list(session_rig().names)
 
 
-def _scene(scene, frames, seed, rate_hz, flight_frames):
-    return _lab(frames, seed, rate_hz) if scene == "lab" else _caliscope(frames, seed, rate_hz, flight_frames)
+def _scene(scene, frames, seed, rate_hz, flight_frames, ball=None):
+    return _lab(frames, seed, rate_hz) if scene == "lab" else _caliscope(frames, seed, rate_hz, flight_frames, ball)
+
+
+def ball_options(scene: str, ball: str | None, crops=None, crop_frames: str | None = None) -> dict:
+    """``--ball`` / ``--ball-crops`` / ``--crop-frames`` -> the caliscope scene's :class:`~harness.sim.semireal.SemiRealOptions`
+    fields (:func:`harness.sim.semireal.ball_options`); the lab scene has its renderer's ball and takes none of them."""
+    from harness.sim import semireal
+
+    if scene != "caliscope":
+        for name, value in (("--ball", ball), ("--ball-crops", crops), ("--crop-frames", crop_frames)):
+            if value is not None:
+                raise ValueError(f"{name} applies to --scene caliscope (the lab's ball is its renderer's), got --scene {scene}")
+    return semireal.ball_options(ball, crops, crop_frames)
 
 
 def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *, rate_hz: float = 100.0, flight_frames: int = 20,
-                      model=None, epochs: int | None = None) -> dict:
+                      model=None, epochs: int | None = None, ball: dict | None = None) -> dict:
     """Train on the ``kept`` labels of every camera but ``held_out``; score base and trained on ``held_out``'s true balls."""
     import tempfile
     from pathlib import Path
@@ -139,7 +151,7 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
     from tracker.pipeline import load_model
 
     base = load_model(model)
-    rig, sets = _scene(scene, frames, seed, rate_hz, flight_frames)
+    rig, sets = _scene(scene, frames, seed, rate_hz, flight_frames, ball)
     if held_out not in rig.names:
         raise ValueError(f"--train-held-out {held_out!r}: the {scene} rig's cameras are {list(rig.names)}")
     h = rig.names.index(held_out)
@@ -179,8 +191,9 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
 
 
 def study(scene: str, frames: int, seed: int, *, rate_hz: float = 100.0, flight_frames: int = 20, model=None,
-          options: AutoOptions = AutoOptions(), kept_out: list | None = None) -> tuple[dict, dict]:
-    """Run ``rt2 label --auto``'s consensus over ``frames`` frame sets of ``scene``; returns (figures, consensus counts)."""
+          options: AutoOptions = AutoOptions(), kept_out: list | None = None, ball: dict | None = None) -> tuple[dict, dict]:
+    """Run ``rt2 label --auto``'s consensus over ``frames`` frame sets of ``scene``; returns (figures, consensus counts).
+    ball : the caliscope scene's ball (:func:`ball_options`; None = the drawn orange ball)"""
     from tracker.pipeline import load_model
 
     if scene not in SCENES:
@@ -192,7 +205,7 @@ def study(scene: str, frames: int, seed: int, *, rate_hz: float = 100.0, flight_
     if isinstance(flight_frames, bool) or not isinstance(flight_frames, int) or flight_frames < 3:
         raise ValueError(f"--flight-frames must be an integer >= 3, got {flight_frames!r}")
     model = load_model(model)
-    rig, sets = _scene(scene, frames, seed, rate_hz, flight_frames)
+    rig, sets = _scene(scene, frames, seed, rate_hz, flight_frames, ball)
     truths = []
 
     def recorded():
@@ -239,6 +252,14 @@ def add_arguments(parser) -> None:
     parser.add_argument("--rate-hz", type=float, default=100.0, help="frame rate of the flights (default 100)")
     parser.add_argument("--flight-frames", type=int, default=20, help="caliscope: frame sets per flight (default 20)")
     parser.add_argument("--model", default=None, help="the detector's weights (default: the shipped model)")
+    parser.add_argument("--ball", choices=("orange", "white"), default=None,
+                        help="--scene caliscope: orange = the drawn orange ball (the default); white = real white balls cut from the "
+                             "real rally frames and pasted along the flight (use a white model: --model data/models/ball_seg_white.npz)")
+    parser.add_argument("--ball-crops", default=None,
+                        help="--ball white: the COCO set whose balls are cut (default ../shared/data/real/phone_rally)")
+    parser.add_argument("--crop-frames", default=None,
+                        help="--ball white: START:STOP of the crops' time order whose balls are used (e.g. 58: = the rally frames "
+                             "the shipped white model never saw; default all)")
     parser.add_argument("--flight-window", type=int, default=AutoOptions.flight_window, help="as rt2 label --auto (default 3)")
     parser.add_argument("--train-held-out", default=None, metavar="CAM",
                         help="also train on the labels of the other cameras and score the base and the trained model on CAM's true balls")
@@ -251,18 +272,20 @@ def run(args) -> int:
 
     check_output_file(args.json, "--json")
     options = AutoOptions(flight_window=args.flight_window)
+    ball = ball_options(args.scene, args.ball, args.ball_crops, args.crop_frames)
     if args.train_held_out is not None:  # checked before the consensus pass, not after it
         names = _scene_rig_names(args.scene)
         if args.train_held_out not in names:
             raise ValueError(f"--train-held-out {args.train_held_out!r}: the {args.scene} rig's cameras are {names}")
     kept: list = []
     fig, counts = study(args.scene, args.frames, args.seed, rate_hz=args.rate_hz, flight_frames=args.flight_frames, model=args.model,
-                        options=options, kept_out=kept)
+                        options=options, kept_out=kept, ball=ball)
     print(format_report(args.scene, fig, counts))
-    result = {"scene": args.scene, "seed": args.seed, "frames": args.frames, "figures": fig, "counts": counts}
+    result = {"scene": args.scene, "seed": args.seed, "frames": args.frames, "ball": args.ball or ("orange" if args.scene == "caliscope" else None),
+              "crop_frames": args.crop_frames, "figures": fig, "counts": counts}
     if args.train_held_out is not None:
         t = held_out_training(args.scene, args.frames, args.seed, args.train_held_out, kept, rate_hz=args.rate_hz,
-                              flight_frames=args.flight_frames, model=args.model, epochs=args.epochs)
+                              flight_frames=args.flight_frames, model=args.model, epochs=args.epochs, ball=ball)
         b, a = t["base"], t["trained"]
         up = (a["recall"] > b["recall"] or b["recall"] == 1.0 == a["recall"]) and a["outlier_rate"] <= b["outlier_rate"]
         print(f"  trained on {t['train_images']} auto labels of the other cameras, scored on {t['held_out_balls']} true balls of "

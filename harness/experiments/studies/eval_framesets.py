@@ -466,25 +466,12 @@ def add_arguments(parser) -> None:
 
 def _ball_choice(args) -> tuple[str, dict]:
     """``--ball`` / ``--ball-colour`` / ``--ball-crops`` / ``--crop-frames`` -> (target colour, SemiRealOptions fields)."""
-    from checks.time_order import parse_range
-    from harness.sim.semireal import DEFAULT_RALLY
+    from harness.sim.semireal import ball_options
 
     colour = args.ball_colour or ("white" if args.ball == "white" else "orange")
     if args.ball is not None and colour != args.ball:
         raise ValueError(f"--ball {args.ball} and --ball-colour {colour} disagree: the ball pasted is the ball that counts")
-    if args.ball != "white":
-        for name in ("ball_crops", "crop_frames"):
-            if getattr(args, name) is not None:
-                raise ValueError(f"--{name.replace('_', '-')} applies to --ball white only")
-        return colour, {}
-    if args.crop_frames is not None:
-        parse_range(args.crop_frames, "--crop-frames")
-    crops = args.ball_crops or DEFAULT_RALLY
-    from pathlib import Path
-
-    if not (Path(crops).is_file() or (Path(crops) / "annotations.json").is_file()):
-        raise FileNotFoundError(f"--ball-crops {str(crops)!r}: no COCO annotations.json there (the real rally frames are ../shared/data/real/phone_rally)")
-    return colour, {"ball_colour": colour, "real_balls": crops, "crop_frames": args.crop_frames}
+    return colour, ball_options(args.ball, args.ball_crops, args.crop_frames)
 
 
 def _semireal_options(args, ball: dict):

@@ -110,8 +110,12 @@ def test_the_page_shows_auto_labels_as_proposals_least_sure_first_until_accepted
 def test_rt2_train_trains_on_the_auto_labels(labelled, tmp_path, capsys):
     from tracker import BallSegmentationModel
 
+    # --learned off: the learned stage reads the same labelled images as the filter (nothing of it is auto-label
+    # specific) and its 4 x 400 optimiser steps were 80 % of this test's time. rt2 train's learned stage at its
+    # defaults, written without --force: the page's training in tests/harness/label/test_browser.py
+    # (test_label_by_keys_and_mouse_survive_a_kill_resume_and_train); its options and choice: test_learned_train.py
     assert main(["train", "--data", str(labelled), "--out", str(tmp_path / "m.npz"), "--epochs", "1", "--max-images", "12",
-                 "--ball-colour", "orange"]) == 0
+                 "--ball-colour", "orange", "--learned", "off"]) == 0
     assert "training from" in capsys.readouterr().out
     BallSegmentationModel.load(tmp_path / "m.npz")
 
@@ -199,3 +203,34 @@ def test_eval_autolabel_refuses_an_unknown_held_out_camera_before_the_work(tmp_p
     assert main(["eval", "autolabel", "--scene", "lab", "--frames", "5", "--train-held-out", "cam9"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["rt2 eval autolabel: error: --train-held-out 'cam9': the lab rig's cameras are ['cam0', 'cam1', 'cam2', 'cam3']"]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--scene", "lab", "--ball", "white"], "--ball applies to --scene caliscope (the lab's ball is its renderer's), got --scene lab"),
+    (["--scene", "lab", "--crop-frames", "58:"], "--crop-frames applies to --scene caliscope"),
+    (["--scene", "caliscope", "--crop-frames", "58:"], "--crop-frames applies to --ball white only"),
+    (["--scene", "caliscope", "--ball", "orange", "--ball-crops", "x"], "--ball-crops applies to --ball white only"),
+    (["--scene", "caliscope", "--ball", "white", "--crop-frames", "9:3"], "frames '9:3' select no image"),
+    (["--scene", "caliscope", "--ball", "white", "--ball-crops", "/nonexistent/rally"], "--ball-crops '/nonexistent/rally': no COCO annotations.json there"),
+])
+def test_eval_autolabel_ball_options_refused_before_the_work(argv, message, capsys):
+    """The caliscope scene's real white balls (``--ball white``) and their options: what does not apply or does not
+    exist is one line, exit 2, before any frame set is rendered."""
+    assert main(["eval", "autolabel", "--frames", "5", *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("rt2 eval autolabel: error: ") and message in err[0], err
+
+
+def test_eval_autolabel_real_white_balls_in_the_caliscope_frames(tmp_path, capsys):
+    """``--ball white``: the rally's real balls pasted along the flights; the run says which, and its labels are
+    scored against the pasted balls' truth (a few frame sets: the plumbing; the figures are the README's)."""
+    from harness.sim.semireal import DEFAULT_RALLY
+
+    if not (DEFAULT_RALLY / "annotations.json").is_file():
+        pytest.skip(f"the real rally frames are not at {DEFAULT_RALLY}")
+    out = tmp_path / "w.json"
+    assert main(["eval", "autolabel", "--scene", "caliscope", "--ball", "white", "--crop-frames", "58:", "--model",
+                 "data/models/ball_seg_white.npz", "--frames", "6", "--flight-frames", "6", "--seed", "1", "--json", str(out)]) == 0
+    r = json.loads(out.read_text())
+    assert r["ball"] == "white" and r["crop_frames"] == "58:" and r["figures"]["frame_sets"] == 6
+    assert r["figures"]["wrong_labels"] == 0
