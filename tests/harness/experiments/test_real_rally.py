@@ -70,7 +70,7 @@ def test_few_label_run_on_real_frames(tmp_path, capsys):
 def test_the_shipped_white_model_finds_the_held_out_rally_ball_without_false_ones():
     """README Results, "Real white balls with the learned stage": trained on frames 0:58 (and frames we made), scored on
     the 25 held-out frames 58: and on the same frames with the ball painted out. Measured 2026-11-28: top-4 recall 84 %
-    (21 of 25), no outlier, median 4.61 px against the loose boxes; an alarm on 1 of the 25 ball-free frames. The 5x5
+    (21 of 25), no outlier, median 3.50 px against the loose boxes (4.61 before the centres were refined on the ball's edge); an alarm on 1 of the 25 ball-free frames. The 5x5
     filter finds none of these balls. The bounds leave one ball (and one alarm) of slack for float differences between
     CPUs."""
     from harness.experiments.studies.eval_detector import evaluate
@@ -79,7 +79,7 @@ def test_the_shipped_white_model_finds_the_held_out_rally_ball_without_false_one
     held_out = take_range(read_coco(RALLY), LATE)
     topk = evaluate(model, held_out, methods=("topk",), progress=False)[0]
     assert topk.n_balls == 25
-    assert topk.recall >= 20 / 25 and topk.outlier_rate <= 1 / 21 and topk.median_center_error_px <= 5.0
+    assert topk.recall >= 20 / 25 and topk.outlier_rate <= 1 / 21 and topk.median_center_error_px <= 4.0
     free = evaluate(model, held_out, methods=("topk",), progress=False, ball_free_margin_px=4.0)[0]
     assert free.n_false_alarm_images <= 2
     paper = evaluate(model, held_out, methods=("paper",), progress=False)[0]
