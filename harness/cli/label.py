@@ -56,6 +56,9 @@ def add_arguments(parser) -> None:
                       help="--auto: neighbouring frame sets on each side whose flight must predict the ball (default 3; 0 = off)")
     auto.add_argument("--max-flight-residual", type=float, default=0.03, metavar="M",
                       help="--auto: the flight test's tolerance, metres (default 0.03)")
+    auto.add_argument("--max-size-ratio", type=float, default=1.6,
+                      help="--auto: the 3D size test's threshold: the agreeing cameras' candidates at most this many times as wide as "
+                           "a ball at that depth, by their median (default 1.6)")
 
 
 def run(args) -> int:
@@ -159,7 +162,7 @@ def run_auto(args) -> int:
     if args.every < 1 or args.max_frames < 1:
         raise ValueError(f"--every and --max-frames must be positive integers, got {args.every}, {args.max_frames}")
     options = AutoOptions(min_support=args.min_support, max_reprojection_px=args.max_reprojection, flight_window=args.flight_window,
-                          max_flight_residual_m=args.max_flight_residual)
+                          max_flight_residual_m=args.max_flight_residual, max_size_ratio=args.max_size_ratio)
     out = Path(args.out)
     if (out / "annotations.json").exists():
         raise ValueError(f"--out {args.out!r} already holds annotations.json: --auto writes a new data set folder")

@@ -261,6 +261,8 @@ def add_arguments(parser) -> None:
                         help="--ball white: START:STOP of the crops' time order whose balls are used (e.g. 58: = the rally frames "
                              "the shipped white model never saw; default all)")
     parser.add_argument("--flight-window", type=int, default=AutoOptions.flight_window, help="as rt2 label --auto (default 3)")
+    parser.add_argument("--max-size-ratio", type=float, default=None,
+                        help=f"as rt2 label --auto: the 3D size test's threshold (default {AutoOptions.max_size_ratio:g})")
     parser.add_argument("--train-held-out", default=None, metavar="CAM",
                         help="also train on the labels of the other cameras and score the base and the trained model on CAM's true balls")
     parser.add_argument("--epochs", type=int, default=None, help="--train-held-out: rt2 train's epochs (default its own)")
@@ -271,7 +273,7 @@ def run(args) -> int:
     from harness.common.outputs import atomic_write_json, check_output_file
 
     check_output_file(args.json, "--json")
-    options = AutoOptions(flight_window=args.flight_window)
+    options = AutoOptions(flight_window=args.flight_window, **({} if args.max_size_ratio is None else {"max_size_ratio": args.max_size_ratio}))
     ball = ball_options(args.scene, args.ball, args.ball_crops, args.crop_frames)
     if args.train_held_out is not None:  # checked before the consensus pass, not after it
         names = _scene_rig_names(args.scene)

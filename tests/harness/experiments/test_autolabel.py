@@ -151,6 +151,8 @@ HOSTILE = [
     (["--source", "replay", "LOG"], r"--auto needs --source SPEC .* and --rig RIG"),
     (["--source", "replay", "LOG", "--rig", "lab4_vga", "--min-support", "2"], r"AutoOptions.min_support must be an integer >= 3"),
     (["--source", "replay", "LOG", "--rig", "lab4_vga", "--flight-window", "-1"], r"AutoOptions.flight_window must be"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--max-size-ratio", "0.5"], r"AutoOptions.max_size_ratio must be in \[1, 10\], got 0.5"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--max-size-ratio", "nan"], r"AutoOptions.max_size_ratio must be in \[1, 10\], got nan"),
     (["--source", "replay", "LOG", "--rig", "lab4_vga", "--out", "ROOT/taken"], r"already holds annotations.json"),
     (["--source", "replay", "LOG", "--rig", "nosuchrig"], r"nosuchrig"),
     (["SOURCE", "--source", "replay", "LOG", "--rig", "lab4_vga"], r"--auto takes the recording as --source SPEC"),
