@@ -68,7 +68,8 @@ class TrackerOptions:
     roi : search a window around the predicted ball pixel first (None = the kind's default: on for
         ``rt2``, off for ``rt2-paper``; ``rtblob`` has no ROI). Window size:
         ``DetectorOptions.roi_half_size_px``
-    max_gap_s : confirmed estimates older than this give no prediction, seconds
+    max_gap_s : confirmed estimates older than this give no prediction, seconds (stretched while the frame sets
+        the tracker is given are themselves far apart: ``tracker._pipeline_roi``)
     retry_full_frame : when the window search ends without a confirmed (``OK``) estimate, search the
         full frames of the cameras that searched a window, and estimate again
         (the full-frame fallback; off: windows only while a prediction exists)

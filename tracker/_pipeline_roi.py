@@ -11,6 +11,14 @@ Prediction from the last *confirmed* estimates (``Status.OK``) only:
 * no prediction when ``t - t1 > max_gap_s`` (the ball may be anywhere), after :meth:`reset`, or
   when time did not advance (``t <= t1``).
 
+``max_gap_s`` stretches when the frame sets the tracker is given are themselves far apart: a live tracker
+whose full-frame search takes longer than a few frame periods (nine 1440x1080 cameras: 65-110 ms on a 2-core
+machine) is handed the newest frame set each time, so its confirmed estimates are always more than 50 ms
+old and, with a fixed gap, it never predicts, never searches a window and never catches up. The gap used
+is ``max(max_gap_s, STRETCH x the shorter of the last two intervals between frame sets)`` (at most
+``MAX_STRETCHED_GAP_S``): one jump in time (a new flight, a recording's pause) stretches nothing, and a
+tracker given every frame set at 100-200 Hz predicts exactly as with the fixed gap.
+
 Gravity is ignored: over one 5 ms frame it moves the ball 0.12 mm, far inside any search window.
 """
 
@@ -25,7 +33,10 @@ from tracker.distortion import distort, distort_point
 from tracker.rig import Rig
 from checks.numba_cache import key_cache_on_callees
 
-__all__ = ["BACKENDS", "MotionPredictor", "project_point", "project_point_numba"]
+__all__ = ["BACKENDS", "MAX_STRETCHED_GAP_S", "STRETCH", "MotionPredictor", "project_point", "project_point_numba"]
+
+STRETCH = 2.0  #: the gap is at least this many intervals between the frame sets the tracker is given ...
+MAX_STRETCHED_GAP_S = 0.25  #: ... up to this (seconds): beyond it the ball may be anywhere
 
 
 def project_point(X_world: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray, dist8: np.ndarray) -> np.ndarray:
@@ -99,6 +110,8 @@ class MotionPredictor:
         self._t_s = np.full(2, np.nan)  # [older, newer] times of confirmed estimates
         self._X_m = np.full((2, 3), np.nan)
         self._n = 0
+        self._last_frame_s = math.nan  # the frame sets' times seen by predict_pixels, for the stretched gap
+        self._intervals_s = [0.0, 0.0]
 
     def reset(self) -> None:
         """Forget every estimate: the next :meth:`predict` returns None."""
@@ -118,22 +131,34 @@ class MotionPredictor:
         self._X_m[1] = X_world
         self._n = min(self._n + 1, 2)
 
+    @property
+    def gap_s(self) -> float:
+        """The gap in use: ``max_gap_s``, stretched by the intervals between frame sets (module docstring)."""
+        stretched = min(STRETCH * min(self._intervals_s), MAX_STRETCHED_GAP_S)
+        return max(self.max_gap_s, stretched)
+
     def predict(self, t_s: float) -> np.ndarray | None:
         """(3,) predicted ball position at ``t_s``, world frame, metres; None without a basis."""
         if self._n == 0:
             return None
         t1 = self._t_s[1]
         dt = t_s - t1
-        if not (0.0 < dt <= self.max_gap_s):
+        gap = self.gap_s
+        if not (0.0 < dt <= gap):
             return None
         X1 = self._X_m[1]
         span = t1 - self._t_s[0]
-        if self._n == 2 and 0.0 < span <= self.max_gap_s:
+        if self._n == 2 and 0.0 < span <= gap:
             return X1 + (X1 - self._X_m[0]) * (dt / span)  # constant velocity
         return X1.copy()  # last position
 
     def predict_pixels(self, t_s: float) -> np.ndarray | None:
-        """(n_cams, 2) predicted ball pixel per camera (NaN rows: behind the camera), or None."""
+        """(n_cams, 2) predicted ball pixel per camera (NaN rows: behind the camera), or None. Called once per
+        frame set: its time also measures the interval between frame sets (the stretched gap)."""
+        if t_s > self._last_frame_s:  # (False while NaN: the first frame set)
+            self._intervals_s = [self._intervals_s[1], t_s - self._last_frame_s]
+        if math.isfinite(t_s):
+            self._last_frame_s = t_s
         X = self.predict(t_s)
         if X is None or not math.isfinite(float(X.sum())):
             return None

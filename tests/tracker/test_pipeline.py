@@ -390,6 +390,45 @@ def test_no_prediction_after_a_gap_or_reset(rig, model, flight):
     assert trk.process_with_info(FrameSet(1.005, sets[5].images, 5))[1].used_roi.all()
 
 
+def test_the_gap_stretches_when_the_frame_sets_given_are_far_apart(rig):
+    """A tracker handed frame sets 110 ms apart (a live tracker whose full-frame search takes that long gets the
+    newest set each time) predicts from estimates that old: the gap is 2x the shorter of the last two intervals
+    (at most 0.25 s); one jump in time stretches nothing, and at 200 Hz the gap stays max_gap_s."""
+    from tracker._pipeline_roi import MAX_STRETCHED_GAP_S, MotionPredictor
+
+    X = lambda t: np.array([0.1 * t, 2.0 * t, 1.0])  # noqa: E731
+    m = MotionPredictor(rig, 0.05)
+    for t in (0.0, 0.11, 0.22):
+        m.predict_pixels(t)
+        m.update(t, X(t))
+    assert m.gap_s == pytest.approx(0.22)
+    assert m.predict_pixels(0.33) is not None  # 110 ms after the last estimate: predicted (a fixed 50 ms gap: none)
+    np.testing.assert_allclose(m.predict(0.33), X(0.33), atol=1e-12)  # by the velocity over those 110 ms
+    assert m.predict(0.22 + 0.23) is None  # past the stretched gap
+    slow = MotionPredictor(rig, 0.05)
+    for t in (0.0, 0.5, 1.0):
+        slow.predict_pixels(t)
+    assert slow.gap_s == MAX_STRETCHED_GAP_S  # at most 0.25 s
+    jump = MotionPredictor(rig, 0.05)
+    for t in (0.0, 0.005, 0.010, 0.2, 0.205):  # 200 Hz, one jump of 190 ms, 200 Hz again
+        jump.predict_pixels(t)
+        assert jump.gap_s == 0.05
+    jump.update(0.205, X(0.205))
+    assert jump.predict(0.205 + 0.06) is None  # 60 ms after the estimate at 200 Hz: no prediction, as before
+
+
+def test_a_tracker_given_far_apart_frame_sets_searches_windows(rig, model, flight):
+    """The pipeline's side of the stretched gap: frame sets 40 ms apart with max_gap_s 30 ms. The first two are
+    full-frame searches; from the third on the interval is known on both sides and the windows are searched (with a
+    fixed gap every frame set would be searched on the full frame). Without the ball hypotheses, whose own rule (a
+    full frame every 0.1 s until a ball is in play: 3 positions within 50 ms) frame sets this far apart never meet;
+    live, the first window searches bring the frame sets close again."""
+    sets, _ = flight
+    trk = Tracker(rig, model=model, max_gap_s=0.03, hypotheses=None)
+    res = [trk.process_with_info(FrameSet(0.04 * k, sets[k].images, k)) for k in range(5)]
+    assert [info.used_roi.all() for _, info in res] == [False, False, True, True, True], [(o.status, o.notes, info.used_roi) for o, info in res]
+
+
 # -- faults -----------------------------------------------------------------------------------------
 def test_missing_and_wrong_frames_mid_run_are_flagged(rig, model, flight):
     sets, X = flight
