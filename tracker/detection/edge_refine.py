@@ -113,8 +113,7 @@ def _one_pass(image, u, v, r0):
     if n_s < 7:
         return None
     rs = max(1.0, INNER * r0) + STEP_PX * np.arange(n_s)
-    ang = 2.0 * np.pi * np.arange(N_RAYS) / N_RAYS
-    ca, sa = np.cos(ang), np.sin(ang)
+    ca, sa = _COS, _SIN  # (module constants, defined with the compiled twin below)
     vals = _bilinear(image, u + ca[:, None] * rs[None, :], v + sa[:, None] * rs[None, :])
     third = n_s // 3
     inner, outer = _seq_sum(vals[:, :third]) / (N_RAYS * third), _seq_sum(vals[:, n_s - third:]) / (N_RAYS * third)
