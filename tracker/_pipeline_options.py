@@ -50,9 +50,10 @@ class TrackerEngine(Protocol):
     roi: bool
     candidates_per_camera: int | None  #: k of the estimator's input (None: the kind has no candidates)
 
-    def process(self, t_s: float, frameset, usable: list[int], notes: list, t0: float) -> tuple:
+    def process(self, t_s: float, frameset, usable: list[int], notes: list, t0: float, *, prior_m=None) -> tuple:
         """``(BallObservation, PipelineInfo)`` of one frame set (``t_s`` NaN when not finite; ``t0`` the
-        ``time.perf_counter()`` at the tracker's entry, for ``latency_s``)."""
+        ``time.perf_counter()`` at the tracker's entry, for ``latency_s``; ``prior_m`` a checked (3,) point
+        to search around, :meth:`tracker.Tracker.process_with_info`, never given to an engine without windows)."""
 
     def forget_motion(self) -> None:
         """Forget what was learnt from earlier frame sets (a new rally, a time that went backwards)."""

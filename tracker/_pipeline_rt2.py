@@ -107,14 +107,19 @@ class SegmentationEngine:
             self._pool = None
 
     # -- per frame set ----------------------------------------------------------------------------
-    def process(self, t_s: float, frameset, usable: list[int], notes: list, t0: float) -> tuple[BallObservation, PipelineInfo]:
+    def process(self, t_s: float, frameset, usable: list[int], notes: list, t0: float, *,
+                prior_m=None) -> tuple[BallObservation, PipelineInfo]:
         """One frame set: ``t_s`` its time (NaN when not finite), ``usable`` the cameras with a usable
-        frame, ``notes`` the notes so far (appended to), ``t0`` ``time.perf_counter()`` at entry."""
+        frame, ``notes`` the notes so far (appended to), ``t0`` ``time.perf_counter()`` at entry; ``prior_m``
+        a (3,) world point whose pixels are searched instead of the motion prediction's."""
         n = self.n_cams
         self._images = frameset.images
-        roi_px = self._motion.predict_pixels(t_s) if self.roi else None
+        if prior_m is not None:
+            roi_px = self._project(prior_m, list(range(n)))
+        else:
+            roi_px = self._motion.predict_pixels(t_s) if self.roi else None
         hyp = self.hypotheses
-        if roi_px is not None and hyp is not None and hyp.wants_full_frame(t_s):
+        if prior_m is None and roi_px is not None and hyp is not None and hyp.wants_full_frame(t_s):
             roi_px = None  # no ball in play: look at everything now and then (step 10)
             self.stats.hypothesis_full_frames += 1
         if roi_px is None:
@@ -126,7 +131,8 @@ class SegmentationEngine:
         self._areas.fill(np.nan)
         used_roi = np.isfinite(roi_px[:, 0])
         used_roi[[i for i in range(n) if i not in usable]] = False
-        self._detect(usable, roi_px, used_roi)  # Algorithm 1 per camera (paper Sec. 2.1)
+        searched = usable if prior_m is None else [i for i in usable if used_roi[i]]  # the prior behind a camera: not searched
+        self._detect(searched, roi_px, used_roi)  # Algorithm 1 per camera (paper Sec. 2.1)
         X, info, size_ratio = self._estimate(notes)  # Algorithm 2 (paper Sec. 2.2; "ours" extends it), then the 3D size test
         retried = False
         if self.options.retry_full_frame and info.status is not Status.OK and used_roi.any():

@@ -47,8 +47,9 @@ class RTBlobEngine:
     def close(self) -> None:
         """Nothing to stop."""
 
-    def process(self, t_s: float, frameset: FrameSet, usable: list[int], notes: list, t0: float) -> tuple[BallObservation, PipelineInfo]:
-        """As :meth:`SegmentationEngine.process`; frames the tracker found unusable are handed to RTBlob as
+    def process(self, t_s: float, frameset: FrameSet, usable: list[int], notes: list, t0: float, *,
+                prior_m=None) -> tuple[BallObservation, PipelineInfo]:
+        """As :meth:`SegmentationEngine.process` (``prior_m`` is never given: the tracker refuses it for rtblob); frames the tracker found unusable are handed to RTBlob as
         missing (None), a time that is not finite as 0 (RTBlob raises on either; they are in ``notes``)."""
         images = frameset.images
         blanked = [i for i in range(self.n_cams) if images[i] is not None and i not in usable]

@@ -159,10 +159,18 @@ class Tracker:
         """
         return self.process_with_info(frameset)[0]
 
-    def process_with_info(self, frameset: FrameSet) -> tuple[BallObservation, PipelineInfo]:
-        """The observation and the evidence behind it (:class:`PipelineInfo`)."""
+    def process_with_info(self, frameset: FrameSet, *, prior_m=None) -> tuple[BallObservation, PipelineInfo]:
+        """The observation and the evidence behind it (:class:`PipelineInfo`).
+
+        prior_m : None, or a (3,) world point, metres, where the caller knows the ball to be near (an offline pass that
+            has the flight from the frame sets around this one, ``rt2 label --auto``'s second look): the rt2 kinds search
+            windows around its pixels in every camera, as around a motion prediction, whether or not ``roi`` is on (the
+            full-frame fallback follows ``TrackerOptions.retry_full_frame``); ``rtblob`` has no windows and refuses it
+        """
         t0 = time.perf_counter()
         t_s, images = self._check_frameset(frameset)
+        if prior_m is not None:
+            prior_m = self._check_prior(prior_m)
         notes: list[str] = []
         self.stats.frames += 1
         if not math.isfinite(t_s):  # a broken clock mid-run: a note, never an exception
@@ -177,6 +185,8 @@ class Tracker:
         if math.isfinite(t_s):
             self._last_t_s = t_s
         usable = self._usable_frames(images, notes)
+        if prior_m is not None:
+            return self.engine.process(t_s, frameset, usable, notes, t0, prior_m=prior_m)
         return self.engine.process(t_s, frameset, usable, notes, t0)
 
     # -- the frame-set boundary: everything checked once here, trusted after ----------------------
@@ -193,6 +203,17 @@ class Tracker:
             got = f"{len(images)} images" if isinstance(images, (tuple, list)) else describe(images)
             raise ValueError(f"frameset.images must hold one image (or None) per camera, {self.n_cams} for {self._names}; got {got}")
         return float(t), images
+
+    def _check_prior(self, prior_m) -> np.ndarray:
+        if self.kind == "rtblob":
+            raise ValueError("prior_m: the rtblob tracker searches no windows; a prior applies to the rt2 kinds")
+        try:
+            X = np.asarray(prior_m, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"prior_m must be a (3,) world point in metres, got {describe(prior_m)}") from None
+        if X.shape != (3,) or not np.isfinite(X).all():
+            raise ValueError(f"prior_m must be a (3,) finite world point in metres, got {describe(prior_m)}")
+        return X
 
     def _usable_frames(self, images, notes: list) -> list[int]:
         """Indices of cameras with a usable frame; notes and counts the others."""

@@ -13,6 +13,7 @@ serves until Ctrl-C or SIGTERM.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import signal
@@ -59,6 +60,15 @@ def add_arguments(parser) -> None:
     auto.add_argument("--max-size-ratio", type=float, default=1.6,
                       help="--auto: the 3D size test's threshold: the agreeing cameras' candidates at most this many times as wide as "
                            "a ball at that depth, by their median (default 1.6)")
+    auto.add_argument("--trim", type=float, default=2.0, metavar="PX",
+                      help="--auto: an agreeing camera farther than this from the 3D ball is dropped and the ball triangulated again "
+                           "from the others, while more than --min-support remain (default 2)")
+    auto.add_argument("--recentre", action=argparse.BooleanOptionalAction, default=True,
+                      help="--auto: measure each camera's ball again where the 3D ball projects (the model's own centring) and "
+                           "triangulate from those centres (default on)")
+    auto.add_argument("--second-look", action=argparse.BooleanOptionalAction, default=True,
+                      help="--auto: search the frame sets without an agreement again, in windows where the flight of their "
+                           "neighbours puts the ball, at half the detector's thresholds (default on; needs --flight-window > 0)")
 
 
 def run(args) -> int:
@@ -162,7 +172,8 @@ def run_auto(args) -> int:
     if args.every < 1 or args.max_frames < 1:
         raise ValueError(f"--every and --max-frames must be positive integers, got {args.every}, {args.max_frames}")
     options = AutoOptions(min_support=args.min_support, max_reprojection_px=args.max_reprojection, flight_window=args.flight_window,
-                          max_flight_residual_m=args.max_flight_residual, max_size_ratio=args.max_size_ratio)
+                          max_flight_residual_m=args.max_flight_residual, max_size_ratio=args.max_size_ratio, trim_px=args.trim,
+                          second_look=args.second_look, recentre=args.recentre)
     out = Path(args.out)
     if (out / "annotations.json").exists():
         raise ValueError(f"--out {args.out!r} already holds annotations.json: --auto writes a new data set folder")
@@ -193,7 +204,8 @@ def run_auto(args) -> int:
         lock.close()
     per_cam = per_camera_counts(rig, kept)
     print(f"rt2 label --auto: {counts['kept']} of {counts['frame_sets']} frame sets kept ({counts['agreed']} with >= "
-          f"{options.min_support} agreeing cameras; flight window {options.flight_window}); wrote {path}")
+          f"{options.min_support} agreeing cameras, {counts['second_look']} of them at the second look; flight window "
+          f"{options.flight_window}); wrote {path}")
     for name, c in per_cam.items():
         print(f"  {name}: {c['labels']} labels ({c['hard_positives']} where its detector missed the ball), {c['hard_negatives']} hard negatives")
     print(f"review: rt2 label {out / 'images'} --out {out}   train: rt2 train --data {out} --out {out / 'model.npz'}")

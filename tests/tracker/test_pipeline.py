@@ -513,6 +513,53 @@ def test_closed_tracker_refuses_work(rig, model, flight):
         trk.process(flight[0][0])
 
 
+# -- a prior: the caller says where the ball is near ----------------------------------------------------
+def test_a_prior_searches_windows_at_its_pixels_and_picks_that_ball(rig, model):
+    """Two balls in view; without motion, the full frame gives one of them. A prior at either one makes every camera
+    search a window at its pixels (ROI off, no prediction, no full frame) and the tracker reports that ball."""
+    A, B = X0_M, X0_M + np.array([0.6, -0.3, 0.2])
+    px = np.stack([rig.project(A), rig.project(B)], axis=1)  # (n_cams, 2, 2)
+    fs = _drawn_frameset(rig, px, 0.0, diameter_px=_ball_px(rig, A))
+    for X in (A, B):
+        trk = Tracker(rig, model=model, roi=False, retry_full_frame=False)
+        o, info = trk.process_with_info(fs, prior_m=X + 0.01)
+        assert o.status is Status.OK and info.used_roi.all() and not info.retried
+        assert np.linalg.norm(o.position_m - X) < 0.01, (o.position_m, X)
+        assert trk.stats.full_frame_searches == 0 and trk.stats.roi_searches == len(rig)
+        np.testing.assert_allclose(info.roi_center_px, rig.project(X + 0.01), atol=1e-9)
+
+
+def test_a_prior_where_no_ball_is_finds_nothing_without_the_full_frame_retry(rig, model, flight):
+    sets, X = flight
+    far = X[0] + np.array([0.0, 0.0, 0.8])
+    o, info = Tracker(rig, model=model, retry_full_frame=False).process_with_info(sets[0], prior_m=far)
+    assert o.position_m is None and info.used_roi.all() and not info.retried
+    o, info = Tracker(rig, model=model).process_with_info(sets[0], prior_m=far)  # the fallback, as after a wrong prediction
+    assert info.retried and o.status is Status.OK and np.linalg.norm(o.position_m - X[0]) < 0.01
+
+
+@pytest.mark.parametrize("prior, message", [
+    ([0.0, 1.0], r"prior_m must be a \(3,\) finite world point"),
+    ([[0.0, 1.0, 2.0]], r"prior_m must be a \(3,\) finite world point"),
+    ([0.0, float("nan"), 1.0], r"prior_m must be a \(3,\) finite world point"),
+    ([0.0, float("inf"), 1.0], r"prior_m must be a \(3,\) finite world point"),
+    ("abc", r"prior_m must be a \(3,\)"),
+    ({"x": 1}, r"prior_m must be a \(3,\)"),
+])
+def test_a_bad_prior_raises_naming_it(rig, model, flight, prior, message):
+    sets, _ = flight
+    trk = Tracker(rig, model=model)
+    with pytest.raises(ValueError, match=message):
+        trk.process_with_info(sets[0], prior_m=prior)
+    assert trk.stats.frames == 0
+
+
+def test_rtblob_refuses_a_prior(rig, flight):
+    sets, X = flight
+    with pytest.raises(ValueError, match="rtblob tracker searches no windows"):
+        Tracker(rig, "rtblob", **_kw("rtblob", None)).process_with_info(sets[0], prior_m=X[0])
+
+
 # -- bad input --------------------------------------------------------------------------------------
 def test_bad_frameset_raises(rig, model, flight):
     sets, _ = flight

@@ -10,7 +10,8 @@ Two scenes with a known ball, read as a recording would be (frame sets in time o
   frame sets at ``--rate-hz``, a second apart.
 
 Figures (the goals in brackets): of the frame sets where the ball is visible (``BallTruth.visible``) in >= 3
-cameras, the share kept (>= 95 %); of the labels on a visible ball, the share whose centre is within 1.5 px of
+cameras and lies inside the rig's workspace (grown by the consensus's margin: outside it the consensus accepts no
+position, by the rig's definition; those frame sets are counted apart), the share kept (>= 95 %); of the labels on a visible ball, the share whose centre is within 1.5 px of
 the truth (>= 95 %); wrong labels, a label where the ball is not visible or whose centre is off the ball
 (farther than its radius) (< 1 %); the same split by whether the camera's detector had found it (hard
 positives). Same seed, same figures (a test says so).
@@ -24,6 +25,7 @@ the truth shows the ball: recall up and outliers not up is the goal.
 
 from __future__ import annotations
 
+import argparse
 import math
 
 import numpy as np
@@ -47,8 +49,10 @@ def _lab(frames: int, seed: int, rate_hz: float):
 
     def sets():
         for k in range(frames):
-            images, truths = renderer.render_labelled(flights(k / rate_hz))
-            yield RecordedSet(k, k, k / rate_hz, tuple(images)), [t[0] if t else None for t in truths]
+            scene = flights(k / rate_hz)
+            images, truths = renderer.render_labelled(scene)
+            centre = np.asarray(scene.balls[0].position_m, float) if scene.balls else None
+            yield RecordedSet(k, k, k / rate_hz, tuple(images)), [t[0] if t else None for t in truths], centre
 
     return rig, sets
 
@@ -65,17 +69,29 @@ def _caliscope(frames: int, seed: int, rate_hz: float, flight_frames: int, ball:
             for j in range(flight_frames):
                 if k == frames:
                     return
-                images, truths, _, _ = session.flight_frameset(n, j, flight)
-                yield RecordedSet(k, k, n * (flight_frames / rate_hz + 1.0) + j / rate_hz, tuple(images)), [t[0] for t in truths]
+                images, truths, centre, _ = session.flight_frameset(n, j, flight)
+                yield RecordedSet(k, k, n * (flight_frames / rate_hz + 1.0) + j / rate_hz, tuple(images)), [t[0] for t in truths], centre[0]
                 k += 1
 
     return session.rig, sets
 
 
-def score_labels(kept, truths: list) -> dict:
-    """The figures (module docstring) of ``kept`` (FrameSetLabels) against ``truths`` (per frame set, per camera a BallTruth or None)."""
+def score_labels(kept, truths: list, centres=None, workspace_m=None) -> dict:
+    """The figures (module docstring) of ``kept`` (FrameSetLabels) against ``truths`` (per frame set, per camera a BallTruth or None).
+
+    centres : per frame set the ball's true centre (3,) or None; workspace_m : the rig's (2, 3) workspace box, grown by the
+    consensus's margin (``RobustOptions.workspace_margin_m``): a frame set whose ball lies outside it is not eligible (the
+    consensus accepts no position there, by the rig's definition), counted in ``outside_workspace``
+    """
     visible = np.array([[t is not None and t.visible for t in row] for row in truths], bool).reshape(len(truths), -1)
-    eligible = visible.sum(axis=1) >= 3
+    seen3 = visible.sum(axis=1) >= 3
+    inside = np.ones(len(truths), bool)
+    if workspace_m is not None and centres is not None:
+        from tracker.robust import RobustOptions
+
+        lo, hi = np.asarray(workspace_m, float) + [[-RobustOptions.workspace_margin_m], [RobustOptions.workspace_margin_m]]
+        inside = np.array([c is None or bool(((np.asarray(c) >= lo) & (np.asarray(c) <= hi)).all()) for c in centres], bool)
+    eligible = seen3 & inside
     kept_idx = {fs.index for fs in kept}
     n_eligible = int(eligible.sum())
     kept_eligible = sum(1 for i in np.flatnonzero(eligible) if int(i) in kept_idx)
@@ -99,7 +115,7 @@ def score_labels(kept, truths: list) -> dict:
         return None if n == 0 else x / n
 
     return {
-        "frame_sets": len(truths), "eligible": n_eligible, "kept": len(kept), "kept_eligible": kept_eligible,
+        "frame_sets": len(truths), "eligible": n_eligible, "outside_workspace": int(np.sum(seen3 & ~inside)), "kept": len(kept), "kept_eligible": kept_eligible,
         "kept_share": share(kept_eligible, n_eligible), "kept_not_eligible": len(kept_idx) - kept_eligible,
         "labels": n_labels, "hard_positives": labels[False],
         "within_1_5px": share(int(np.sum(all_err <= 1.5)), n_labels),
@@ -165,7 +181,7 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
             cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
             return path
 
-        for rs, truth in sets():  # the same frame sets again (they depend only on the seed)
+        for rs, truth, _ in sets():  # the same frame sets again (they depend only on the seed)
             t = truth[h]
             if t is not None and t.visible:
                 box = np.array([t.box_xywh], float)
@@ -206,17 +222,18 @@ def study(scene: str, frames: int, seed: int, *, rate_hz: float = 100.0, flight_
         raise ValueError(f"--flight-frames must be an integer >= 3, got {flight_frames!r}")
     model = load_model(model)
     rig, sets = _scene(scene, frames, seed, rate_hz, flight_frames, ball)
-    truths = []
+    truths, centres = [], []
 
     def recorded():
-        for rs, truth in sets():
+        for rs, truth, centre in sets():
             truths.append(truth)
+            centres.append(centre)
             yield rs
 
     kept, counts = auto_label(recorded(), rig, model, options)
     if kept_out is not None:
         kept_out.extend(kept)
-    return score_labels(kept, truths), counts
+    return score_labels(kept, truths, centres, rig.workspace_m), counts
 
 
 def format_report(scene: str, fig: dict, counts: dict) -> str:
@@ -229,8 +246,9 @@ def format_report(scene: str, fig: dict, counts: dict) -> str:
     met = lambda ok: "met" if ok else "NOT met"  # noqa: E731
     k, w, e = fig["kept_share"], fig["within_1_5px"], fig["wrong"]
     return "\n".join([
-        f"rt2 eval autolabel --scene {scene}: {fig['frame_sets']} frame sets, {fig['eligible']} with the ball visible in >= 3 cameras; "
-        f"consensus: {counts['agreed']} agreed, {counts['kept']} kept after the flight test",
+        f"rt2 eval autolabel --scene {scene}: {fig['frame_sets']} frame sets, {fig['eligible']} with the ball visible in >= 3 cameras "
+        f"inside the rig's workspace ({fig['outside_workspace']} more outside it, where the consensus accepts no position); "
+        f"consensus: {counts['agreed']} agreed ({counts['second_look']} by the second look), {counts['kept']} kept after the flight test",
         f"  kept {fig['kept_eligible']} of {fig['eligible']} ({pct(k)}; goal >= {100 * GOALS['kept']:.0f}%: {met(k is not None and k >= GOALS['kept'])}); "
         f"{fig['kept_not_eligible']} kept where fewer than 3 cameras see the ball",
         f"  {fig['labels']} labels ({fig['hard_positives']} hard positives, the detector had missed them): centre within 1.5 px "
@@ -263,6 +281,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--flight-window", type=int, default=AutoOptions.flight_window, help="as rt2 label --auto (default 3)")
     parser.add_argument("--max-size-ratio", type=float, default=None,
                         help=f"as rt2 label --auto: the 3D size test's threshold (default {AutoOptions.max_size_ratio:g})")
+    parser.add_argument("--trim", type=float, default=None, metavar="PX",
+                        help=f"as rt2 label --auto: drop agreeing cameras farther than this from the ball (default {AutoOptions.trim_px:g})")
+    parser.add_argument("--recentre", action=argparse.BooleanOptionalAction, default=True,
+                        help="as rt2 label --auto: re-measure each camera's ball where the 3D ball projects (default on)")
+    parser.add_argument("--second-look", action=argparse.BooleanOptionalAction, default=True,
+                        help="as rt2 label --auto: search the frame sets without an agreement again where the flight puts the ball (default on)")
     parser.add_argument("--train-held-out", default=None, metavar="CAM",
                         help="also train on the labels of the other cameras and score the base and the trained model on CAM's true balls")
     parser.add_argument("--epochs", type=int, default=None, help="--train-held-out: rt2 train's epochs (default its own)")
@@ -273,7 +297,8 @@ def run(args) -> int:
     from harness.common.outputs import atomic_write_json, check_output_file
 
     check_output_file(args.json, "--json")
-    options = AutoOptions(flight_window=args.flight_window, **({} if args.max_size_ratio is None else {"max_size_ratio": args.max_size_ratio}))
+    given = {"max_size_ratio": args.max_size_ratio, "trim_px": args.trim}
+    options = AutoOptions(flight_window=args.flight_window, second_look=args.second_look, recentre=args.recentre, **{k: v for k, v in given.items() if v is not None})
     ball = ball_options(args.scene, args.ball, args.ball_crops, args.crop_frames)
     if args.train_held_out is not None:  # checked before the consensus pass, not after it
         names = _scene_rig_names(args.scene)
