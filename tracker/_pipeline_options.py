@@ -122,6 +122,10 @@ class TrackerOptions:
         already wide enough are kept as they are (docs/pipeline.md, "Size limits from the rig").
         False = the model's trained area range, ``roi_half_size_px`` and RTBlob's
         ``expected_distance_m`` sizing on every rig
+    full_frame_pyramid : ``rt2`` with a model without a learned stage, on a rig with a workspace: a camera whose
+        smallest ball is at least 2^k x 5.5 px wide (k <= 2) searches its full frame reduced 2^k times, each
+        candidate then found again in a window at full resolution (:mod:`tracker._pipeline_pyramid`; a nine-camera
+        1440x1080 rig's full-frame search 2.7x faster). VGA rigs stay at full resolution. False = always the full frame
     """
 
     roi: bool | None = None
@@ -138,11 +142,12 @@ class TrackerOptions:
     handover_max_age_s: float | None = 0.25
     hypotheses: HypothesisOptions | None = HypothesisOptions()
     size_from_rig: bool = True
+    full_frame_pyramid: bool = True
 
     def __post_init__(self):
         if self.roi is not None and not isinstance(self.roi, (bool, np.bool_)):
             raise ValueError(f"TrackerOptions.roi must be True, False or None, got {self.roi!r}")
-        for name in ("retry_full_frame", "threads_for_roi", "size_from_rig"):
+        for name in ("retry_full_frame", "threads_for_roi", "size_from_rig", "full_frame_pyramid"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"TrackerOptions.{name} must be True or False, got {getattr(self, name)!r}")
         g = self.max_gap_s

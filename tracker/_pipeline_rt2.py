@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from tracker._pipeline_options import PipelineInfo, TrackerKind, TrackerOptions, TrackerStats, detector_options_for, estimator_options_for, load_model
+from tracker._pipeline_pyramid import PyramidSearch, pyramid_levels
 from tracker._pipeline_roi import MotionPredictor
 from tracker._pipeline_search import search_around, search_boxes
 from tracker.ball_size import ball_diameter_range_px, size_limits
@@ -45,7 +46,8 @@ class SegmentationEngine:
     estimator_options, rtblob_options : as :class:`tracker.Tracker` (``rtblob_options`` must be None)
 
     Attributes: ``roi``, ``detector`` (the kind's detector), ``detectors`` (per camera, sized from the
-    rig), ``estimator``, ``candidates_per_camera`` (k of the estimator's input).
+    rig), ``pyramid`` (per camera its reduced-resolution full-frame search or None), ``estimator``,
+    ``candidates_per_camera`` (k of the estimator's input).
     """
 
     def __init__(self, rig: Rig, kind: str, spec: TrackerKind, options: TrackerOptions, stats: TrackerStats, *,
@@ -65,6 +67,7 @@ class SegmentationEngine:
         self.detector = BallDetector(model, dopts)
         self.detectors = _sized_detectors(rig, self.detector) if options.size_from_rig else [self.detector] * len(rig)
         self._roi_half = np.array([d.options.roi_half_size_px for d in self.detectors], np.int64)[:, None]  # (n_cams, 1)
+        self.pyramid = _pyramid_searches(rig, self.detectors, options) if spec.extras else [None] * len(rig)
         self.estimator = RobustTriangulator(rig, estimator_options_for(estimator_options, options.eps_px), method=spec.estimator_method)
         k = self.candidates_per_camera = self.detector.options.k
         if k > self.estimator.options.max_candidates_per_camera:
@@ -342,8 +345,8 @@ class SegmentationEngine:
             x0, y0, x1, y1 = boxes[i]
             if x0 < 0:
                 dets[i] = None  # the predicted window lies outside this camera's image
-            elif x1 - x0 == self._wh[i, 0] and y1 - y0 == self._wh[i, 1]:
-                dets[i] = det.detect(images[i])  # the full frame
+            elif x1 - x0 == self._wh[i, 0] and y1 - y0 == self._wh[i, 1]:  # the full frame
+                dets[i] = det.detect(images[i]) if self.pyramid[i] is None else self.pyramid[i].detect(images[i])
             else:  # the neighbourhood: its window first, then at most the whole neighbourhood
                 dets[i] = search_around(det, images[i][y0:y1, x0:x1], roi_px[i] - boxes[i, :2], images[i].shape)
 
@@ -364,6 +367,23 @@ def _search_order(rig: Rig) -> list[int]:
             inside = (cam.depth(grid) > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
         seen.append(int(inside.sum()))
     return sorted(range(len(rig)), key=lambda i: (-seen[i], i))
+
+
+def _pyramid_searches(rig: Rig, detectors: list, options: TrackerOptions) -> list:
+    """Per camera its :class:`PyramidSearch` of the full frame, or None for the full resolution
+    (``TrackerOptions.full_frame_pyramid``, :mod:`tracker._pipeline_pyramid`)."""
+    out: list = [None] * len(rig)
+    if not (options.full_frame_pyramid and options.size_from_rig) or rig.workspace_m is None or detectors[0].learned is not None:
+        return out
+    levels = pyramid_levels(ball_diameter_range_px(rig, ball_radius_m=options.ball_radius_m)[:, 0])
+    made: dict = {}
+    for i, k in enumerate(levels):
+        if k > 0:
+            key = (id(detectors[i]), int(k))
+            if key not in made:
+                made[key] = PyramidSearch(detectors[i], int(k))
+            out[i] = made[key]
+    return out
 
 
 def _sized_detectors(rig: Rig, detector: BallDetector) -> list[BallDetector]:
