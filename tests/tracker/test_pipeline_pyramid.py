@@ -1,5 +1,5 @@
 """The full-frame search at a reduced resolution (tracker._pipeline_pyramid, TrackerOptions.full_frame_pyramid):
-which cameras use it, that its candidates are the full frame's (found again at full resolution), and that a
+which cameras use it (off by default, on in the live service), that its candidates are the full frame's (found again at full resolution), and that a
 nine-camera 1440x1080 rig's tracker gives the same positions with it as without."""
 
 from __future__ import annotations
@@ -49,12 +49,13 @@ def test_the_candidates_are_the_full_frames(level, balls, model):
 
 def test_which_trackers_use_it():
     vga, ace = resolve_rig("lab8_vga"), resolve_rig("lab9_ace")
-    assert Tracker(vga).engine.pyramid == [None] * len(vga)  # VGA balls: the full resolution, as before
-    levels = [p.level for p in Tracker(ace).engine.pyramid]
+    assert Tracker(vga, full_frame_pyramid=True).engine.pyramid == [None] * len(vga)  # VGA balls: the full resolution
+    levels = [p.level for p in Tracker(ace, full_frame_pyramid=True).engine.pyramid]
     assert levels == [1] * 8 + [2]
-    assert Tracker(ace, full_frame_pyramid=False).engine.pyramid == [None] * len(ace)
-    assert Tracker(ace, model="data/models/ball_seg_white.npz").engine.pyramid == [None] * len(ace)  # a learned stage: its own scale
-    assert Tracker(ace, "rt2-paper").engine.pyramid == [None] * len(ace)  # the paper's system as published
+    assert Tracker(ace).engine.pyramid == [None] * len(ace)  # off unless asked for (the live service asks)
+    white = Tracker(ace, model="data/models/ball_seg_white.npz", full_frame_pyramid=True)
+    assert white.engine.pyramid == [None] * len(ace)  # a learned stage: its own scale
+    assert Tracker(ace, "rt2-paper", full_frame_pyramid=True).engine.pyramid == [None] * len(ace)  # the paper's system as published
     with pytest.raises(ValueError, match="TrackerOptions.full_frame_pyramid must be True or False, got 'yes'"):
         TrackerOptions(full_frame_pyramid="yes")
     det = BallDetector(load_model(None))
@@ -84,3 +85,11 @@ def test_a_nine_camera_rig_tracks_the_same_with_the_pyramid(model):
         assert a.status == b.status and a.status.value == "ok" and np.linalg.norm(a.position_m - X) < 0.005
         np.testing.assert_allclose(a.position_m, b.position_m, atol=1e-9)
         assert on.stats.full_frame_searches == off.stats.full_frame_searches == len(rig)
+
+
+def test_the_live_service_asks_for_it():
+    from harness.live.config import ConfigError, TrackConfig
+
+    assert TrackConfig().full_frame_pyramid is True
+    with pytest.raises(ConfigError, match="full_frame_pyramid must be True or False, got 'no'"):
+        TrackConfig(full_frame_pyramid="no")
