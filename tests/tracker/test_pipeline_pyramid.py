@@ -88,8 +88,15 @@ def test_a_nine_camera_rig_tracks_the_same_with_the_pyramid(model):
 
 
 def test_the_live_service_asks_for_it():
+    import argparse
+
+    from harness.cli.track import add_arguments, track_config
     from harness.live.config import ConfigError, TrackConfig
 
     assert TrackConfig().full_frame_pyramid is True
     with pytest.raises(ConfigError, match="full_frame_pyramid must be True or False, got 'no'"):
         TrackConfig(full_frame_pyramid="no")
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert track_config(parser.parse_args([])).full_frame_pyramid is True  # rt2 track, rt2 bench live
+    assert track_config(parser.parse_args(["--no-full-frame-pyramid"])).full_frame_pyramid is False
