@@ -10,7 +10,7 @@ full frame's, as without the pyramid (the reduced frame's, scaled, only where th
 Two candidates that land on one blob are kept once. VGA rigs (balls of 5.5-16 px) stay at level 0: their
 searches are unchanged.
 
-Measured (lab9_ace, rendered frame sets, 146 visible balls; this machine): the full-frame search 9.5 ms per
+Measured with a probe, not a command (lab9_ace, rendered frame sets, 146 visible balls; this machine): the full-frame search 9.5 ms per
 1440x1080 camera, 3.5 ms at half resolution; the ball among the candidates 145 vs 144 times.
 
 Only for the filter's blobs: a learned stage already runs its network at its own scale of the frame.

@@ -34,7 +34,8 @@ stage the filter does not see, the white ball: the edge fit of :mod:`tracker.det
 triangulated from those centres, twice. Kept only when at least ``min_support`` cameras re-centre within
 ``max(2 px, d / 4)`` of the projection, the new position reprojects within ``max_reprojection_px`` of them and lies
 within a ball radius of the consensus's; otherwise the consensus's position stays (on the caliscope frames with
-the drawn orange ball: labels within 1.5 px of the truth 76 -> 90 %, ``rt2 eval autolabel --scene caliscope --frames 400``).
+the drawn orange ball: labels within 1.5 px of the truth 76 -> 90 %, ``rt2 eval autolabel --scene caliscope --frames 400``
+with ``--no-recentre`` and without).
 
 The label of each camera of a kept frame set is the position reprojected into it (distorted pixels),
 its box a square of the ball's projected diameter (``2 r f / z``) about it; a camera where it falls
@@ -195,7 +196,7 @@ def trimmed(position_m, uv_px, estimate, rig, options: AutoOptions):
     others, while that camera is farther than ``trim_px`` from the position and more than ``min_support`` cameras
     remain (rule 1's camera trimming): one off-centre blob inside the consensus's tolerance moves the position, and
     with it every camera's label. ``uv_px`` : (n_cams, 2) the chosen candidates (NaN elsewhere)."""
-    from tracker.triangulation import triangulate
+    from tracker.triangulation import reprojection_errors, triangulate
 
     X = np.asarray(position_m, float)
     inl = np.asarray(estimate.inliers, bool).copy()
@@ -207,12 +208,12 @@ def trimmed(position_m, uv_px, estimate, rig, options: AutoOptions):
             break
         inl[worst] = False
         uv = np.where(inl[:, None], np.asarray(uv_px, float), np.nan)
-        X2, e2 = triangulate(rig, uv)
+        X2, _ = triangulate(rig, uv)
         if not np.isfinite(X2).all():
             inl[worst] = True
             break
         X, changed = X2, True
-        err = np.where(inl, e2, reprojection_errors_all(X, uv_px, rig))
+        err = reprojection_errors(X, np.asarray(uv_px, float), rig)  # every camera's, the dropped ones too
     if not changed:
         return X, estimate
     return X, replace(estimate, inliers=inl, support=int(inl.sum()), reproj_error_px=err)
@@ -284,13 +285,6 @@ def recentred(images, position_m, rig, centre, options: AutoOptions) -> np.ndarr
     return X if np.linalg.norm(X - X0) <= options.ball_radius_m else X0
 
 
-def reprojection_errors_all(X, uv_px, rig) -> np.ndarray:
-    """(n_cams,) pixel distances of ``X``'s projections from ``uv_px`` (NaN where a camera has none)."""
-    from tracker.triangulation import reprojection_errors
-
-    return reprojection_errors(X, np.asarray(uv_px, float), rig)
-
-
 def max_ball_area_px(rig, options: AutoOptions) -> int:
     """The largest blob area a ball can have in any camera of ``rig`` (its workspace's nearest point, x 1.5 in diameter
     for blur), px; without a workspace, a 1 m distance's."""
@@ -301,6 +295,11 @@ def max_ball_area_px(rig, options: AutoOptions) -> int:
     else:
         d = max(2.0 * options.ball_radius_m * float(cam.K[0, 0]) for cam in rig)
     return int(math.ceil(math.pi / 4 * (1.5 * d) ** 2))
+
+
+def _positions(found) -> np.ndarray:
+    """(n, 3) the agreed positions of ``found`` (FrameSetLabels or None), NaN rows where none."""
+    return np.array([f.position_m if f is not None else [np.nan] * 3 for f in found], float).reshape(-1, 3)
 
 
 def flight_span_s(t_s, window: int) -> float:
@@ -367,7 +366,7 @@ def auto_label(framesets, rig, model, options: AutoOptions = AutoOptions(), *, p
                          detector_options=replace(detector_options, t_high=scale * options.t_high, t_low=scale * options.t_low,
                                                   learned_threshold=None if learned is None else scale * learned))
     centre = centring(tracker.engine.detector.model, options.t_low) if options.recentre else None
-    found, times, positions = [], [], []
+    found, times = [], []
     counts = {"frame_sets": 0, "agreed": 0, "second_look": 0, "size_rejected": 0, "low_support": 0, "reprojection": 0}
     waiting: deque = deque()  # (position in found, RecordedSet) without agreement, until their successors are in
 
@@ -392,15 +391,16 @@ def auto_label(framesets, rig, model, options: AutoOptions = AutoOptions(), *, p
         return None
 
     def look_again(k, rs):
-        have = [f is not None for f in found]
         w = int(options.flight_window)
-        span = flight_span_s(times, w)
-        prior = flight_prediction(times, np.array(positions, float).reshape(-1, 3), have, k, w, span)
+        lo = max(0, k - w)
+        near = found[lo:k + w + 1]  # the window the flight is fitted in, not the whole recording
+        have = [f is not None for f in near]
+        prior = flight_prediction(times[lo:k + w + 1], _positions(near), have, k - lo, w, flight_span_s(times, w))
         if prior is None:
             return
         labels = agreement(second, rs, prior, count=False)
         if labels is not None:
-            found[k], positions[k] = labels, labels.position_m
+            found[k] = labels
             counts["second_look"] += 1
 
     try:
@@ -409,7 +409,6 @@ def auto_label(framesets, rig, model, options: AutoOptions = AutoOptions(), *, p
             counts["frame_sets"] += 1
             times.append(rs.t_s)
             found.append(labels)
-            positions.append([np.nan] * 3 if labels is None else labels.position_m)
             if second is not None:
                 if labels is None:
                     waiting.append((len(found) - 1, rs))
@@ -424,7 +423,7 @@ def auto_label(framesets, rig, model, options: AutoOptions = AutoOptions(), *, p
         if second is not None:
             second.close()
     agreed = np.array([f is not None for f in found], bool)
-    pos = np.array(positions, float).reshape(-1, 3)
+    pos = _positions(found)
     keep = flight_consistent(np.array(times, float), pos, agreed, options)
     counts["agreed"] = int(agreed.sum())
     counts["kept"] = int(keep.sum())
