@@ -21,6 +21,7 @@ _WHERE = {
     "triangulate_pairs": "triangulation",
     "RTBlobDetector": "rtblob", "RTBlobOptions": "rtblob", "RTBlobTracker": "rtblob",
     "BallHypotheses": "hypotheses", "HypothesisOptions": "hypotheses",
+    "MotionCue": "motion", "MotionOptions": "motion",
     "Tracker": "pipeline", "TrackerOptions": "pipeline", "make_tracker": "pipeline",
     "CandidateEstimator": "candidates",
 }

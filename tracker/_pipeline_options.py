@@ -16,6 +16,7 @@ import numpy as np
 from checks.arrays import describe
 from tracker.detection import BallSegmentationModel, DetectorOptions
 from tracker.hypotheses import HypothesisOptions
+from tracker.motion import MotionOptions
 from tracker.robust import RobustOptions
 
 __all__ = ["DEFAULT_MODEL", "PipelineInfo", "TrackerEngine", "TrackerKind", "TrackerOptions", "TrackerStats", "detector_options_for", "estimator_options_for", "load_model", "with_overrides"]
@@ -128,7 +129,11 @@ class TrackerOptions:
         1440x1080 rig's full-frame search 3x faster). VGA rigs stay at full resolution. Off by default (the offline
         experiments' figures are the full resolution's: on the reduced frame the K best candidates can differ); the
         live service turns it on (``harness.live.config.TrackConfig.full_frame_pyramid``)
-    """
+    motion_cue : fixed cameras (``rt2`` only): :class:`MotionOptions` of a per-camera background at reduced
+        resolution (:mod:`tracker.motion`); a full-frame search keeps only the candidates on cells that moved (a new
+        ball is one that moves: lamps, shelves and white objects do not), while a frame gives a cue (not the first
+        one, nor one whose whole scene changed). Windows around a followed ball keep it when it stops. None = off
+"""
 
     roi: bool | None = None
     max_gap_s: float = 0.05
@@ -145,6 +150,7 @@ class TrackerOptions:
     hypotheses: HypothesisOptions | None = HypothesisOptions()
     size_from_rig: bool = True
     full_frame_pyramid: bool = False
+    motion_cue: MotionOptions | None = None
 
     def __post_init__(self):
         if self.roi is not None and not isinstance(self.roi, (bool, np.bool_)):
@@ -181,6 +187,8 @@ class TrackerOptions:
             raise ValueError(f"TrackerOptions.ball_radius_m must be a radius in metres in (0, 1), got {r!r}")
         if self.hypotheses is not None and not isinstance(self.hypotheses, HypothesisOptions):
             raise ValueError(f"TrackerOptions.hypotheses must be a HypothesisOptions or None (off), got {describe(self.hypotheses)}")
+        if self.motion_cue is not None and not isinstance(self.motion_cue, MotionOptions):
+            raise ValueError(f"TrackerOptions.motion_cue must be a MotionOptions or None (off), got {describe(self.motion_cue)}")
 
 
 @dataclass
@@ -202,6 +210,7 @@ class TrackerStats:
         in play (``TrackerOptions.hypotheses``; the motion prediction restarts on it)
     withheld : frame sets with several ball hypotheses, none in play yet: no position reported
     hypothesis_full_frames : full-frame searches asked for by the hypotheses (no ball in play)
+    still_candidates : full-frame candidates dropped because nothing moved there (``TrackerOptions.motion_cue``)
     missing_frames : camera images that were None (no frame delivered)
     bad_frames : camera images of the wrong size, dtype or channels (skipped)
     non_monotonic : frame sets whose time did not increase or was not finite (motion prediction reset)
@@ -221,6 +230,7 @@ class TrackerStats:
     lead_changes: int = 0
     withheld: int = 0
     hypothesis_full_frames: int = 0
+    still_candidates: int = 0
     missing_frames: int = 0
     bad_frames: int = 0
     non_monotonic: int = 0

@@ -22,9 +22,10 @@ from tracker._pipeline_pyramid import PyramidSearch, pyramid_levels
 from tracker._pipeline_roi import MotionPredictor
 from tracker._pipeline_search import search_around, search_boxes
 from tracker.ball_size import ball_diameter_range_px, size_limits
-from tracker.detection import BallDetector
+from tracker.detection import BallDetector, Detections
 from tracker.handover import SupportHandover
 from tracker.hypotheses import BallHypotheses
+from tracker.motion import MotionCue
 from tracker.observation import BallObservation, Status
 from tracker.rig import Rig
 from tracker.robust import RobustTriangulator
@@ -35,6 +36,11 @@ __all__ = ["JUMP_M", "SegmentationEngine"]
 #: a ball the full-frame fallback finds this far from the prediction (m) starts a new motion: a new serve,
 #: or a ball the windows lost; a ball at 30 m/s moves 0.15 m in a 200 Hz period
 JUMP_M = 0.25
+#: a full-frame search in the regions that moved (``TrackerOptions.motion_cue``) searches each this much wider, pixels, and
+#: keeps the candidates inside it, so that they are the full frame's: the filter's blobs need a few pixels around them;
+#: the learned stage's network sees ~64 of its pixels around a cell (it found false peaks near the edge of a box
+#: given with less), and its box is aligned to the full frame's grid (``LearnedStage.aligned_window``)
+REGION_CONTEXT_PX = {"filter": 8, "learned": 56}
 
 
 class SegmentationEngine:
@@ -90,6 +96,10 @@ class SegmentationEngine:
         self._size_stage = self._size.stage(self._areas)  # the consensus's last stage, on this workspace
         self._dets = [None] * n
         self._images = None
+        # per camera its motion cue (TrackerOptions.motion_cue): full-frame candidates only where something moved
+        self.cues = [MotionCue(int(w), int(h), options.motion_cue) for w, h in self._wh] if spec.extras and options.motion_cue is not None else None
+        self._margin_px = _region_margins(rig, options.ball_radius_m)  # a ball's radius around the moving cells
+        self._frame_no, self._t_s = 0, math.nan
         self._pool = None
         if options.workers > 1:
             self._pool = ThreadPoolExecutor(options.workers - 1, thread_name_prefix="rt2-detect")
@@ -103,6 +113,9 @@ class SegmentationEngine:
             self.handover.reset()
         if hypotheses and self.hypotheses is not None:
             self.hypotheses.reset()
+        if hypotheses and self.cues is not None:
+            for cue in self.cues:
+                cue.reset()
 
     def close(self) -> None:
         if self._pool is not None:
@@ -117,6 +130,8 @@ class SegmentationEngine:
         a (3,) world point whose pixels are searched instead of the motion prediction's."""
         n = self.n_cams
         self._images = frameset.images
+        self._frame_no += 1
+        self._t_s = t_s
         if prior_m is not None:
             roi_px = self._project(prior_m, list(range(n)))
         else:
@@ -339,16 +354,70 @@ class SegmentationEngine:
                 st.full_frame_searches += 1
 
     def _detect_chunk(self, cams, roi_px, boxes) -> None:
-        dets, images = self._dets, self._images
+        dets, images, cues = self._dets, self._images, self.cues
         for i in cams:
             det = self.detectors[i]
             x0, y0, x1, y1 = boxes[i]
+            full = x0 >= 0 and x1 - x0 == self._wh[i, 0] and y1 - y0 == self._wh[i, 1]
+            if cues is not None:  # every frame it is given; the cells that moved where the full frame is searched
+                cues[i].observe(images[i], self._t_s, frame=self._frame_no, need_mask=full)
             if x0 < 0:
                 dets[i] = None  # the predicted window lies outside this camera's image
-            elif x1 - x0 == self._wh[i, 0] and y1 - y0 == self._wh[i, 1]:  # the full frame
-                dets[i] = det.detect(images[i]) if self.pyramid[i] is None else self.pyramid[i].detect(images[i])
+            elif full:
+                boxes_i = None if cues is None else cues[i].regions(self._margin_px[i])
+                if boxes_i is not None:  # only where the frame moved (tracker.motion)
+                    dets[i] = self._moving(i, self._in_regions(det, images[i], boxes_i))
+                else:
+                    d = det.detect(images[i]) if self.pyramid[i] is None else self.pyramid[i].detect(images[i])
+                    dets[i] = d if cues is None else self._moving(i, d)
             else:  # the neighbourhood: its window first, then at most the whole neighbourhood
                 dets[i] = search_around(det, images[i][y0:y1, x0:x1], roi_px[i] - boxes[i, :2], images[i].shape)
+
+    def _in_regions(self, det: BallDetector, image: np.ndarray, regions: list) -> Detections:
+        """A full-frame search of ``image`` in the boxes ``regions`` alone: each box's candidates, the best
+        ``max_candidates`` of them all (an empty list: none)."""
+        h, w = image.shape[:2]
+        c = REGION_CONTEXT_PX["filter" if det.learned is None else "learned"]
+        found = []
+        for x0, y0, x1, y1 in regions:  # searched with more around it; the candidates inside the box kept
+            win = (max(x0 - c, 0), max(y0 - c, 0), min(x1 + c, w), min(y1 + c, h))
+            if det.learned is not None:
+                win = det.learned.aligned_window(win, h, w)
+            d = det.detect(image, win)
+            if len(d):
+                u, v = d.uv_px[:, 0], d.uv_px[:, 1]
+                keep = (u > x0 - 0.5) & (u < x1 - 0.5) & (v > y0 - 0.5) & (v < y1 - 0.5)
+                if keep.any():
+                    found.append(Detections(d.uv_px[keep], d.scores[keep], d.boxes_xywh[keep], d.areas_px[keep], False))
+        if not found:
+            return Detections.empty()
+        if len(found) == 1:
+            d = found[0]
+            return Detections(d.uv_px, d.scores, d.boxes_xywh, d.areas_px, False)
+        scores = np.concatenate([d.scores for d in found])
+        order = np.argsort(-scores, kind="stable")[: det.options.k]
+        return Detections(np.concatenate([d.uv_px for d in found])[order], scores[order],
+                          np.concatenate([d.boxes_xywh for d in found])[order], np.concatenate([d.areas_px for d in found])[order], False)
+
+    def _moving(self, i: int, det: Detections) -> Detections:
+        """The full-frame candidates of camera ``i`` on cells its motion cue saw move (all without a cue)."""
+        if len(det) == 0:
+            return det
+        keep = self.cues[i].moved(det.uv_px, det.boxes_xywh[:, 2:].max(axis=1))
+        if keep.all():
+            return det
+        self.stats.still_candidates += int((~keep).sum())  # (ints: the threads' increments do not interleave badly under the GIL)
+        return Detections(det.uv_px[keep], det.scores[keep], det.boxes_xywh[keep], det.areas_px[keep], det.used_roi)
+
+
+def _region_margins(rig: Rig, ball_radius_m: float) -> np.ndarray:
+    """(n_cams,) the largest ball radius in each camera, pixels, over the rig's workspace (32 px without one,
+    or where a camera sees none of it): how far a ball's centre may lie from the cells its edge moved."""
+    out = np.full(len(rig), 32.0)
+    if rig.workspace_m is not None:
+        d = ball_diameter_range_px(rig, ball_radius_m=ball_radius_m)[:, 1]
+        out = np.where(np.isfinite(d), 0.5 * d + 2.0, out)
+    return out
 
 
 def _search_order(rig: Rig) -> list[int]:

@@ -43,7 +43,7 @@ CLOSE_BY_S = 1.0  #: after SIGINT / SIGTERM, what is not closed this long after 
 FLAGS = {"rig": "--rig", "source": "--source", "rate_hz": "--rate-hz", "seed": "--seed", "prerender_s": "--prerender",
          "truth_stream": "--truth-stream", "scene": "--scene", "max_behind_s": "--max-behind", "sim_rig": "--sim-rig",
          "sim_render": "--sim-render", "sim_render_nice": "--sim-render-nice", "queue_s": "--queue-s", "max_backlog": "--max-backlog", "tracker": "--tracker",
-         "model_path": "--model", "workers": "--workers", "full_frame_pyramid": "--full-frame-pyramid", "publish": "--publish", "publish_rt2": "--publish-rt2",
+         "model_path": "--model", "workers": "--workers", "full_frame_pyramid": "--full-frame-pyramid", "motion_cue": "--motion-cue", "publish": "--publish", "publish_rt2": "--publish-rt2",
          "foxglove_port": "--foxglove", "foxglove_host": "--foxglove-host", "log_path": "--log", "log_overwrite": "--log-overwrite",
          "log_images": "--log-images", "log_image_format": "--log-image-format", "duration_s": "--duration",
          "status_period_s": "--status-period", "json": "--json"}
@@ -70,7 +70,7 @@ def track_config(args, **fields) -> TrackConfig:
             rig=str(args.rig), source=tuple(args.source), rate_hz=args.rate_hz, seed=args.seed, prerender_s=args.prerender,
             truth_stream=args.truth_stream, scene=args.scene, max_behind_s=args.max_behind, sim_rig=args.sim_rig,
             sim_render=args.sim_render, sim_render_nice=args.sim_render_nice, queue_s=args.queue_s, max_backlog=args.max_backlog, tracker=args.tracker,
-            model_path=args.model, workers=args.workers, full_frame_pyramid=args.full_frame_pyramid,
+            model_path=args.model, workers=args.workers, full_frame_pyramid=args.full_frame_pyramid, motion_cue=args.motion_cue,
         )
         if hasattr(args, "publish"):  # rt2 track's own options (rt2 bench live sets its streams itself)
             mine.update(
@@ -105,6 +105,10 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                         help="rt2: a camera whose ball is large (>= 11 px across the workspace: high-resolution cameras) searches its "
                              "full frame at a reduced resolution, each candidate then found again at full resolution (default on; "
                              "VGA cameras are searched at full resolution either way; docs/pipeline.md)")
+    parser.add_argument("--motion-cue", action=argparse.BooleanOptionalAction, default=False,
+                        help="rt2, fixed cameras: a full-frame search (a new ball, a lost one) keeps only the candidates where the "
+                             "frame moved against the camera's own background (lamps, shelves and white objects do not move; a "
+                             "ball already followed is kept when it stops). Default off (docs/pipeline.md, 'The motion cue')")
     parser.add_argument("--truth-stream", default=None, metavar="ADDR",
                         help="sim only: render the lab from a lab truth stream (e.g. rt2 robot serve --sim --truth-stream ADDR): "
                              "each frame is exposed on the host clock, rendered once the truth at that instant has arrived, "

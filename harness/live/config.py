@@ -78,7 +78,9 @@ class TrackConfig:
     the shipped one); workers : detector threads, 1..64 (None = :data:`DEFAULT_WORKERS` for the rt2 kinds,
     whose full-frame searches then run two cameras at a time, 1 for rtblob; :attr:`tracker_workers`); roi : the rt2 kinds' window search (None = the
     kind's default; False = full frame every frame set); full_frame_pyramid : the rt2 kind's full-frame search of a camera
-    whose ball is large at a reduced resolution (``tracker.TrackerOptions.full_frame_pyramid``; on here, off offline)
+    whose ball is large at a reduced resolution (``tracker.TrackerOptions.full_frame_pyramid``; on here, off offline);
+    motion_cue : the rt2 kind's full-frame candidates only where the frame moved against the camera's background
+    (``tracker.TrackerOptions.motion_cue`` with its default :class:`tracker.MotionOptions`; off by default)
 
     Outputs:
     publish : the tennicam stream's address (None = off); publish_rt2 : rt2's stream's address,
@@ -107,6 +109,7 @@ class TrackConfig:
     workers: int | None = None
     roi: bool | None = None
     full_frame_pyramid: bool = True
+    motion_cue: bool = False
     publish: str | None = "tcp://127.0.0.1:7660"
     publish_rt2: str | None = NEXT_PORT
     foxglove_port: int | None = None
@@ -169,6 +172,8 @@ class TrackConfig:
             raise ConfigError("roi", f"{{roi}} must be True, False or None (the kind's default), got {self.roi!r}")
         if not isinstance(self.full_frame_pyramid, bool):
             raise ConfigError("full_frame_pyramid", f"{{full_frame_pyramid}} must be True or False, got {self.full_frame_pyramid!r}")
+        if not isinstance(self.motion_cue, bool):
+            raise ConfigError("motion_cue", f"{{motion_cue}} must be True or False, got {self.motion_cue!r}")
         if self.duration_s is not None and not (_number(self.duration_s) and self.duration_s > 0):
             raise ConfigError("duration_s", f"{{duration_s}} must be a positive number of seconds, got {self.duration_s}")
         if not (_number(self.status_period_s) and self.status_period_s >= 0):

@@ -152,6 +152,10 @@ def open_service(config: TrackConfig, *, status=print, truth_scene=None) -> Live
             kw["workers"] = config.tracker_workers
         if config.roi is not None:
             kw["roi"] = config.roi
+        if config.motion_cue:
+            from tracker import MotionOptions
+
+            kw["motion_cue"] = MotionOptions()
         tracker = Tracker(rig, config.tracker, full_frame_pyramid=config.full_frame_pyramid, **kw)
         closers.append(tracker.close)
         warm_up(tracker, rig)

@@ -293,6 +293,14 @@ class SemiRealSession:
         images, truths, source = self._draw(k, P[j], V[j], np.random.default_rng([self.seed, n, j + 1]))
         return (images, truths, P[j][None, :], k, source) if crop else (images, truths, P[j][None, :], k)
 
+    def background(self, k: int) -> list:
+        """The session's own frame set ``k`` (n_cams (H, W, 3) uint8, no ball drawn): what a fixed camera saw before a
+        flight that starts on frame set ``k + 1`` (a motion cue's background, ``rt2 eval framesets``)."""
+        if not 0 <= k < self.n_frames:
+            raise ValueError(f"frame set {k} is not in the session {self.folder} (0 .. {self.n_frames - 1})")
+        self._decode_range(k, k + 1)
+        return [im.copy() for im in self._frames[k]]
+
     def _decode_range(self, start: int, stop: int) -> None:
         """Decode the frame sets ``start .. stop - 1`` not decoded yet (moving backgrounds); they stay in memory."""
         missing = [k for k in range(start, stop) if k not in self._frames]

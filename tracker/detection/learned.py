@@ -224,6 +224,33 @@ class LearnedStage:
             return self._two_passes(image, k, threshold)
         return self._one_pass(image, window, k, threshold, scale)
 
+    def aligned_window(self, window, height: int, width: int) -> tuple:
+        """A window holding ``window`` ``(x0, y0, x1, y1)`` of a ``height x width`` frame whose search gives the network
+        the very input a full-frame pass gives it there: the box it sees (the window plus ``context_px``) starts
+        and ends on the frame's grid of 8 network pixels (the network's coarsest stride) after the resize, so
+        the resized pixels and the cells are the full frame's; only the box's edges differ (the network sees no
+        further). Where the frame's scale has no such grid in whole pixels, the window as it is."""
+        s = self.scale_of(height, width)
+        period = next((p for p in range(1, 257) if abs(p * s / 8 - round(p * s / 8)) < 1e-9 and round(p * s / 8) >= 1), None)
+        if period is None:
+            return tuple(int(v) for v in window)
+        m = self.context_px / s
+        cm = int(math.ceil(m - 1e-9))
+        x0, y0, x1, y1 = (int(v) for v in window)
+
+        def lo(v):  # the box starts at the grid point at or below v - m: window start = grid + ceil(m), or 0
+            g = (max(int(math.floor(v - m)), 0) // period) * period
+            return 0 if g == 0 and v - m <= 0 else max(g + cm, 0) if g > 0 else 0
+
+        def hi(v, size):  # the box ends at the grid point at or above v + m: window end = grid - ceil(m), or the frame's end
+            g = -(-int(math.ceil(v + m)) // period) * period
+            return size if g >= size else min(g - cm, size)
+
+        ax0, ay0, ax1, ay1 = lo(x0), lo(y0), hi(x1, width), hi(y1, height)
+        if not (ax0 <= x0 and ay0 <= y0 and ax1 >= x1 and ay1 >= y1):
+            return x0, y0, x1, y1
+        return ax0, ay0, ax1, ay1
+
     def _two_passes(self, image, k: int, threshold):
         """Full frame: the coarse pass's best peaks, each searched again as a window at full scale (module docstring)."""
         h, w = image.shape[:2]

@@ -39,6 +39,12 @@ variants run without the ball hypotheses (``TrackerOptions.hypotheses=None``): t
 by their motion over frame sets, and a frame set scored alone has none (with them, a frame set showing two
 balls would get no position, as the first 50 ms of a live run do); ``rt2 play --scene second_ball`` measures them.
 
+``rt2-motion`` and ``rt2-motion-gate`` are ``rt2`` with the motion cue of fixed cameras (``TrackerOptions.motion_cue``,
+docs/pipeline.md "The motion cue": full frames searched only where the frame moved / searched whole and the candidates
+where nothing moved dropped); it needs frames in their time order, so it acts on ``--flight-frames`` sequences, where
+each flight is preceded by the session's own frame set before its first (unscored, the trackers with a cue only: the
+frames a live camera gave before the ball came).
+
 ``rtblob`` is the RTBlob baseline (fixed pairs 0+1, 2+3); ``rt2-trained-sizes`` and ``rtblob-3m`` are ``rt2``
 and ``rtblob`` with ``TrackerOptions.size_from_rig=False`` (the model's trained blob areas, RTBlob's template
 for a ball 3 m away), to show what the rig's size limits change (docs/pipeline.md, "Size limits from the rig").
@@ -69,7 +75,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from harness.common.executor import SweepOptions, add_sweep_arguments, options_from_args, run_sweep
-from tracker import TrackerOptions
+from tracker import MotionOptions, TrackerOptions
 from tracker.size_test import EdgeLossFit, SizeTest, fit_edge_loss
 
 __all__ = ["TRACKERS", "FramesetScores", "add_arguments", "evaluate", "format_edge_loss", "format_table", "run", "cameras_with_ball", "score_frameset", "trackable_views"]
@@ -83,6 +89,8 @@ TRACKERS = {  # rt2 without its ball hypotheses: a frame set alone has no motion
     "rtblob": ("rtblob", {}),
     "rt2-trained-sizes": ("rt2", {"hypotheses": None, "size_from_rig": False}),  # blob areas and window from the model, not the rig
     "rtblob-3m": ("rtblob", {"size_from_rig": False}),  # the template sized for a ball 3 m away, as published
+    "rt2-motion": ("rt2", {"hypotheses": None, "motion_cue": MotionOptions()}),  # full frames: searched where something moved
+    "rt2-motion-gate": ("rt2", {"hypotheses": None, "motion_cue": MotionOptions(regions=False)}),  # ... whole, then the still candidates dropped
 }
 #: the scenes (``--scene``): "lab" = rendered random frame sets of ``--rig``; "caliscope" = semi-real frame
 #: sets on the real 4-camera caliscope session (:mod:`harness.sim.semireal`)
@@ -359,6 +367,11 @@ def _score_chunk(chunk: tuple[int, int]) -> dict:
                 flight = w["session"].flight(n, n_flight, rate_hz)
                 for tr in runs.values():
                     tr.reset()
+                if flight[0] >= 1 and w["session"].options.moving:  # a fixed camera's stream had frames before the ball came:
+                    before = FrameSet(-1.0 / rate_hz, w["session"].background(flight[0] - 1))  # the cue's first background (unscored)
+                    for tr in runs.values():
+                        if tr.options.motion_cue is not None:
+                            tr.process(before)
             images, truths, balls_m, _ = w["session"].flight_frameset(n, j, flight)
             ours, t_s = [0], j / rate_hz
         elif w["renderer"] is None:  # semi-real: one ball, the target

@@ -336,3 +336,19 @@ def test_bad_model_is_one_line(capsys, tmp_path, make, expected):
 def test_model_with_rtblob_is_one_line(capsys, tmp_path):
     assert "--model applies to the rt2 kinds only" in _bad(
         capsys, tmp_path, "--publish", "none", "--tracker", "rtblob", "--model", str(tmp_path / "m.npz"))
+
+
+def test_motion_cue_flag_reaches_the_config_and_bad_values_name_the_field():
+    import argparse
+
+    from harness.cli.track import add_arguments, track_config
+    from harness.live.config import ConfigError, TrackConfig
+
+    assert TrackConfig().motion_cue is False
+    for bad in ("yes", 1, None):
+        with pytest.raises(ConfigError, match="motion_cue must be True or False"):
+            TrackConfig(motion_cue=bad)
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert track_config(parser.parse_args([])).motion_cue is False  # rt2 track, rt2 bench live
+    assert track_config(parser.parse_args(["--motion-cue"])).motion_cue is True

@@ -1,0 +1,250 @@
+"""The motion cue of a fixed camera: which parts of its frame moved, cheaply, at reduced resolution.
+
+In a lab the cameras do not move and the frames of each come in their time order, so what moved since the
+last frames is known for little: the ball in flight moves, the lamps, shelves, white walls and sneakers a
+detector mistakes for a ball mostly do not. :class:`MotionCue` keeps one camera's background and tells, for
+a new frame, which cells of it differ from that background:
+
+1. the frame is reduced ``cell_px`` times (``cv2.resize``, bilinear: each cell's value is the mean of the 2 x 2
+   pixels at its centre; a VGA frame to 160 x 120 cells in ~0.1 ms);
+2. a cell *moved* when one of its channels differs from the background's by more than
+   ``threshold + relative x`` the background's brightest channel there (the relative part lets a lamp
+   flicker with the mains without moving);
+3. when more than ``max_share`` of the cells moved, the scene changed as a whole (the light went on, the
+   camera was bumped, another recording begins): the frame gives no cue and becomes the background;
+   likewise the first frame, and the first after a gap of more than ``max_gap_s`` between frames;
+4. the background follows the frames it is computed for: ``bg += alpha (frame - bg)`` per cell (a ball
+   passing through a cell leaves a trace of ``alpha`` of its contrast, under the threshold). It is computed
+   for every ``learn_every``-th frame, and for every frame whose cue is asked for (a full-frame search); the
+   moving cells are those of the frame against the background of the frames before it.
+
+:meth:`MotionCue.moved` tells which candidates lie on moving cells (within their radius plus ``margin_cells``);
+where there is no cue every candidate passes. The tracker uses it on full-frame searches only
+(``TrackerOptions.motion_cue``): a new ball is one that moves; a ball already followed in windows is kept
+when it stops (a ball held still on the robot's end effector, a ball lying on the table).
+
+:func:`compare_reference` and :func:`follow_reference` are the plain numpy versions of the per-frame kernels,
+:func:`compare` and :func:`follow` the compiled ones (a test checks they agree).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numba
+import numpy as np
+
+from checks.numba_cache import key_cache_on_callees
+
+__all__ = ["MotionCue", "MotionOptions", "compare", "compare_reference", "follow", "follow_reference", "reduced_size"]
+
+
+@dataclass(frozen=True)
+class MotionOptions:
+    """Options of :class:`MotionCue` (module docstring).
+
+    cell_px : a cell of the reduced frame is this many of the camera's pixels a side (VGA: 4 -> 160 x 120 cells)
+    alpha : the background's rate of following the frames it is computed for
+    learn_every : the background is computed for every this-many-th frame at least (1 = every frame)
+    threshold : a cell moved when a channel differs from the background by more than this many grey levels ...
+    relative : ... plus this share of the background's brightest channel there
+    max_share : more cells moved than this share: the scene changed as a whole, no cue from that frame
+    max_gap_s : frames farther apart than this (seconds): the background starts again
+    margin_cells : a candidate is on moving cells when one lies within its radius plus this many cells
+    regions : a full-frame search looks only in the boxes around the moving cells (:meth:`MotionCue.regions`; faster:
+        on the simulated lab a full-frame frame set took half the time) while there are at most ``max_regions`` of them
+        and they cover at most ``max_region_share`` of the frame; False = the whole frame is searched and the
+        candidates where nothing moved dropped
+    """
+
+    cell_px: float = 4.0
+    alpha: float = 0.1
+    learn_every: int = 2
+    threshold: float = 12.0
+    relative: float = 0.15
+    max_share: float = 0.3
+    max_gap_s: float = 0.5
+    margin_cells: int = 1
+    regions: bool = True
+    max_regions: int = 8
+    max_region_share: float = 0.5
+
+    def __post_init__(self):
+        for name, lo, hi in (("alpha", 0.0, 1.0), ("max_share", 0.0, 1.0), ("max_region_share", 0.0, 1.0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not lo < float(v) <= hi:
+                raise ValueError(f"MotionOptions.{name} must be a number in ({lo}, {hi}], got {v!r}")
+        for name in ("threshold", "relative", "max_gap_s", "cell_px"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"MotionOptions.{name} must be a finite number >= 0, got {v!r}")
+        if not isinstance(self.regions, (bool, np.bool_)):
+            raise ValueError(f"MotionOptions.regions must be True or False, got {self.regions!r}")
+        if not self.max_gap_s > 0:
+            raise ValueError(f"MotionOptions.max_gap_s must be > 0 seconds, got {self.max_gap_s!r}")
+        if not self.cell_px >= 1:
+            raise ValueError(f"MotionOptions.cell_px must be >= 1 pixel, got {self.cell_px!r}")
+        for name, lo in (("learn_every", 1), ("margin_cells", 0), ("max_regions", 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise ValueError(f"MotionOptions.{name} must be an integer >= {lo}, got {v!r}")
+
+
+def reduced_size(width: int, height: int, cell_px: float) -> tuple[int, int]:
+    """``(cols, rows)`` of a ``width x height`` frame in cells of about ``cell_px`` pixels (at least 1 x 1)."""
+    return max(1, int(round(width / cell_px))), max(1, int(round(height / cell_px)))
+
+
+def compare_reference(small: np.ndarray, bg: np.ndarray, threshold: float, relative: float) -> np.ndarray:
+    """(rows, cols) bool: the cells of ``small`` (rows, cols, 3) uint8 that moved against ``bg`` (rows, cols, 3)
+    float32 (module docstring, step 2), numpy."""
+    d = np.abs(small.astype(np.float32) - bg).max(axis=2)
+    return d > np.float32(threshold) + np.float32(relative) * bg.max(axis=2)
+
+
+def follow_reference(small: np.ndarray, bg: np.ndarray, alpha: float) -> None:
+    """``bg += alpha (small - bg)`` in float32, in place (step 4), numpy."""
+    bg += np.float32(alpha) * (small.astype(np.float32) - bg)
+
+
+@numba.njit(cache=True, nogil=True)
+def _compare_nb(small, bg, threshold, relative, mask):
+    count = 0
+    for r in range(small.shape[0]):
+        for c in range(small.shape[1]):
+            d = np.float32(0.0)
+            level = np.float32(0.0)
+            for k in range(3):
+                d = max(d, abs(np.float32(small[r, c, k]) - bg[r, c, k]))
+                level = max(level, bg[r, c, k])
+            m = d > threshold + relative * level
+            mask[r, c] = m
+            count += m
+    return count
+
+
+@numba.njit(cache=True, nogil=True)
+def _follow_nb(small, bg, alpha):
+    for r in range(small.shape[0]):
+        for c in range(small.shape[1]):
+            for k in range(3):
+                bg[r, c, k] += alpha * (np.float32(small[r, c, k]) - bg[r, c, k])
+
+
+def compare(small: np.ndarray, bg: np.ndarray, threshold: float, relative: float, mask: np.ndarray) -> int:
+    """:func:`compare_reference` compiled, into ``mask`` (rows, cols) bool; returns the moving cells' count."""
+    return int(_compare_nb(small, bg, np.float32(threshold), np.float32(relative), mask))
+
+
+def follow(small: np.ndarray, bg: np.ndarray, alpha: float) -> None:
+    """:func:`follow_reference` compiled."""
+    _follow_nb(small, bg, np.float32(alpha))
+
+
+class MotionCue:
+    """One fixed camera's background and the cells of its newest frame that moved (module docstring).
+
+    width, height : the camera's image size, pixels; options : :class:`MotionOptions`
+    After :meth:`observe` with ``need_mask``, ``mask`` is the (rows, cols) bool array of moving cells, or None
+    where the frame gave no cue (the first frame, after a gap, a change of the whole scene).
+    """
+
+    def __init__(self, width: int, height: int, options: MotionOptions | None = None):
+        self.options = MotionOptions() if options is None else options
+        if not isinstance(self.options, MotionOptions):
+            raise ValueError(f"options must be a MotionOptions, got {type(options).__name__}")
+        self.size_wh = (int(width), int(height))
+        self.cells_wh = reduced_size(width, height, self.options.cell_px)
+        self.scale = (width / self.cells_wh[0], height / self.cells_wh[1])  # camera pixels per cell, x and y
+        self._bg = np.zeros((self.cells_wh[1], self.cells_wh[0], 3), np.float32)
+        self._mask = np.zeros((self.cells_wh[1], self.cells_wh[0]), bool)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the background (the next frame starts it again)."""
+        self._has_bg = False
+        self._last_t: float | None = None
+        self._frame = None  # the frame number last observed, and its reduced frame (computed or None)
+        self._small = None
+        self._count = 0
+        self.mask: np.ndarray | None = None
+
+    def observe(self, image: np.ndarray, t_s: float = math.nan, *, frame=None, need_mask: bool = False) -> np.ndarray | None:
+        """Take the camera's next frame ((H, W, 3) uint8 of its size, trusted) at time ``t_s`` (NaN: unknown);
+        ``frame`` a number of the frame set (a second call with the same number, to ask for the mask after a
+        window search, does not count the frame twice). With ``need_mask``: returns ``mask`` (None: no cue)."""
+        o = self.options
+        again = frame is not None and frame == self._frame
+        if not again:
+            if self._last_t is not None and math.isfinite(t_s) and t_s - self._last_t > o.max_gap_s:
+                self._has_bg = False
+            if math.isfinite(t_s):
+                self._last_t = t_s
+            self._frame, self._small = frame, None
+            self._count += 1
+            self.mask = None
+        if self._small is not None or not (need_mask or self._count % o.learn_every == 0 or not self._has_bg):
+            return self.mask if need_mask else None  # (this frame's cue is known, or not asked for)
+        self._small = cv2.resize(image, self.cells_wh, interpolation=cv2.INTER_LINEAR)
+        if not self._has_bg:
+            self._bg[...] = self._small
+            self._has_bg = True
+            return None
+        n = compare(self._small, self._bg, o.threshold, o.relative, self._mask)  # against the frames before this one
+        if n > o.max_share * self._mask.size:
+            self._bg[...] = self._small  # the whole scene changed: it is the background now
+            return None
+        self.mask = self._mask
+        follow(self._small, self._bg, o.alpha)
+        return self.mask if need_mask else None
+
+    def regions(self, margin_px: float):
+        """The boxes ``(x0, y0, x1, y1)`` (camera pixels, integers, inside the image) around the moving cells, each
+        grown by ``margin_px`` (a ball's radius: its centre may lie off the cells its edge moved) and merged where
+        they touch: where a full-frame search needs to look. None without a cue, with ``regions`` off, or when the boxes would cover more
+        than ``max_region_share`` of the frame or number more than ``max_regions`` (then the full frame is
+        cheaper); an empty list when nothing moved."""
+        o = self.options
+        if self.mask is None or not o.regions:
+            return None
+        sx, sy = self.scale
+        mx, my = int(math.ceil(margin_px / sx)), int(math.ceil(margin_px / sy))
+        grown = cv2.dilate(self.mask.view(np.uint8), np.ones((2 * my + 1, 2 * mx + 1), np.uint8))
+        n, _, stats, _ = cv2.connectedComponentsWithStats(grown, connectivity=8)
+        if n - 1 > o.max_regions:
+            return None
+        w, h = self.size_wh
+        boxes, area = [], 0
+        for c0, r0, cw, ch, _ in stats[1:]:
+            x0, y0 = max(int(math.floor(c0 * sx)), 0), max(int(math.floor(r0 * sy)), 0)
+            x1, y1 = min(int(math.ceil((c0 + cw) * sx)), w), min(int(math.ceil((r0 + ch) * sy)), h)
+            boxes.append((x0, y0, x1, y1))
+            area += (x1 - x0) * (y1 - y0)
+        return None if area > o.max_region_share * w * h else boxes
+
+    def moved(self, uv_px: np.ndarray, diameters_px: np.ndarray) -> np.ndarray:
+        """(n,) bool: the candidates at ``uv_px`` (n, 2) of ``diameters_px`` (n,) on moving cells (all True
+        without a cue; a candidate with a non-finite centre or diameter: False when there is a cue)."""
+        uv = np.asarray(uv_px, np.float64).reshape(-1, 2)
+        d = np.asarray(diameters_px, np.float64).reshape(-1)
+        if self.mask is None:
+            return np.ones(len(uv), bool)
+        out = np.zeros(len(uv), bool)
+        rows, cols = self.mask.shape
+        sx, sy = self.scale
+        m = self.options.margin_cells
+        for i in range(len(uv)):
+            u, v, dd = uv[i, 0], uv[i, 1], d[i]
+            if not (math.isfinite(u) and math.isfinite(v) and math.isfinite(dd)):
+                continue
+            cu, cv = (u + 0.5) / sx, (v + 0.5) / sy  # cell coordinates (cell c spans [c, c + 1))
+            ru, rv = 0.5 * max(dd, 0.0) / sx + m, 0.5 * max(dd, 0.0) / sy + m
+            c0, c1 = max(int(math.floor(cu - ru)), 0), min(int(math.floor(cu + ru)) + 1, cols)
+            r0, r1 = max(int(math.floor(cv - rv)), 0), min(int(math.floor(cv + rv)) + 1, rows)
+            out[i] = c0 < c1 and r0 < r1 and bool(self.mask[r0:r1, c0:c1].any())
+        return out
+
+
+key_cache_on_callees(globals())  # an edit of a helper or a constant recompiles the kernels
