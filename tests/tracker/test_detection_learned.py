@@ -242,3 +242,38 @@ def test_a_tracker_runs_the_stage_at_its_tracking_threshold_unless_told_otherwis
     assert plain.learned.track_threshold is None
     assert Tracker(rig, "rt2", model=plain).engine.detector.options.learned_threshold is None  # the stage's own threshold
     assert Tracker(rig, "rt2-paper", model=model).engine.detector.learned is None
+
+
+@pytest.mark.parametrize("hw", [(720, 1280), (480, 640), (1080, 1440)])
+def test_an_aligned_window_gives_the_network_the_full_frames_input_and_output_inside(hw):
+    """``LearnedStage.aligned_window`` (the motion cue's region search): the box the network sees starts and ends on
+    the full frame's grid of 8 network pixels (or the frame's edge), so the resized input equals the full frame's
+    there and the network's output too, away from the box's edges; the window still holds the one asked for."""
+    import math
+
+    import cv2
+
+    stage = BallSegmentationModel.load("data/models/ball_seg_white.npz").learned
+    h, w = hw
+    img = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 256, (h, w, 3), dtype=np.uint8), (9, 9), 3)
+    s = stage.scale_of(h, w)
+    full = img if s == 1.0 else cv2.resize(img, (round(w * s), round(h * s)), interpolation=cv2.INTER_AREA)
+    out_full = stage.run(full)
+    for window in [(300, 200, 700, 460), (17, 33, 211, 101), (0, 0, 100, 100), (w - 300, h - 200, w, h)]:
+        a = stage.aligned_window(window, h, w)
+        assert a[0] <= window[0] and a[1] <= window[1] and a[2] >= min(window[2], w) and a[3] >= min(window[3], h)
+        m = stage.context_px / s
+        box = (max(0, math.floor(a[0] - m)), max(0, math.floor(a[1] - m)), min(w, math.ceil(a[2] + m)), min(h, math.ceil(a[3] + m)))
+        net = [v * s for v in box]
+        assert all(abs(v - round(v)) < 1e-9 for v in net)
+        assert all(box[k] == (w, h)[k % 2] or round(net[k]) % 8 == 0 for k in range(4))  # the grid, or the frame's edge
+        x0, y0, x1, y1 = (round(v) for v in net)
+        crop = img[box[1]:box[3], box[0]:box[2]]
+        if s != 1.0:
+            crop = cv2.resize(crop, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+        assert np.array_equal(crop, full[y0:y1, x0:x1])
+        out = stage.run(crop)
+        inner = out_full[:, y0 // 4: y0 // 4 + out.shape[1], x0 // 4: x0 // 4 + out.shape[2]]
+        edge = 16  # cells: the network's reach (~64 of its pixels) from the box's edge
+        if out.shape[1] > 2 * edge and out.shape[2] > 2 * edge:
+            assert np.array_equal(out[:, edge:-edge, edge:-edge], inner[:, edge:-edge, edge:-edge])

@@ -225,7 +225,7 @@ class LearnedStage:
         return self._one_pass(image, window, k, threshold, scale)
 
     def aligned_window(self, window, height: int, width: int) -> tuple:
-        """A window holding ``window`` ``(x0, y0, x1, y1)`` of a ``height x width`` frame whose search gives the network
+        """A window holding ``window`` ``(x0, y0, x1, y1)`` (clipped to the frame) of a ``height x width`` frame whose search gives the network
         the very input a full-frame pass gives it there: the box it sees (the window plus ``context_px``) starts
         and ends on the frame's grid of 8 network pixels (the network's coarsest stride) after the resize, so
         the resized pixels and the cells are the full frame's; only the box's edges differ (the network sees no
@@ -237,6 +237,7 @@ class LearnedStage:
         m = self.context_px / s
         cm = int(math.ceil(m - 1e-9))
         x0, y0, x1, y1 = (int(v) for v in window)
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
 
         def lo(v):  # the box starts at the grid point at or below v - m: window start = grid + ceil(m), or 0
             g = (max(int(math.floor(v - m)), 0) // period) * period
