@@ -42,7 +42,7 @@ CLOSE_BY_S = 1.0  #: after SIGINT / SIGTERM, what is not closed this long after 
 #: the flag of each TrackConfig field (errors below the command line name fields; shown with these)
 FLAGS = {"rig": "--rig", "source": "--source", "rate_hz": "--rate-hz", "seed": "--seed", "prerender_s": "--prerender",
          "truth_stream": "--truth-stream", "scene": "--scene", "max_behind_s": "--max-behind", "sim_rig": "--sim-rig",
-         "sim_render": "--sim-render", "sim_render_nice": "--sim-render-nice", "queue_s": "--queue-s", "max_backlog": "--max-backlog", "tracker": "--tracker",
+         "sim_render": "--sim-render", "sim_render_nice": "--sim-render-nice", "sim_ball": "--sim-ball", "queue_s": "--queue-s", "max_backlog": "--max-backlog", "tracker": "--tracker",
          "model_path": "--model", "workers": "--workers", "full_frame_pyramid": "--full-frame-pyramid", "motion_cue": "--motion-cue", "publish": "--publish", "publish_rt2": "--publish-rt2",
          "foxglove_port": "--foxglove", "foxglove_host": "--foxglove-host", "log_path": "--log", "log_overwrite": "--log-overwrite",
          "log_images": "--log-images", "log_image_format": "--log-image-format", "duration_s": "--duration",
@@ -69,7 +69,7 @@ def track_config(args, **fields) -> TrackConfig:
         mine = dict(
             rig=str(args.rig), source=tuple(args.source), rate_hz=args.rate_hz, seed=args.seed, prerender_s=args.prerender,
             truth_stream=args.truth_stream, scene=args.scene, max_behind_s=args.max_behind, sim_rig=args.sim_rig,
-            sim_render=args.sim_render, sim_render_nice=args.sim_render_nice, queue_s=args.queue_s, max_backlog=args.max_backlog, tracker=args.tracker,
+            sim_render=args.sim_render, sim_render_nice=args.sim_render_nice, sim_ball=args.sim_ball, queue_s=args.queue_s, max_backlog=args.max_backlog, tracker=args.tracker,
             model_path=args.model, workers=args.workers, full_frame_pyramid=args.full_frame_pyramid, motion_cue=args.motion_cue,
         )
         if hasattr(args, "publish"):  # rt2 track's own options (rt2 bench live sets its streams itself)
@@ -132,6 +132,9 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sim only: the render process's CPU priority below the tracker's (os.nice, 0-19; default 10): the "
                              "tracker gets the cores first, as with cameras that render on their own hardware; frame sets the "
                              "renderer cannot make in time are skipped and counted. 0 on a machine busy with other work")
+    parser.add_argument("--sim-ball", default="orange", metavar="COLOUR",
+                        help="sim only: the ball of the sim source's own scene, orange (default) or white (to run a "
+                             "white-ball model, e.g. --model data/models/ball_seg_white.npz)")
     parser.add_argument("--queue-s", type=float, default=0.25, metavar="S",
                         help="frames buffered per camera before the oldest is dropped, in seconds of the frame rate "
                              "(default 0.25: a hiccup of the machine that long costs latency, not frames)")

@@ -70,7 +70,8 @@ class TrackConfig:
     lab truth scene; max_behind_s : with a truth stream, how far behind the cameras may fall, seconds;
     sim_rig : sim only, the rig the cameras render with (None = ``rig``); sim_render : one of
     :data:`SIM_RENDER`; sim_render_nice : sim only, the render process's
-    CPU priority below the tracker's (os.nice 0-19; None = the sim source's default, 10); queue_s : frames buffered per camera, seconds of the frame rate;
+    CPU priority below the tracker's (os.nice 0-19; None = the sim source's default, 10); sim_ball : the sim source's
+    own scene's ball, "orange" or "white" (for a white-ball model); queue_s : frames buffered per camera, seconds of the frame rate;
     max_backlog : frame sets that may wait for the tracker (whole number, at most the queue's length)
 
     Tracker:
@@ -102,6 +103,7 @@ class TrackConfig:
     sim_rig: str | None = None
     sim_render: str = "auto"
     sim_render_nice: int | None = None
+    sim_ball: str = "orange"
     queue_s: float = 0.25
     max_backlog: int = DEFAULT_MAX_BACKLOG
     tracker: str = "rt2"
@@ -150,6 +152,11 @@ class TrackConfig:
                 raise ConfigError("prerender_s", "{prerender_s} cannot go with {truth_stream} (the lab is rendered as the truth arrives)")
             if not (_number(self.max_behind_s) and 0 < self.max_behind_s <= 3600):
                 raise ConfigError("max_behind_s", f"{{max_behind_s}} must be in (0, 3600] seconds, got {self.max_behind_s}")
+        if self.sim_ball not in ("orange", "white"):
+            raise ConfigError("sim_ball", f"{{sim_ball}} must be 'orange' or 'white', got {self.sim_ball!r}")
+        if self.sim_ball != "orange" and (not sim or self.truth_stream):
+            raise ConfigError("sim_ball", f"{{sim_ball}} applies to the sim source's own scene only, got {{source}} {src}"
+                                          + (" with {truth_stream}" if sim else ""))
         if self.sim_render not in SIM_RENDER:
             raise ConfigError("sim_render", f"{{sim_render}} must be one of {SIM_RENDER}, got {self.sim_render!r}")
         if self.sim_render != "auto" and not sim:

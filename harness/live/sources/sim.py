@@ -45,7 +45,10 @@ import numpy as np
 from harness.live.sources._feed import FeedItem, PacedFeed
 from harness.sim.render import Ball, Exposure, Renderer, RenderOptions, Scene
 
-__all__ = ["LauncherFlights", "SimOptions", "open_sim"]
+__all__ = ["BALL_COLOURS", "LauncherFlights", "SimOptions", "open_sim"]
+
+#: the default scene's ball colours (``SimOptions.ball_colour``; the renderer's names)
+BALL_COLOURS = ("orange", "white")
 
 
 @dataclass(frozen=True)
@@ -74,6 +77,7 @@ class SimOptions:
     max_behind_s : "host" clock: when frame set k's exposure is further than this in the past as its turn
         comes, the renderer skips to the present (counted in ``skipped``): a renderer slower than real time
         falls behind by up to this much, renders every frame meanwhile, then catches up at once
+    ball_colour : the default scene's ball, one of :data:`BALL_COLOURS` (a white ball for a white-ball model)
     """
 
     rate_hz: float = 200.0
@@ -88,8 +92,11 @@ class SimOptions:
     render_nice: int = 10
     clock: str = "scene"
     max_behind_s: float = 0.1
+    ball_colour: str = "orange"
 
     def __post_init__(self):
+        if self.ball_colour not in BALL_COLOURS:
+            raise ValueError(f"SimOptions.ball_colour must be one of {BALL_COLOURS}, got {self.ball_colour!r}")
         if self.clock not in ("scene", "host"):
             raise ValueError(f"SimOptions.clock must be 'scene' or 'host', got {self.clock!r}")
         if self.clock == "host" and (self.prerender_s is not None or self.render_process):
@@ -121,7 +128,7 @@ class LauncherFlights:
     """
 
     def __init__(self, seed: int, *, n_serves: int = 8, gap_s: float = 0.3, max_flight_s: float = 1.5,
-                 exposure: Exposure = SimOptions.exposure):
+                 exposure: Exposure = SimOptions.exposure, colour: str = "orange"):
         from harness.sim.launcher import BallLauncher  # heavy (scipy): only when the default scene is used
         from harness.sim.physics import BallWorld
 
@@ -130,6 +137,9 @@ class LauncherFlights:
         self.gap_s = float(gap_s)
         self.max_flight_s = float(max_flight_s)
         self.exposure = exposure
+        if colour not in BALL_COLOURS:
+            raise ValueError(f"LauncherFlights.colour must be one of {BALL_COLOURS}, got {colour!r}")
+        self.colour = colour
         self._starts: list[float] = []  # scene time at which flight i starts
         self._flights: list[tuple[np.ndarray, np.ndarray]] = []  # (times (K,), states (K, 9))
         if int(n_serves) < 1:
@@ -161,7 +171,7 @@ class LauncherFlights:
 
     def __call__(self, t_s: float) -> Scene:
         s = self.ball_state(t_s)
-        balls = () if s is None else (Ball(s[:3], velocity_mps=s[3:6], colour="orange"),)
+        balls = () if s is None else (Ball(s[:3], velocity_mps=s[3:6], colour=self.colour),)
         return Scene(balls=balls, exposure=self.exposure)
 
 
@@ -172,7 +182,7 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
     counts late frame sets and drops."""
     provider = scene_provider
     if provider is None:
-        provider = LauncherFlights(options.seed, exposure=options.exposure)
+        provider = LauncherFlights(options.seed, exposure=options.exposure, colour=options.ball_colour)
         if options.clock == "host":
             flights, period_s = provider, 1.0 / options.rate_hz
             provider = lambda t_host_s, k: flights(k * period_s)  # noqa: E731 - scene time of frame set k

@@ -15,6 +15,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zmq
 
@@ -179,6 +180,9 @@ def test_other_bad_values_are_one_line(capsys, tmp_path):
         capsys, tmp_path, "--publish", "none", "--sim-render", "process", "--prerender", "0.1")
     assert "--sim-render applies to the sim source only" in _bad(
         capsys, tmp_path, "--publish", "none", "--sim-render", "thread", "--source", "replay", str(tmp_path / "x.mcap"))
+    assert "--sim-ball must be 'orange' or 'white', got 'green'" in _bad(capsys, tmp_path, "--publish", "none", "--sim-ball", "green")
+    assert "--sim-ball applies to the sim source's own scene only" in _bad(
+        capsys, tmp_path, "--publish", "none", "--sim-ball", "white", "--source", "replay", str(tmp_path / "x.mcap"))
     existing = tmp_path / "there.mcap"
     existing.write_bytes(b"keep me")
     rc = rt2(["track", "--log", str(existing)])
@@ -352,3 +356,16 @@ def test_motion_cue_flag_reaches_the_config_and_bad_values_name_the_field():
     add_arguments(parser)
     assert track_config(parser.parse_args([])).motion_cue is False  # rt2 track, rt2 bench live
     assert track_config(parser.parse_args(["--motion-cue"])).motion_cue is True
+
+
+def test_the_sim_source_renders_a_white_ball_when_asked():
+    from harness.live.sources.sim import LauncherFlights, SimOptions
+
+    with pytest.raises(ValueError, match="SimOptions.ball_colour must be one of"):
+        SimOptions(ball_colour="green")
+    from harness.sim.render.scene_state import colour_rgb
+
+    (white,) = LauncherFlights(0, colour="white", n_serves=1)(0.1).balls
+    (orange,) = LauncherFlights(0, n_serves=1)(0.1).balls
+    assert np.allclose(white.colour, colour_rgb("white", "c")) and np.allclose(orange.colour, colour_rgb("orange", "c"))
+    assert np.array_equal(white.position_m, orange.position_m)  # the same flights
