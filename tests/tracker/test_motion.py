@@ -9,27 +9,26 @@ import pytest
 
 from tracker import FrameSet, MotionCue, MotionOptions, Status, Tracker
 from tracker.detection.synthetic import draw_disk
-from tracker.motion import compare, compare_reference, follow, follow_reference, reduced_size
+from tracker.motion import observe_cells, observe_reference, reduced_size, sample_points
 
 ORANGE = (245, 120, 20)
 
 
-# -- the kernels: compiled == numpy reference -----------------------------------------------------------
-@pytest.mark.parametrize("shape", [(120, 160), (1, 1), (7, 3), (270, 360)])
-def test_compiled_kernels_agree_with_the_reference(shape):
-    rng = np.random.default_rng(shape)
-    small = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)
-    bg = rng.uniform(0, 255, (*shape, 3)).astype(np.float32)
-    bg[..., 0].flat[0] = small[..., 0].flat[0] + 12.0 + 0.15 * bg.flat[0]  # a difference right at the threshold
-    for threshold, relative in ((12.0, 0.15), (0.0, 0.0), (40.0, 0.5)):
-        mask = np.zeros(shape, bool)
-        n = compare(small, bg, threshold, relative, mask)
-        ref = compare_reference(small, bg, threshold, relative)
-        assert np.array_equal(mask, ref) and n == int(ref.sum())
-    a, b = bg.copy(), bg.copy()
-    follow(small, a, 0.1)
-    follow_reference(small, b, 0.1)
-    assert np.array_equal(a, b)
+# -- the kernel: compiled == numpy reference ------------------------------------------------------------
+@pytest.mark.parametrize("hw, cells", [((480, 640), (160, 120)), ((3, 2), (1, 1)), ((17, 29), (7, 4)), ((1080, 1440), (360, 270))])
+def test_compiled_kernel_agrees_with_the_reference(hw, cells):
+    rng = np.random.default_rng(list(hw))
+    image = rng.integers(0, 256, (*hw, 3), dtype=np.uint8)
+    ys, xs = sample_points(hw[1], hw[0], *cells)
+    assert ys.min() >= 0 and ys.max() < hw[0] and xs.min() >= 0 and xs.max() < hw[1]
+    bg = rng.uniform(0, 255, (cells[1], cells[0], 3)).astype(np.float32)
+    bg[0, 0, 0] = image[ys[0], xs[0], 0] + 12.0 + 0.15 * bg[0, 0, 0]  # a difference right at the threshold
+    for threshold, relative, alpha in ((12.0, 0.15, 0.1), (0.0, 0.0, 1.0), (40.0, 0.5, 0.3)):
+        a, b = bg.copy(), bg.copy()
+        ma, mb = np.zeros(bg.shape[:2], bool), np.zeros(bg.shape[:2], bool)
+        na = observe_cells(image, ys, xs, a, threshold, relative, alpha, ma)
+        nb = observe_reference(image, ys, xs, b, threshold, relative, alpha, mb)
+        assert na == nb and np.array_equal(ma, mb) and np.array_equal(a, b)
 
 
 # -- options: hostile values -----------------------------------------------------------------------------
