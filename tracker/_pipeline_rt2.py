@@ -98,7 +98,8 @@ class SegmentationEngine:
         self._images = None
         # per camera its motion cue (TrackerOptions.motion_cue): full-frame candidates only where something moved
         self.cues = [MotionCue(int(w), int(h), options.motion_cue) for w, h in self._wh] if spec.extras and options.motion_cue is not None else None
-        self._margin_px = _region_margins(rig, options.ball_radius_m)  # a ball's radius around the moving cells
+        self._margin_px = _region_margins(rig, options.ball_radius_m) if self.cues else None  # a ball's radius around the moving cells
+        self._still = np.zeros(n, np.int64)  # per camera the candidates its cue dropped in this detector call
         self._frame_no, self._t_s = 0, math.nan
         self._pool = None
         if options.workers > 1:
@@ -339,6 +340,9 @@ class SegmentationEngine:
         else:
             self._detect_chunk(cams, roi_px, boxes)
         st = self.stats
+        if self.cues is not None:
+            st.still_candidates += int(self._still[cams].sum())
+            self._still[cams] = 0
         for i in cams:
             d = self._dets[i]
             m = 0 if d is None else len(d)
@@ -406,7 +410,7 @@ class SegmentationEngine:
         keep = self.cues[i].moved(det.uv_px, det.boxes_xywh[:, 2:].max(axis=1))
         if keep.all():
             return det
-        self.stats.still_candidates += int((~keep).sum())  # (ints: the threads' increments do not interleave badly under the GIL)
+        self._still[i] = int((~keep).sum())  # (counted in _detect once the threads are done)
         return Detections(det.uv_px[keep], det.scores[keep], det.boxes_xywh[keep], det.areas_px[keep], det.used_roi)
 
 

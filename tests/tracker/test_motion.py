@@ -142,7 +142,7 @@ def test_full_frame_candidates_on_a_still_object_are_dropped(rig, model, how):
     lamp_px = rig.project(X_lamp)
     runs = {}
     for cue in (None, MotionOptions(regions=how == "regions")):
-        with Tracker(rig, "rt2", model=model, roi=False, hypotheses=None, motion_cue=cue) as trk:
+        with Tracker(rig, "rt2", model=model, roi=False, hypotheses=None, motion_cue=cue, workers=2 if how == "gate" else 1) as trk:
             runs[cue is not None] = ([trk.process_with_info(fs) for fs in sets], trk.stats.still_candidates)
     plain, (cued, dropped) = runs[False][0], runs[True]
     assert all(_on(info.uv_candidates_px, lamp_px) for _, info in plain[1:])  # without the cue: the lamp is a candidate
