@@ -162,7 +162,7 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
     import cv2
 
     from harness.experiments.detector.coco import LabelledImage
-    from harness.experiments.detector.train import TrainOptions, train
+    from harness.experiments.detector.train import NoBallFoundError, TrainOptions, train
     from harness.experiments.studies.eval_detector import evaluate
     from tracker.pipeline import load_model
 
@@ -198,7 +198,10 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
         if not train_set or not test_set:
             raise ValueError(f"--train-held-out {held_out}: {len(train_set)} training labels, {len(test_set)} held-out balls: nothing to compare")
         opts = TrainOptions(seed=seed, ball_colour="any", augment_copies=3, **({} if epochs is None else {"epochs": epochs}))
-        trained, info = train(train_set, opts, base=base, progress=False, log=lambda *a, **k: None)
+        try:
+            trained, info = train(train_set, opts, base=base, progress=False, log=lambda *a, **k: None)
+        except NoBallFoundError as exc:  # one line naming what failed, not a model that finds nothing
+            raise NoBallFoundError(f"--train-held-out {held_out}: the training on {len(train_set)} auto labels of the other cameras: {exc}") from exc
         before = {s.method: s for s in evaluate(base, test_set, methods=("ours",), progress=False)}["ours"]
         after = {s.method: s for s in evaluate(trained, test_set, methods=("ours",), progress=False)}["ours"]
     return {"held_out": held_out, "train_images": len(train_set), "held_out_balls": len(test_set), "kept_base": bool(info.get("kept_base")),

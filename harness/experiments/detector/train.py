@@ -14,9 +14,10 @@ training samples patches, not whole images (details and measurements: docs/detec
    hard negatives) plus a small L2 penalty; full-batch L-BFGS in torch on the CPU.
 4. Validation: a held-out split of the frame sets (``f000123_cam2.png`` and ``f000123_cam0.png`` go
    to the same side). After each epoch :func:`choose_thresholds` picks ``T_h``, ``T_l`` and the blob
-   area range maximising ``recall - outlier_rate`` of our detector; the best epoch is kept, and its
-   thresholds go into the weights file as the recommended defaults. Progress: tqdm on stderr, one
-   line of validation figures per epoch (ours and the paper's Algorithm 1).
+   area range maximising ``recall - outlier_rate`` of our detector among the choices that find a ball
+   (:func:`finds_a_ball`); the best epoch is kept, and its thresholds go into the weights file as the
+   recommended defaults; when no choice finds a ball after any epoch, :class:`NoBallFoundError` says so.
+   Progress: tqdm on stderr, one line of validation figures per epoch (ours and the paper's Algorithm 1).
 
 Everything random is seeded by ``TrainOptions.seed``: the same data and seed give the same weights.
 torch is imported inside :func:`train` only; the result is a plain ``.npz`` read by
@@ -45,6 +46,7 @@ __all__ = [
     "LEARNED_CHOICES",
     "MIN_WRITE_RECALL",
     "KEEP_BASE_CHOICES",
+    "NoBallFoundError",
     "THRESHOLD_CHOICES",
     "TrainOptions",
     "add_arguments",
@@ -52,6 +54,7 @@ __all__ = [
     "choose_thresholds",
     "cv_folds",
     "cv_recall",
+    "finds_a_ball",
     "load_image",
     "pixel_targets",
     "keeps_filter",
@@ -410,13 +413,30 @@ def _top1_per_threshold(val_logits, t_low: float, t_high_min: float, blob_kw: di
     return paper, ours
 
 
+class NoBallFoundError(ValueError):
+    """No threshold choice of the grid finds a single held-out ball (:func:`choose_thresholds`): a model written with
+    any of them would report nothing where the labels show balls."""
+
+
+def finds_a_ball(s) -> bool:
+    """Whether the scores ``s`` hit at least one ball (or there is none to hit: no ball of at least ``min_diameter_px``).
+
+    A choice that reports nothing scores ``recall - outlier_rate = 0 - 0``: more than any detector whose wrong reports
+    outnumber its hits (one fixed object that the filter scores above the ball is enough), so the net score alone would
+    prefer a model that finds nothing. A threshold choice that finds no ball ranks below every one that finds some.
+    """
+    return s.n_balls == 0 or np.nan_to_num(s.recall) > 0
+
+
 def choose_thresholds(val_logits, truth, loose_area, opts: TrainOptions):
     """Pick (T_h, T_l) and the blob-area range on validation images for our detector's best candidate.
 
     For each ``T_l`` of ``T_LOW_GRID`` the area range is [half the 1st, 1.5 x the 99th percentile] of
     the ball blobs' areas (within ``loose_area``); then ``T_h`` (> ``T_l``, from ``T_HIGH_GRID``) and
-    ``T_l`` maximise ``recall - outlier_rate`` (misses and wrong reports cost the same), ties going
-    to the lower median centre error. Returns ``(t_high, t_low, area_range_px, ours_scores, paper_scores)``.
+    ``T_l`` maximise ``recall - outlier_rate`` (misses and wrong reports cost the same) among the choices
+    that find a ball (:func:`finds_a_ball`), ties going to the lower median centre error. Returns
+    ``(t_high, t_low, area_range_px, ours_scores, paper_scores)``; raises :class:`NoBallFoundError` (naming
+    the grid) when no choice finds any validation ball, rather than return one that reports nothing.
     """
     from harness.experiments.detector.scores import score_detections
 
@@ -435,16 +455,23 @@ def choose_thresholds(val_logits, truth, loose_area, opts: TrainOptions):
         paper, ours = _top1_per_threshold(val_logits, tl, min(ths), blob_kw)
         for th in ths:
             s = score("ours", ours, th)
-            key = (np.nan_to_num(s.recall) - s.outlier_rate, -np.nan_to_num(s.median_center_error_px, nan=np.inf))
+            key = (finds_a_ball(s), np.nan_to_num(s.recall) - s.outlier_rate, -np.nan_to_num(s.median_center_error_px, nan=np.inf))
             if best is None or key > best[0]:
                 best = (key, th, tl, area, s, paper)
-    _, t_high, t_low, area, s_ours, paper = best
+    (found, _, _), t_high, t_low, area, s_ours, paper = best
+    if not found:
+        raise NoBallFoundError(
+            f"no threshold finds a ball: at every T_h ({min(T_HIGH_GRID):.3g}-{max(T_HIGH_GRID):.3g}) and T_l ({min(T_LOW_GRID):.3g}-"
+            f"{max(T_LOW_GRID):.3g}) the detector's best candidate misses all {s_ours.n_balls} held-out balls of {len(val_logits)} images")
     return t_high, t_low, area, s_ours, score("paper", paper, t_high)
 
 
 def _net_gain(s, b) -> float:
     """Recall minus outlier rate of the scores ``s`` over those of ``b`` (a recall of NaN, no ball, counts 0): what
-    the base model's thresholds and the base model itself must be beaten by (``PRIOR_MARGIN_BALLS``)."""
+    the base model's thresholds and the base model itself must be beaten by (``PRIOR_MARGIN_BALLS``). Scores that
+    find a ball beat scores that find none by any margin (+inf; -inf the other way round: :func:`finds_a_ball`)."""
+    if finds_a_ball(s) != finds_a_ball(b):
+        return math.inf if finds_a_ball(s) else -math.inf
     return (np.nan_to_num(s.recall) - s.outlier_rate) - (np.nan_to_num(b.recall) - b.outlier_rate)
 
 
@@ -558,18 +585,26 @@ class _Fitter:
                 tqdm.write(line) if self.progress else log(line)
             else:
                 current = _to_model(w.detach().numpy(), b.item(), norm, opts)
-                t_high, t_low, area, s_ours, s_paper = choose_thresholds([current.logits(im) for im in val_images], truth, loose_area, opts)
-                j = np.nan_to_num(s_ours.recall) - s_ours.outlier_rate
-                bar.set_postfix(loss=f"{loss:.4f}", recall=f"{s_ours.recall:.3f}", outliers=f"{s_ours.outlier_rate:.3f}")
-                line = (
-                    f"epoch {epoch + 1}/{opts.epochs}{label}: loss {loss:.4f}  hard negatives {len(xh)}  val at T_h={t_high:g}, T_l={t_low:g}: "
-                    f"ours recall {100 * s_ours.recall:.2f}% outliers {100 * s_ours.outlier_rate:.2f}% median {s_ours.median_center_error_px:.3f} px | "
-                    f"paper recall {100 * s_paper.recall:.2f}% outliers {100 * s_paper.outlier_rate:.2f}%"
-                )
+                try:
+                    t_high, t_low, area, s_ours, s_paper = choose_thresholds([current.logits(im) for im in val_images], truth, loose_area, opts)
+                except NoBallFoundError as exc:  # this epoch's filter is no candidate; the thresholds stay for the next mining
+                    failure, j = exc, -np.inf
+                    line = f"epoch {epoch + 1}/{opts.epochs}{label}: loss {loss:.4f}  hard negatives {len(xh)}  val: {exc}"
+                else:
+                    j = np.nan_to_num(s_ours.recall) - s_ours.outlier_rate
+                    bar.set_postfix(loss=f"{loss:.4f}", recall=f"{s_ours.recall:.3f}", outliers=f"{s_ours.outlier_rate:.3f}")
+                    line = (
+                        f"epoch {epoch + 1}/{opts.epochs}{label}: loss {loss:.4f}  hard negatives {len(xh)}  val at T_h={t_high:g}, T_l={t_low:g}: "
+                        f"ours recall {100 * s_ours.recall:.2f}% outliers {100 * s_ours.outlier_rate:.2f}% median {s_ours.median_center_error_px:.3f} px | "
+                        f"paper recall {100 * s_paper.recall:.2f}% outliers {100 * s_paper.outlier_rate:.2f}%"
+                    )
                 tqdm.write(line) if self.progress else log(line)
-            history.append(dict(epoch=epoch + 1, loss=loss, n_hard=len(xh), t_high=t_high, t_low=t_low, area_range_px=area, ours=s_ours, paper=s_paper))
+            history.append(dict(epoch=epoch + 1, loss=loss, n_hard=len(xh), t_high=t_high, t_low=t_low, area_range_px=area,
+                                ours=s_ours if np.isfinite(j) else None, paper=s_paper if np.isfinite(j) else None))
             if best is None or j > best[0] or val is None:
                 best = (j, epoch, w.detach().numpy().copy(), b.item(), t_high, t_low, area, s_ours, s_paper)
+        if not np.isfinite(best[0]):
+            raise NoBallFoundError(f"{failure} (validation split, after each of the {opts.epochs} epochs)")
         _, epoch, w_best, b_best, t_high, t_low, area, s_ours, s_paper = best
         return dict(w=w_best, b=b_best, norm=norm, t_high=t_high, t_low=t_low, area=area, ours=s_ours, paper=s_paper, epoch=epoch + 1,
                     history=history, n_pos=len(xp), n_neg=len(xn), n_hard=len(xh), loose_area=loose_area)

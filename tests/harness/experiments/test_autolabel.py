@@ -5,6 +5,7 @@ written); rt2 eval autolabel's determinism."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -207,6 +208,21 @@ def test_eval_autolabel_refuses_an_unknown_held_out_camera_before_the_work(tmp_p
     assert main(["eval", "autolabel", "--scene", "lab", "--frames", "5", "--train-held-out", "cam9"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["rt2 eval autolabel: error: --train-held-out 'cam9': the lab rig's cameras are ['cam0', 'cam1', 'cam2', 'cam3']"]
+
+
+def test_eval_autolabel_held_out_training_that_finds_no_ball_is_one_line_not_a_figure(monkeypatch, capsys):
+    """When no threshold of the fine-tune finds a ball (:class:`NoBallFoundError`), ``--train-held-out`` says so in one
+    line naming the camera and the training, exit 2, instead of scoring a model that finds nothing (0 % -> 0 %)."""
+    import harness.experiments.detector.train as train_module
+
+    def no_ball(labelled, opts, **kw):
+        raise train_module.NoBallFoundError("no threshold finds a ball: (the trainer's line)")
+
+    monkeypatch.setattr(train_module, "train", no_ball)
+    assert main(["eval", "autolabel", "--scene", "lab", "--frames", "6", "--seed", "3", "--train-held-out", "cam3", "--epochs", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.fullmatch(r"rt2 eval autolabel: error: --train-held-out cam3: the training on \d+ auto labels of the other "
+                                          r"cameras: no threshold finds a ball: \(the trainer's line\)", err[0]), err
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -10,11 +10,17 @@ import pytest
 
 from harness.cli import main
 from harness.experiments.detector.coco import LabelledImage, read_coco
+from harness.experiments.detector.scores import DetectorScores
 from harness.experiments.detector.train import (
+    T_HIGH_GRID,
+    NoBallFoundError,
     TrainOptions,
+    _Fitter,
+    _net_gain,
     _pad,
     _patches,
     ball_colour,
+    choose_thresholds,
     load_image,
     pixel_targets,
     select_ball_colour,
@@ -115,6 +121,75 @@ def test_split_keeps_frame_sets_together(tmp_path):
     assert len(val_set) == 8 and len(train_set) == 32
     frames = lambda s: {p.path.stem.split("_")[0] for p in s}  # noqa: E731
     assert not frames(train_set) & frames(val_set)
+
+
+# -- the threshold choice: a choice that reports nothing is no choice -------------------------------
+def _logit_images(n: int, *, ball_logit: float, distractor_in=lambda i: False, distractor_logit: float = 6.0):
+    """``n`` (60, 80) validation logits: -8 everywhere, the ball (diameter 10 px) at a place that moves with the image,
+    and in the images ``i`` where ``distractor_in(i)`` a disk of the ball's size at a fixed place (a static object of
+    the ball's colour). Returns (logits, (centres, diameters))."""
+    yy, xx = np.mgrid[0:60, 0:80] + 0.5
+    logits, centres = [], []
+    for i in range(n):
+        c = np.array([20.0 + 3 * (i % 10), 20.0 + 2 * (i % 7)])
+        lg = np.full((60, 80), -8.0, np.float32)
+        lg[np.hypot(xx - c[0], yy - c[1]) <= 5] = ball_logit
+        if distractor_in(i):
+            lg[np.hypot(xx - 68.0, yy - 48.0) <= 5] = distractor_logit
+        logits.append(lg)
+        centres.append(c[None])
+    return logits, (centres, [np.array([10.0])] * n)
+
+
+def test_threshold_choice_finds_the_ball_when_a_static_object_outranks_it():
+    # 2 images in 3 show the static object above the ball: every T_h that finds the ball has more wrong reports than
+    # hits (recall 1/3, outliers 2/3), and the T_h above the object's peak reports nothing: recall - outliers = 0 - 0,
+    # the best net score, the grid's end; the model written there found no ball (rt2 eval autolabel --train-held-out)
+    logits, truth = _logit_images(30, ball_logit=3.0, distractor_in=lambda i: i % 3 != 0)
+    t_high, t_low, area, s_ours, s_paper = choose_thresholds(logits, truth, (2.0, 400.0), QUICK)
+    assert t_high < 1.0 / (1.0 + np.exp(-3.0)) and t_high < max(T_HIGH_GRID)  # below the ball's peak, not the grid's end
+    assert s_ours.recall == pytest.approx(10 / 30) and s_ours.outlier_rate == pytest.approx(20 / 30)
+    assert area[0] <= np.pi * 25 <= area[1]
+
+
+def test_threshold_choice_without_a_static_object_is_unchanged():
+    logits, truth = _logit_images(20, ball_logit=3.0)
+    t_high, _, _, s_ours, _ = choose_thresholds(logits, truth, (2.0, 400.0), QUICK)
+    assert s_ours.recall == 1.0 and s_ours.outlier_rate == 0.0 and t_high < 1.0 / (1.0 + np.exp(-3.0))
+
+
+def test_threshold_choice_that_finds_no_ball_says_so():
+    logits, truth = _logit_images(12, ball_logit=-8.0, distractor_in=lambda i: True)  # the ball is invisible to this filter
+    with pytest.raises(NoBallFoundError, match=r"no threshold finds a ball: at every T_h \(0\.5-0\.999\) and T_l \(0\.02-0\.5\) "
+                       r"the detector's best candidate misses all 12 held-out balls of 12 images"):
+        choose_thresholds(logits, truth, (2.0, 400.0), QUICK)
+
+
+def test_net_gain_ranks_finding_nothing_last():
+    def scores(recall, outliers):
+        return DetectorScores("ours", recall, outliers, 1.0, 1.0, n_images=50, n_balls=50)
+
+    nothing, poor = scores(0.0, 0.0), scores(0.4, 0.45)
+    assert _net_gain(poor, nothing) == np.inf and _net_gain(nothing, poor) == -np.inf
+    assert _net_gain(scores(0.6, 0.1), poor) == pytest.approx(0.55)
+    no_ball = DetectorScores("ours", float("nan"), 0.0, float("nan"), float("nan"), n_images=5, n_balls=0)  # nothing to find
+    assert _net_gain(no_ball, no_ball) == 0.0
+
+
+def test_split_training_whose_filter_finds_no_validation_ball_refuses(synthetic_ball_coco, tmp_path):
+    import torch
+
+    items = [(load_image(li), li) for li in read_coco(synthetic_ball_coco(30, 0))]
+    val = []
+    for i in range(4):  # validation "balls" labelled on a plain grey image: no threshold finds one
+        image = np.full((96, 128, 3), (100, 100, 110), np.uint8)
+        val.append((image, LabelledImage(tmp_path / f"f{100 + i:06d}_cam0.png", 128, 96, np.array([[40.0, 30.0, 10.0, 10.0]]),
+                                         np.array([[45.0, 35.0]]))))
+    lines = []
+    fitter = _Fitter(torch, QUICK, None, np.random.default_rng(0), False)
+    with pytest.raises(NoBallFoundError, match=r"misses all 4 held-out balls of 4 images \(validation split, after each of the 2 epochs\)$"):
+        fitter.fit(items, val, log=lines.append)
+    assert len(lines) == 2 and all("val: no threshold finds a ball" in line for line in lines)
 
 
 # -- statistics: seeded determinism ------------------------------------------------------------------
