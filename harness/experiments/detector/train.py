@@ -126,6 +126,8 @@ class TrainOptions:
         learned stage is trained too and the base's stage does not take the filter's refinement
         (``LearnedStage.filter_refines`` False: the filter is of another ball, as the shipped white model's orange
         filter; fitting it to these labels takes minutes for a filter ``rt2`` does not use on this ball), else fits it
+    allow_no_ball : keep a threshold choice that finds no held-out ball when none does (the model written finds
+        nothing, its figures say so: ``rt2 train --force``); False = :class:`NoBallFoundError`
     """
 
     epochs: int = 6
@@ -153,8 +155,11 @@ class TrainOptions:
     learned_folds: int = 3
     learned_steps: int = 400
     filter: str = "auto"
+    allow_no_ball: bool = False
 
     def __post_init__(self):
+        if not isinstance(self.allow_no_ball, bool):
+            raise ValueError(f"TrainOptions.allow_no_ball must be True or False, got {self.allow_no_ball!r}")
         if not 0.0 < self.val_fraction < 1.0:
             raise ValueError(f"TrainOptions.val_fraction must be in (0, 1), got {self.val_fraction!r}")
         for name in ("epochs", "random_negatives_per_image", "max_positives_per_image", "lbfgs_iters"):
@@ -436,7 +441,8 @@ def choose_thresholds(val_logits, truth, loose_area, opts: TrainOptions):
     ``T_l`` maximise ``recall - outlier_rate`` (misses and wrong reports cost the same) among the choices
     that find a ball (:func:`finds_a_ball`), ties going to the lower median centre error. Returns
     ``(t_high, t_low, area_range_px, ours_scores, paper_scores)``; raises :class:`NoBallFoundError` (naming
-    the grid) when no choice finds any validation ball, rather than return one that reports nothing.
+    the grid) when no choice finds any validation ball, rather than return one that reports nothing (unless
+    ``opts.allow_no_ball``: then the best of them, whose scores say it finds nothing).
     """
     from harness.experiments.detector.scores import score_detections
 
@@ -459,7 +465,7 @@ def choose_thresholds(val_logits, truth, loose_area, opts: TrainOptions):
             if best is None or key > best[0]:
                 best = (key, th, tl, area, s, paper)
     (found, _, _), t_high, t_low, area, s_ours, paper = best
-    if not found:
+    if not found and not opts.allow_no_ball:
         raise NoBallFoundError(
             f"no threshold finds a ball: at every T_h ({min(T_HIGH_GRID):.3g}-{max(T_HIGH_GRID):.3g}) and T_l ({min(T_LOW_GRID):.3g}-"
             f"{max(T_LOW_GRID):.3g}) the detector's best candidate misses all {s_ours.n_balls} held-out balls of {len(val_logits)} images")
@@ -962,11 +968,16 @@ def run(args) -> int:
                             ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
                             threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
                             keep_base=args.keep_base, learned=args.learned, learned_folds=args.learned_folds,
-                            learned_steps=args.learned_steps, filter=args.filter)
+                            learned_steps=args.learned_steps, filter=args.filter, allow_no_ball=args.force)
         sources = f"data {', '.join(map(str, args.data))}" + (f" (time range {args.time_range})" if args.time_range else "")
         if backgrounds:
             sources += f"; backgrounds {', '.join(map(str, args.backgrounds))} ({len(backgrounds)} ball-free images)"
-        model, info = train(labelled, opts, description=f"trained by `{cmd}` from {origin}; {sources}", base=base, backgrounds=backgrounds)
+        try:
+            model, info = train(labelled, opts, description=f"trained by `{cmd}` from {origin}; {sources}", base=base, backgrounds=backgrounds)
+        except NoBallFoundError as exc:  # as a model that finds too few balls: nothing written, the same exit status
+            print(f"rt2 train: {args.out} not written: {exc}; label more frames (with balls) or check --ball-colour; --force "
+                  "writes it anyway", file=sys.stderr)
+            return EXIT_WEAK_MODEL
         results.append((seed, model, info))
     held_out = [written_scores(info)[0] for _, _, info in results]  # of what each seed would write
     if len(results) > 1:

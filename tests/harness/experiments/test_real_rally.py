@@ -51,10 +51,15 @@ def test_ball_free_frames_lose_the_ball_and_keep_the_scene():
 
 
 def test_few_label_run_on_real_frames(tmp_path, capsys):
+    """The 5x5 filter alone on 6 real white-ball frames finds none of the held-out balls at any threshold: nothing
+    written, exit 3 with one line; --force writes it anyway (its figures say it finds none)."""
     out = tmp_path / "white.npz"
     args = ["train", "--data", str(RALLY), "--time-range", "0:6", "--ball-colour", "white", "--from", "none", "--thresholds", "cv",
-            "--cv-folds", "2", "--epochs", "1", "--augment", "0", "--seed", "0", "--learned", "off", "--force", "--out", str(out)]
-    assert main(args) == 0
+            "--cv-folds", "2", "--epochs", "1", "--augment", "0", "--seed", "0", "--learned", "off", "--out", str(out)]
+    assert main(args) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "not written: no threshold finds a ball" in err[-1] and "--force writes it anyway" in err[-1] and not out.exists()
+    assert main(args + ["--force"]) == 0
     text = capsys.readouterr().out
     assert "cross-validation over 2 time-contiguous folds of 6 images" in text
     model = BallSegmentationModel.load(out)
