@@ -97,7 +97,8 @@ def bench_live(args, modes: list[str], config, *, progress=None, truth_scene=Non
                  "no_drops_by_rt2": roi["dropped_by_rt2_total"] == 0}
     return {"date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "cpus": os.cpu_count(),
             "source": list(args.source), "rig": args.rig, "rate_hz": args.rate_hz, "tracker": args.tracker,
-            "workers": config.tracker_workers, "max_backlog": config.max_backlog,
+            "workers": config.tracker_workers, "max_backlog": config.max_backlog, "model": config.model_path,
+            "full_frame_pyramid": config.full_frame_pyramid, "motion_cue": config.motion_cue, "sim_ball": config.sim_ball,
             "duration_s": args.duration, "warmup_s": args.warmup, "prerender_s": args.prerender,
             "cameras": len(rig), "image_size": list(rig[0].image_size),
             "goals": target, "goals_met": goals, "modes": rows}

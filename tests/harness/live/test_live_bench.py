@@ -134,6 +134,7 @@ def test_rt2_bench_live_rigs_gives_a_row_per_rig_on_the_same_scene(tmp_path, cap
         row = d["modes"][0]
         assert 0 <= row["ok_share"] <= 1 and row["frame_sets_measured"] > 0
         assert row["error_3d_mm"]["n"] >= 0 and d["image_size"] == [640, 480]
+        assert (d["model"], d["full_frame_pyramid"], d["motion_cue"], d["sim_ball"]) == (None, True, False, "orange")  # how it ran
 
 
 def test_goals_are_the_rigs_own():
