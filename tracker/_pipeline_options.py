@@ -133,7 +133,7 @@ class TrackerOptions:
         resolution (:mod:`tracker.motion`); a full-frame search keeps only the candidates on cells that moved (a new
         ball is one that moves: lamps, shelves and white objects do not), while a frame gives a cue (not the first
         one, nor one whose whole scene changed). Windows around a followed ball keep it when it stops. None = off
-"""
+    """
 
     roi: bool | None = None
     max_gap_s: float = 0.05

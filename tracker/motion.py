@@ -25,7 +25,7 @@ where there is no cue every candidate passes. The tracker uses it on full-frame 
 when it stops (a ball held still on the robot's end effector, a ball lying on the table).
 
 :func:`observe_reference` is the plain numpy version of the per-frame kernel (steps 1, 2 and 4 in one pass over the
-cells), :func:`observe_cells` the compiled one (a test checks they agree); one VGA camera's frame in ~0.05 ms.
+cells), :func:`observe_cells` the compiled one (a test checks they agree).
 """
 
 from __future__ import annotations

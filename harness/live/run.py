@@ -69,7 +69,7 @@ def open_frames(config: TrackConfig, rig, *, truth_scene=None):
         extra["render_process"] = config.sim_render != "thread"  # "auto": a child process, as a camera driver's own threads
         if config.sim_render_nice is not None:
             extra["render_nice"] = config.sim_render_nice
-    if spec.kind == "sim" and config.sim_ball != "orange":
+    if spec.kind == "sim":
         extra["ball_colour"] = config.sim_ball
     n_queue = config.queue_len
     sources = open_sources(spec, render_rig, rate_hz=config.rate_hz, seed=config.seed, queue_len=n_queue,

@@ -241,11 +241,11 @@ class LearnedStage:
 
         def lo(v):  # the box starts at the grid point at or below v - m: window start = grid + ceil(m), or 0
             g = (max(int(math.floor(v - m)), 0) // period) * period
-            return 0 if g == 0 and v - m <= 0 else max(g + cm, 0) if g > 0 else 0
+            return g + cm if g else 0
 
         def hi(v, size):  # the box ends at the grid point at or above v + m: window end = grid - ceil(m), or the frame's end
             g = -(-int(math.ceil(v + m)) // period) * period
-            return size if g >= size else min(g - cm, size)
+            return size if g >= size else g - cm
 
         ax0, ay0, ax1, ay1 = lo(x0), lo(y0), hi(x1, width), hi(y1, height)
         if not (ax0 <= x0 and ay0 <= y0 and ax1 >= x1 and ay1 >= y1):

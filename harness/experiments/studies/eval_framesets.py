@@ -369,9 +369,11 @@ def _score_chunk(chunk: tuple[int, int]) -> dict:
                     tr.reset()
                 if flight[0] >= 1 and w["session"].options.moving:  # a fixed camera's stream had frames before the ball came:
                     before = FrameSet(-1.0 / rate_hz, w["session"].background(flight[0] - 1))  # the cue's first background (unscored)
-                    for tr in runs.values():
+                    for name, tr in runs.items():
                         if tr.options.motion_cue is not None:
+                            counted = tr.stats.size_rejections
                             tr.process(before)
+                            rejections0[name] += tr.stats.size_rejections - counted  # not scored: not counted
             images, truths, balls_m, _ = w["session"].flight_frameset(n, j, flight)
             ours, t_s = [0], j / rate_hz
         elif w["renderer"] is None:  # semi-real: one ball, the target

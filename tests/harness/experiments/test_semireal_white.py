@@ -199,5 +199,5 @@ def test_the_shipped_white_model_tracks_held_out_balls_in_held_out_cameras(folde
                  "--seed", "5", "--session", str(folder), "--trackers", "rt2", "rt2-motion", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())
     assert [r["tracker"] for r in rows] == ["rt2", "rt2-motion"] and all(r["framesets"] == 48 for r in rows)
-    for row in rows:  # rt2-motion (the motion cue; each flight preceded by the session's frame set before it): 97.9 %
+    for row in rows:  # rt2-motion (the motion cue; each flight preceded by the session's frame set before it): 95.8 %
         assert row["recall"] >= 0.85 and row["wrong_ok"] == 0 and row["median_error_cm"] <= 0.3
