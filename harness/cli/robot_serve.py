@@ -1,6 +1,7 @@
 """``rt2 robot serve --sim [--robot NAME|PATH.yaml]``: a simulated arm (the WAM by default) in its own process,
-in real time, behind the robot link. The link's messages carry 7-joint vectors (harness/link/protocol.py): a
-7-joint arm (wam, panda, xarm7) is served; another joint count is refused with one line.
+in real time, behind the robot link. Any arm of a robot config is served (wam, panda, ur10, xarm7, or a lab's
+own: docs/robots.md); the link's joint vectors have the arm's joint count, told in the ``welcome``
+(harness/link/protocol.py).
 
 Prints one line when it is ready (``--ready-json``: a JSON object with the bound endpoints, the pid and
 the robot clock's epoch, for scripts and tests) and serves until SIGINT / SIGTERM or ``--duration``.
@@ -19,7 +20,6 @@ import sys
 from harness.link.bridge_core import check_endpoint
 from harness.common.fast_exit import exit_at_once_when_done
 from harness.link.bridge_sim import BridgeOptions, SimBridge
-from harness.link.protocol import N_JOINTS
 from harness.sim.robot.arms import load_arm
 from harness.sim.robot.simulated_wam import SimulatedWam, SimWamOptions
 
@@ -28,17 +28,17 @@ __all__ = ["add_arguments", "run"]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sim", action="store_true", required=True,
-                        help="serve the simulated WAM (the only back end in rt2; a lab serves its robot with its own "
+                        help="serve a simulated arm (--robot; the only back end in rt2; a lab serves its robot with its own "
                              "bridge, docs/robot_link.md)")
     parser.add_argument("--bind", default="tcp://127.0.0.1:7650",
                         help="command endpoint (ROUTER); port * = a free one (default tcp://127.0.0.1:7650)")
     parser.add_argument("--state-bind", default=None,
                         help="state stream endpoint (PUB); default: the command port + 1")
     parser.add_argument("--rate", type=float, default=None, help="control rate, Hz (default: the robot YAML's, 500)")
-    parser.add_argument("--seed", type=int, default=0, help="seeds the simulated WAM's zero offsets and encoder noise "
+    parser.add_argument("--seed", type=int, default=0, help="seeds the simulated arm's zero offsets and encoder noise "
                         "(--world play: the session's seed, serves and per-ball robots as `rt2 play --seed`)")
     parser.add_argument("--robot", "--config", dest="robot", default=None, metavar="NAME|PATH.yaml",
-                        help="the arm: a shipped one (wam, panda, xarm7: 7 joints; default wam) or a robot config (docs/robots.md)")
+                        help="the arm: a shipped one (wam, panda, ur10, xarm7; default wam) or a robot config (docs/robots.md)")
     parser.add_argument("--watchdog", type=float, default=0.3, help="hold after this many seconds without a "
                         "command or heartbeat (default 0.3, as wam_node)")
     parser.add_argument("--clock-skew-ms", type=float, default=0.0,
@@ -67,9 +67,6 @@ def run(args) -> int:
                         format="%(asctime)s rt2 robot serve: %(levelname)s %(message)s")
     arm = load_arm(args.robot, check_reach=False)
     cfg, kin = arm.config, arm.kin
-    if kin.n_joints != N_JOINTS:
-        raise ValueError(f"{cfg.where}: the robot link carries {N_JOINTS}-joint vectors; {cfg.name} has {kin.n_joints} "
-                         "joints (docs/robots.md)")
     sim_map = dict(cfg.simulator)
     if args.rate is not None:
         sim_map["control_rate_hz"] = args.rate
@@ -107,7 +104,7 @@ def run(args) -> int:
     if args.ready_json:
         print(json.dumps(ready), flush=True)
     else:
-        print(f"serving the simulated WAM at {sim_opts.control_rate_hz:g} Hz: commands {bridge.command_endpoint}, "
+        print(f"serving the simulated {arm.name} ({kin.n_joints} joints) at {sim_opts.control_rate_hz:g} Hz: commands {bridge.command_endpoint}, "
               f"states {bridge.state_endpoint}, "
               + (f"lab truth {bridge.truth_endpoint}, " if bridge.truth_endpoint else "") + f"watchdog {options.watchdog_s:g} s (Ctrl-C to stop)", flush=True)
     bridge.serve(args.duration)

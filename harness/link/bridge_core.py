@@ -113,11 +113,19 @@ class BridgeCore:
         self._pending_events: collections.deque = collections.deque()  # rejection reasons to publish
         self._last_contact_ns: int | None = None
         self._stop = False
+        self._n_joints: int | None = None
 
     @property
     def rejected(self) -> int:
         """Requests rejected so far."""
         return self.rejects.total
+
+    @property
+    def n_joints(self) -> int:
+        """The arm's joint count: every joint vector of the session has it (the ``welcome``'s ``joint_names``)."""
+        if self._n_joints is None:
+            self._n_joints = len(self.welcome_fields()["joint_names"])
+        return self._n_joints
 
     # -- what a concrete bridge supplies ------------------------------------------------------------
     def robot_ns(self) -> int:
@@ -178,10 +186,11 @@ class BridgeCore:
             self._apply(*self._queue.popleft())
 
     def publish_state(self, t_ns: int, q: list, qdot: list, effort: list | None, sim: dict | None = None) -> None:
-        """One ``state`` on PUB: robot time ``t_ns``, q (7,) rad, qdot (7,) rad/s, effort (7,) N m or None."""
+        """One ``state`` on PUB: robot time ``t_ns``, q (n,) rad, qdot (n,) rad/s, effort (n,) N m or None
+        (n: the arm's joints, as in the ``welcome``)."""
         self.seq += 1
-        self._pub.send(protocol.encode("state", seq=self.seq, t_ns=int(t_ns), q=q, qdot=qdot, effort=effort,
-                                       mode=self.mode, cmd_id=self.cmd_id, sim=sim))
+        self._pub.send(protocol.encode("state", n_joints=self.n_joints, seq=self.seq, t_ns=int(t_ns), q=q, qdot=qdot,
+                                       effort=effort, mode=self.mode, cmd_id=self.cmd_id, sim=sim))
 
     def event(self, event: str, reason: str) -> None:
         """One ``event`` on PUB, stamped with the robot clock now (control thread only)."""
@@ -245,7 +254,7 @@ class BridgeCore:
             self._refuse(ident, None, f"expected one message frame, got {len(frames) - 1}")
             return
         try:
-            msg = protocol.decode_request(frames[1], REQUESTS)
+            msg = protocol.decode_request(frames[1], REQUESTS, self.n_joints)
         except ProtocolError as exc:
             small = len(frames[1]) <= ID_PEEK_BYTES
             self._refuse(ident, protocol.request_id(frames[1]) if small else None, str(exc))

@@ -22,33 +22,36 @@ def _q(values_ms) -> dict:
 
 
 def _move(wam: WamClient, move_rad: float) -> dict:
-    """Command joint_7 out by move_rad and back (1 s); the acknowledgement and the onset of motion."""
+    """Command the last joint (the WAM's joint_7) out by move_rad and back (1 s); the acknowledgement and the
+    onset of motion."""
     st = wam.read_state()
+    j = wam.n_joints - 1
     q0 = st.q.copy()
     q1 = q0.copy()
-    q1[6] = np.clip(q0[6] + move_rad, wam.kinematics.q_min[6] + 0.05, wam.kinematics.q_max[6] - 0.05)
+    q1[j] = np.clip(q0[j] + move_rad, wam.kinematics.q_min[j] + 0.05, wam.kinematics.q_max[j] - 0.05)
     lead_s = 0.05
     t_start = st.t_s + lead_s
     wam.advance_to(st.t_s)
     t_send = time.monotonic_ns()
-    wam.command_trajectory([t_start, t_start + 0.5, t_start + 1.0], np.stack([q0, q1, q0]), np.zeros((3, 7)))
+    wam.command_trajectory([t_start, t_start + 0.5, t_start + 1.0], np.stack([q0, q1, q0]), np.zeros((3, j + 1)))
     ack_ms = (time.monotonic_ns() - t_send) / 1e6
     s = wam.advance_to(t_start + 1.3)
     before = s.t_s < t_start
-    noise = float(np.std(s.q[before, 6])) if before.sum() > 5 else 0.0
+    noise = float(np.std(s.q[before, j])) if before.sum() > 5 else 0.0
     threshold = max(4 * noise, 2e-4)  # well above encoder noise and quantisation
-    moved = (s.t_s >= t_start) & (np.abs(s.q[:, 6] - q0[6]) > threshold)
+    moved = (s.t_s >= t_start) & (np.abs(s.q[:, j] - q0[j]) > threshold)
     onset_ms = float((s.t_s[np.argmax(moved)] - t_start) * 1e3) if moved.any() else float("nan")
     return {"command_ack_ms": round(ack_ms, 3), "motion_onset_after_start_ms": round(onset_ms, 3),
-            "onset_threshold_rad": threshold, "lead_s": lead_s, "amplitude_rad": float(q1[6] - q0[6]),
-            "returned_within_rad": round(float(abs(s.q[-1, 6] - q0[6])), 5)}
+            "onset_threshold_rad": threshold, "lead_s": lead_s, "joint": wam.kinematics.joint_names[j],
+            "amplitude_rad": float(q1[j] - q0[j]), "returned_within_rad": round(float(abs(s.q[-1, j] - q0[j])), 5)}
 
 
-def check_link(address: str, *, duration_s: float = 3.0, move_rad: float | None = None) -> dict:
-    """Measure the link at ``address`` (see the module docstring); returns the figures as a dict."""
+def check_link(address: str, *, duration_s: float = 3.0, move_rad: float | None = None, kinematics=None) -> dict:
+    """Measure the link at ``address`` (see the module docstring); returns the figures as a dict.
+    ``kinematics``: the arm's (:class:`robot_models.ArmKinematics`; default the WAM's)."""
     if not 0.2 <= float(duration_s) <= 3600:
         raise ValueError(f"--duration must be in [0.2, 3600] s, got {duration_s!r}")
-    with WamClient(address, heartbeat_s=None if move_rad is None else 0.1) as wam:
+    with WamClient(address, kinematics=kinematics, heartbeat_s=None if move_rad is None else 0.1) as wam:
         wam.sync_clock(32)
         wam.take_arrivals()
         rtt = []

@@ -101,6 +101,7 @@ class WamClient:
         self.last_command_id: int | None = None  #: the id of the latest trajectory the robot accepted
         self._last_trajectory: tuple | None = None  # (t_s, q) of that trajectory, robot clock
         self.command_started: dict[int, int] = {}  #: trajectory id -> arrival (harness clock ns) of the first state tracking it
+        self.n_joints: int | None = None  #: the arm's joint count, from the welcome (every vector of the session has it)
         welcome = self._request("hello", float(connect_timeout_s), client=str(client_name))
         self.robot_info = welcome
         if tuple(welcome["joint_names"]) != tuple(kinematics.joint_names):
@@ -148,7 +149,7 @@ class WamClient:
         self._check()
         rid = next(self._ids)
         self.last_request_id = rid
-        self._req.send(protocol.encode(msg_type, id=rid, **fields))
+        self._req.send(protocol.encode(msg_type, n_joints=self.n_joints, id=rid, **fields))
         deadline = time.monotonic() + (self.request_timeout_s if timeout_s is None else timeout_s)
         while True:
             left_ms = (deadline - time.monotonic()) * 1000
@@ -204,7 +205,7 @@ class WamClient:
     def _receive(self, frame: bytes) -> None:
         rx_ns = time.monotonic_ns()
         try:
-            msg = protocol.decode(frame, expect=("state", "event"))
+            msg = protocol.decode(frame, expect=("state", "event"), n_joints=self.n_joints)
         except ProtocolError as exc:
             self.dropped += 1
             log.warning("dropped a malformed stream message from %s: %s", self.address, exc)

@@ -8,7 +8,9 @@ Two ZeroMQ sockets on the robot side (the *bridge*):
 
 Every message is one msgpack map with ``v`` (protocol version, :data:`VERSION`) and ``type``. Robot
 times are integer nanoseconds ``t_ns`` on the robot's own clock (0 at the bridge's session start);
-joint vectors are lists of 7 floats (rad, rad/s, N m) in the URDF order ``joint_1 .. joint_7``.
+joint vectors are lists of n floats (rad, rad/s, N m), one per joint of the arm in the order of the
+``welcome``'s ``joint_names`` (the URDF's: the WAM's 7 ``joint_1 .. joint_7``, a UR10's 6): the ``welcome``
+sets n for the session (1 .. :data:`MAX_JOINTS`), and every vector of a session has n entries.
 :func:`decode` checks a frame against :data:`SCHEMA` and raises :class:`ProtocolError` quoting what
 was received; nothing malformed gets further on either side.
 """
@@ -24,12 +26,13 @@ import time
 import msgpack
 import numpy as np
 
-__all__ = ["MAX_MESSAGE_BYTES", "MAX_TRAJECTORY_SAMPLES", "MODES", "ProtocolError", "SCHEMA", "VERSION", "decode",
+__all__ = ["MAX_JOINTS", "MAX_MESSAGE_BYTES", "MAX_TRAJECTORY_SAMPLES", "MODES", "ProtocolError", "SCHEMA", "VERSION", "decode",
            "decode_request", "encode", "request_id"]
 
 VERSION = 1
 MAX_MESSAGE_BYTES = 4 << 20  #: larger frames are rejected before unpacking
 MAX_TRAJECTORY_SAMPLES = 20000  #: 40 s at 500 Hz
+MAX_JOINTS = 16  #: the most joints an arm on the link may have
 MODES = ("idle", "track", "hold", "watchdog")  #: what the robot is doing, in every ``state``
 EVENTS = ("watchdog_hold", "rejected", "started", "stopping")
 
@@ -67,22 +70,24 @@ SCHEMA: dict[str, dict[str, str]] = {
     "event": {"t_ns": _INT, "event": _STR, "reason": _STR},
 }
 
-N_JOINTS = 7
 
 
 class ProtocolError(ValueError):
     """A frame that is not a valid robot-link message; the text says which field and what was received."""
 
 
-def encode(msg_type: str, **fields) -> bytes:
-    """One message as bytes, checked against :data:`SCHEMA` (a sender never emits what a receiver would reject)."""
+def encode(msg_type: str, *, n_joints: int | None = None, **fields) -> bytes:
+    """One message as bytes, checked against :data:`SCHEMA` (a sender never emits what a receiver would reject).
+    ``n_joints``: the session's joint count (every joint vector must have it); None: the message's own
+    (a ``welcome``'s from its ``joint_names``, another's from its first joint vector, the others alike)."""
     msg = {"v": VERSION, "type": msg_type, **fields}
-    _check(msg)
+    _check(msg, n_joints)
     return msgpack.packb(msg, use_bin_type=True)
 
 
-def decode(frame: bytes, expect: tuple[str, ...] | None = None) -> dict:
-    """Unpack and validate one frame; ``expect``: the message types allowed here. Raises ProtocolError."""
+def decode(frame: bytes, expect: tuple[str, ...] | None = None, n_joints: int | None = None) -> dict:
+    """Unpack and validate one frame; ``expect``: the message types allowed here; ``n_joints``: the session's
+    joint count (the ``welcome``'s; None: any consistent count, as :func:`encode`). Raises ProtocolError."""
     if not isinstance(frame, (bytes, bytearray, memoryview)):
         raise ProtocolError(f"a message must be bytes, got {type(frame).__name__}")
     if len(frame) > MAX_MESSAGE_BYTES:
@@ -91,7 +96,7 @@ def decode(frame: bytes, expect: tuple[str, ...] | None = None) -> dict:
         msg = msgpack.unpackb(frame, raw=False, strict_map_key=True, max_array_len=MAX_TRAJECTORY_SAMPLES + 16)
     except Exception as exc:  # msgpack raises several types (ExtraData, FormatError, ValueError, ...)
         raise ProtocolError(f"not a msgpack message ({type(exc).__name__}: {str(exc)[:80]})") from None
-    _check(msg)
+    _check(msg, n_joints)
     if expect is not None and msg["type"] not in expect:
         raise ProtocolError(f"message type {msg['type']!r} not expected here; expected one of {list(expect)}")
     return msg
@@ -103,36 +108,54 @@ _CHECK_ROWS = 32
 
 class _RequestShape:
     """Hooks that abort unpacking a request as soon as its shape is one no request has, and keep its joint
-    vectors as floats in one buffer (a list of them becomes an (N, 7) float64 array): the unpacker then builds
-    and frees no Python object per number, so a hostile frame costs no more than the largest valid request
-    and its refusal frees no large structure. Every :data:`_YIELD_S` the GIL is offered to other
-    threads (a bridge's control loop keeps its schedule while its intake thread decodes)."""
+    vectors (lists of ``n_joints`` numbers, one a float at least) as floats in one buffer (a list of them
+    becomes an (N, n_joints) float64 array): the numbers of a vector are freed as soon as it is buffered,
+    so a hostile frame costs no more than the largest valid request and its refusal frees no large
+    structure. A list of ``n_joints`` integers (a short ``t_ns``, or a joint vector of whole numbers) is kept
+    as it is and placed among the rows when its list of rows comes. Every :data:`_YIELD_S` the GIL is
+    offered to other threads (a bridge's control loop keeps its schedule while its intake thread decodes)."""
 
-    def __init__(self):
+    def __init__(self, n_joints: int):
+        self.n = n_joints
         self.rows = self.lists = self.maps = 0
         self._buf = array.array("d")
         self._pending = 0  # rows in the buffer not yet claimed by a list of rows
         self._next_yield = time.perf_counter() + _YIELD_S
 
     def list_hook(self, lst: list):
-        if len(lst) == N_JOINTS and _NUMBER_TYPES.issuperset(map(type, lst)):  # a joint vector
+        if len(lst) == self.n and _NUMBER_TYPES.issuperset(map(type, lst)):  # a joint vector (or a short t_ns)
             self.rows += 1
             if self.rows > 2 * MAX_TRAJECTORY_SAMPLES:
                 raise ProtocolError(f"more than {2 * MAX_TRAJECTORY_SAMPLES} joint vectors: no request is that large")
             if not self.rows % _CHECK_ROWS and time.perf_counter() > self._next_yield:
                 time.sleep(0)  # hand the GIL over: a hook call alone does not (CPython 3.11)
                 self._next_yield = time.perf_counter() + _YIELD_S
+            if type(lst[0]) is not float and float not in map(type, lst):  # integers only: maybe not a joint vector
+                return lst  # kept as it is
             self._buf.extend(lst)
             self._pending += 1
             return None
-        if lst and self._pending == len(lst) and lst.count(None) == len(lst):  # the list of those rows
-            rows = np.frombuffer(self._buf, dtype=np.float64).reshape(-1, N_JOINTS).copy()
+        nones = lst.count(None) if lst else -1
+        if nones == self._pending and (nones == len(lst) or self._rows_only(lst)):  # the list of those rows
+            buffered = np.frombuffer(self._buf, dtype=np.float64).reshape(-1, self.n)
+            if nones == len(lst):
+                rows = buffered.copy()
+            else:  # some rows were integers only, kept as lists
+                rows = np.empty((len(lst), self.n))
+                is_buffered = np.fromiter((x is None for x in lst), bool, len(lst))
+                rows[is_buffered] = buffered
+                for i in np.flatnonzero(~is_buffered):
+                    rows[i] = lst[i]
             self._buf, self._pending = array.array("d"), 0
             return rows
         self.lists += 1
         if self.lists > 3:
-            raise ProtocolError("nested lists of a shape no request has")
+            raise ProtocolError(f"nested lists of a shape no request has (this arm's joint vectors have {self.n} numbers)")
         return lst
+
+    def _rows_only(self, lst: list) -> bool:
+        """Every item a buffered row (None) or a kept list of ``n`` integers."""
+        return all(x is None or (type(x) is list and len(x) == self.n and all(type(v) is int for v in x)) for x in lst)
 
     def object_hook(self, obj: dict) -> dict:
         self.maps += 1
@@ -141,15 +164,17 @@ class _RequestShape:
         return obj
 
 
-def decode_request(frame: bytes, expect: tuple[str, ...]) -> dict:
+def decode_request(frame: bytes, expect: tuple[str, ...], n_joints: int) -> dict:
     """:func:`decode` for requests arriving at a bridge from any peer: the same checks, with the unpacking
     aborted as soon as the frame cannot be a request (:class:`_RequestShape`), and string/binary lengths capped.
-    Lists of joint vectors (``q``, ``qdot`` of a trajectory) come back as (N, 7) float64 arrays."""
+    ``n_joints``: the bridge's arm's. Lists of joint vectors (``q``, ``qdot`` of a trajectory) come back as
+    (N, n_joints) float64 arrays."""
+    _check_n(n_joints)
     if not isinstance(frame, (bytes, bytearray, memoryview)):
         raise ProtocolError(f"a message must be bytes, got {type(frame).__name__}")
     if len(frame) > MAX_MESSAGE_BYTES:
         raise ProtocolError(f"message of {len(frame)} bytes exceeds the limit of {MAX_MESSAGE_BYTES}")
-    shape = _RequestShape()
+    shape = _RequestShape(n_joints)
     collecting = gc.isenabled()
     gc.disable()  # a message holds no cycles: no collection pass (which holds the GIL) for each thousand rows
     try:
@@ -163,7 +188,7 @@ def decode_request(frame: bytes, expect: tuple[str, ...]) -> dict:
     finally:
         if collecting:
             gc.enable()
-    _check(msg)
+    _check(msg, n_joints)
     if msg["type"] not in expect:
         raise ProtocolError(f"message type {msg['type']!r} not expected here; expected one of {list(expect)}")
     return msg
@@ -184,7 +209,36 @@ def _short(value) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _check(msg) -> None:
+def _check_n(n_joints) -> None:
+    if not _is_int(n_joints) or not 1 <= n_joints <= MAX_JOINTS:
+        raise ValueError(f"n_joints must be an integer in 1..{MAX_JOINTS}, got {n_joints!r}")
+
+
+def _session_n(kind: str, msg: dict, spec: dict, n_joints: int | None) -> int:
+    """The joint count the vectors of this message must have: a ``welcome``'s from its ``joint_names``,
+    else ``n_joints`` or (None) the first joint vector's length."""
+    if kind == "welcome":
+        names = msg.get("joint_names")
+        if isinstance(names, (list, tuple)) and not 1 <= len(names) <= MAX_JOINTS:
+            raise ProtocolError(f"welcome: joint_names must name 1..{MAX_JOINTS} joints, got {len(names)}")
+        if n_joints is not None and isinstance(names, (list, tuple)) and len(names) != n_joints:
+            raise ProtocolError(f"welcome: {len(names)} joint_names, this side expects {n_joints} joints")
+        return len(names) if isinstance(names, (list, tuple)) else 0
+    if n_joints is not None:
+        _check_n(n_joints)
+        return n_joints
+    for name, field_kind in spec.items():  # the first vector present decides; the others must agree
+        value = msg.get(name)
+        if value is None or field_kind.split("|")[0] not in (_VEC, _MAT):
+            continue
+        row = value[0] if field_kind.startswith(_MAT) and isinstance(value, (list, tuple, np.ndarray)) and len(value) else value
+        if isinstance(row, (list, tuple, np.ndarray)) and 1 <= len(row) <= MAX_JOINTS:
+            return len(row)
+        raise ProtocolError(f"{kind}: {name} must hold joint vectors of 1..{MAX_JOINTS} finite numbers, got {_short(value)}")
+    return 0
+
+
+def _check(msg, n_joints: int | None = None) -> None:
     if not isinstance(msg, dict):
         raise ProtocolError(f"a message must be a map, got {type(msg).__name__}")
     if msg.get("v") != VERSION:
@@ -196,10 +250,12 @@ def _check(msg) -> None:
     extra = sorted(set(msg) - set(spec) - {"v", "type"})
     if extra:
         raise ProtocolError(f"{kind}: unknown field(s) {extra}")
+    missing = [name for name in spec if name not in msg]
+    if missing:
+        raise ProtocolError(f"{kind}: missing field {missing[0]!r}")
+    n = _session_n(kind, msg, spec, n_joints)
     for name, field_kind in spec.items():
-        if name not in msg:
-            raise ProtocolError(f"{kind}: missing field {name!r}")
-        _check_field(kind, name, field_kind, msg[name])
+        _check_field(kind, name, field_kind, msg[name], n)
     if kind == "trajectory":
         n = len(msg["t_ns"])
         if n < 2 or n > MAX_TRAJECTORY_SAMPLES:
@@ -221,9 +277,9 @@ def _finite(x) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
-def _check_vec(kind, name, value, where="") -> None:
-    if not isinstance(value, (list, tuple)) or len(value) != N_JOINTS or not all(_finite(x) for x in value):
-        raise ProtocolError(f"{kind}: {name}{where} must be {N_JOINTS} finite numbers, got {_short(value)}")
+def _check_vec(kind, name, value, n, where="") -> None:
+    if not isinstance(value, (list, tuple)) or len(value) != n or not all(_finite(x) for x in value):
+        raise ProtocolError(f"{kind}: {name}{where} must be {n} finite numbers, got {_short(value)}")
 
 
 _NUMBER_TYPES = frozenset((int, float))
@@ -249,7 +305,7 @@ def _plain_numbers(value, shape: tuple, kinds: str = "if") -> bool:
     return _NUMBER_TYPES.issuperset(map(type, elements))
 
 
-def _check_field(kind: str, name: str, field_kind: str, value) -> None:
+def _check_field(kind: str, name: str, field_kind: str, value, n: int) -> None:
     if value is None and field_kind.endswith("|nil"):
         return
     base = field_kind.split("|")[0]
@@ -274,19 +330,19 @@ def _check_field(kind: str, name: str, field_kind: str, value) -> None:
         if not isinstance(value, (list, tuple)) or not all(_is_int(x) for x in value):
             raise ProtocolError(f"{kind}: {name} must be a list of integers, got {_short(value)}")
     elif base == _VEC:
-        _check_vec(kind, name, value)
+        _check_vec(kind, name, value, n)
     elif base == _MAT:
         if isinstance(value, np.ndarray):  # from decode_request: already numbers, one row per joint vector
-            if value.ndim == 2 and value.shape[1] == N_JOINTS and value.shape[0] and np.isfinite(value).all():
+            if value.ndim == 2 and value.shape[1] == n and value.shape[0] and np.isfinite(value).all():
                 return
             bad = np.argwhere(~np.isfinite(value))[:1]
             where = f"[{int(bad[0][0])}]" if bad.size else ""
-            raise ProtocolError(f"{kind}: {name}{where} must be {N_JOINTS} finite numbers")
-        if isinstance(value, (list, tuple)) and value and _plain_numbers(value, (len(value), N_JOINTS)):
+            raise ProtocolError(f"{kind}: {name}{where} must be {n} finite numbers")
+        if isinstance(value, (list, tuple)) and value and _plain_numbers(value, (len(value), n)):
             return
         if not isinstance(value, (list, tuple)):
             raise ProtocolError(f"{kind}: {name} must be a list of joint vectors, got {_short(value)}")
         for i, row in enumerate(value):
-            _check_vec(kind, name, row, f"[{i}]")
+            _check_vec(kind, name, row, n, f"[{i}]")
     else:  # pragma: no cover - SCHEMA and this function are written together
         raise AssertionError(field_kind)

@@ -8,11 +8,12 @@ exposure time -- arriving later, as a camera with hardware timestamps does (docs
 
 Message (one ZeroMQ frame, msgpack map; version :data:`VERSION`; every field required):
 
-``{"v": 1, "t_ns": int, "q": [7 floats], "balls": [[x, y, z], ...], "seq": int}``
+``{"v": 1, "t_ns": int, "q": [n floats], "balls": [[x, y, z], ...], "seq": int}``
 
 * ``t_ns`` : host ``CLOCK_MONOTONIC`` (``time.monotonic_ns()``) at which the sample is true -- the
   publisher maps its own clock onto the host's (the simulated bridge knows its true offset);
-* ``q`` : the 7 TRUE joint angles of the WAM, rad, URDF order (never what the encoders report);
+* ``q`` : the n TRUE joint angles of the arm (1 <= n <= :data:`MAX_JOINTS`; the WAM's 7), rad, URDF order (never
+  what the encoders report); a subscriber keeps only samples of its arm's joint count;
 * ``balls`` : free balls (not carried by the robot) in the lab world frame, metres, possibly empty;
 * ``seq`` : the publisher's running count; ``t_ns`` strictly increases with it.
 
@@ -26,7 +27,7 @@ bounded time for a sample at or after it) and the scene provider
     pub = TruthPublisher("tcp://127.0.0.1:*")                  # pub.address: the bound endpoint
     pub.publish(time.monotonic_ns(), q_true, balls=[[x, y, z]])
     with TruthSubscriber(pub.address) as sub:
-        sample = sub.at(time.monotonic_ns(), wait_s=0.5)       # TruthSample(t_ns, q (7,), balls (m, 3))
+        sample = sub.at(time.monotonic_ns(), wait_s=0.5)       # TruthSample(t_ns, q (n,), balls (m, 3))
 """
 
 from __future__ import annotations
@@ -37,11 +38,11 @@ from dataclasses import dataclass
 import msgpack
 import numpy as np
 
-__all__ = ["VERSION", "TruthError", "TruthPublisher", "TruthSample", "TruthSubscriber",
+__all__ = ["MAX_JOINTS", "VERSION", "TruthError", "TruthPublisher", "TruthSample", "TruthSubscriber",
            "decode_truth", "encode_truth"]
 
 VERSION = 1
-N_JOINTS = 7
+MAX_JOINTS = 16  #: as the robot link's
 MAX_BALLS = 64
 _FIELDS = {"v", "t_ns", "q", "balls", "seq"}
 
@@ -51,19 +52,19 @@ class TruthError(ValueError):
 
 
 def encode_truth(t_ns: int, q, balls=(), seq: int = 0) -> bytes:
-    """One truth message. t_ns : host CLOCK_MONOTONIC ns; q : (7,) true joints, rad; balls : (m, 3) world, m."""
+    """One truth message. t_ns : host CLOCK_MONOTONIC ns; q : (n,) true joints, rad; balls : (m, 3) world, m."""
     q = np.asarray(q, float).reshape(-1)
     b = np.asarray(balls, float).reshape(-1, 3) if len(balls) else np.zeros((0, 3))
-    if q.shape != (N_JOINTS,) or not np.isfinite(q).all() or not np.isfinite(b).all() or len(b) > MAX_BALLS:
-        raise TruthError(f"truth sample: q must be 7 finite angles and balls at most {MAX_BALLS} finite [x, y, z], "
-                         f"got q {q.tolist()}, {len(b)} ball(s)")
+    if not 1 <= q.size <= MAX_JOINTS or not np.isfinite(q).all() or not np.isfinite(b).all() or len(b) > MAX_BALLS:
+        raise TruthError(f"truth sample: q must be 1..{MAX_JOINTS} finite angles and balls at most {MAX_BALLS} finite "
+                         f"[x, y, z], got q {q.tolist()}, {len(b)} ball(s)")
     return msgpack.packb({"v": VERSION, "t_ns": int(t_ns), "q": q.tolist(), "balls": b.tolist(), "seq": int(seq)},
                          use_bin_type=True)
 
 
 @dataclass(frozen=True)
 class TruthSample:
-    """t_ns : host CLOCK_MONOTONIC ns; q : (7,) true joints, rad; balls : (m, 3) free balls, world, m; seq : count."""
+    """t_ns : host CLOCK_MONOTONIC ns; q : (n,) true joints, rad; balls : (m, 3) free balls, world, m; seq : count."""
 
     t_ns: int
     q: np.ndarray
@@ -89,11 +90,12 @@ def decode_truth(frame: bytes) -> TruthSample:
         q = np.array(msg["q"], dtype=float)
         balls = np.array(msg["balls"], dtype=float).reshape(-1, 3) if len(msg["balls"]) else np.zeros((0, 3))
     except (TypeError, ValueError):
-        raise TruthError(f"truth message: q must be 7 numbers and balls a list of [x, y, z], got q={msg['q']!r}, "
+        raise TruthError(f"truth message: q must be a list of numbers and balls a list of [x, y, z], got q={msg['q']!r}, "
                          f"balls={msg['balls']!r}") from None
-    if q.shape != (N_JOINTS,) or not np.isfinite(q).all() or not np.isfinite(balls).all() or len(balls) > MAX_BALLS:
-        raise TruthError(f"truth message: q must be 7 finite angles and balls at most {MAX_BALLS} finite [x, y, z], "
-                         f"got q={msg['q']!r}, {len(balls)} ball(s)")
+    if (q.ndim != 1 or not 1 <= q.size <= MAX_JOINTS or not np.isfinite(q).all() or not np.isfinite(balls).all()
+            or len(balls) > MAX_BALLS):
+        raise TruthError(f"truth message: q must be 1..{MAX_JOINTS} finite angles and balls at most {MAX_BALLS} finite "
+                         f"[x, y, z], got q={msg['q']!r}, {len(balls)} ball(s)")
     return TruthSample(int(msg["t_ns"]), q, balls, int(msg["seq"]))
 
 
@@ -120,7 +122,7 @@ class TruthPublisher:
         self._again = zmq.Again
 
     def publish(self, t_ns: int, q, balls=()) -> None:
-        """One sample: t_ns host CLOCK_MONOTONIC ns (strictly increasing), q (7,) true joints, balls (m, 3) world."""
+        """One sample: t_ns host CLOCK_MONOTONIC ns (strictly increasing), q (n,) true joints, balls (m, 3) world."""
         self.seq += 1
         try:
             self._sock.send(encode_truth(t_ns, q, balls, self.seq), self._noblock)
@@ -143,15 +145,19 @@ class TruthSubscriber:
 
     :meth:`at` gives the truth at a host time (joints interpolated linearly between the samples around it,
     balls from the nearest sample), waiting up to ``wait_s`` for a sample at or after that time.
-    ``received``, ``malformed`` and ``lost`` (``seq`` jumps) count what came.
+    ``n_joints``: the arm's joint count (the WAM's 7 by default); a sample of another count is malformed
+    (``last_error`` names both). ``received``, ``malformed`` and ``lost`` (``seq`` jumps) count what came.
     """
 
-    def __init__(self, address: str, *, capacity: int = 1 << 16, context=None):
+    def __init__(self, address: str, *, n_joints: int = 7, capacity: int = 1 << 16, context=None):
         import zmq
 
         if not isinstance(address, str) or not address.startswith(("tcp://", "ipc://", "inproc://")):
             raise TruthError(f"--truth-stream must be a ZeroMQ endpoint like tcp://127.0.0.1:7652, got {address!r}")
+        if isinstance(n_joints, bool) or not isinstance(n_joints, int) or not 1 <= n_joints <= MAX_JOINTS:
+            raise TruthError(f"n_joints must be an integer in 1..{MAX_JOINTS}, got {n_joints!r}")
         self.address = address
+        self.n_joints = n_joints
         self._sock = (context or zmq.Context.instance()).socket(zmq.SUB)
         self._sock.setsockopt(zmq.LINGER, 0)
         self._sock.setsockopt(zmq.RCVHWM, 100000)
@@ -159,7 +165,7 @@ class TruthSubscriber:
         self._sock.connect(address)
         self._cap = int(capacity)
         self._t = np.zeros(2 * self._cap, np.int64)  # appended in order; halved when full (amortised, no per-sample allocation)
-        self._q = np.zeros((2 * self._cap, N_JOINTS))
+        self._q = np.zeros((2 * self._cap, n_joints))
         self._balls: list = [None] * (2 * self._cap)
         self._n = 0
         self._cond = threading.Condition()
@@ -187,6 +193,8 @@ class TruthSubscriber:
                     return
                 try:
                     s = decode_truth(frame)
+                    if s.q.size != self.n_joints:
+                        raise TruthError(f"truth sample with {s.q.size} joints; this subscriber's arm has {self.n_joints}")
                 except TruthError as exc:
                     self.malformed += 1
                     self.last_error = str(exc)

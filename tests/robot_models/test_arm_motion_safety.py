@@ -1,8 +1,8 @@
 """The motion-safety rule per arm: the hostile table of tests/harness/link/test_motion_safety.py, scaled to each
 shipped arm's joints and limits, is refused with the limits of both ends of the robot link (the harness's
 ``ArmKinematics`` and the bridges' ``JointLimits``, read from the same robot config), naming sample and joint;
-a smooth move within the limits passes. (The WAM's table also runs against a live bridge process there; the
-link's protocol carries 7-joint vectors, so the other arms are checked in process, docs/robots.md.)"""
+a smooth move within the limits passes. The WAM's table runs against a live bridge process there, every other
+arm's here (the UR10's session carries six-joint vectors), with a move and a hold at full speed."""
 
 from __future__ import annotations
 
@@ -103,18 +103,18 @@ def test_an_arms_own_jerk_limits_are_used():
         check_motion(strict, t, Q, Qd, now_s=1.0, start=(q, np.zeros(7)))
 
 
-# -- both ends over the link: a 7-joint arm behind `rt2 robot serve --sim --robot X` in its own process -------
-@pytest.mark.parametrize("name", ["panda", "xarm7"])
+# -- both ends over the link: the arm behind `rt2 robot serve --sim --robot X` in its own process -----------
+@pytest.mark.parametrize("name", ["panda", "ur10", "xarm7"])
 def test_the_bridge_and_the_client_of_another_arm_refuse_the_scaled_table(name):
     from harness.link import WamClient
     from tests.harness.link.robot_link_util import STARVED_OK, BridgeProcess
-    from tests.harness.link.test_motion_safety import _raw_trajectory
+    from tests.harness.link.test_motion_safety import _raw_trajectory, move_and_hold_at_full_speed
 
     kin, _ = _arm(name)
     bridge = BridgeProcess("--robot", name, "--seed", "5", "--publish-truth")
     try:
         with WamClient(bridge.address, kinematics=kin, heartbeat_s=None, **STARVED_OK) as listener:
-            assert listener.n_joints == 7
+            assert listener.n_joints == kin.n_joints and listener.robot_info["joint_names"] == list(kin.joint_names)
             listener.advance_to(listener.t_s + 0.05)
             listener.take_sim_truth()
             q = listener.sim_true_q()
@@ -128,14 +128,31 @@ def test_the_bridge_and_the_client_of_another_arm_refuse_the_scaled_table(name):
             listener.advance_to(listener.t_s + 0.3)
             _, q_true = listener.take_sim_truth()
             assert np.abs(q_true - q).max() < 1e-9  # the arm never moved
+        with WamClient(bridge.address, kinematics=kin, **STARVED_OK) as arm:
+            move_and_hold_at_full_speed(arm, kin)  # a legitimate move is executed; a hold ramps it down
     finally:
         bridge.stop()
 
 
-def test_an_arm_the_link_cannot_carry_is_refused_in_one_line(capsys):
+def test_rt2_robot_check_of_a_ur10_and_a_client_of_another_arm(capsys):
+    """`rt2 robot check --arm ur10 --move` measures a UR10's link (its last joint moves); a client whose
+    kinematics are the WAM's is refused at the hello, naming both joint lists (`rt2 robot check` without
+    --arm: one line, exit 2)."""
     _arm("ur10")
     from harness.cli import main
+    from harness.link import WamClient
+    from tests.harness.link.robot_link_util import BridgeProcess
 
-    assert main(["robot", "serve", "--sim", "--robot", "ur10", "--duration", "1"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "ur10.yaml: the robot link carries 7-joint vectors; ur10 has 6 joints" in err
+    bridge = BridgeProcess("--robot", "ur10")
+    try:
+        with pytest.raises(ValueError, match=r"has joints \['shoulder_pan_joint'.*the kinematics \['joint_1'"):
+            WamClient(bridge.address, kinematics=ArmKinematics.from_config("wam"))
+        capsys.readouterr()
+        assert main(["robot", "check", "--robot", bridge.address, "--arm", "ur10", "--move", "--duration", "0.5"]) == 0
+        out = capsys.readouterr().out
+        assert "rt2 simulated arm ur10" in out and "(wrist_3_joint, 0.050 rad" in out, out
+        assert main(["robot", "check", "--robot", bridge.address, "--duration", "0.5"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "has joints ['shoulder_pan_joint'" in err, err
+    finally:
+        bridge.stop()

@@ -50,7 +50,7 @@ class LabTruthScene:
     def open(self) -> "LabTruthScene":
         """Connect (called on first use; not in ``__init__`` so that the provider can be built before the stream)."""
         if self._sub is None:
-            self._sub = TruthSubscriber(self.address)
+            self._sub = TruthSubscriber(self.address, n_joints=self.kin.n_joints)
             self._sub.wait_first(self.first_wait_s)
         return self
 

@@ -41,23 +41,56 @@ HOSTILE = [
     msgpack.packb({"v": 1, "type": "state", "seq": 1, "t_ns": 0, "q": ROW, "qdot": ROW, "effort": None, "mode": "idle",
                    "cmd_id": 0, "sim": None}),
     msgpack.packb({"v": 1, "type": "trajectory", "id": 1, "t_ns": [0, 1], "q": [[ROW] * 7] * 2, "qdot": None}),
+    # as many samples as joints: t_ns is a list of 7 numbers too (the intake once took it for a joint vector)
+    _traj(t_ns=list(range(0, 14_000_000, 2_000_000)), q=[ROW] * 7), _traj(t_ns=list(range(7)), q=[ROW] * 7, qdot=[ROW] * 7),
+    _traj(q=[[0] * 7, ROW, [1] * 7]), _traj(q=[[0] * 7] * 3), _traj(q=[[0] * 7] * 3, qdot=[ROW, [0] * 7, ROW]),
+    _traj(t_ns=list(range(7)), q=[[0] * 7] * 7), _traj(t_ns=[0.0] * 7, q=[ROW] * 7),
+    # another arm's vectors: 6 joints
+    _traj(q=[ROW[:6]] * 3), _traj(t_ns=list(range(6)), q=[ROW[:6]] * 6),
 ]
 
+#: a six-joint arm's session (a UR10): the same frames and its own
+HOSTILE_6 = HOSTILE + [_traj(q=[ROW[:6]] * 3, qdot=[ROW[:6]] * 3), _traj(q=[ROW[:6], ROW[:6], ROW]),
+                       _traj(t_ns=list(range(6)), q=[[0] * 6] * 6), _traj(q=[[0] * 6, ROW[:6], [1] * 6])]
 
-@pytest.mark.parametrize("frame", HOSTILE, ids=range(len(HOSTILE)))
-def test_intake_decoding_accepts_and_refuses_what_decode_does(frame):
+
+@pytest.mark.parametrize("n_joints, frame", [(7, f) for f in HOSTILE] + [(6, f) for f in HOSTILE_6],
+                         ids=[f"7-{i}" for i in range(len(HOSTILE))] + [f"6-{i}" for i in range(len(HOSTILE_6))])
+def test_intake_decoding_accepts_and_refuses_what_decode_does(n_joints, frame):
     try:
-        ref = protocol.decode(frame, expect=REQ)
+        ref = protocol.decode(frame, expect=REQ, n_joints=n_joints)
     except ProtocolError:
         ref = None
     try:
-        got = protocol.decode_request(frame, REQ)
+        got = protocol.decode_request(frame, REQ, n_joints)
     except ProtocolError:
         got = None
     assert (ref is None) == (got is None), (ref, got)
     if ref is not None:
         for k, v in ref.items():
             assert np.array_equal(np.asarray(got[k], dtype=object if k == "type" else None), np.asarray(v)), k
+
+
+def test_the_trajectories_of_every_arm_pass_the_intake():
+    """A valid trajectory of n samples for an arm of n joints (each count 1..MAX_JOINTS) arrives whole."""
+    for n in range(1, protocol.MAX_JOINTS + 1):
+        for samples in sorted({2, max(n, 2), n + 1}):
+            q = np.linspace(0.0, 1.0, samples * n).reshape(samples, n)
+            t_ns = list(range(0, 2_000_000 * samples, 2_000_000))
+            frame = protocol.encode("trajectory", n_joints=n, id=5, t_ns=t_ns, q=q.tolist(), qdot=None)
+            got = protocol.decode_request(frame, REQ, n)
+            assert got["t_ns"] == t_ns and np.array_equal(got["q"], q), (n, samples)
+            assert protocol.decode(frame, REQ, n_joints=n)["t_ns"] == t_ns
+            if n < protocol.MAX_JOINTS:
+                with pytest.raises(ProtocolError, match=f"{n + 1}"):
+                    protocol.decode(frame, REQ, n_joints=n + 1)
+
+
+@pytest.mark.parametrize("n", [0, 17, -1, 7.0, True, None, "7"])
+def test_a_bad_joint_count_is_refused_by_name(n):
+    frame = protocol.encode("hold", id=1)
+    with pytest.raises(ValueError, match="n_joints"):
+        protocol.decode_request(frame, REQ, n)
 
 
 def test_intake_decoding_gives_up_early_on_shapes_no_request_has():
@@ -67,7 +100,7 @@ def test_intake_decoding_gives_up_early_on_shapes_no_request_has():
     for frame in (big, nasty):
         t0 = time.perf_counter()
         with pytest.raises(ProtocolError):
-            protocol.decode_request(frame, REQ)
+            protocol.decode_request(frame, REQ, 7)
         if frame is nasty:
             assert time.perf_counter() - t0 < 0.05  # refused after two rows, not after 4 million numbers
 

@@ -83,7 +83,7 @@ def test_protocol_array_check_is_the_element_rule(kind, value):
     element by element only when that is unsure: the decision is always the element-by-element rule's."""
     expect = _valid_by_the_rule(value, kind)
     try:
-        protocol._check_field("trajectory", "q", kind, value)
+        protocol._check_field("trajectory", "q", kind, value, 7)
         accepted = True
     except ProtocolError:
         accepted = False

@@ -41,7 +41,9 @@ def test_message_round_trip_and_version():
 
 @pytest.mark.parametrize("msg, match", [
     ({"v": 2, "t_ns": 1, "q": list(Q), "balls": [], "seq": 1}, "version 2"),
-    ({"v": 1, "t_ns": 1, "q": list(Q[:6]), "balls": [], "seq": 1}, "7 finite angles"),
+    ({"v": 1, "t_ns": 1, "q": list(Q) * 3, "balls": [], "seq": 1}, "1..16 finite angles"),
+    ({"v": 1, "t_ns": 1, "q": [], "balls": [], "seq": 1}, "1..16 finite angles"),
+    ({"v": 1, "t_ns": 1, "q": [list(Q)], "balls": [], "seq": 1}, "1..16 finite angles"),
     ({"v": 1, "t_ns": 1.5, "q": list(Q), "balls": [], "seq": 1}, "'t_ns' must be an integer"),
     ({"v": 1, "t_ns": 1, "q": list(Q), "balls": [[0, 0]], "seq": 1}, "balls"),
     ({"v": 1, "t_ns": 1, "q": list(Q), "seq": 1}, "exactly the fields"),
@@ -66,6 +68,27 @@ def test_subscriber_interpolates_joints_and_keeps_balls():
         with pytest.raises(TruthError, match="before the oldest sample"):
             sub.at(1, wait_s=0.0)
         assert sub.malformed == 0
+
+
+def test_a_subscriber_keeps_only_its_arms_joint_count():
+    """A six-joint arm's truth (a UR10 served by `rt2 robot serve --sim --robot ur10`) reaches a six-joint
+    subscriber; a seven-joint one counts it malformed and says why."""
+    with TruthPublisher("tcp://127.0.0.1:*") as pub, TruthSubscriber(pub.address, n_joints=6) as six, \
+            TruthSubscriber(pub.address) as seven:
+        t0 = 10_000_000_000
+        q6 = Q[:6]
+        for i in range(200):
+            pub.publish(t0 + i * 2_000_000, q6 + 0.01 * i)
+            if six.received >= 5 and seven.malformed >= 5:
+                break
+            time.sleep(0.01)
+        assert six.received >= 5 and six.malformed == 0
+        assert np.allclose(six.at(t0, wait_s=0.0).q, q6)
+        assert seven.received == 0 and seven.malformed >= 5
+        assert "6 joints" in seven.last_error and "has 7" in seven.last_error
+    for bad in (0, 17, 6.0, True, "7"):
+        with pytest.raises(TruthError, match="n_joints"):
+            TruthSubscriber("tcp://127.0.0.1:9", n_joints=bad)
 
 
 def test_silent_stream_is_a_one_line_error():
