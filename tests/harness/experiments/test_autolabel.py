@@ -326,12 +326,35 @@ def test_the_second_look_keeps_more_frame_sets_and_no_wrong_label(tmp_path):
     on, off = figures["--second-look"], figures["--no-second-look"]
     assert on["counts"]["second_look"] > 0 and off["counts"]["second_look"] == 0
     assert on["figures"]["kept_eligible"] > off["figures"]["kept_eligible"]
-    assert on["figures"]["wrong_labels"] == 0 and on["figures"]["within_1_5px"] >= 0.6
+    assert on["figures"]["wrong_labels"] == 0
+    assert on["figures"]["within_1_5px"] >= 0.95  # the goal: the silhouette's centres (99.4 %; the weighted centroid's: 90 %)
+
+
+def test_the_silhouette_centre_is_not_pulled_towards_the_lit_side():
+    """A shaded orange disk (its probability higher on the lit side): the silhouette's centroid lands nearer the disk's
+    centre than the probability-weighted centroid, which moves towards the light."""
+    from harness.experiments.autolabel.consensus import centring
+    from tracker.pipeline import load_model
+
+    model = load_model(None)
+    rng = np.random.default_rng(0)
+    H, W, c, d = 200, 240, np.array([120.3, 99.6]), 60.0
+    img = np.clip(rng.normal(100, 4, (H, W, 3)), 0, 255)
+    yy, xx = np.mgrid[0:H, 0:W]
+    inside = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= (d / 2) ** 2
+    shade = 0.775 + 0.225 * np.clip(0.7 * ((xx - c[0]) + (c[1] - yy)) / (d / 2), -1, 1)  # lit towards +u, -v
+    img[inside] = np.array([245.0, 120.0, 20.0]) * shade[inside, None]
+    img = img.astype(np.uint8)
+    p = model.probability(img, (0, 0, W, H)).astype(float) * ((xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= (d / 2 + 3) ** 2)
+    weighted = np.array([(p * xx).sum(), (p * yy).sum()]) / p.sum()
+    silhouette = centring(model)(img, c + [2.0, -1.0], d)
+    assert np.linalg.norm(silhouette - c) < 0.6
+    assert np.linalg.norm(silhouette - c) < 0.8 * np.linalg.norm(weighted - c)
 
 
 def test_recentring_moves_the_position_to_the_drawn_balls_centres():
-    """Orange disks drawn where a ball at X projects; from a consensus position 8 mm off, re-centring (the filter's
-    probability centroid at each projection, triangulated, twice) lands within 1 mm; where fewer than min_support
+    """Orange disks drawn where a ball at X projects; from a consensus position 8 mm off, re-centring (the centroid of the
+    filter's silhouette at each projection, triangulated, twice) lands within 1 mm; where fewer than min_support
     cameras can be measured, the consensus's position stays."""
     from harness.experiments.autolabel.consensus import AutoOptions, centring, recentred
     from tracker.detection.synthetic import draw_disk
