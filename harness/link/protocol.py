@@ -144,8 +144,8 @@ class _RequestShape:
                 rows = np.empty((len(lst), self.n))
                 is_buffered = np.fromiter((x is None for x in lst), bool, len(lst))
                 rows[is_buffered] = buffered
-                for i in np.flatnonzero(~is_buffered):
-                    rows[i] = lst[i]
+                kept = np.flatnonzero(~is_buffered)
+                rows[kept] = np.array([lst[i] for i in kept], dtype=np.float64)  # one conversion, not a row at a time
             self._buf, self._pending = array.array("d"), 0
             return rows
         self.lists += 1
