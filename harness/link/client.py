@@ -262,13 +262,13 @@ class WamClient:
         return self._latest["mode"]
 
     def sim_info(self) -> dict | None:
-        """A simulated robot's truth at the latest state (``--publish-truth``): ``q_true`` (7,) rad, ``bias_rad``
-        (7,) its zero offsets, ``offset_ns`` its clock minus the host's monotonic clock; None from a real robot."""
+        """A simulated robot's truth at the latest state (``--publish-truth``): ``q_true`` (n_joints,) rad, ``bias_rad``
+        (n_joints,) its zero offsets, ``offset_ns`` its clock minus the host's monotonic clock; None from a real robot."""
         sim = self._latest.get("sim")
         return dict(sim) if sim else None
 
     def sim_true_q(self) -> np.ndarray | None:
-        """(7,) rad: a simulated robot's true joints at the latest state (bridges run with ``--publish-truth``), else None.
+        """(n_joints,) rad: a simulated robot's true joints at the latest state (bridges run with ``--publish-truth``), else None.
 
         Simulated scenes need them (where the ball on the end effector really is); a policy never reads them.
         """
@@ -277,7 +277,7 @@ class WamClient:
         return None if q is None else np.array(q, dtype=float)
 
     def take_sim_truth(self) -> tuple[np.ndarray, np.ndarray]:
-        """A simulated robot's true joints since the last call: t_s (n,) robot clock, q_true (n, 7) rad."""
+        """A simulated robot's true joints since the last call: t_s (m,) robot clock, q_true (m, n_joints) rad."""
         with self._lock:
             out = list(self._truth)
             self._truth.clear()

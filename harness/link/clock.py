@@ -89,7 +89,7 @@ def pair_joint_states(t_harness_s, t_robot_s, q, estimate: ClockEstimate) -> np.
     """Joint angles at harness times, from states stamped on the robot clock, through the offset estimate.
 
     t_harness_s : (m,) harness clock, s (e.g. when a camera exposed a frame); t_robot_s : (n,) increasing
-    robot clock, s; q : (n, 7) rad. Returns (m, 7): linear interpolation at ``t_harness + offset``; NaN rows
+    robot clock, s; q : (n, n_joints) rad. Returns (m, n_joints): linear interpolation at ``t_harness + offset``; NaN rows
     for times outside the states (never extrapolated).
     """
     th = np.asarray(t_harness_s, dtype=np.float64)
