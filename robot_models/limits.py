@@ -19,7 +19,9 @@ import numpy as np
 
 from robot_models.config import RobotConfig, load_robot_config
 
-__all__ = ["JointLimits", "UrdfJoint", "check_joint_angles", "config_limits", "urdf_chain", "urdf_joint_limits"]
+__all__ = ["MAX_JOINTS", "JointLimits", "UrdfJoint", "check_joint_angles", "config_limits", "urdf_chain", "urdf_joint_limits"]
+
+MAX_JOINTS = 16  #: the most movable joints an arm may have (the robot link's and the lab truth stream's vectors)
 
 
 def check_joint_angles(joint_names, q_min: np.ndarray, q_max: np.ndarray, q, name: str = "q", *,
@@ -142,6 +144,9 @@ def urdf_chain(path: str | Path, base_link: str, flange_link: str) -> list[UrdfJ
                              "fixed to the links the arm hangs from")
     if not chain:
         raise ValueError(f"{path}: no movable joint between {base_link!r} and {flange_link!r}")
+    if len(chain) > MAX_JOINTS:
+        raise ValueError(f"{path}: {len(chain)} movable joints between {base_link!r} and {flange_link!r}; rt2 takes arms of "
+                         f"at most {MAX_JOINTS} (the robot link and the lab truth stream carry no more)")
     return [_movable(j, path) for j in reversed(chain)]
 
 

@@ -18,7 +18,6 @@ import json
 from harness.common.outputs import check_output_file
 from harness.link.check import check_link
 from harness.link.client import LinkLostError
-from harness.sim.robot.arms import load_arm
 
 __all__ = ["add_arguments", "run"]
 
@@ -37,10 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    from robot_models import ArmKinematics
+
     if not 0 < abs(args.move_rad) <= 0.2:
         raise ValueError(f"--move-rad must be in (0, 0.2] rad in size, got {args.move_rad!r}")
     out = check_output_file(args.json)
-    kin = None if args.arm is None else load_arm(args.arm, check_reach=False).kin
+    kin = None if args.arm is None else ArmKinematics.from_config(args.arm)  # errors name the config file and field
     try:
         r = check_link(args.robot, duration_s=args.duration, move_rad=args.move_rad if args.move else None,
                        kinematics=kin)

@@ -33,7 +33,7 @@ def _move(wam: WamClient, move_rad: float) -> dict:
     t_start = st.t_s + lead_s
     wam.advance_to(st.t_s)
     t_send = time.monotonic_ns()
-    wam.command_trajectory([t_start, t_start + 0.5, t_start + 1.0], np.stack([q0, q1, q0]), np.zeros((3, j + 1)))
+    wam.command_trajectory([t_start, t_start + 0.5, t_start + 1.0], np.stack([q0, q1, q0]), np.zeros((3, wam.n_joints)))
     ack_ms = (time.monotonic_ns() - t_send) / 1e6
     s = wam.advance_to(t_start + 1.3)
     before = s.t_s < t_start

@@ -26,13 +26,14 @@ import time
 import msgpack
 import numpy as np
 
+from robot_models.limits import MAX_JOINTS  # an arm's joints: at most this many (its URDF is refused beyond)
+
 __all__ = ["MAX_JOINTS", "MAX_MESSAGE_BYTES", "MAX_TRAJECTORY_SAMPLES", "MODES", "ProtocolError", "SCHEMA", "VERSION", "decode",
            "decode_request", "encode", "request_id"]
 
 VERSION = 1
 MAX_MESSAGE_BYTES = 4 << 20  #: larger frames are rejected before unpacking
 MAX_TRAJECTORY_SAMPLES = 20000  #: 40 s at 500 Hz
-MAX_JOINTS = 16  #: the most joints an arm on the link may have
 MODES = ("idle", "track", "hold", "watchdog")  #: what the robot is doing, in every ``state``
 EVENTS = ("watchdog_hold", "rejected", "started", "stopping")
 

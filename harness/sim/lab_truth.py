@@ -38,11 +38,12 @@ from dataclasses import dataclass
 import msgpack
 import numpy as np
 
+from robot_models.limits import MAX_JOINTS
+
 __all__ = ["MAX_JOINTS", "VERSION", "TruthError", "TruthPublisher", "TruthSample", "TruthSubscriber",
            "decode_truth", "encode_truth"]
 
 VERSION = 1
-MAX_JOINTS = 16  #: as the robot link's
 MAX_BALLS = 64
 _FIELDS = {"v", "t_ns", "q", "balls", "seq"}
 

@@ -196,3 +196,23 @@ def test_the_wam_config_in_code_equals_its_file():
     a, b = ArmKinematics.from_config(made), ArmKinematics.from_config(cfg)
     q = a.q_home
     np.testing.assert_array_equal(a.fk(q, "ball_mount"), b.fk(q, "ball_mount"))
+
+
+@pytest.mark.parametrize("n, refused", [(16, False), (17, True)])
+def test_an_arm_of_more_joints_than_the_link_carries_is_refused_by_its_file(tmp_path, n, refused):
+    """urdf_chain, which every reader of an arm uses (ArmKinematics, JointLimits), refuses a chain longer than
+    MAX_JOINTS, naming the file: the robot link and the lab truth stream carry no more."""
+    from robot_models.limits import MAX_JOINTS, urdf_chain
+
+    links = "".join(f'<link name="l{i}"/>' for i in range(n + 1))
+    joints = "".join(f'<joint name="j{i}" type="revolute"><parent link="l{i}"/><child link="l{i + 1}"/>'
+                     f'<origin xyz="0 0 0.1"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" velocity="1" effort="1"/></joint>'
+                     for i in range(n))
+    urdf = tmp_path / "long.urdf"
+    urdf.write_text(f'<robot name="long">{links}{joints}</robot>')
+    assert MAX_JOINTS == 16
+    if refused:
+        with pytest.raises(ValueError, match=rf"long.urdf: 17 movable joints .* at most 16"):
+            urdf_chain(urdf, "l0", f"l{n}")
+    else:
+        assert len(urdf_chain(urdf, "l0", f"l{n}")) == 16
