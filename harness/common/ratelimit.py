@@ -44,10 +44,10 @@ class RateLimit:
             self._counts[self.kind(reason)] += 1
             return False
 
-    def _roll(self) -> None:
-        """At the end of a period: the summary of its suppressed reports waits for :meth:`summary`."""
+    def _roll(self, force: bool = False) -> None:
+        """At the end of a period (or now, ``force``): the summary of its suppressed reports waits for :meth:`summary`."""
         now = self._clock()
-        if now - self._window < self.period_s:
+        if not force and now - self._window < self.period_s:
             return
         counts, elapsed = self._counts, now - self._window
         self._counts, self._window, self._in_window = collections.Counter(), now, 0
@@ -61,6 +61,14 @@ class RateLimit:
         """The summary of the suppressed reports once their period has passed (then None until the next)."""
         with self._lock:
             self._roll()
+            out, self._ready = self._ready, None
+            return out
+
+    def flush(self) -> str | None:
+        """The summary of every suppressed report not summarised yet, its period over or not (at shutdown: none
+        counted goes unreported); None when there is none."""
+        with self._lock:
+            self._roll(force=True)
             out, self._ready = self._ready, None
             return out
 

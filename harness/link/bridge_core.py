@@ -164,6 +164,9 @@ class BridgeCore:
         self._intake_stop.set()
         if self._intake is not None and self._intake is not threading.current_thread():
             self._intake.join(timeout=2.0)
+        rest = self.rejects.flush()  # rejections of the last period, whose summary the control loop had not written yet
+        if rest:
+            log.warning("rejected: %s", rest)
         if self._intake is None or not self._intake.is_alive():
             self._router.close(linger=0)
             self._intake_end.close(linger=0)

@@ -123,6 +123,18 @@ def test_reject_log_counts_per_reason_beyond_its_burst():
     assert rl.summary().startswith("1 more messages rejected in 1.5 s: 1 x w")
 
 
+def test_reject_log_flush_reports_what_the_last_period_counted():
+    """At shutdown the bridge flushes the counts whose period has not passed (a stop right after a flood lost them)."""
+    now = [0.0]
+    rl = RateLimit(burst=2, period_s=1.0, clock=lambda: now[0])
+    for i in range(6):
+        rl.note(f"bad frame {i}")
+    now[0] = 0.4
+    assert rl.summary() is None  # the period is not over
+    assert rl.flush().startswith("4 more messages rejected in 0.4 s: 4 x bad frame N")
+    assert rl.flush() is None and rl.summary() is None  # reported once
+
+
 @pytest.mark.realtime
 def test_a_flooding_peer_does_not_cut_off_a_good_client():
     with BridgeProcess("--batch", "1") as bridge:
