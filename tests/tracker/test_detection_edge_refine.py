@@ -153,3 +153,34 @@ def test_a_bad_refine_edges_option_is_refused():
 
     with pytest.raises(ValueError, match="refine_edges"):
         DetectorOptions(refine_edges="yes")
+
+
+def test_the_grey_window_is_opencvs_grey_pyramid_and_smoothing():
+    """The window's grey and pyramid levels are OpenCV's to the bit (integer arithmetic), its smoothing OpenCV's
+    Gaussian to float rounding; the compiled window is the reference's."""
+    import cv2
+
+    from tracker.detection.edge_refine import _gauss_taps, _pyr_down_reference, _window_nb, window_of
+
+    rng = np.random.default_rng(11)
+    for h, w in [(57, 43), (10, 11), (8, 8), (33, 64), (2, 5)]:
+        rgb = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        r, g, b = (rgb[..., i].astype(np.int64) for i in range(3))
+        np.testing.assert_array_equal((r * 9798 + g * 19235 + b * 3735 + (1 << 14)) >> 15, gray)
+        if min(h, w) >= 8:
+            np.testing.assert_array_equal(_pyr_down_reference(gray.astype(np.int64)), cv2.pyrDown(gray))
+    img, c = _ball_image(rng, size_hw=(200, 240), diameter=40.0, center=(120, 100))
+    for d in (6.0, 20.0, 40.0, 90.0):  # no pyramid, no pyramid, one level, two levels
+        ref = window_of(img, c[0], c[1], d)
+        has, gray, x0, y0, scale = _window_nb(img, c[0], c[1], d)
+        assert has and (x0, y0, scale) == ref[1:]
+        np.testing.assert_array_equal(gray, ref[0])
+        x0, y0 = ref[1], ref[2]
+        r = int(np.ceil(2.5 * 0.5 * d + 3.0))
+        level = cv2.cvtColor(np.ascontiguousarray(img[y0:int(c[1]) + r + 2, x0:int(c[0]) + r + 2]), cv2.COLOR_RGB2GRAY)
+        for _ in range(int(np.log2(scale))):
+            level = cv2.pyrDown(level)
+        sigma = max(0.6, 0.08 * d / scale)
+        k = len(_gauss_taps(sigma))
+        np.testing.assert_allclose(ref[0], cv2.GaussianBlur(level.astype(np.float32), (k, k), sigma), atol=2e-3)

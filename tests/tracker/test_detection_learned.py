@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tracker import BallDetector, BallSegmentationModel, DetectorOptions
-from tracker.detection.learned import LEARNED_FIELDS, LearnedStage, decode_heatmap, learned_scale
+from tracker.detection.learned import LEARNED_FIELDS, LearnedStage, decode_heatmap, decode_placed, learned_scale
 
 torch = pytest.importorskip("torch", reason="the tiny test network is exported from torch (rt2[train])")
 
@@ -207,6 +207,28 @@ def test_the_compiled_heatmap_decoder_agrees_with_the_numpy_reference():
         np.testing.assert_allclose(a[2], b[2], rtol=1e-12)
     with pytest.raises(ValueError, match="backend"):
         decode_heatmap(out, 0.0, 1, 4, backend="torch")
+
+
+def test_the_compiled_placement_of_candidates_agrees_with_the_numpy_reference():
+    """Random maps placed at random scales and corners, kept in random boxes (some empty, some cutting peaks off),
+    k below and above the peaks found: the same candidates, order and values as the numpy steps."""
+    rng = np.random.default_rng(4)
+    for trial in range(400):
+        h, w = (int(v) for v in rng.integers(1, 30, 2))
+        out = (2 * rng.standard_normal((4, h, w))).astype(np.float32)
+        stride = int(rng.choice([2, 4, 8]))
+        sx, sy = (1.0, 1.0) if trial % 2 else tuple(float(v) for v in rng.uniform(0.5, 3.0, 2))
+        bx0, by0 = (int(v) for v in rng.integers(0, 50, 2)) if trial % 3 else (0, 0)
+        x0, y0 = int(rng.integers(0, 60)), int(rng.integers(0, 60))
+        box = (x0, y0, x0 + int(rng.integers(0, 120)), y0 + int(rng.integers(0, 120)))
+        th, k = float(rng.uniform(-2, 3)), int(rng.integers(1, 6))
+        kk = int(rng.integers(k, 4 * k + 1))
+        a = decode_placed(out, th, kk, stride, (sx, sy, bx0, by0), box, k, backend="numpy")
+        b = decode_placed(out, th, kk, stride, (sx, sy, bx0, by0), box, k)
+        assert len(a[1]) <= k and np.array_equal(a[0], b[0]) and np.array_equal(a[2], b[2]), trial
+        np.testing.assert_allclose(a[1], b[1], rtol=1e-15)  # probabilities: numpy's exp and the compiled one
+    with pytest.raises(ValueError, match="backend"):
+        decode_placed(out, 0.0, 1, 4, (1, 1, 0, 0), (0, 0, 9, 9), 1, backend="torch")
 
 
 def test_full_frames_take_the_coarse_pass_only_where_it_removes_most_pixels(bright_spot_onnx, monkeypatch):

@@ -244,22 +244,25 @@ class BallDetector:
         o = self.options
         uv, scores, d = self.learned.candidates(image, window, k=o.max_seeds if o.min_area_px or o.max_area_px else o.max_candidates,
                                                 threshold=o.learned_threshold, frame_shape=frame_shape)
+        if len(d) == 0:
+            return Detections.empty(window is not None)
         areas = np.pi / 4 * d * d
-        if len(d):
-            keep = (areas >= self.area_range_px[0]) & (areas <= self.area_range_px[1])  # a NaN diameter is never kept
-            if not keep.all():
-                uv, scores, d, areas = uv[keep], scores[keep], d[keep], areas[keep]
-            if len(d) > o.max_candidates:
-                m = o.max_candidates
-                uv, scores, d, areas = uv[:m], scores[:m], d[:m], areas[:m]
-        if len(uv) and self.learned.filter_refines:
+        lo, hi = self.area_range_px
+        keep = (areas >= lo) & (areas <= hi)  # a NaN diameter is never kept
+        if not keep.all():
+            uv, scores, d, areas = uv[keep], scores[keep], d[keep], areas[keep]
+        if len(d) > o.max_candidates:
+            m = o.max_candidates
+            uv, scores, d, areas = uv[:m], scores[:m], d[:m], areas[:m]
+        if len(d) and self.learned.filter_refines:
             if o.refine_with_filter:
                 uv = self._refined(image, uv, d)
-        elif len(uv) and o.refine_edges:  # the filter does not see this ball: its edge gives the centre
+        elif len(d) and o.refine_edges:  # the filter does not see this ball: its edge gives the centre
             uv = refine_edges(image, uv, d)[0]  # (the diameter stays the network's: tracker.detection.edge_refine)
         boxes = np.empty((len(d), 4))
         boxes[:, :2] = uv + 0.5 - 0.5 * d[:, None]
-        boxes[:, 2] = boxes[:, 3] = d
+        boxes[:, 2] = d
+        boxes[:, 3] = d
         return Detections(uv, scores, boxes, np.rint(areas).astype(np.int64), window is not None)
 
     def _refined(self, image, uv, d) -> np.ndarray:

@@ -71,26 +71,92 @@ def _bilinear(gray, x, y):
     return (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
 
 
-def window_of(image: np.ndarray, u: float, v: float, diameter: float):
-    """The smoothed grey window the rays of a candidate at (u, v) of ``diameter`` px are cast in, both passes:
-    ``(gray (h, w) float32, x0, y0, scale)``: the window's pixel (x, y) is the image's ``(x0 + scale x, y0 + scale y)``;
-    None where the window is empty. Grey = OpenCV's luminance; a ball wider than ``PYRAMID_PX`` is looked at in a
-    pyramid level (``cv2.pyrDown``, ``scale`` = 2 or 4 ...) where it is about that wide, then smoothed by a Gaussian
-    of ``max(0.6, SMOOTH x its diameter there)`` px."""
-    h, w = image.shape[:2]
+def _window_box(h: int, w: int, u: float, v: float, diameter: float):
+    """The image box ``(x0, y0, x1, y1)`` of a candidate's grey window (module docstring, step 1)."""
     r = int(math.ceil(2.5 * 0.5 * diameter + 3.0))
     x0, y0 = max(int(math.floor(u)) - r, 0), max(int(math.floor(v)) - r, 0)
     x1, y1 = min(int(math.floor(u)) + r + 2, w), min(int(math.floor(v)) + r + 2, h)
+    return x0, y0, x1, y1
+
+
+@numba.njit(cache=True, nogil=True)
+def _reflect101(p, n):
+    """OpenCV's BORDER_REFLECT_101 index of ``p`` in ``[0, n)`` (reflected as often as it takes; compiled, the
+    reference's and the kernel's)."""
+    if n == 1:
+        return 0
+    while p < 0 or p >= n:
+        p = -p if p < 0 else 2 * n - 2 - p
+    return p
+
+
+@numba.njit(cache=True, nogil=True)
+def _gauss_taps(sigma):
+    """The Gaussian's taps to 2.5 sigma, normalised (float64): half the time of OpenCV's default 4 sigma (compiled,
+    the reference's and the kernel's)."""
+    k = 2 * int(math.ceil(2.5 * sigma)) + 1
+    taps = np.empty(k)
+    total = 0.0
+    for t in range(k):
+        x = t - (k - 1) // 2
+        taps[t] = math.exp(-(x * x) / (2.0 * sigma * sigma))
+        total += taps[t]
+    for t in range(k):
+        taps[t] /= total
+    return taps
+
+
+def window_of(image: np.ndarray, u: float, v: float, diameter: float):
+    """The smoothed grey window the rays of a candidate at (u, v) of ``diameter`` px are cast in, both passes:
+    ``(gray (h, w) float64, x0, y0, scale)``: the window's pixel (x, y) is the image's ``(x0 + scale x, y0 + scale y)``;
+    None where the window is empty. Grey = OpenCV's luminance (``COLOR_RGB2GRAY``'s integer arithmetic); a ball wider
+    than ``PYRAMID_PX`` is looked at in a pyramid level (``cv2.pyrDown``'s, ``scale`` = 2 or 4 ...) where it is about
+    that wide, then smoothed by a Gaussian of ``max(0.6, SMOOTH x its diameter there)`` px (separable, float64, borders
+    reflected as OpenCV's default). The numpy reference of :func:`_window_nb` (the same arithmetic in the same order;
+    grey and pyramid are OpenCV's to the bit, a test checks)."""
+    h, w = image.shape[:2]
+    x0, y0, x1, y1 = _window_box(h, w, u, v, diameter)
     if x1 - x0 < 2 or y1 - y0 < 2:
         return None
-    gray = cv2.cvtColor(np.ascontiguousarray(image[y0:y1, x0:x1]), cv2.COLOR_RGB2GRAY)
+    rgb = image[y0:y1, x0:x1].astype(np.int64)
+    gray = (rgb[..., 0] * GRAY_R + rgb[..., 1] * GRAY_G + rgb[..., 2] * GRAY_B + (1 << (GRAY_SHIFT - 1))) >> GRAY_SHIFT
     scale = 1
     while diameter / scale >= 2 * PYRAMID_PX and min(gray.shape) >= 8:
-        gray = cv2.pyrDown(gray)
+        gray = _pyr_down_reference(gray)
         scale *= 2
-    sigma = max(0.6, SMOOTH * diameter / scale)
-    k = 2 * int(math.ceil(2.5 * sigma)) + 1  # the Gaussian to 2.5 sigma: half the time of OpenCV's default 4 sigma
-    return cv2.GaussianBlur(gray.astype(np.float32), (k, k), sigma), x0, y0, scale
+    taps = _gauss_taps(max(0.6, SMOOTH * diameter / scale))
+    return _blur_reference(gray.astype(np.float64), taps), x0, y0, scale
+
+
+#: OpenCV's RGB -> grey in integers: (R 9798 + G 19235 + B 3735 + 2^14) >> 15
+GRAY_R, GRAY_G, GRAY_B, GRAY_SHIFT = 9798, 19235, 3735, 15
+_PYR_TAPS = (1, 4, 6, 4, 1)
+
+
+def _pyr_down_reference(gray):
+    """``cv2.pyrDown`` of an integer image: the 5x5 binomial, (sum + 128) >> 8, every second pixel."""
+    h, w = gray.shape
+    oh, ow = (h + 1) // 2, (w + 1) // 2
+    rows = np.array([[_reflect101(2 * i + a - 2, h) for a in range(5)] for i in range(oh)])
+    cols = np.array([[_reflect101(2 * j + b - 2, w) for b in range(5)] for j in range(ow)])
+    acc = np.zeros((oh, ow), np.int64)
+    for a in range(5):
+        for b in range(5):
+            acc += _PYR_TAPS[a] * _PYR_TAPS[b] * gray[rows[:, a]][:, cols[:, b]]
+    return (acc + 128) >> 8
+
+
+def _blur_reference(gray, taps):
+    """Separable smoothing of a float64 image by ``taps``: along rows, then columns, each sum in tap order."""
+    h, w = gray.shape
+    c = (len(taps) - 1) // 2
+    tmp = np.zeros((h, w))
+    for t in range(len(taps)):
+        tmp = tmp + taps[t] * gray[:, [_reflect101(x + t - c, w) for x in range(w)]]
+    out = np.zeros((h, w))
+    for t in range(len(taps)):
+        out = out + taps[t] * tmp[[_reflect101(y + t - c, h) for y in range(h)], :]
+    return out
 
 
 def _seq_sum(x) -> float:
@@ -150,6 +216,12 @@ def refine_edges_reference(image: np.ndarray, uv_px: np.ndarray, diameter_px: np
     return _refine(image, uv_px, diameter_px, _one_pass)
 
 
+@numba.njit(cache=True, nogil=True)
+def _fittable(u, v, d):
+    """Whether a candidate is fitted at all: a finite centre, a finite diameter in the fitted range."""
+    return math.isfinite(u) and math.isfinite(v) and math.isfinite(d) and MIN_DIAMETER_PX <= d <= MAX_DIAMETER_PX
+
+
 def _refine(image, uv_px, diameter_px, one_pass):
     """The passes of the module docstring over every candidate, each pass in its own window (:func:`window_of` of
     the previous pass's centre and diameter), with ``one_pass(gray, u, v, r) -> (a, b, radius) | None``."""
@@ -158,7 +230,7 @@ def _refine(image, uv_px, diameter_px, one_pass):
     ok = np.zeros(len(d), bool)
     for i in range(len(d)):
         u0, v0, d0 = uv[i, 0], uv[i, 1], d[i]
-        if not (math.isfinite(u0) and math.isfinite(v0) and math.isfinite(d0) and MIN_DIAMETER_PX <= d0 <= MAX_DIAMETER_PX):
+        if not _fittable(u0, v0, d0):
             continue
         r0, u, v, dd = 0.5 * d0, u0, v0, d0
         good = True
@@ -306,14 +378,99 @@ _ANGLES = 2.0 * np.pi * np.arange(N_RAYS) / N_RAYS
 _COS, _SIN = np.cos(_ANGLES), np.sin(_ANGLES)
 
 
-def _one_pass_compiled(gray, u, v, r):
-    fit, a, b, rr = _one_pass_nb(gray, u, v, r, _COS, _SIN)
-    return (a, b, rr) if fit else None
+@numba.njit(cache=True, nogil=True)
+def _window_nb(image, u, v, diameter):
+    """:func:`window_of` compiled: ``(ok, gray, x0, y0, scale)``."""
+    h, w = image.shape[0], image.shape[1]
+    r = int(math.ceil(2.5 * 0.5 * diameter + 3.0))
+    x0, y0 = max(int(math.floor(u)) - r, 0), max(int(math.floor(v)) - r, 0)
+    x1, y1 = min(int(math.floor(u)) + r + 2, w), min(int(math.floor(v)) + r + 2, h)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return False, np.empty((0, 0)), x0, y0, 1
+    gh, gw = y1 - y0, x1 - x0
+    gray = np.empty((gh, gw), np.int64)
+    half = 1 << (GRAY_SHIFT - 1)
+    for y in range(gh):
+        for x in range(gw):
+            gray[y, x] = (np.int64(image[y0 + y, x0 + x, 0]) * GRAY_R + np.int64(image[y0 + y, x0 + x, 1]) * GRAY_G
+                          + np.int64(image[y0 + y, x0 + x, 2]) * GRAY_B + half) >> GRAY_SHIFT
+    scale = 1
+    while diameter / scale >= 2 * PYRAMID_PX and min(gh, gw) >= 8:
+        oh, ow = (gh + 1) // 2, (gw + 1) // 2
+        down = np.empty((oh, ow), np.int64)
+        for i in range(oh):
+            for j in range(ow):
+                acc = np.int64(0)
+                for a in range(5):
+                    yy = _reflect101(2 * i + a - 2, gh)
+                    for b in range(5):
+                        acc += _PYR_TAPS_NB[a] * _PYR_TAPS_NB[b] * gray[yy, _reflect101(2 * j + b - 2, gw)]
+                down[i, j] = (acc + 128) >> 8
+        gray, gh, gw = down, oh, ow
+        scale *= 2
+    taps = _gauss_taps(max(0.6, SMOOTH * diameter / scale))
+    k = len(taps)
+    c = (k - 1) // 2
+    tmp = np.empty((gh, gw))
+    for y in range(gh):
+        for x in range(gw):
+            acc = 0.0
+            for t in range(k):
+                acc += taps[t] * float(gray[y, _reflect101(x + t - c, gw)])
+            tmp[y, x] = acc
+    out = np.empty((gh, gw))
+    for y in range(gh):
+        for x in range(gw):
+            acc = 0.0
+            for t in range(k):
+                acc += taps[t] * tmp[_reflect101(y + t - c, gh), x]
+            out[y, x] = acc
+    return True, out, x0, y0, scale
+
+
+_PYR_TAPS_NB = np.array(_PYR_TAPS, np.int64)
+
+
+@numba.njit(cache=True, nogil=True)
+def _refine_nb(image, uv, d, ca, sa):
+    """:func:`_refine` compiled, windows included: ``uv`` and ``d`` (copies) refined in place; returns the flags."""
+    n = len(d)
+    ok = np.zeros(n, np.bool_)
+    for i in range(n):
+        u0, v0, d0 = uv[i, 0], uv[i, 1], d[i]
+        if not _fittable(u0, v0, d0):
+            continue
+        r0, u, v, dd = 0.5 * d0, u0, v0, d0
+        good = True
+        for _ in range(PASSES):
+            has, gray, x0, y0, sc = _window_nb(image, u, v, dd)
+            if not has:
+                good = False
+                break
+            fit, fa, fb, fr = _one_pass_nb(gray, (u - x0) / sc, (v - y0) / sc, 0.5 * dd / sc, ca, sa)
+            if not fit:
+                good = False
+                break
+            a, b, rr = x0 + sc * fa, y0 + sc * fb, sc * fr
+            if not (0.5 * r0 <= rr <= 1.5 * r0) or math.hypot(a - u0, b - v0) > r0:
+                good = False
+                break
+            u, v, dd = a, b, 2.0 * rr
+        if good:
+            uv[i, 0], uv[i, 1] = u, v
+            d[i] = dd
+            ok[i] = True
+    return ok
 
 
 def refine_edges(image: np.ndarray, uv_px: np.ndarray, diameter_px: np.ndarray):
-    """:func:`refine_edges_reference` with the rays and the fit compiled (numba): the same results, faster."""
-    return _refine(image, uv_px, diameter_px, _one_pass_compiled)
+    """:func:`refine_edges_reference` compiled (numba), windows, rays and fit in one call: the same results, faster."""
+    uv = np.array(uv_px, np.float64).reshape(-1, 2)
+    d = np.array(diameter_px, np.float64).reshape(-1)
+    if len(d) == 0:
+        return uv, d, np.zeros(0, bool)
+    ok = _refine_nb(image, uv, d, _COS, _SIN)
+    return uv, d, ok
 
 
 key_cache_on_callees(globals())  # an edit of a helper or a constant recompiles the kernels

@@ -39,7 +39,7 @@ import numpy as np
 from checks.numba_cache import key_cache_on_callees
 from checks.per_thread import PerThread
 
-__all__ = ["LearnedStage", "LEARNED_FIELDS", "decode_heatmap", "learned_scale"]
+__all__ = ["LearnedStage", "LEARNED_FIELDS", "decode_heatmap", "decode_placed", "learned_scale"]
 
 #: the model file's fields of this stage (all or none)
 LEARNED_FIELDS = ("learned_onnx", "learned_stride", "learned_max_side_px", "learned_threshold", "learned_diameter_range_px",
@@ -131,6 +131,63 @@ def _decode_numba(out, th, k, stride):
     return uv, sc, d
 
 
+def decode_placed(out: np.ndarray, threshold_logit: float, kk: int, stride: int, placement, box, k: int, backend: str = "numba"):
+    """Candidates of one network output placed in the image: :func:`decode_heatmap`'s best ``kk`` peaks, moved from
+    the network's pixels to the image's and kept where their centre lies in ``box``, at most ``k`` of them.
+
+    placement : ``(sx, sy, bx0, by0)``: a network pixel's size in image pixels and the image pixel of the network
+        input's corner (pixel centres: ``u_img + 0.5 = (u_net + 0.5) sx + bx0``); diameters scale by ``(sx + sy) / 2``
+    box : ``(x0, y0, x1, y1)``: only centres inside it are kept (``x0 - 0.5 < u < x1 - 0.5``, same for v)
+    backend : "numba" (one compiled call: a window search's post-processing in a few microseconds) or "numpy" (the
+        reference; tests check they agree)
+    returns (uv (n, 2) image pixels, scores (n,) heat probabilities, diameters (n,) image pixels), best first
+    """
+    sx, sy, bx0, by0 = placement
+    x0, y0, x1, y1 = box
+    if backend == "numba":
+        return _decode_placed_numba(out if out.dtype == np.float32 and out.flags.c_contiguous else np.ascontiguousarray(out, dtype=np.float32),
+                                    np.float32(threshold_logit), int(kk), float(stride), float(sx), float(sy), float(bx0), float(by0),
+                                    int(x0), int(y0), int(x1), int(y1), int(k))
+    if backend != "numpy":
+        raise ValueError(f"backend must be 'numba' or 'numpy', got {backend!r}")
+    uv, heat, d = decode_heatmap(out, threshold_logit, kk, stride, backend="numpy")
+    sx, sy = float(sx), float(sy)
+    if sx != 1.0 or sy != 1.0:
+        uv[:, 0] = (uv[:, 0] + 0.5) * sx - 0.5
+        uv[:, 1] = (uv[:, 1] + 0.5) * sy - 0.5
+        d *= 0.5 * (sx + sy)
+    if bx0 or by0:
+        uv[:, 0] += float(bx0)
+        uv[:, 1] += float(by0)
+    inside = (uv[:, 0] > x0 - 0.5) & (uv[:, 0] < x1 - 0.5) & (uv[:, 1] > y0 - 0.5) & (uv[:, 1] < y1 - 0.5)
+    heat = heat[inside][:k]
+    return uv[inside][:k], 1.0 / (1.0 + np.exp(-heat)), d[inside][:k]
+
+
+@numba.njit(cache=True, nogil=True)
+def _decode_placed_numba(out, th, kk, stride, sx, sy, bx0, by0, x0, y0, x1, y1, k):
+    """:func:`decode_placed` compiled: the same arithmetic in the same order."""
+    uv, sc, d = _decode_numba(out, th, kk, stride)
+    scaled = sx != 1.0 or sy != 1.0
+    f = 0.5 * (sx + sy)
+    n = 0
+    for j in range(len(sc)):
+        if n == k:
+            break
+        u, v, dj = uv[j, 0], uv[j, 1], d[j]
+        if scaled:
+            u = (u + 0.5) * sx - 0.5
+            v = (v + 0.5) * sy - 0.5
+            dj = dj * f
+        if bx0 != 0.0 or by0 != 0.0:
+            u += bx0
+            v += by0
+        if u > x0 - 0.5 and u < x1 - 0.5 and v > y0 - 0.5 and v < y1 - 0.5:
+            uv[n, 0], uv[n, 1], sc[n], d[n] = u, v, 1.0 / (1.0 + math.exp(-sc[j])), dj
+            n += 1
+    return uv[:n], sc[:n], d[:n]
+
+
 @dataclass(frozen=True, eq=False)
 class LearnedStage:
     """The heatmap network of a model file and how to run it.
@@ -202,8 +259,7 @@ class LearnedStage:
     # -- inference -------------------------------------------------------------------------------
     def run(self, image: np.ndarray) -> np.ndarray:
         """(4, h, w) float32 network output of an (H, W, 3) uint8 RGB image at the network's scale (no resizing)."""
-        sess = self._sessions.get()
-        return sess.run(None, {"image": np.ascontiguousarray(image)[None]})[0][0]
+        return self._sessions.get().run(None, {"image": np.ascontiguousarray(image)[None]})[0][0]
 
     def scale_of(self, height: int, width: int) -> float:
         return learned_scale(height, width, self.max_side_px)
@@ -307,21 +363,7 @@ class LearnedStage:
         if ph or pw:
             crop = cv2.copyMakeBorder(crop, 0, ph, 0, pw, cv2.BORDER_REFLECT_101 if min(ch, cw) > 1 else cv2.BORDER_REPLICATE)
         kk = 4 * k if window is not None else k  # some peaks of the context may fall outside the window
-        uv, heat, d = decode_heatmap(self.run(crop), th, kk, st)
-        if len(heat) == 0:
-            return uv, heat, d
-        # network pixels -> image pixels (pixel centres: u_img + 0.5 = (u_net + 0.5) * sx + bx0); in place (uv is new)
-        if sx != 1.0 or sy != 1.0:
-            uv[:, 0] = (uv[:, 0] + 0.5) * sx - 0.5
-            uv[:, 1] = (uv[:, 1] + 0.5) * sy - 0.5
-            d *= 0.5 * (sx + sy)
-        if bx0 or by0:
-            uv[:, 0] += bx0
-            uv[:, 1] += by0
-        inside = (uv[:, 0] > x0 - 0.5) & (uv[:, 0] < x1 - 0.5) & (uv[:, 1] > y0 - 0.5) & (uv[:, 1] < y1 - 0.5)
-        if window is not None or not inside.all():
-            uv, heat, d = uv[inside][:k], heat[inside][:k], d[inside][:k]
-        return uv, 1.0 / (1.0 + np.exp(-heat)), d
+        return decode_placed(self.run(crop), th, kk, st, (sx, sy, bx0, by0), (x0, y0, x1, y1), k)
 
     # -- files (fields of the model's .npz) ----------------------------------------------------------
     def to_fields(self) -> dict:

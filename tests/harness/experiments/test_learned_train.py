@@ -54,6 +54,34 @@ def test_the_same_seed_gives_the_same_network_bytes(synthetic_ball_coco):
     assert a == b and a != c
 
 
+def test_the_exported_graph_computes_the_torch_network():
+    """The deployed ONNX graph (normalisation folded, head split) gives the torch module's output, both layouts,
+    frames with odd and even cell counts; its initializers are the state dict as it was."""
+    from harness.experiments.detector.learned_train import ARCHS, build_net, export_onnx, state_of_onnx
+    from tracker.detection.learned import LearnedStage
+
+    pytest.importorskip("onnx", reason="the export writes the graph with the onnx package (rt2[train])")
+    rng = np.random.default_rng(0)
+    for arch in ARCHS:
+        torch.manual_seed(1)
+        net = build_net(torch, arch=arch).eval()
+        with torch.no_grad():
+            for p in net.parameters():  # away from the initial head bias: every weight matters
+                p.add_(0.1 * torch.randn_like(p))
+        onnx_bytes = export_onnx(torch, net)
+        stage = LearnedStage(onnx_bytes)
+        for shape in [(36, 52), (44, 60), (80, 80), (52, 28), (240, 320)]:
+            img = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)
+            with torch.no_grad():
+                ref = net(torch.from_numpy(img[None])).numpy()[0]
+            out = stage.run(img)
+            assert out.shape == ref.shape, (arch, shape)
+            np.testing.assert_allclose(out, ref, atol=2e-5, err_msg=f"{arch} {shape}")
+        back = state_of_onnx(onnx_bytes)
+        assert set(back) == set(net.state_dict())
+        assert all(torch.equal(back[k], v) for k, v in net.state_dict().items())
+
+
 def test_both_network_layouts_export_and_fine_tuning_keeps_the_layout_it_starts_from(synthetic_ball_coco):
     """s8 and s16 run on frames whose size is a whole number of cells but not of stride-16 cells; a stage of
     either layout fine-tunes (its state read back from the ONNX bytes) into a network of the same layout."""
