@@ -101,6 +101,10 @@ class TrackerOptions:
         left; windows then fall back to the full frame, like any unconfirmed estimate). Blob width =
         ``sqrt(4 area / pi) + blob_edge_px``; on true balls the ratio is ~1 (median 0.98, at most 1.28
         over 3 x 1500 rendered lab4_vga frame sets). None = off
+    model_size_ratio : the size test's threshold is raised to what the model's learned stage records it needs
+        (``LearnedStage.size_ratio``, the spread of its diameters: a network's diameter spreads wider than a
+        blob's; the shipped white stage: 1.54); False = ``max_size_ratio`` as it is. Models without that record
+        (the filter's, and stages trained before it) are tested at ``max_size_ratio``
     ball_radius_m : the ball's radius for the size test, metres (0.02 = a 40 mm ball)
     blob_edge_px : the detector's edge loss for the size test, pixels: a ball's blob is this much
         narrower than the ball (its rim stays under ``T_l``), nearly whatever its size. None = the
@@ -144,6 +148,7 @@ class TrackerOptions:
     threads_for_roi: bool = False
     eps_px: float | None = None
     max_size_ratio: float | None = 1.3
+    model_size_ratio: bool = True
     ball_radius_m: float = 0.02
     blob_edge_px: float | None = None
     handover_max_age_s: float | None = 0.25
@@ -155,7 +160,7 @@ class TrackerOptions:
     def __post_init__(self):
         if self.roi is not None and not isinstance(self.roi, (bool, np.bool_)):
             raise ValueError(f"TrackerOptions.roi must be True, False or None, got {self.roi!r}")
-        for name in ("retry_full_frame", "threads_for_roi", "size_from_rig", "full_frame_pyramid"):
+        for name in ("retry_full_frame", "threads_for_roi", "size_from_rig", "full_frame_pyramid", "model_size_ratio"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"TrackerOptions.{name} must be True or False, got {getattr(self, name)!r}")
         g = self.max_gap_s

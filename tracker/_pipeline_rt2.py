@@ -29,7 +29,7 @@ from tracker.motion import MotionCue
 from tracker.observation import BallObservation, Status
 from tracker.rig import Rig
 from tracker.robust import RobustTriangulator
-from tracker.size_test import SizeTest
+from tracker.size_test import SizeTest, size_threshold
 
 __all__ = ["JUMP_M", "SegmentationEngine"]
 
@@ -83,7 +83,8 @@ class SegmentationEngine:
             )
         self._motion = MotionPredictor(rig, options.max_gap_s)
         self._retry_wait, self._retry_gap = 0, 1  # frame sets the next retry still waits; the wait after the next failed retry
-        self._size = SizeTest(rig, options.max_size_ratio if spec.extras else None, options.ball_radius_m,
+        self._size = SizeTest(rig, size_threshold(options.max_size_ratio, self.detector.size_ratio, options.model_size_ratio) if spec.extras else None,
+                              options.ball_radius_m,
                               self.detector.edge_loss_px if options.blob_edge_px is None else options.blob_edge_px)
         self.handover = None
         if spec.extras and options.handover_max_age_s is not None:

@@ -22,7 +22,7 @@ from tracker.pipeline import KINDS, TrackerOptions
 from tracker.handover import SupportHandover
 from tracker.observation import Status
 from tracker.robust import EstimateInfo, RobustOptions, RobustTriangulator
-from tracker.size_test import SizeTest
+from tracker.size_test import SizeTest, size_threshold
 
 __all__ = ["CandidateEstimator", "ESTIMATOR_KINDS"]
 
@@ -35,13 +35,14 @@ class CandidateEstimator:
 
     kind : one of :data:`ESTIMATOR_KINDS` ("rt2", "rt2-paper"); eps_px : the estimator's
         consistency threshold, pixels (None: ``RobustOptions.eps_px``); edge_px : the detector's edge loss
-        for the size test, pixels (the ``edge_loss_px`` of the model that made the candidates)
+        for the size test, pixels (the ``edge_loss_px`` of the model that made the candidates); size_ratio : the
+        size test's threshold that model records (``BallDetector.size_ratio``; None: the tracker's default)
     Attributes ``estimator``, ``size_test`` and ``handover`` (None unless ``rt2``) are the parts. A new
     recording takes a new CandidateEstimator; within one, a time that does not increase forgets the
     hand-over's history.
     """
 
-    def __init__(self, rig, kind: str = "rt2", *, eps_px: float | None = None, edge_px: float = 0.0):
+    def __init__(self, rig, kind: str = "rt2", *, eps_px: float | None = None, edge_px: float = 0.0, size_ratio: float | None = None):
         if kind not in ESTIMATOR_KINDS:
             raise ValueError(f"tracker {kind!r} has no robust estimator to re-run; valid: {sorted(ESTIMATOR_KINDS)}")
         self.kind = kind
@@ -49,7 +50,8 @@ class CandidateEstimator:
         self.estimator = RobustTriangulator(rig, options, method=KINDS[kind].estimator_method)
         defaults = TrackerOptions()
         extras = KINDS[kind].extras  # the size test's threshold and the hand-over: rt2's steps beyond the paper
-        self.size_test = SizeTest(rig, defaults.max_size_ratio if extras else None, defaults.ball_radius_m, edge_px)
+        self.size_test = SizeTest(rig, size_threshold(defaults.max_size_ratio, size_ratio, defaults.model_size_ratio) if extras else None,
+                                  defaults.ball_radius_m, edge_px)
         age = defaults.handover_max_age_s
         self.handover = (SupportHandover(self.estimator, len(rig), max_age_s=age)
                          if extras and age is not None else None)

@@ -26,7 +26,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["EdgeLossFit", "SizeTest", "fit_edge_loss"]
+__all__ = ["EdgeLossFit", "SizeTest", "fit_edge_loss", "size_threshold"]
+
+
+def size_threshold(max_ratio: float | None, model_ratio: float | None, use_model: bool = True) -> float | None:
+    """The size test's threshold: ``max_ratio`` (None: off), raised to ``model_ratio`` when ``use_model`` and the
+    model records one (a learned stage's ``size_ratio``: its diameters spread wider than a blob's)."""
+    if max_ratio is None or model_ratio is None or not use_model:
+        return max_ratio
+    return max(float(max_ratio), float(model_ratio))
 
 
 class SizeTest:

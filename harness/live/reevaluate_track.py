@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tracker import BallSegmentationModel, CandidateEstimator, FrameSet, Status
+from tracker import BallDetector, BallSegmentationModel, CandidateEstimator, FrameSet, Status
 
 __all__ = ["reevaluate_track", "run_reevaluate"]
 
@@ -66,7 +66,8 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto", decode_worker
         elif source == "detections":
             model = Path(tmp.name) / "model.npz"
             model.write_bytes(reader.attachment("model.npz"))
-            est = CandidateEstimator(rig, kind, eps_px=eps_px, edge_px=BallSegmentationModel.load(model).edge_loss_px)
+            det = BallDetector(BallSegmentationModel.load(model))  # as the tracker made them: its edge loss and size record
+            est = CandidateEstimator(rig, kind, eps_px=eps_px, edge_px=det.edge_loss_px, size_ratio=det.size_ratio)
             topics = [f"/tracker/{kind}/ball", "/camera/*/detections"]
         else:
             topics = [f"/tracker/{kind}/ball"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -100,6 +101,9 @@ def test_a_model_with_the_stage_saves_and_loads_the_same_bytes(tmp_path, tiny_on
         512, 0.3, (5.0, 30.0), 16, "test")
     img = np.random.default_rng(0).integers(0, 256, (96, 128, 3), dtype=np.uint8)
     np.testing.assert_array_equal(back.run(img), stage.run(img))
+    assert back.size_ratio is None  # optional: absent, the tracker's own size test
+    sized = dataclasses.replace(base, learned=dataclasses.replace(stage, size_ratio=1.54)).save(tmp_path / "s.npz")
+    assert BallSegmentationModel.load(sized).learned.size_ratio == 1.54
 
 
 def _write(tmp_path, base, tiny_onnx, change):
@@ -123,6 +127,10 @@ HOSTILE = [
     ("track threshold as text", lambda f: f.update(learned_track_threshold=np.array("low")), "learned_track_threshold"),
     ("track threshold out of (0, 1)", lambda f: f.update(learned_track_threshold=np.array(1.5)), "track_threshold"),
     ("track threshold as a vector", lambda f: f.update(learned_track_threshold=np.array([0.2, 0.3])), "learned_track_threshold"),
+    ("size ratio as text", lambda f: f.update(learned_size_ratio=np.array("wide")), "learned_size_ratio"),
+    ("size ratio below 1", lambda f: f.update(learned_size_ratio=np.array(0.8)), "size_ratio"),
+    ("size ratio not finite", lambda f: f.update(learned_size_ratio=np.array(np.nan)), "size_ratio"),
+    ("size ratio as a vector", lambda f: f.update(learned_size_ratio=np.array([1.5, 1.6])), "learned_size_ratio"),
     ("refine flag as a number", lambda f: f.update(learned_refine=np.array(1.0)), "learned_refine"),
     ("refine flag as a vector", lambda f: f.update(learned_refine=np.array([True, False])), "learned_refine"),
 ]
@@ -299,3 +307,44 @@ def test_an_aligned_window_gives_the_network_the_full_frames_input_and_output_in
         edge = 16  # cells: the network's reach (~64 of its pixels) from the box's edge
         if out.shape[1] > 2 * edge and out.shape[2] > 2 * edge:
             assert np.array_equal(out[:, edge:-edge, edge:-edge], inner[:, edge:-edge, edge:-edge])
+
+
+def test_the_size_test_takes_the_threshold_a_learned_stage_records(tmp_path, bright_spot_onnx):
+    """A stage whose diameters are 1.45x the ball's (the bright-spot network: always e^2 px) gives a position when
+    it records a size ratio of 1.54 (``TrackerOptions.model_size_ratio``, the default), none at the tracker's own 1.3
+    (``model_size_ratio=False``, or a stage without a record); the re-run estimator of logged candidates too."""
+    from tracker import CandidateEstimator, FrameSet, Rig, Tracker, TrackerOptions
+    from tracker.size_test import size_threshold
+
+    rig = Rig.load("data/rigs/lab4_vga.yaml")
+    X = np.mean(np.asarray(rig.workspace_m, float), axis=0)
+    uv = np.asarray(rig.project(X), float).reshape(len(rig), 2)
+    d_net = math.exp(2.0)
+    z_over_f = [float(c.depth(X[None])[0]) / (0.5 * (c.K[0, 0] + c.K[1, 1])) for c in rig]
+    radius = d_net * float(np.median(z_over_f)) / (2 * 1.45)  # the ball whose width the network overstates 1.45x
+    images = []
+    for cam, (u, v) in zip(rig, uv):
+        img = np.zeros((cam.image_size[1], cam.image_size[0], 3), np.uint8)
+        cx, cy = int(u) // 4 * 4, int(v) // 4 * 4  # the 4x4 cell holding the projection, white
+        img[cy:cy + 4, cx:cx + 4] = 255
+        images.append(img)
+    base = BallSegmentationModel.load("data/models/ball_seg_default.npz")
+    stage = LearnedStage(bright_spot_onnx, threshold=0.5, context_px=8)
+    paths = {}
+    for name, ratio in (("recorded", 1.54), ("none", None)):
+        paths[name] = dataclasses.replace(base, learned=dataclasses.replace(stage, size_ratio=ratio)).save(tmp_path / f"{name}.npz")
+    opts = dict(ball_radius_m=radius, size_from_rig=False, hypotheses=None, handover_max_age_s=None)
+
+    def position(model, **more):
+        with Tracker(rig, "rt2", model=model, options=TrackerOptions(**opts, **more)) as tracker:
+            return tracker.process(FrameSet(0.0, tuple(images), 0))
+
+    ok = position(paths["recorded"])
+    assert ok.status.has_position and np.linalg.norm(ok.position_m - X) < 0.02, ok
+    assert not position(paths["recorded"], model_size_ratio=False).status.has_position
+    assert not position(paths["none"]).status.has_position
+    assert size_threshold(1.3, 1.54) == 1.54 and size_threshold(1.3, 1.54, False) == 1.3
+    assert size_threshold(1.6, 1.54) == 1.6 and size_threshold(None, 1.54) is None and size_threshold(1.3, None) == 1.3
+    # the re-run estimator of logged candidates (rt2 track --rerun, rt2 accuracy's re-evaluation) takes the record too
+    assert CandidateEstimator(rig, "rt2", size_ratio=1.54).size_test.max_ratio == 1.54
+    assert CandidateEstimator(rig, "rt2").size_test.max_ratio == 1.3

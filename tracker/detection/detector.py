@@ -214,6 +214,12 @@ class BallDetector:
         the model's ``edge_loss_px`` for the filter's blobs, 0 for the learned stage (it reports the ball's diameter)."""
         return 0.0 if self.learned is not None else self.model.edge_loss_px
 
+    @property
+    def size_ratio(self) -> float | None:
+        """The 3D size test's threshold this detector's candidate widths need (``LearnedStage.size_ratio``), or None
+        (the tracker's own ``max_size_ratio``): the learned stage's record when it finds the candidates."""
+        return None if self.learned is None else self.learned.size_ratio
+
     # -- one image -------------------------------------------------------------------------------
     def detect(self, image: np.ndarray, window=None, frame_shape=None) -> Detections:
         """Ball candidates in one image, or in one box of it.

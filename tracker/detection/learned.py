@@ -206,6 +206,11 @@ class LearnedStage:
         Lower than ``threshold``, the single image's operating point: in a rig the robust consensus (three
         cameras that agree, the 3D size test) rejects a camera's false alarms, while a camera that misses the
         ball costs the frame set that camera's evidence
+    size_ratio : the 3D size test's threshold this stage's diameters need (None: the tracker's own): the 99th
+        percentile of its diameter / the ball's true diameter on semi-real frames of its training cameras, written
+        by ``rt2 train-shipped``. A network's diameter spreads wider than a blob's (the shipped white stage: median
+        1.00, 99th percentile 1.53 on its training cameras' balls), and a tracker whose size test stops at 1.3
+        rejects true positions (``TrackerOptions.model_size_ratio``)
     filter_refines : whether the model's 5x5 filter sees this stage's balls (it refines their centres,
         :class:`~tracker.detection.detector.DetectorOptions` ``refine_with_filter``); False where the file's
         filter is of another colour (the white model keeps the orange filter for ``rt2-paper``)
@@ -223,6 +228,7 @@ class LearnedStage:
     coarse_candidates: int = 8
     filter_refines: bool = True
     track_threshold: float | None = None
+    size_ratio: float | None = None
 
     def __post_init__(self):
         where = "LearnedStage"
@@ -248,6 +254,11 @@ class LearnedStage:
             if isinstance(t, bool) or not isinstance(t, (int, float, np.floating)) or not 0.0 < float(t) < 1.0:
                 raise ValueError(f"{where}: {name} must be a probability in (0, 1), got {t!r}")
             object.__setattr__(self, name, float(t))
+        r = self.size_ratio
+        if r is not None:
+            if isinstance(r, bool) or not isinstance(r, (int, float, np.floating, np.integer)) or not (math.isfinite(r) and 1.0 <= r <= 10.0):
+                raise ValueError(f"{where}: size_ratio must be None or a ratio in [1, 10], got {r!r}")
+            object.__setattr__(self, "size_ratio", float(r))
         d = np.asarray(self.diameter_range_px, np.float64).reshape(-1)
         if d.shape != (2,) or not np.isfinite(d).all() or not 0 < d[0] <= d[1]:
             raise ValueError(f"{where}: diameter_range_px must be [min, max] with 0 < min <= max, got {self.diameter_range_px!r}")
@@ -373,7 +384,8 @@ class LearnedStage:
                     learned_description=np.array(self.description),
                     learned_coarse=np.array([self.coarse_side_px, self.coarse_threshold, self.coarse_candidates], np.float64),
                     learned_refine=np.array(self.filter_refines),
-                    **({} if self.track_threshold is None else {"learned_track_threshold": np.array(self.track_threshold)}))
+                    **({} if self.track_threshold is None else {"learned_track_threshold": np.array(self.track_threshold)}),
+                    **({} if self.size_ratio is None else {"learned_size_ratio": np.array(self.size_ratio)}))
 
     @classmethod
     def from_fields(cls, data: dict, src: str) -> "LearnedStage | None":
@@ -411,6 +423,11 @@ class LearnedStage:
             if t.dtype.kind not in "f" or t.shape != ():
                 raise ValueError(f"{src}: field 'learned_track_threshold' must be a probability (a float), got dtype {t.dtype} shape {t.shape}")
             coarse["track_threshold"] = float(t)
+        if "learned_size_ratio" in data:  # optional: the size test's threshold the stage's diameters need (default: the tracker's)
+            r = data["learned_size_ratio"]
+            if r.dtype.kind not in "f" or r.shape != ():
+                raise ValueError(f"{src}: field 'learned_size_ratio' must be a ratio (a float), got dtype {r.dtype} shape {r.shape}")
+            coarse["size_ratio"] = float(r)
         try:
             stage = cls(onnx=onnx.tobytes(), stride=int(data["learned_stride"]), max_side_px=int(data["learned_max_side_px"]),
                         threshold=float(data["learned_threshold"]), diameter_range_px=tuple(np.asarray(data["learned_diameter_range_px"], float).reshape(-1)),

@@ -32,7 +32,7 @@ from harness.experiments.accuracy.config import AccuracyConfig
 from harness.experiments.accuracy.evaluate import TrackRecord, evaluate
 from harness.experiments.accuracy.trackers import DETECTION_SUFFIX, build_trackers
 from tracker import CandidateEstimator, FrameSet, Status
-from tracker.detection import BallSegmentationModel
+from tracker.detection import BallDetector, BallSegmentationModel
 
 __all__ = ["SOURCES", "Reevaluation", "reevaluate_accuracy"]
 
@@ -115,10 +115,11 @@ def reevaluate_accuracy(reader, *, trackers=None, eps_px=None, source: str = "au
                 spare = build_trackers(config.with_(trackers=tuple(wanted)), rig, model, session.get("rtblob_calibration"))
             how = {k: "re-run on the logged images" for k in wanted}
         else:
-            edge = _model_from_log(reader, Path(tmp)).edge_loss_px if any(k in DETECTION_SUFFIX for k in wanted) else 0.0
+            # the detector the trackers ran: its edge loss (0 for a learned stage) and its size test record
+            det = BallDetector(_model_from_log(reader, Path(tmp))) if any(k in DETECTION_SUFFIX for k in wanted) else None
             for k in wanted:
                 if k in DETECTION_SUFFIX:
-                    runners[k] = CandidateEstimator(rig, k, eps_px=config.eps_px, edge_px=edge)
+                    runners[k] = CandidateEstimator(rig, k, eps_px=config.eps_px, edge_px=det.edge_loss_px, size_ratio=det.size_ratio)
                     how[k] = "estimator, size test and support hand-over re-run on the logged detections"
                 else:
                     how[k] = "logged observations scored as recorded (no estimator to re-run without images)"

@@ -126,15 +126,45 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     truth = ([truth_of(li)[0] for _, li in val], [truth_of(li)[1] for _, li in val])
     cands = [stage.candidates(im, None, k=16, threshold=0.05)[:2] for im, _ in val]
     th, s = _best_threshold(truth, cands, 4, 6.0)
-    stage = dataclasses.replace(stage, threshold=th, track_threshold=min(th, TRACK_THRESHOLD), description=(
+    stage = dataclasses.replace(stage, threshold=th, track_threshold=min(th, TRACK_THRESHOLD))
+    size_note = ""
+    if colour == "white" and semireal_sets and semi:  # the 3D size test's threshold its diameters need, from its own frames
+        ratio, n = size_ratio_of(stage, semi)
+        if ratio is not None:
+            stage = dataclasses.replace(stage, size_ratio=ratio)
+            size_note = f"; size ratio {ratio:g} (99th percentile of its diameter / the true one, {n} semi-real training balls)"
+            log(f"size ratio {ratio:g}: the 99th percentile of the stage's diameter / the true diameter of {n} semi-real training balls")
+    stage = dataclasses.replace(stage, description=(
         f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps}` on " + "; ".join(sources)
         + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to {max_side} px, coarse pass at {max_side // 2} px, windows with {WINDOW_CONTEXT_PX} px of context; "
-        f"tracking threshold {min(th, TRACK_THRESHOLD):g}; threshold {th:g} chosen on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%"))
+        f"tracking threshold {min(th, TRACK_THRESHOLD):g}; threshold {th:g} chosen on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%"
+        + size_note))
     log(f"threshold {th:g} on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
         f"median {s.median_center_error_px:.2f} px")
     model = dataclasses.replace(base, learned=stage, ball_colour=colour if colour == "white" else base.ball_colour,
                                 description=base.description + f"; learned stage: {stage.description}")
     return model, dict(validation=s, threshold=th, sources=sources)
+
+
+def size_ratio_of(stage, frames) -> tuple[float | None, int]:
+    """The 3D size test's threshold ``stage``'s diameters need (``LearnedStage.size_ratio``): the 99th percentile of
+    its diameter / the true one over the balls of ``frames`` ((image, LabelledImage) pairs with exact square boxes:
+    the semi-real frames) that its best candidate within half a diameter finds at the tracking threshold, rounded up
+    to a hundredth; ``(None, n)`` with fewer than 50 such balls."""
+    ratios = []
+    for im, li in frames:
+        if len(li.centers_px) != 1:
+            continue
+        c, d_true = li.centers_px[0], float(li.boxes_xywh[0][2])
+        uv, _, d = stage.candidates(im, None, k=4, threshold=stage.track_threshold)
+        if len(uv):
+            dist = np.hypot(uv[:, 0] - c[0], uv[:, 1] - c[1])
+            j = int(np.argmin(dist))
+            if dist[j] <= 0.5 * d_true:
+                ratios.append(float(d[j]) / d_true)
+    if len(ratios) < 50:
+        return None, len(ratios)
+    return max(1.0, math.ceil(100.0 * float(np.percentile(ratios, 99)) - 1e-9) / 100.0), len(ratios)
 
 
 def _semireal(rally_range: str, n_sets: int, seed: int, log):

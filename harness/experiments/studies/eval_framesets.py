@@ -561,10 +561,14 @@ def run(args) -> int:
     done = scores[0].framesets if scores else 0
     if stopped:
         print(f"PARTIAL ({stopped[0]}): the figures of the {done} of {args.frames} frame sets that finished")
-    print(
-        f"rig {args.rig}: {done} random frame sets, seed {args.seed}; {args.ball_colour} balls; right = within {100 * args.tol_m:g} cm; "
-        f"rt2's max_size_ratio {args.max_size_ratio:g}"
-    )
+    recorded = None
+    if args.model:  # a learned stage's own record raises the size test's threshold (TrackerOptions.model_size_ratio)
+        from tracker import BallDetector, BallSegmentationModel
+
+        recorded = BallDetector(BallSegmentationModel.load(args.model)).size_ratio
+    size = f"rt2's max_size_ratio {args.max_size_ratio:g}" + (
+        f" (the model's learned stage records {recorded:g}: the test stops at {max(recorded, args.max_size_ratio):g})" if recorded else "")
+    print(f"rig {args.rig}: {done} random frame sets, seed {args.seed}; {args.ball_colour} balls; right = within {100 * args.tol_m:g} cm; {size}")
     print(format_table(scores))
     if args.scene != "lab":
         print("3D error of every position (wrong ones included):")
