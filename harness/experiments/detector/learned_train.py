@@ -593,6 +593,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
                                coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold,
                                coarse_candidates=base.coarse_candidates, filter_refines=base.filter_refines,
                                track_threshold=min(best.threshold, TRACK_THRESHOLD),
+                               size_ratio=base.size_ratio,  # the same network: its diameters' record holds (a new one has none)
                                description=base.description + f"; threshold {best.threshold:g} by cross-validation on {len(labelled)} images")
     else:
         steps, state = (finetune_steps, base_state) if best.name == "fine-tuned" else (scratch_steps, None)

@@ -111,3 +111,21 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     assert main([*args, "--out", str(tmp_path / "m.txt")]) == 2
     err = capsys.readouterr().err
     assert "--out must end in .npz" in err and "Traceback" not in err
+
+
+def test_a_training_that_keeps_the_shipped_stage_keeps_its_size_record():
+    """When the cross-validation keeps the base's network (rt2 train, the shipped white stage against a fine-tune and
+    a new stage of 2 steps), the stage written keeps the size ratio that network's diameters need; a new network has
+    none (the tracker's own size test)."""
+    from harness.experiments.detector.learned_train import train_stage
+    from harness.experiments.detector.train import cv_folds
+
+    white = BallSegmentationModel.load("data/models/ball_seg_white.npz").learned
+    assert white.size_ratio == 1.54
+    labelled = take_range(read_coco(RALLY), "46:58")
+    images = [load_image(li) for li in labelled]
+    kw = dict(seed=0, finetune_steps=2, scratch_steps=2, batch=2, patch_px=64, log=lambda m: None)
+    stage, info = train_stage(labelled, images, cv_folds(labelled, 2), base=white, **kw)
+    assert info["chosen"].name == "shipped" and stage.onnx == white.onnx and stage.size_ratio == 1.54
+    fresh, info = train_stage(labelled, images, cv_folds(labelled, 2), base=None, **kw)
+    assert info["chosen"].name == "scratch" and fresh.size_ratio is None
