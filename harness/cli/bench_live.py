@@ -17,7 +17,7 @@ import os
 from pathlib import Path
 
 from harness.cli.track import add_source_arguments, flag_errors, lab_truth_scene, track_config
-from harness.live.bench import GOALS, bench_live, check_options
+from harness.live.bench import ACQUIRED_WITHIN_M, GOALS, bench_live, check_options
 from tracker.rig_files import resolve_rig
 from harness.live.stats import format_budget
 
@@ -73,7 +73,7 @@ def format_table(docs: list, args) -> str:
     """One row per rig and mode of ``docs`` (:func:`harness.live.bench.bench_live`'s documents)."""
     head = (f"{'rig':<10}{'cams':>5}{'mode':>6}{'sets/s':>9}{'p50 ms':>9}{'p90 ms':>9}{'p99 ms':>9}{'max ms':>9}{'<=10 ms':>9}{'tracker p50':>13}"
             f"{'dropped by rt2':>16}{'of which skipped':>18}{'waited max':>12}{'late (source)':>15}{'cpu ms/set':>12}{'faults/set':>12}"
-            f"{'ok':>8}{'3D err mm':>11}")
+            f"{'ok':>8}{'3D err mm':>11}{'new ball: sets p50/max':>24}")
     lines = [f"end-to-end latency: first frame's arrival -> message at a subscriber in another process "
              f"({args.rate_hz:g} Hz requested, 1-min load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)", head]
     for doc, r in ((doc, r) for doc in docs for r in doc["modes"]):
@@ -84,10 +84,20 @@ def format_table(docs: list, args) -> str:
                      f"{r['backlog_wait_periods'].get('max', float('nan')):>8.2f} per"
                      f"{sum(r['by_the_source']['late_frames_per_camera']):>15d}"
                      f"{r['process_per_set']['cpu_ms']:>12.2f}{r['process_per_set']['page_faults']:>12.1f}"
-                     f"{100 * r['ok_share']:>7.1f}%{'-' if err is None else format(err['median'], '.1f'):>11}")
+                     f"{100 * r['ok_share']:>7.1f}%{'-' if err is None else format(err['median'], '.1f'):>11}{_acquired(r.get('acquisition')):>24}")
     lines.append(f"(skipped: frame sets the tracker could not take before --max-backlog newer ones came; waited max: the "
                  f"longest a tracked set waited for the tracker, in frame periods; cpu ms/set, faults/set: the service "
                  f"process's CPU time and page faults per published set, whatever the load; ok: share of the measured sets "
-                 f"with status ok; 3D err: median distance of the ok positions from the sim scene's ball)")
+                 f"with status ok; 3D err: median distance of the ok positions from the sim scene's ball; new ball: frame sets "
+                 f"from a new ball's first to its first ok position within {100 * ACQUIRED_WITHIN_M:g} cm, median / longest, and how "
+                 f"many of the new balls were acquired)")
     return "\n".join(lines)
+
+
+def _acquired(acq) -> str:
+    if not acq:
+        return "-"
+    if not acq["acquired"]:
+        return f"none of {acq['new_balls']}"
+    return f"{acq['frame_sets_p50']:g} / {acq['frame_sets_max']:g} ({acq['acquired']}/{acq['new_balls']})"
 

@@ -125,23 +125,82 @@ def _pct(a: np.ndarray, q: float) -> float:
     return float(np.percentile(a, q)) if len(a) else math.nan
 
 
-def _errors_mm(args, config, rec: dict, keep: np.ndarray) -> dict | None:
-    """3D error of the measured ``OK`` positions against the sim source's own scene (seeded launcher flights;
-    with ``--prerender`` the clip it loops), mm: ``{"median", "p90", "n"}``; None for other sources and scenes."""
+def _errors_mm(truth_at, rec: dict, keep: np.ndarray) -> dict | None:
+    """3D error of the measured ``OK`` positions against the sim source's own scene (:func:`_sim_truth`), mm:
+    ``{"median", "p90", "n"}``; None for other sources and scenes (``truth_at`` None)."""
+    if truth_at is None:
+        return None
+    err = []
+    for k, status, pos, kept in zip(rec["frame_id"], rec["status"], rec["position_m"], keep):
+        if not kept or status != "ok" or pos is None or k < 0:
+            continue
+        truth = truth_at(k)
+        if truth is not None:
+            err.append(1e3 * float(np.linalg.norm(np.asarray(pos) - truth)))
+    return {"median": _pct(np.asarray(err), 50), "p90": _pct(np.asarray(err), 90), "n": len(err)}
+
+
+#: a new ball counts as acquired at the first ``ok`` position within this distance of it, metres
+ACQUIRED_WITHIN_M = 0.04
+#: a jump of the scene's ball by more than this between two frame sets is a new ball (the prerendered clip's loop), metres
+NEW_BALL_JUMP_M = 0.2
+
+
+def acquisition(truth_at, rec: dict, first_frame: int) -> dict:
+    """How many frame sets the tracker takes to give a new ball's position.
+
+    truth_at : frame id -> the scene's ball position (3,) or None between flights; rec : the subscriber's record
+    (``frame_id``, ``status``, ``position_m`` of every message); first_frame : new balls from this frame id on (the
+    measured part, after the warm-up). A new ball is a frame id whose ball was absent (or elsewhere: more than
+    ``NEW_BALL_JUMP_M``) at the one before; it is acquired at the first message of a later or the same frame id of its
+    flight with status ``ok`` and a position within ``ACQUIRED_WITHIN_M``: the frame sets counted from the new ball's
+    first (0 = at once), skipped frame sets included. Returns ``{"new_balls", "acquired", "frame_sets_p50",
+    "frame_sets_max", "within_3"}`` (``within_3``: the share of the new balls acquired within 3 frame sets)."""
+    ids = np.asarray(rec["frame_id"], np.int64)
+    if len(ids) == 0:
+        return {"new_balls": 0, "acquired": 0, "frame_sets_p50": math.nan, "frame_sets_max": math.nan, "within_3": math.nan}
+    hit = {}
+    for k, status, pos in zip(rec["frame_id"], rec["status"], rec["position_m"]):
+        if status == "ok" and pos is not None and k >= 0 and k not in hit:
+            t = truth_at(k)
+            hit[k] = t is not None and float(np.linalg.norm(np.asarray(pos, float) - t)) <= ACQUIRED_WITHIN_M
+    last = int(ids.max())
+    took, new_balls = [], 0
+    prev = truth_at(first_frame - 1)
+    k = first_frame
+    while k <= last:
+        t = truth_at(k)
+        if t is not None and (prev is None or float(np.linalg.norm(t - prev)) > NEW_BALL_JUMP_M):
+            new_balls += 1
+            j, tj, pj = k, t, prev
+            while j <= last and tj is not None and (j == k or float(np.linalg.norm(tj - pj)) <= NEW_BALL_JUMP_M):
+                if hit.get(j):
+                    took.append(j - k)
+                    break
+                j, pj = j + 1, tj
+                tj = truth_at(j)
+        prev, k = t, k + 1
+    took = np.asarray(took, float)
+    return {"new_balls": new_balls, "acquired": len(took), "frame_sets_p50": _pct(took, 50),
+            "frame_sets_max": float(took.max()) if len(took) else math.nan,
+            "within_3": float(np.count_nonzero(took <= 3)) / new_balls if new_balls else math.nan}
+
+
+def _sim_truth(args, config):
+    """frame id -> the sim source's ball position (its seeded launcher flights; with ``--prerender`` the clip it
+    loops), or None for other sources and scenes."""
     if list(args.source) != ["sim"] or config.truth_stream is not None:
         return None
     from harness.live.sources.sim import LauncherFlights
 
     flights, period = LauncherFlights(config.seed), 1.0 / float(args.rate_hz)
     clip = None if args.prerender is None else max(1, int(round(args.prerender * args.rate_hz)))
-    err = []
-    for k, status, pos, kept in zip(rec["frame_id"], rec["status"], rec["position_m"], keep):
-        if not kept or status != "ok" or pos is None or k < 0:
-            continue
-        truth = flights.ball_state((k if clip is None else k % clip) * period)
-        if truth is not None:
-            err.append(1e3 * float(np.linalg.norm(np.asarray(pos) - truth[:3])))
-    return {"median": _pct(np.asarray(err), 50), "p90": _pct(np.asarray(err), 90), "n": len(err)}
+
+    def truth_at(k: int):
+        state = flights.ball_state((k if clip is None else k % clip) * period)
+        return None if state is None else np.asarray(state[:3], float)
+
+    return truth_at
 
 
 def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict:
@@ -189,6 +248,7 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
     budget = service.stats.budget_ms(first=int(np.count_nonzero(t_first < t_start + args.warmup)))
     wait = budget["backlog"]
     dropped_frames = [int(v) for v in a.get("dropped", ()) or ()]
+    truth_at = _sim_truth(args, config)
     return {
         "mode": mode,
         "frame_sets_published": published,
@@ -209,7 +269,9 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
                           "incomplete_frame_sets": int(a.get("incomplete", 0) or 0)},
         "status": summary["status"],
         "ok_share": statuses.count("ok") / len(statuses) if statuses else math.nan,
-        "error_3d_mm": _errors_mm(args, config, rec, keep),
+        "error_3d_mm": _errors_mm(truth_at, rec, keep),
+        "acquisition": None if truth_at is None else acquisition(truth_at, rec, min((int(k) for k, kk in zip(rec["frame_id"], keep) if kk and k >= 0),
+                                                                                       default=0)),
         "load_average_1min": [load0[0], load1[0]],
         "process_per_set": summary["process_per_set"],
     }

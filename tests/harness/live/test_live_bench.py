@@ -17,7 +17,7 @@ from harness.cli import main as rt2
 from harness.cli.bench_live import add_arguments as bench_arguments
 from harness.cli.track import add_arguments as track_arguments
 from harness.cli.track import track_config
-from harness.live.bench import MODES, bench_live, check_options
+from harness.live.bench import MODES, acquisition, bench_live, check_options
 from harness.live.config import ConfigError, TrackConfig
 from harness.live.run import open_service, stream_addresses
 
@@ -108,6 +108,50 @@ def test_bench_live_from_python_gives_one_row_per_mode():
     assert row["process_per_set"]["cpu_ms"] > 0 and row["process_per_set"]["page_faults"] >= 0
 
 
+def test_acquisition_counts_frame_sets_from_a_new_ball_to_its_first_right_ok_position():
+    """Two flights and a jump (the prerendered clip's loop): acquired at once, after 4 frame sets (no consensus, a
+    skipped set, a wrong ok position, a low-support one before it), never (no right ok position while it flew)."""
+    import numpy as np
+
+    def truth_at(k):  # flight A frames 10-19, flight B 30-39, a jump at 35 (a new ball elsewhere), nothing else
+        if 10 <= k < 20:
+            return np.array([0.0, 0.01 * k, 1.0])
+        if 30 <= k < 35:
+            return np.array([1.0, 0.01 * k, 1.0])
+        if 35 <= k < 40:
+            return np.array([2.0, 0.01 * k, 1.0])
+        return None
+
+    rec = {"frame_id": [], "status": [], "position_m": []}
+
+    def msg(k, status, pos):
+        rec["frame_id"].append(k)
+        rec["status"].append(status)
+        rec["position_m"].append(None if pos is None else list(pos))
+
+    for k in range(5, 45):
+        if k == 31:
+            continue  # skipped by the tracker
+        t = truth_at(k)
+        if t is None:
+            msg(k, "too_few_observations", None)
+        elif k == 30:
+            msg(k, "no_consensus", None)
+        elif k == 32:
+            msg(k, "ok", t + [0.3, 0.0, 0.0])  # ok but 30 cm off: not the ball
+        elif k == 33:
+            msg(k, "low_support", t)
+        elif 35 <= k:
+            msg(k, "ok", t + [0.0, 0.05, 0.0])  # 5 cm off: never within 4 cm
+        else:
+            msg(k, "ok", t)
+    acq = acquisition(truth_at, rec, first_frame=5)
+    assert acq["new_balls"] == 3 and acq["acquired"] == 2
+    assert acq["frame_sets_p50"] == 2.0 and acq["frame_sets_max"] == 4.0 and acq["within_3"] == 1 / 3
+    assert acquisition(truth_at, rec, first_frame=12)["new_balls"] == 2  # flight A began before the measured part
+    assert acquisition(truth_at, {"frame_id": [], "status": [], "position_m": []}, 0)["new_balls"] == 0
+
+
 def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
     out = tmp_path / "bench.json"
     assert rt2(["bench", "live", "--duration", "2", "--warmup", "0.5", "--modes", "full", "--json", str(out)]) == 0
@@ -134,6 +178,7 @@ def test_rt2_bench_live_rigs_gives_a_row_per_rig_on_the_same_scene(tmp_path, cap
         row = d["modes"][0]
         assert 0 <= row["ok_share"] <= 1 and row["frame_sets_measured"] > 0
         assert row["error_3d_mm"]["n"] >= 0 and d["image_size"] == [640, 480]
+        assert set(row["acquisition"]) == {"new_balls", "acquired", "frame_sets_p50", "frame_sets_max", "within_3"}
         assert (d["model"], d["full_frame_pyramid"], d["motion_cue"], d["sim_ball"]) == (None, True, False, "orange")  # how it ran
 
 
