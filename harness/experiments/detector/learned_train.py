@@ -593,16 +593,20 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
                                coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold,
                                coarse_candidates=base.coarse_candidates, filter_refines=base.filter_refines,
                                track_threshold=min(best.threshold, TRACK_THRESHOLD),
-                               size_ratio=base.size_ratio,  # the same network: its diameters' record holds (a new one has none)
+                               size_ratio=base.size_ratio,  # the same network: its diameters' record holds
                                description=base.description + f"; threshold {best.threshold:g} by cross-validation on {len(labelled)} images")
     else:
         steps, state = (finetune_steps, base_state) if best.name == "fine-tuned" else (scratch_steps, None)
         opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
                                    lr=1e-3 if state is not None else 3e-3)
         _, onnx_all = fit_learned(items + extra_items, opts, seed, state=state, log=log, progress=progress)
+        # a fine-tune starts from the base's network and keeps its size record (not measured again: the labels' boxes
+        # are hand-drawn); a network trained from scratch has none (the tracker's own size test)
+        inherited = base.size_ratio if best.name == "fine-tuned" and base is not None else None
         stage = LearnedStage(onnx_all, max_side_px=max_side, threshold=best.threshold, diameter_range_px=opts.diameter_range_px,
                              context_px=WINDOW_CONTEXT_PX if base is None else base.context_px, track_threshold=min(best.threshold, TRACK_THRESHOLD),
-                             filter_refines=True if base is None else base.filter_refines,
-                             description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed})")
+                             filter_refines=True if base is None else base.filter_refines, size_ratio=inherited,
+                             description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed})"
+                             + ("" if inherited is None else f"; size ratio {inherited:g}, the base's"))
     info = dict(choices=choices, chosen=best, folds=len(folds), max_side_px=max_side)
     return stage, info

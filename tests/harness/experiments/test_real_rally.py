@@ -115,8 +115,8 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
 
 def test_a_training_that_keeps_the_shipped_stage_keeps_its_size_record():
     """When the cross-validation keeps the base's network (rt2 train, the shipped white stage against a fine-tune and
-    a new stage of 2 steps), the stage written keeps the size ratio that network's diameters need; a new network has
-    none (the tracker's own size test)."""
+    a new stage of 2 steps), the stage written keeps the size ratio that network's diameters need; a network trained
+    from scratch has none (the tracker's own size test). (A fine-tune keeps the base's: learned_train.train_stage.)"""
     from harness.experiments.detector.learned_train import train_stage
     from harness.experiments.detector.train import cv_folds
 
