@@ -59,16 +59,16 @@ class RateLimit:
 
     def summary(self) -> str | None:
         """The summary of the suppressed reports once their period has passed (then None until the next)."""
-        with self._lock:
-            self._roll()
-            out, self._ready = self._ready, None
-            return out
+        return self._take(force=False)
 
     def flush(self) -> str | None:
         """The summary of every suppressed report not summarised yet, its period over or not (at shutdown: none
         counted goes unreported); None when there is none."""
+        return self._take(force=True)
+
+    def _take(self, force: bool) -> str | None:
         with self._lock:
-            self._roll(force=True)
+            self._roll(force)
             out, self._ready = self._ready, None
             return out
 

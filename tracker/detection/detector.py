@@ -267,8 +267,7 @@ class BallDetector:
             uv = refine_edges(image, uv, d)[0]  # (the diameter stays the network's: tracker.detection.edge_refine)
         boxes = np.empty((len(d), 4))
         boxes[:, :2] = uv + 0.5 - 0.5 * d[:, None]
-        boxes[:, 2] = d
-        boxes[:, 3] = d
+        boxes[:, 2] = boxes[:, 3] = d
         return Detections(uv, scores, boxes, np.rint(areas).astype(np.int64), window is not None)
 
     def _refined(self, image, uv, d) -> np.ndarray:

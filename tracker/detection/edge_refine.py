@@ -71,8 +71,10 @@ def _bilinear(gray, x, y):
     return (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
 
 
-def _window_box(h: int, w: int, u: float, v: float, diameter: float):
-    """The image box ``(x0, y0, x1, y1)`` of a candidate's grey window (module docstring, step 1)."""
+@numba.njit(cache=True, nogil=True)
+def _window_box(h, w, u, v, diameter):
+    """The image box ``(x0, y0, x1, y1)`` of a candidate's grey window (module docstring, step 1; compiled, the
+    reference's and the kernel's)."""
     r = int(math.ceil(2.5 * 0.5 * diameter + 3.0))
     x0, y0 = max(int(math.floor(u)) - r, 0), max(int(math.floor(v)) - r, 0)
     x1, y1 = min(int(math.floor(u)) + r + 2, w), min(int(math.floor(v)) + r + 2, h)
@@ -213,7 +215,7 @@ def refine_edges_reference(image: np.ndarray, uv_px: np.ndarray, diameter_px: np
     """Centres and diameters of the candidates ``uv_px`` (n, 2) of diameters ``diameter_px`` (n,) in ``image``
     ((H, W, 3) uint8 RGB) refined by their edge (module docstring); returns ``(uv (n, 2), diameter (n,), refined (n,) bool)``:
     a candidate whose fit failed keeps its centre and diameter."""
-    return _refine(image, uv_px, diameter_px, _one_pass)
+    return _refine(image, uv_px, diameter_px)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -222,9 +224,15 @@ def _fittable(u, v, d):
     return math.isfinite(u) and math.isfinite(v) and math.isfinite(d) and MIN_DIAMETER_PX <= d <= MAX_DIAMETER_PX
 
 
-def _refine(image, uv_px, diameter_px, one_pass):
+@numba.njit(cache=True, nogil=True)
+def _kept(a, b, rr, r0, u0, v0):
+    """Whether a pass's circle (a, b, rr) is kept for a candidate of radius ``r0`` at (u0, v0) (module docstring, step 4)."""
+    return 0.5 * r0 <= rr <= 1.5 * r0 and not math.hypot(a - u0, b - v0) > r0
+
+
+def _refine(image, uv_px, diameter_px):
     """The passes of the module docstring over every candidate, each pass in its own window (:func:`window_of` of
-    the previous pass's centre and diameter), with ``one_pass(gray, u, v, r) -> (a, b, radius) | None``."""
+    the previous pass's centre and diameter), numpy (:func:`_refine_nb` is the kernel)."""
     uv = np.array(uv_px, np.float64).reshape(-1, 2)
     d = np.array(diameter_px, np.float64).reshape(-1)
     ok = np.zeros(len(d), bool)
@@ -236,13 +244,13 @@ def _refine(image, uv_px, diameter_px, one_pass):
         good = True
         for _ in range(PASSES):
             win = window_of(image, u, v, dd)
-            fit = None if win is None else one_pass(win[0], (u - win[1]) / win[3], (v - win[2]) / win[3], 0.5 * dd / win[3])
+            fit = None if win is None else _one_pass(win[0], (u - win[1]) / win[3], (v - win[2]) / win[3], 0.5 * dd / win[3])
             if fit is None:
                 good = False
                 break
             _, x0, y0, sc = win
             a, b, rr = x0 + sc * fit[0], y0 + sc * fit[1], sc * fit[2]
-            if not (0.5 * r0 <= rr <= 1.5 * r0) or math.hypot(a - u0, b - v0) > r0:
+            if not _kept(a, b, rr, r0, u0, v0):
                 good = False
                 break
             u, v, dd = a, b, 2.0 * rr
@@ -381,10 +389,7 @@ _COS, _SIN = np.cos(_ANGLES), np.sin(_ANGLES)
 @numba.njit(cache=True, nogil=True)
 def _window_nb(image, u, v, diameter):
     """:func:`window_of` compiled: ``(ok, gray, x0, y0, scale)``."""
-    h, w = image.shape[0], image.shape[1]
-    r = int(math.ceil(2.5 * 0.5 * diameter + 3.0))
-    x0, y0 = max(int(math.floor(u)) - r, 0), max(int(math.floor(v)) - r, 0)
-    x1, y1 = min(int(math.floor(u)) + r + 2, w), min(int(math.floor(v)) + r + 2, h)
+    x0, y0, x1, y1 = _window_box(image.shape[0], image.shape[1], u, v, diameter)
     if x1 - x0 < 2 or y1 - y0 < 2:
         return False, np.empty((0, 0)), x0, y0, 1
     gh, gw = y1 - y0, x1 - x0
@@ -452,7 +457,7 @@ def _refine_nb(image, uv, d, ca, sa):
                 good = False
                 break
             a, b, rr = x0 + sc * fa, y0 + sc * fb, sc * fr
-            if not (0.5 * r0 <= rr <= 1.5 * r0) or math.hypot(a - u0, b - v0) > r0:
+            if not _kept(a, b, rr, r0, u0, v0):
                 good = False
                 break
             u, v, dd = a, b, 2.0 * rr

@@ -309,8 +309,7 @@ def deploy_onnx(state: dict) -> bytes:
       each a fixed cost that dominates a window search).
 
     The derived weights are constant subgraphs of the stored ones, which ONNX Runtime folds once when a
-    session is made. On the 2-core machine a VGA frame took 4.2 instead of 6.1 ms and an 80x80 window
-    0.147 instead of 0.187 ms (ONNX Runtime alone, one thread, interleaved medians)."""
+    session is made (``rt2 bench detector``'s ``learned`` rows time it; docs/detector.md)."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 

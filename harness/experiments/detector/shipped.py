@@ -77,7 +77,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     from tracker.detection.learned import LearnedStage
 
     base = BallSegmentationModel.load(base_path)
-    pairs, weights, sources = [], [], []
+    pairs, weights, sources, semi = [], [], [], []
     rally_train = take_range(read_labels(RALLY, "auto"), rally_range) if RALLY.is_file() else []
     if colour == "white":
         if not rally_train:
@@ -128,12 +128,13 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     th, s = _best_threshold(truth, cands, 4, 6.0)
     stage = dataclasses.replace(stage, threshold=th, track_threshold=min(th, TRACK_THRESHOLD))
     size_note = ""
-    if colour == "white" and semireal_sets and semi:  # the 3D size test's threshold its diameters need, from its own frames
-        ratio, n = size_ratio_of(stage, semi)
+    if semi:  # the 3D size test's threshold its diameters need, from its own semi-real frames
+        ratio, n, median = size_ratio_of(stage, semi)
         if ratio is not None:
             stage = dataclasses.replace(stage, size_ratio=ratio)
             size_note = f"; size ratio {ratio:g} (99th percentile of its diameter / the true one, {n} semi-real training balls)"
-            log(f"size ratio {ratio:g}: the 99th percentile of the stage's diameter / the true diameter of {n} semi-real training balls")
+            log(f"size ratio {ratio:g}: the 99th percentile of the stage's diameter / the true diameter of {n} semi-real training balls "
+                f"(median {median:.2f})")
     stage = dataclasses.replace(stage, description=(
         f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps}` on " + "; ".join(sources)
         + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to {max_side} px, coarse pass at {max_side // 2} px, windows with {WINDOW_CONTEXT_PX} px of context; "
@@ -146,11 +147,11 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     return model, dict(validation=s, threshold=th, sources=sources)
 
 
-def size_ratio_of(stage, frames) -> tuple[float | None, int]:
+def size_ratio_of(stage, frames) -> tuple[float | None, int, float]:
     """The 3D size test's threshold ``stage``'s diameters need (``LearnedStage.size_ratio``): the 99th percentile of
     its diameter / the true one over the balls of ``frames`` ((image, LabelledImage) pairs with exact square boxes:
     the semi-real frames) that its best candidate within half a diameter finds at the tracking threshold, rounded up
-    to a hundredth; ``(None, n)`` with fewer than 50 such balls."""
+    to a hundredth; returns ``(ratio, n balls, median ratio)``, the ratio None with fewer than 50 such balls."""
     ratios = []
     for im, li in frames:
         if len(li.centers_px) != 1:
@@ -162,9 +163,10 @@ def size_ratio_of(stage, frames) -> tuple[float | None, int]:
             j = int(np.argmin(dist))
             if dist[j] <= 0.5 * d_true:
                 ratios.append(float(d[j]) / d_true)
+    median = float(np.median(ratios)) if ratios else math.nan
     if len(ratios) < 50:
-        return None, len(ratios)
-    return max(1.0, math.ceil(100.0 * float(np.percentile(ratios, 99)) - 1e-9) / 100.0), len(ratios)
+        return None, len(ratios), median
+    return max(1.0, math.ceil(100.0 * float(np.percentile(ratios, 99)) - 1e-9) / 100.0), len(ratios), median
 
 
 def _semireal(rally_range: str, n_sets: int, seed: int, log):

@@ -564,10 +564,11 @@ def run(args) -> int:
     recorded = None
     if args.model:  # a learned stage's own record raises the size test's threshold (TrackerOptions.model_size_ratio)
         from tracker import BallDetector, BallSegmentationModel
+        from tracker.size_test import size_threshold
 
         recorded = BallDetector(BallSegmentationModel.load(args.model)).size_ratio
     size = f"rt2's max_size_ratio {args.max_size_ratio:g}" + (
-        f" (the model's learned stage records {recorded:g}: the test stops at {max(recorded, args.max_size_ratio):g})" if recorded else "")
+        f" (the model's learned stage records {recorded:g}: the test stops at {size_threshold(args.max_size_ratio, recorded):g})" if recorded else "")
     print(f"rig {args.rig}: {done} random frame sets, seed {args.seed}; {args.ball_colour} balls; right = within {100 * args.tol_m:g} cm; {size}")
     print(format_table(scores))
     if args.scene != "lab":
