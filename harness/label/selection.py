@@ -34,7 +34,7 @@ import numpy as np
 
 from harness.experiments.detector.train import (KEEP_BASE_CHOICES, THRESHOLD_CHOICES, TrainOptions, load_image, resolve_base,
                                                 select_ball_colour, train)
-from harness.experiments.detector.subsets import camera_of
+from harness.experiments.detector.subsets import camera_of, image_camera
 from harness.experiments.studies.eval_detector import evaluate
 from harness.label.suggest import describe_image, suggest, uncertainty
 from tracker import BallDetector, DetectorOptions
@@ -118,7 +118,7 @@ def split_cameras(labelled, cameras=()) -> dict:
     ValueError naming the cameras the set has when one asked for is missing."""
     by_camera: dict = {}
     for li in labelled:
-        by_camera.setdefault(camera_of(li.path), []).append(li)
+        by_camera.setdefault(image_camera(li), []).append(li)
     found = sorted(by_camera)
     missing = [c for c in cameras if c not in by_camera]
     if missing:
@@ -182,7 +182,7 @@ def _train_and_score(images, held_out, base, augment: int, opts: SelectionOption
 def run_selection(labelled, model, opts: SelectionOptions = SelectionOptions(), *, log=print) -> dict:
     """Both arms on ``labelled`` (each camera one recording); returns the frames used and each training's held-out scores.
 
-    labelled : list of ``LabelledImage``, any order (split by :func:`camera_of`, sorted by :func:`time_order`)
+    labelled : list of ``LabelledImage``, any order (split by :func:`~harness.experiments.detector.subsets.image_camera`, sorted by :func:`time_order`)
     model : the ``BallSegmentationModel`` that proposes the ball (the page's ``--model``)
     """
     recordings = {c: time_order(images) for c, images in split_cameras(labelled, opts.cameras).items()}

@@ -33,7 +33,7 @@ import numpy as np
 from harness.experiments.autolabel.consensus import AutoOptions, auto_label
 from harness.experiments.autolabel.framesets import RecordedSet
 
-__all__ = ["GOALS", "SCENES", "format_report", "score_labels", "study"]
+__all__ = ["GOALS", "SCENES", "format_report", "score_labels", "smear_ratio", "study"]
 
 SCENES = ("lab", "caliscope")
 GOALS = {"kept": 0.95, "within_1_5px": 0.95, "wrong": 0.01}
@@ -96,6 +96,7 @@ def score_labels(kept, truths: list, centres=None, workspace_m=None) -> dict:
     n_eligible = int(eligible.sum())
     kept_eligible = sum(1 for i in np.flatnonzero(eligible) if int(i) in kept_idx)
     errors, wrong, labels = {True: [], False: []}, {True: 0, False: 0}, {True: 0, False: 0}
+    sized = []  # per visible label: (error px, true diameter px, smear / diameter)
     for fs in kept:
         for j, t in enumerate(truths[fs.index]):
             if not np.isfinite(fs.diameter_px[j]):
@@ -107,6 +108,7 @@ def score_labels(kept, truths: list, centres=None, workspace_m=None) -> dict:
                 continue
             e = float(np.linalg.norm(fs.center_px[j] - t.center_px))
             errors[det].append(e)
+            sized.append((e, float(t.diameter_px), smear_ratio(t)))
             wrong[det] += int(e > t.diameter_px / 2)
     all_err = np.array(errors[True] + errors[False])
     n_labels = labels[True] + labels[False]
@@ -124,7 +126,36 @@ def score_labels(kept, truths: list, centres=None, workspace_m=None) -> dict:
         "wrong": share(wrong[True] + wrong[False], n_labels), "wrong_labels": wrong[True] + wrong[False],
         "hard_positive_within_1_5px": share(int(np.sum(np.array(errors[False]) <= 1.5)), labels[False]),
         "hard_positive_wrong": share(wrong[False], labels[False]),
+        **_by_ball(np.array(sized, float).reshape(-1, 3)),
     }
+
+
+SIZE_BANDS_PX = (20.0, 40.0, 60.0)  #: the report's diameter bands: < 20, 20-40, 40-60, >= 60 px
+SMEARED = 0.5  #: a ball smeared over at least this share of its diameter counts as smeared
+
+
+def smear_ratio(truth) -> float:
+    """A visible ball's smear over the exposure as a share of its diameter: its box's longer side, less the
+    diameter, over the diameter (0 for a still ball; the box clipped by the image's border shortens it)."""
+    d = float(truth.diameter_px)
+    return max(float(max(truth.box_xywh[2], truth.box_xywh[3])) - d, 0.0) / d if d > 0 else float("nan")
+
+
+def _by_ball(sized: np.ndarray) -> dict:
+    """The labels' precision split by the ball's diameter and smear (``sized``: (n, 3) error px, diameter px,
+    smear / diameter): the 1.5 px goal is tighter for a larger ball, and a smeared ball's centre (the middle of its
+    path over the exposure) is harder to find than a round one's."""
+    e, d, sm = sized.T
+
+    def band(mask) -> dict:
+        n = int(mask.sum())
+        return {"labels": n, "within_1_5px": None if n == 0 else float(np.mean(e[mask] <= 1.5))}
+
+    edges = (0.0,) + SIZE_BANDS_PX + (math.inf,)
+    sizes = {f"{lo:g}-{hi:g}px" if math.isfinite(hi) else f">={lo:g}px": band((d >= lo) & (d < hi)) for lo, hi in zip(edges, edges[1:])}
+    return {"by_diameter": sizes,
+            "by_smear": {"round": band(sm < SMEARED), "smeared": band(sm >= SMEARED)},
+            "median_error_of_diameter": float(np.median(e / d)) if len(e) else None}
 
 
 def _scene_rig_names(scene: str) -> list:
@@ -257,6 +288,10 @@ def format_report(scene: str, fig: dict, counts: dict) -> str:
         f"  {fig['labels']} labels ({fig['hard_positives']} hard positives, the detector had missed them): centre within 1.5 px "
         f"{pct(w)} (goal >= {100 * GOALS['within_1_5px']:.0f}%: {met(w is not None and w >= GOALS['within_1_5px'])}), "
         f"median {px(fig['median_error_px'])}, p95 {px(fig['p95_error_px'])}",
+        "  within 1.5 px by the ball's diameter: " + ", ".join(f"{k} {pct(v['within_1_5px'])} of {v['labels']}" for k, v in fig["by_diameter"].items())
+        + f"; round balls (smear < {SMEARED:g} diameter) {pct(fig['by_smear']['round']['within_1_5px'])} of {fig['by_smear']['round']['labels']}, "
+        f"smeared {pct(fig['by_smear']['smeared']['within_1_5px'])} of {fig['by_smear']['smeared']['labels']}; median error "
+        f"{pct(fig['median_error_of_diameter'])} of the diameter",
         f"  wrong labels (ball not visible there, or centre off the ball) {fig['wrong_labels']} = {pct(e)} "
         f"(goal < {100 * GOALS['wrong']:.0f}%: {met(e is not None and e < GOALS['wrong'])}); hard positives: within 1.5 px "
         f"{pct(fig['hard_positive_within_1_5px'])}, wrong {pct(fig['hard_positive_wrong'])}",

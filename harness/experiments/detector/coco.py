@@ -54,6 +54,8 @@ class LabelledImage:
     width, height : image size in pixels
     boxes_xywh : (n, 4) float COCO boxes ``[x, y, w, h]``, pixels (image covers [0, width] x [0, height])
     centers_px : (n, 2) float ball centres, rt2 pixels ((0, 0) = centre of the top-left pixel)
+    camera : the rig camera that took it (COCO image field ``camera``, as ``rt2 sim dataset`` and ``rt2 label
+        --auto`` write it: a name, or an integer read as one; a field of another kind is not read), or None
     """
 
     path: Path
@@ -61,9 +63,12 @@ class LabelledImage:
     height: int
     boxes_xywh: np.ndarray
     centers_px: np.ndarray
+    camera: str | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "path", Path(self.path))
+        if self.camera is not None and (not isinstance(self.camera, str) or not self.camera):
+            raise ValueError(f"LabelledImage {str(self.path)!r}: camera must be None or a non-empty name, got {short(self.camera)}")
         for name in ("width", "height"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
@@ -152,7 +157,9 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
         file = _inside(root, im["file_name"], where)
         if not file.is_file():
             raise ValueError(f"{where}: field 'file_name' names {short(im['file_name'])}, which does not exist (looked for {str(file)!r})")
-        images[im["id"]] = (file, w, h, [], [])
+        camera = im.get("camera")  # rt2's field; another tool's camera of another kind (a make, an object) is not a name
+        camera = str(camera) if (isinstance(camera, str) and camera) or (isinstance(camera, int) and not isinstance(camera, bool)) else None
+        images[im["id"]] = (file, w, h, [], [], camera)
         order.append(im["id"])
 
     seen_ann = set()
@@ -170,7 +177,7 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
             raise ValueError(f"{where}: field 'image_id' refers to unknown image id {short(ann['image_id'])}")
         if ann["category_id"] not in ball_ids:
             continue
-        file, w, h, boxes, centers = images[ann["image_id"]]
+        file, w, h, boxes, centers, _ = images[ann["image_id"]]
         box = _numbers(ann["bbox"], 4, "bbox", where)
         x, y, bw, bh = box
         if bw <= 0 or bh <= 0:
@@ -188,7 +195,7 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
 
     out = []
     for image_id in order:
-        file, w, h, boxes, centers = images[image_id]
+        file, w, h, boxes, centers, camera = images[image_id]
         out.append(
             LabelledImage(
                 path=file,
@@ -196,6 +203,7 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
                 height=h,
                 boxes_xywh=np.array(boxes, float).reshape(-1, 4),
                 centers_px=np.array(centers, float).reshape(-1, 2),
+                camera=camera,
             )
         )
     return out

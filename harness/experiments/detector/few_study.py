@@ -21,15 +21,11 @@ __all__ = ["camera_frames", "main", "run_study", "spread_frames"]
 
 
 def camera_frames(labelled, camera: str) -> list:
-    """The images of ``camera`` (:func:`~harness.experiments.detector.subsets.camera_of` of their names) in time
-    order; ValueError naming the cameras the set has when there is none."""
-    from harness.experiments.detector.subsets import camera_of, time_order
+    """The images of ``camera`` (:func:`~harness.experiments.detector.subsets.image_camera`) in time order; ValueError
+    naming the cameras the set has when there is none."""
+    from harness.experiments.detector.subsets import select_cameras, time_order
 
-    named = [(li, camera_of(li.path)) for li in labelled]
-    out = [li for li, c in named if c == camera]
-    if not out:
-        raise ValueError(f"--camera {camera}: not in the labelled set; its cameras: {', '.join(sorted({c for _, c in named if c})) or 'none'}")
-    return time_order(out)
+    return time_order(select_cameras(labelled, [camera]))
 
 
 def spread_frames(frames: list, n: int) -> list:

@@ -28,10 +28,15 @@ class DetectorScores:
     n_outliers_with_ball: int = 0  #: outliers in images that show a labelled ball
     n_images_without_ball: int = 0
     n_false_alarm_images: int = 0  #: images without a labelled ball but with a detection
+    per_camera: dict | None = None  #: {camera name: DetectorScores of its images} where the images name their camera
 
     def as_json(self) -> dict:
         keys = ("method", "recall", "outlier_rate", "median_center_error_px", "p95_center_error_px")
-        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items() if k in keys}
+        out = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items() if k in keys}
+        if self.per_camera:
+            out["per_camera"] = {name: {**s.as_json(), "n_balls": s.n_balls, "n_images": s.n_images, "n_detections": s.n_detections}
+                                 for name, s in self.per_camera.items()}
+        return out
 
 
 def score_detections(method: str, truth_centers, truth_diameters, detections, *, min_diameter_px: float = 6.0) -> DetectorScores:

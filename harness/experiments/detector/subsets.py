@@ -14,7 +14,7 @@ from pathlib import Path
 
 from checks.time_order import parse_range, time_key
 
-__all__ = ["camera_of", "take_range", "time_order"]
+__all__ = ["camera_of", "image_camera", "select_cameras", "take_range", "time_order"]
 
 #: the camera in a file name: ``f000123_cam2`` (``rt2 sim dataset``) or ``cam2_s000017`` (``rt2 label`` on a session log)
 _CAMERA_SUFFIX = re.compile(r"_(cam\d+)$")
@@ -27,6 +27,25 @@ def camera_of(path) -> str:
     stem = Path(path).stem
     m = _CAMERA_SUFFIX.search(stem) or _CAMERA_PREFIX.match(stem)
     return m.group(1) if m else ""
+
+
+def image_camera(labelled) -> str:
+    """The camera of a ``LabelledImage``: its ``camera`` field (the COCO image field rt2 writes) where it has one, else
+    :func:`camera_of` its file name; "" for neither."""
+    return labelled.camera or camera_of(labelled.path)
+
+
+def select_cameras(labelled, names, option: str = "--camera") -> list:
+    """The images of ``labelled`` whose :func:`image_camera` is one of ``names``; ValueError naming the cameras the
+    set has when one is not there."""
+    present = sorted({image_camera(li) for li in labelled} - {""})
+    unknown = [n for n in names if n not in present]
+    if unknown:
+        have = ", ".join(present) or ("none (the COCO image field 'camera', as rt2 sim dataset and rt2 label --auto write it, "
+                                      "or a file name like f000123_cam2.png, names an image's camera)")
+        raise ValueError(f"{option} {' '.join(unknown)}: not in the labelled set; its cameras: {have}")
+    wanted = set(names)
+    return [li for li in labelled if image_camera(li) in wanted]
 
 
 def time_order(labelled) -> list:

@@ -20,13 +20,15 @@ counts as an outlier (these are what the robust estimator has to reject).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from harness.experiments.detector.scores import score_detections, truth_of
+from harness.experiments.detector.subsets import image_camera, select_cameras
 
-__all__ = ["DEFAULT_MODEL", "EVAL_METHODS", "add_arguments", "evaluate", "run"]
+__all__ = ["DEFAULT_MODEL", "EVAL_METHODS", "add_arguments", "evaluate", "format_cameras", "run"]
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[3] / "data" / "models" / "ball_seg_default.npz"
 EVAL_METHODS = ("paper", "ours", "topk")
@@ -76,7 +78,16 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
                 found["ours"].append(uv[:1])
             if "topk" in methods:
                 found["topk"].append(uv)
-    return [score_detections(m, centers, diameters, found[m], min_diameter_px=min_diameter_px) for m in methods]
+    scores = [score_detections(m, centers, diameters, found[m], min_diameter_px=min_diameter_px) for m in methods]
+    cameras = [image_camera(li) for li in labelled]
+    if not all(cameras) or len(set(cameras)) < 2:
+        return scores
+    split = {}
+    for name in sorted(set(cameras)):
+        idx = [i for i, c in enumerate(cameras) if c == name]
+        split[name] = [score_detections(m, [centers[i] for i in idx], [diameters[i] for i in idx], [found[m][i] for i in idx],
+                                        min_diameter_px=min_diameter_px) for m in methods]
+    return [replace(s, per_camera={name: split[name][k] for name in split}) for k, s in enumerate(scores)]
 
 
 def area_from_diameters(model, diameter_px) -> tuple[int, int]:
@@ -99,6 +110,21 @@ def too_large(model, labelled, min_diameter_px: float, area_px=None) -> tuple[in
     d = np.concatenate([np.minimum(li.boxes_xywh[:, 2], li.boxes_xywh[:, 3]) for li in labelled] or [np.zeros(0)])
     d = d[d >= min_diameter_px]
     return int((math.pi / 4 * (d - model.edge_loss_px) ** 2 > max_area).sum()), len(d), max_area
+
+
+def format_cameras(scores, method: str = "ours") -> str:
+    """``method``'s figures per camera (:func:`~harness.experiments.detector.subsets.image_camera`), or "" when the
+    images do not name two or more."""
+    s = next((s for s in scores if s.method == method), None)
+    if s is None or not s.per_camera:
+        return ""
+    width = max(8, *(len(n) for n in s.per_camera))
+    head = f"{'camera':<{width}} {'recall':>8} {'outliers':>9} {'median px':>10} {'balls':>6} {'images':>7}"
+    lines = [f"per camera ({method}):", head, "-" * len(head)]
+    for name, c in s.per_camera.items():
+        recall = "n/a" if not c.n_balls else f"{100 * c.recall:.2f}%"
+        lines.append(f"{name:<{width}} {recall:>8} {100 * c.outlier_rate:8.2f}% {c.median_center_error_px:10.3f} {c.n_balls:6d} {c.n_images:7d}")
+    return "\n".join(lines)
 
 
 def format_table(scores) -> str:
@@ -229,6 +255,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--time-range", default=None,
                         help="evaluate only images START:STOP in time order (file names sorted as frame numbers), e.g. 58: for a "
                              "video's later frames that training did not see")
+    parser.add_argument("--camera", nargs="+", default=None, metavar="NAME",
+                        help="score only the images of these rig cameras (the COCO image field 'camera', as rt2 sim dataset and "
+                             "rt2 label --auto write it); without it, images that name two or more cameras get a row per camera too")
     parser.add_argument("--no-verifier", action="store_true",
                         help="run 'ours' and 'topk' with the model's 5x5 filter alone, without its candidate verifier (if it has one)")
     parser.add_argument("--ball-diameter-px", default=None, metavar="LO:HI",
@@ -257,6 +286,8 @@ def run(args) -> int:
 
         model = dataclasses.replace(model, verifier=None)
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
+    if getattr(args, "camera", None):  # before --time-range: the time order is one camera's
+        labelled = select_cameras(labelled, args.camera)
     if getattr(args, "time_range", None) is not None:
         from harness.experiments.detector.subsets import take_range
 
@@ -302,6 +333,8 @@ def run(args) -> int:
     if ball_free_margin is not None:
         print(f"ball-free: every labelled ball painted out (box + {ball_free_margin:g} px); every detection is a false alarm")
     print(format_table(scores))
+    if format_cameras(scores):
+        print(format_cameras(scores))
     goals = f"goals: recall >= {100 * GOALS['recall']:.0f}%, outliers <= {100 * GOALS['outlier_rate']:.0f}%, median error <= {GOALS['median_center_error_px']} px"
     print(goals + " (topk's outlier rate counts every extra candidate; the robust estimator rejects them)")
     if args.json:

@@ -311,6 +311,28 @@ def test_frame_sets_outside_the_workspace_are_counted_apart():
     assert fig["eligible"] == 1 and fig["outside_workspace"] == 0
 
 
+def test_label_precision_is_split_by_the_balls_diameter_and_smear():
+    from harness.experiments.autolabel.consensus import FrameSetLabels
+    from harness.experiments.autolabel.study import format_report, score_labels, smear_ratio
+    from harness.sim.render.truth import BallTruth
+
+    # per camera: true diameter, box (x, y, w, h) of the smeared ball, the label's error (px, along u)
+    cams = [(10.0, [0, 0, 10, 10], 0.5), (30.0, [0, 0, 30, 30], 2.0), (50.0, [0, 0, 80, 50], 1.0), (70.0, [0, 0, 70, 140], 3.0)]
+    truths = [[BallTruth(np.array([100.0, 100.0]), d, 1.0, np.array(b, float)) for d, b, _ in cams]]
+    centre = np.array([[100.0 + e, 100.0] for *_, e in cams])
+    fs = FrameSetLabels(0, 0, 0.0, np.zeros(3), 4, 0.5, np.ones(4, bool), np.zeros(4), centre, np.array([d for d, *_ in cams]), 1.0, ((),) * 4)
+    assert [smear_ratio(t) for t in truths[0]] == [0.0, 0.0, 0.6, 1.0]
+    fig = score_labels([fs], truths)
+    assert fig["by_diameter"] == {"0-20px": {"labels": 1, "within_1_5px": 1.0}, "20-40px": {"labels": 1, "within_1_5px": 0.0},
+                                  "40-60px": {"labels": 1, "within_1_5px": 1.0}, ">=60px": {"labels": 1, "within_1_5px": 0.0}}
+    assert fig["by_smear"] == {"round": {"labels": 2, "within_1_5px": 0.5}, "smeared": {"labels": 2, "within_1_5px": 0.5}}
+    assert fig["median_error_of_diameter"] == pytest.approx(np.median([0.05, 2 / 30, 0.02, 3 / 70]))
+    report = format_report("lab", fig, {"agreed": 1, "second_look": 0, "kept": 1})
+    assert "0-20px 100.0% of 1" in report and "smeared 50.0% of 2" in report
+    empty = score_labels([], truths)  # no label: the splits say so, no division by zero
+    assert empty["by_smear"]["round"] == {"labels": 0, "within_1_5px": None} and empty["median_error_of_diameter"] is None
+
+
 def test_the_second_look_keeps_more_frame_sets_and_no_wrong_label(tmp_path):
     """The drawn orange ball in the real caliscope frames: the second look (windows where the flight puts the ball, at
     half the thresholds) keeps frame sets the first look missed; none of its labels is wrong."""

@@ -123,6 +123,69 @@ def test_cli_scores_the_models_own_colour_by_default(synthetic_ball_coco, tmp_pa
     assert BallSegmentationModel.load(model).ball_colour == "any"
 
 
+def _two_camera_set(synthetic_ball_coco, tmp_path):
+    """The 30-image set with a ``camera`` field on every image (its file names say cam0): the ball-free images and
+    every third other one "right", the rest "left"."""
+    import shutil
+
+    src = synthetic_ball_coco(30, 1)
+    dst = tmp_path / "two"
+    shutil.copytree(src, dst)
+    coco = json.loads((dst / "annotations.json").read_text())
+    with_ball = {a["image_id"] for a in coco["annotations"]}
+    for k, im in enumerate(coco["images"]):
+        im["camera"] = "right" if im["id"] not in with_ball or k % 3 == 0 else "left"
+    (dst / "annotations.json").write_text(json.dumps(coco))
+    return dst
+
+
+def test_cli_per_camera_rows_and_the_camera_option(synthetic_ball_coco, tmp_path, capsys):
+    model, _ = _model_and_data(synthetic_ball_coco, tmp_path)
+    data = _two_camera_set(synthetic_ball_coco, tmp_path)
+    assert {li.camera for li in read_coco(data)} == {"left", "right"}  # the field, not the file names' cam0
+    out = tmp_path / "all.json"
+    assert main(["eval", "detector", "--data", str(data), "--model", str(model), "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "per camera (ours):" in printed and "\nleft " in printed and "\nright " in printed
+    rows = {r["method"]: r for r in json.loads(out.read_text())}
+    whole = {s.method: s for s in evaluate(hand_made_model(), read_coco(synthetic_ball_coco(30, 1)), progress=False)}
+    for m in EVAL_METHODS:
+        split = rows[m]["per_camera"]
+        assert set(split) == {"left", "right"}
+        assert sum(c["n_images"] for c in split.values()) == 30 and sum(c["n_balls"] for c in split.values()) == whole[m].n_balls
+        assert sum(c["n_detections"] for c in split.values()) == whole[m].n_detections
+        assert rows[m]["recall"] == pytest.approx(whole[m].recall)  # the whole set's figures are unchanged by the split
+    for name in ("left", "right"):
+        one = tmp_path / f"{name}.json"
+        assert main(["eval", "detector", "--data", str(data), "--model", str(model), "--camera", name, "--json", str(one)]) == 0
+        assert "per camera" not in capsys.readouterr().out  # one camera: no split
+        for r in json.loads(one.read_text()):
+            assert set(r) == JSON_KEYS
+            assert {k: r[k] for k in JSON_KEYS - {"method"}} == {k: rows[r["method"]]["per_camera"][name][k] for k in JSON_KEYS - {"method"}}
+
+
+@pytest.mark.parametrize("field, read", [("cam2", "cam2"), (3, "3"), ({"make": "x"}, None), (True, None), ("", None), (None, None)])
+def test_coco_camera_field_is_a_name_or_not_read(synthetic_ball_coco, tmp_path, field, read):
+    import shutil
+
+    dst = tmp_path / "c"
+    shutil.copytree(synthetic_ball_coco(30, 1), dst)
+    coco = json.loads((dst / "annotations.json").read_text())
+    coco["images"][0]["camera"] = field
+    (dst / "annotations.json").write_text(json.dumps(coco))
+    assert read_coco(dst)[0].camera == read
+
+
+def test_camera_selection_of_a_set_that_names_no_camera():
+    from harness.experiments.detector.coco import LabelledImage
+    from harness.experiments.detector.subsets import image_camera, select_cameras
+
+    one = [LabelledImage(f"frame_{i:03d}.jpg", 64, 48, np.zeros((0, 4)), np.zeros((0, 2))) for i in range(3)]
+    assert [image_camera(li) for li in one] == ["", "", ""]
+    with pytest.raises(ValueError, match=r"--camera cam0: not in the labelled set; its cameras: none \(the COCO image field 'camera'"):
+        select_cameras(one, ["cam0"])
+
+
 # -- bad input ---------------------------------------------------------------------------------------
 def test_bad_inputs(tmp_path, capsys, synthetic_ball_coco):
     with pytest.raises(ValueError, match="one entry per image"):
@@ -136,6 +199,9 @@ def test_bad_inputs(tmp_path, capsys, synthetic_ball_coco):
     model = hand_made_model().save(tmp_path / "hand.npz")
     assert main(["eval", "detector", "--data", str(tmp_path / "nowhere"), "--model", str(model)]) == 2
     assert "nowhere" in capsys.readouterr().err
+    data = str(synthetic_ball_coco(30, 1))  # its file names say cam0
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--camera", "cam0", "cam4"]) == 2
+    assert "--camera cam4: not in the labelled set; its cameras: cam0" in capsys.readouterr().err
 
 
 def test_cli_thresholds_override_the_model(synthetic_ball_coco, tmp_path, capsys):
