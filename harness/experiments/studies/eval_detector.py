@@ -37,7 +37,7 @@ GOALS = {"recall": 0.99, "outlier_rate": 0.01, "median_center_error_px": 0.5}
 
 
 def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None, progress=True,
-             ball_free_margin_px: float | None = None, area_px=None):
+             ball_free_margin_px: float | None = None, area_px=None, learned_threshold: float | None = None):
     """Run each method on every labelled image; returns a list of :class:`~harness.experiments.detector.scores.DetectorScores`.
 
     model : ``BallSegmentationModel``; labelled : list of ``harness.experiments.detector.coco.LabelledImage``
@@ -47,6 +47,10 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
         every detection is a false alarm
     area_px : (min, max) accepted blob area of ``ours``, pixels (None = the model's ``area_range_px``;
         :func:`area_from_diameters` turns a ball diameter range into one)
+    learned_threshold : the learned stage's heat threshold of ``ours`` and ``topk``, a probability (None = the stage's
+        single-image one)
+    Images naming two or more cameras (:func:`~harness.experiments.detector.subsets.image_camera`) give each score
+    its ``per_camera`` figures.
     """
     from harness.common.progress import progress_bar
 
@@ -58,7 +62,8 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
             raise ValueError(f"unknown method {m!r}; valid: {EVAL_METHODS}")
     paper = BallDetector(model, DetectorOptions(method="paper", t_high=t_high, t_low=t_low))
     area = {} if area_px is None else dict(min_area_px=int(area_px[0]), max_area_px=int(area_px[1]))
-    ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low, **area))
+    ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low,
+                                               learned_threshold=learned_threshold, **area))
     found = {m: [] for m in methods}
     centers, diameters = [], []
     for li in progress_bar(labelled, desc="eval detector", unit="img", disable=not progress, leave=False):
@@ -125,6 +130,24 @@ def format_cameras(scores, method: str = "ours") -> str:
         recall = "n/a" if not c.n_balls else f"{100 * c.recall:.2f}%"
         lines.append(f"{name:<{width}} {recall:>8} {100 * c.outlier_rate:8.2f}% {c.median_center_error_px:10.3f} {c.n_balls:6d} {c.n_images:7d}")
     return "\n".join(lines)
+
+
+def learned_threshold_of(model, text) -> float | None:
+    """``--learned-threshold``: None (the stage's single-image threshold), ``track`` (its tracking threshold) or a
+    probability; ValueError naming the value, or a model without a learned stage."""
+    if text is None:
+        return None
+    if model.learned is None:
+        raise ValueError(f"--learned-threshold {text}: the model has no learned stage (its 5x5 filter's thresholds are --t-high / --t-low)")
+    if text == "track":
+        return model.learned.threshold if model.learned.track_threshold is None else model.learned.track_threshold
+    try:
+        p = float(text)
+    except ValueError:
+        p = float("nan")
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"--learned-threshold must be a probability in (0, 1) or 'track', got {text!r}")
+    return p
 
 
 def format_table(scores) -> str:
@@ -249,6 +272,10 @@ def add_arguments(parser) -> None:
                              "(default: the colour the model was trained for; 'any' scores every ball)")
     parser.add_argument("--t-high", type=float, default=None, help="Algorithm 1's T_h, a probability (default: the model's recommended one)")
     parser.add_argument("--t-low", type=float, default=None, help="Algorithm 1's T_l, a probability (default: the model's recommended one)")
+    parser.add_argument("--learned-threshold", default=None, metavar="P|track",
+                        help="a model with a learned stage: its heat threshold for ours and topk, a probability, or 'track' = the "
+                             "stage's tracking threshold (the one a rig's cameras report candidates down to); default: its "
+                             "single-image threshold")
     parser.add_argument("--max-images", type=int, default=None, help="evaluate only the first N images")
     parser.add_argument("--figure", default=None, help="also draw the probability-image figure (image, B, detection) to this PNG, "
                                                         "and the contact sheet of misses and false alarms beside it (NAME_failures.png)")
@@ -315,13 +342,17 @@ def run(args) -> int:
         except ValueError:
             raise ValueError(f"--ball-diameter-px must be LO:HI in pixels (e.g. 20:60), got {text!r}") from None
         area_px = area_from_diameters(model, (lo, hi))
+    learned_threshold = learned_threshold_of(model, getattr(args, "learned_threshold", None))
     scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low,
-                      ball_free_margin_px=ball_free_margin, area_px=area_px)
+                      ball_free_margin_px=ball_free_margin, area_px=area_px, learned_threshold=learned_threshold)
     print(
         f"model {args.model}{' (with its candidate verifier)' if model.verifier is not None else ''}: T_h={t_high:g}, T_l={t_low:g}; {len(labelled)} images; "
         f"{colour} balls >= {args.min_diameter_px:g} px"
         + (f" (the model's own colour; --ball-colour any scores every ball)" if args.ball_colour == "model" and colour != "any" else "")
     )
+    if model.learned is not None:
+        print(f"learned stage: heat threshold {model.learned.threshold if learned_threshold is None else learned_threshold:g}"
+              + (" (the single image's)" if learned_threshold is None else f" (--learned-threshold {args.learned_threshold})"))
     if area_px is not None:
         print(f"accepted blob area {area_px[0]}-{area_px[1]} px (--ball-diameter-px {args.ball_diameter_px}; the model's own: "
               f"{model.area_range_px[0]:.0f}-{model.area_range_px[1]:.0f} px)")

@@ -202,6 +202,15 @@ def test_bad_inputs(tmp_path, capsys, synthetic_ball_coco):
     data = str(synthetic_ball_coco(30, 1))  # its file names say cam0
     assert main(["eval", "detector", "--data", data, "--model", str(model), "--camera", "cam0", "cam4"]) == 2
     assert "--camera cam4: not in the labelled set; its cameras: cam0" in capsys.readouterr().err
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--learned-threshold", "0.3"]) == 2
+    assert "--learned-threshold 0.3: the model has no learned stage" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["0", "1", "1.5", "-0.2", "nan", "abc", ""])
+def test_learned_threshold_refuses_what_is_no_probability(synthetic_ball_coco, capsys, value):
+    args = ["eval", "detector", "--data", str(synthetic_ball_coco(30, 1)), "--model", "data/models/ball_seg_white.npz", "--learned-threshold", value]
+    assert main(args) == 2
+    assert f"--learned-threshold must be a probability in (0, 1) or 'track', got {value!r}" in capsys.readouterr().err
 
 
 def test_cli_thresholds_override_the_model(synthetic_ball_coco, tmp_path, capsys):
