@@ -117,18 +117,21 @@ def too_large(model, labelled, min_diameter_px: float, area_px=None) -> tuple[in
     return int((math.pi / 4 * (d - model.edge_loss_px) ** 2 > max_area).sum()), len(d), max_area
 
 
-def format_cameras(scores, method: str = "ours") -> str:
-    """``method``'s figures per camera (:func:`~harness.experiments.detector.subsets.image_camera`), or "" when the
-    images do not name two or more."""
-    s = next((s for s in scores if s.method == method), None)
-    if s is None or not s.per_camera:
+def format_cameras(scores, methods=("ours", "topk")) -> str:
+    """``methods``' figures per camera (:func:`~harness.experiments.detector.subsets.image_camera`), a row per camera
+    and method, or "" when the images do not name two or more cameras."""
+    split = [s for s in scores if s.method in methods and s.per_camera]
+    if not split:
         return ""
-    width = max(8, *(len(n) for n in s.per_camera))
-    head = f"{'camera':<{width}} {'recall':>8} {'outliers':>9} {'median px':>10} {'balls':>6} {'images':>7}"
-    lines = [f"per camera ({method}):", head, "-" * len(head)]
-    for name, c in s.per_camera.items():
-        recall = "n/a" if not c.n_balls else f"{100 * c.recall:.2f}%"
-        lines.append(f"{name:<{width}} {recall:>8} {100 * c.outlier_rate:8.2f}% {c.median_center_error_px:10.3f} {c.n_balls:6d} {c.n_images:7d}")
+    width = max(8, *(len(n) for n in split[0].per_camera))
+    head = f"{'camera':<{width}} {'method':<7} {'recall':>8} {'outliers':>9} {'median px':>10} {'balls':>6} {'dets':>6} {'images':>7}"
+    lines = ["per camera:", head, "-" * len(head)]
+    for name in split[0].per_camera:
+        for s in split:
+            c = s.per_camera[name]
+            recall = "n/a" if not c.n_balls else f"{100 * c.recall:.2f}%"
+            lines.append(f"{name:<{width}} {s.method:<7} {recall:>8} {100 * c.outlier_rate:8.2f}% {c.median_center_error_px:10.3f} "
+                         f"{c.n_balls:6d} {c.n_detections:6d} {c.n_images:7d}")
     return "\n".join(lines)
 
 

@@ -146,7 +146,7 @@ def test_cli_per_camera_rows_and_the_camera_option(synthetic_ball_coco, tmp_path
     out = tmp_path / "all.json"
     assert main(["eval", "detector", "--data", str(data), "--model", str(model), "--json", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "per camera (ours):" in printed and "\nleft " in printed and "\nright " in printed
+    assert "per camera:" in printed and "\nleft     ours " in printed and "\nright    topk " in printed
     rows = {r["method"]: r for r in json.loads(out.read_text())}
     whole = {s.method: s for s in evaluate(hand_made_model(), read_coco(synthetic_ball_coco(30, 1)), progress=False)}
     for m in EVAL_METHODS:

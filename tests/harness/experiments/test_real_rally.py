@@ -91,6 +91,18 @@ def test_the_shipped_white_model_finds_the_held_out_rally_ball_without_false_one
     assert paper.recall == 0.0  # the filter of the same file: what the learned stage adds
 
 
+def test_the_tracking_threshold_finds_more_held_out_rally_balls_and_more_false_ones(tmp_path):
+    """``rt2 eval detector --learned-threshold track`` scores the white stage at its tracking threshold (0.2, what a rig's
+    cameras report down to): measured 2026-11-29 on the 25 held-out frames, topk 92 % (23/25) recall against 84 % at the
+    single image's 0.4, but ~70 % of its candidates off the ball (0 % at 0.4): the consensus's work, not a single
+    image's operating point."""
+    out = tmp_path / "track.json"
+    assert main(["eval", "detector", "--data", str(RALLY), "--time-range", LATE, "--model", "data/models/ball_seg_white.npz",
+                 "--learned-threshold", "track", "--json", str(out)]) == 0
+    topk = {r["method"]: r for r in json.loads(out.read_text())}["topk"]
+    assert topk["recall"] >= 22 / 25 and topk["outlier_rate"] >= 0.3
+
+
 def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, capsys):
     """rt2 train-shipped, cut short (2 steps, a few frames of each source): a white model with the learned stage, its
     sources in the description (real frames, drawn, pasted and semi-real ones), the tracking threshold, the orange
