@@ -348,10 +348,11 @@ class LearnedStage:
         keep = keep[:k]
         return uv[keep], sc[keep], d[keep]
 
-    def _one_pass(self, image, window, k: int, threshold, s: float):
-        """Candidates of ``image`` (or of ``window`` in it, with the context) with the image shrunk by ``s``."""
+    def network_input(self, image, window, s: float) -> tuple:
+        """What a pass hands the network for ``image`` (or for ``window`` ``(x0, y0, x1, y1)`` of it, with the context)
+        shrunk by ``s``: ``(input (h, w, 3) uint8 padded to whole cells, placement (sx, sy, bx0, by0) of its pixels in
+        the image, the searched box (x0, y0, x1, y1))``."""
         h, w = image.shape[:2]
-        th = self._threshold_logit if threshold is None else math.log(threshold / (1.0 - threshold))
         if window is None:
             x0 = y0 = 0
             x1, y1 = w, h
@@ -373,8 +374,14 @@ class LearnedStage:
         ph, pw = (-ch) % st, (-cw) % st  # the network's input is a whole number of cells
         if ph or pw:
             crop = cv2.copyMakeBorder(crop, 0, ph, 0, pw, cv2.BORDER_REFLECT_101 if min(ch, cw) > 1 else cv2.BORDER_REPLICATE)
+        return crop, (sx, sy, bx0, by0), (x0, y0, x1, y1)
+
+    def _one_pass(self, image, window, k: int, threshold, s: float):
+        """Candidates of ``image`` (or of ``window`` in it, with the context) with the image shrunk by ``s``."""
+        th = self._threshold_logit if threshold is None else math.log(threshold / (1.0 - threshold))
+        crop, placement, box = self.network_input(image, window, s)
         kk = 4 * k if window is not None else k  # some peaks of the context may fall outside the window
-        return decode_placed(self.run(crop), th, kk, st, (sx, sy, bx0, by0), (x0, y0, x1, y1), k)
+        return decode_placed(self.run(crop), th, kk, self.stride, placement, box, k)
 
     # -- files (fields of the model's .npz) ----------------------------------------------------------
     def to_fields(self) -> dict:

@@ -141,20 +141,6 @@ def _window_detector(model, roi_half_size_px: int):
     return BallDetector(model, DetectorOptions(roi_half_size_px=roi_half_size_px, learned_threshold=model.learned.track_threshold))
 
 
-def _network_input(stage, image, window):
-    """The image (or the window with its context) as the learned stage hands it to its network at scale 1, padded to
-    whole cells (:meth:`tracker.detection.learned.LearnedStage.candidates`)."""
-    import cv2
-
-    h, w = image.shape[:2]
-    if window is not None:
-        m = stage.context_px
-        x0, y0, x1, y1 = window
-        image = image[max(0, y0 - m):min(h, y1 + m), max(0, x0 - m):min(w, x1 + m)]
-    ph, pw = (-image.shape[0]) % stage.stride, (-image.shape[1]) % stage.stride
-    return cv2.copyMakeBorder(image, 0, ph, 0, pw, cv2.BORDER_REFLECT_101) if ph or pw else np.ascontiguousarray(image)
-
-
 def _window(image, center_px, half: int) -> tuple:
     cu, cv = (int(round(v)) for v in center_px)
     h, w = image.shape[:2]
@@ -185,7 +171,7 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
             extra_learned_full[("full", "learned: one pass at full scale")] = lambda: one_pass.candidates(image)
         extra_learned_roi = {("roi", "learned"): lambda: learned.detect(image, window)}
         if model.learned.scale_of(*image.shape[:2]) == 1.0:  # the network alone, on the very input the stage gives it
-            net_full, net_roi = _network_input(model.learned, image, None), _network_input(model.learned, image, window)
+            net_full, net_roi = (model.learned.network_input(image, win, 1.0)[0] for win in (None, window))
             extra_learned_full[("full", "learned: network alone (ONNX Runtime)")] = lambda: model.learned.run(net_full)
             extra_learned_roi[("roi", "learned: network alone (ONNX Runtime)")] = lambda: model.learned.run(net_roi)
         if not model.learned.filter_refines:  # the stage's centres from the ball's edge: what the edge fit costs
