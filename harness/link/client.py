@@ -298,17 +298,19 @@ class WamClient:
         m = self._latest
         return JointState(m["t_ns"] * 1e-9, np.array(m["q"]), np.array(m["qdot"]))
 
-    def command_trajectory(self, t_s, q, qdot=None) -> None:
+    def command_trajectory(self, t_s, q, qdot=None) -> float:
         """Send a trajectory (robot clock); limits and the motion-safety rule are checked here first
-        (ValueError naming the sample, joint and limit; nothing sent)."""
+        (ValueError naming the sample, joint and limit; nothing sent). Returns the robot time (s) at which the
+        robot took it (its reply's stamp): after ``t_s[0]``, the arm took it over part-way."""
         self._check()
         now = self.t_s
         t, Q, Qd = check_joint_trajectory(self.kinematics, t_s, q, qdot, now_s=now)
         check_motion(self.kinematics, t, Q, Qd, now_s=now, start=self._start_state(max(float(t[0]), now)))
         t_ns = np.round(t * 1e9).astype(np.int64)
-        self._request("trajectory", t_ns=t_ns.tolist(), q=Q.tolist(), qdot=None if Qd is None else Qd.tolist())
+        reply = self._request("trajectory", t_ns=t_ns.tolist(), q=Q.tolist(), qdot=None if Qd is None else Qd.tolist())
         self.last_command_id = self.last_request_id
         self._last_trajectory = (t, Q)
+        return reply["t_ns"] * 1e-9
 
     def _start_state(self, t_on: float) -> tuple[np.ndarray, np.ndarray]:
         """Where the arm is driven at ``t_on``: by this client's latest trajectory while the robot tracks

@@ -21,6 +21,9 @@ trajectory interpolated at the frames (the in-process run logs the simulator's c
 
 from __future__ import annotations
 
+import logging
+import time
+
 import numpy as np
 
 from harness.experiments.accuracy.motion import MotionOptions, RobotMotion, plan_motion, seed_streams
@@ -28,6 +31,8 @@ from harness.link.client import LinkLostError, WamClient
 from harness.link.clock import ClockEstimate, pair_joint_states
 
 __all__ = ["link_motion_source", "motion_over_link", "robot_seed_of"]
+
+log = logging.getLogger(__name__)
 
 
 def robot_seed_of(seed: int) -> int:
@@ -54,8 +59,7 @@ def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int
     t_frames, offset_s, jitter_s = plan.t_frames_s, plan.offset_s, plan.jitter_s
     t_cmd, q_cmd, qd_cmd, info = plan.t_cmd_s, plan.q_cmd, plan.qdot_cmd, plan.info
     dt = 1.0 / wam.control_rate_hz
-    t0 = np.ceil((wam.t_s + lead_s) / dt) * dt  # whole ticks: the robot samples the reference as in process
-    wam.command_trajectory(t_cmd + options.start_s + t0, q_cmd, qd_cmd)
+    t0 = _command_ahead(wam, t_cmd + options.start_s, q_cmd, qd_cmd, lead_s)
     s = wam.advance_to(t0 + t_frames[-1] + abs(offset_s) + 0.05)
     held = [e for e in wam.events if e["event"] == "watchdog_hold" and e["t_ns"] * 1e-9 >= t0]
     if held:
@@ -105,6 +109,43 @@ def motion_over_link(wam: WamClient, n_frames: int, rate_hz: float, *, seed: int
         links_world_m=kin.link_points(qt, check_limits=False), gt_world_m=gt_world,
         T_base_to_world=np.array(kin.T_base_to_world), bias_rad=np.array(sim["bias_rad"], float), info=info,
     )
+
+
+def _robot_now_s(wam: WamClient) -> float:
+    """The robot's time now: the host clock through the offset estimate (the latest state received can lag on a busy
+    host), never before that state."""
+    try:
+        est = wam.clock.estimate()
+    except ValueError:  # no clock exchange yet
+        return wam.t_s
+    return max(wam.t_s, (time.monotonic_ns() + est.offset_ns) * 1e-9)
+
+
+def _command_ahead(wam: WamClient, t_rel_s, q, qdot, lead_s: float, tries: int = 3) -> float:
+    """Command the trajectory ``t_rel_s + T0`` with ``T0`` a whole number of ticks ``lead_s`` ahead of the robot
+    clock, so that the robot takes it over before its first sample (as the in-process run does); returns ``T0``.
+
+    A command that reaches the robot after its start is refused (the arm would have to jump to where the
+    trajectory is by then) or taken over late: refused, it is sent again ahead of a fresh clock reading with twice
+    the lead (``tries`` in all); taken over late, the run stops with ValueError (the arm moved on another path)."""
+    dt = 1.0 / wam.control_rate_hz
+    t_first = float(np.asarray(t_rel_s, float)[0])
+    for attempt in range(tries):
+        lead = lead_s * 2 ** attempt
+        t0 = float(np.ceil((_robot_now_s(wam) + lead) / dt) * dt)  # whole ticks: the robot samples as in process
+        try:
+            t_taken = wam.command_trajectory(np.asarray(t_rel_s, float) + t0, q, qdot)
+        except ValueError:
+            if _robot_now_s(wam) <= t0 + t_first:
+                raise  # refused for another reason than lateness
+            log.warning("the motion reached the robot after its start (lead %.2f s); sending it again", lead)
+            continue
+        if t_taken > t0 + t_first + 0.5 * dt:
+            raise ValueError(f"the robot at {wam.address} took the motion over {(t_taken - t0 - t_first) * 1e3:.0f} ms "
+                             "after its start (this machine too busy?): the arm did not run the planned motion")
+        return t0
+    raise ValueError(f"the motion reached the robot at {wam.address} after its start {tries} times (the last time "
+                     f"{lead:g} s ahead): this machine is too busy to command it")
 
 
 def link_motion_source(address: str):

@@ -96,3 +96,37 @@ def test_rt2_accuracy_robot_sim_matches_in_process_and_reevaluates(tmp_path, cap
     capsys.readouterr()
     assert main(["reevaluate", str(tmp_path / "link" / "session.mcap")]) == 0
     assert "reproduced exactly" in capsys.readouterr().out
+
+
+def test_a_motion_that_reaches_the_robot_late_is_sent_again_with_more_lead(caplog):
+    """The accuracy motion must start at the arm, as in process: a command the robot gets after its start is refused
+    there (the arm would jump) and sent again ahead of a fresh clock reading with twice the lead; a command refused
+    for another reason is not sent again."""
+    import logging
+
+    from harness.experiments.accuracy.link_motion import _command_ahead
+
+    kin = WamKinematics.from_config(load_robot_config())
+    bridge = BridgeProcess("--seed", "1", "--watchdog", "2")
+    try:
+        with WamClient(bridge.address, kinematics=kin) as wam:
+            wam.sync_clock(16)
+            q0 = wam.read_state().q
+            q1 = q0.copy()
+            q1[0] += 0.3
+            # 0.3 rad away from 1.0 s before T0 on: with 0.3 s and 0.6 s of lead the arm would have to jump (refused),
+            # with 1.2 s the robot takes it before its first sample
+            t_rel = np.array([-1.0, -0.4, 1.0])
+            with caplog.at_level(logging.WARNING, logger="harness.experiments.accuracy.link_motion"):
+                t0 = _command_ahead(wam, t_rel, np.stack([q0, q1, q1]), np.zeros((3, 7)), lead_s=0.3)
+            assert sum("after its start" in r.getMessage() for r in caplog.records) == 2
+            assert wam.t_s < t0 - 1.0  # taken before its start
+            s = wam.advance_to(t0 + 1.0)  # and run as commanded
+            assert s.q[-1, 0] == pytest.approx(q1[0], abs=0.01)
+            caplog.clear()
+            # refused for a teleport: not sent again
+            with pytest.raises(ValueError, match="from where the arm is"):
+                _command_ahead(wam, np.array([0.1, 0.5]), np.stack([q0, q0]), np.zeros((2, 7)), lead_s=0.3)
+            assert not caplog.records
+    finally:
+        bridge.stop()
