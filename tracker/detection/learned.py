@@ -91,7 +91,8 @@ def decode_heatmap(out: np.ndarray, threshold_logit: float, k: int, stride: int,
     uv = np.empty((len(idx), 2))
     uv[:, 0] = (cols + 0.5 + o[0]) * stride - 0.5
     uv[:, 1] = (rows + 0.5 + o[1]) * stride - 0.5
-    return uv, vals.astype(np.float64), np.exp(np.clip(o[2], -2.0, 6.0))
+    # math.exp, as the compiled twin's: numpy's own exp (SIMD, chosen by the CPU) may differ from it in the last bit
+    return uv, vals.astype(np.float64), np.array([math.exp(x) for x in np.clip(o[2], -2.0, 6.0).tolist()], np.float64)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -161,7 +162,7 @@ def decode_placed(out: np.ndarray, threshold_logit: float, kk: int, stride: int,
         uv[:, 1] += float(by0)
     inside = (uv[:, 0] > x0 - 0.5) & (uv[:, 0] < x1 - 0.5) & (uv[:, 1] > y0 - 0.5) & (uv[:, 1] < y1 - 0.5)
     heat = heat[inside][:k]
-    return uv[inside][:k], 1.0 / (1.0 + np.exp(-heat)), d[inside][:k]
+    return uv[inside][:k], np.array([1.0 / (1.0 + math.exp(-x)) for x in heat.tolist()], np.float64), d[inside][:k]
 
 
 @numba.njit(cache=True, nogil=True)
