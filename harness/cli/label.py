@@ -55,6 +55,9 @@ def add_arguments(parser) -> None:
                       help="--auto: every agreeing camera within this of the 3D ball, px (default 3)")
     auto.add_argument("--flight-window", type=int, default=3,
                       help="--auto: neighbouring frame sets on each side whose flight must predict the ball (default 3; 0 = off)")
+    auto.add_argument("--smooth-window", type=int, default=8, metavar="N",
+                      help="--auto: each kept ball's position is taken from a parabola fitted in time to the kept positions of up "
+                           "to N frame sets on each side, where they fit one (default 8; 0 = off)")
     auto.add_argument("--max-flight-residual", type=float, default=0.03, metavar="M",
                       help="--auto: the flight test's tolerance, metres (default 0.03)")
     auto.add_argument("--max-size-ratio", type=float, default=1.6,
@@ -173,7 +176,7 @@ def run_auto(args) -> int:
         raise ValueError(f"--every and --max-frames must be positive integers, got {args.every}, {args.max_frames}")
     options = AutoOptions(min_support=args.min_support, max_reprojection_px=args.max_reprojection, flight_window=args.flight_window,
                           max_flight_residual_m=args.max_flight_residual, max_size_ratio=args.max_size_ratio, trim_px=args.trim,
-                          second_look=args.second_look, recentre=args.recentre)
+                          second_look=args.second_look, recentre=args.recentre, smooth_window=args.smooth_window)
     out = Path(args.out)
     if (out / "annotations.json").exists():
         raise ValueError(f"--out {args.out!r} already holds annotations.json: --auto writes a new data set folder")

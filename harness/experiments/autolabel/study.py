@@ -317,6 +317,9 @@ def add_arguments(parser) -> None:
                         help="--ball white: START:STOP of the crops' time order whose balls are used (e.g. 58: = the rally frames "
                              "the shipped white model never saw; default all)")
     parser.add_argument("--flight-window", type=int, default=AutoOptions.flight_window, help="as rt2 label --auto (default 3)")
+    parser.add_argument("--smooth-window", type=int, default=AutoOptions.smooth_window, metavar="N",
+                        help=f"as rt2 label --auto: smooth each position along its flight over N frame sets on each side "
+                             f"(default {AutoOptions.smooth_window}; 0 = off)")
     parser.add_argument("--max-size-ratio", type=float, default=None,
                         help=f"as rt2 label --auto: the 3D size test's threshold (default {AutoOptions.max_size_ratio:g})")
     parser.add_argument("--trim", type=float, default=None, metavar="PX",
@@ -336,7 +339,8 @@ def run(args) -> int:
 
     check_output_file(args.json, "--json")
     given = {"max_size_ratio": args.max_size_ratio, "trim_px": args.trim}
-    options = AutoOptions(flight_window=args.flight_window, second_look=args.second_look, recentre=args.recentre, **{k: v for k, v in given.items() if v is not None})
+    options = AutoOptions(flight_window=args.flight_window, second_look=args.second_look, recentre=args.recentre,
+                          smooth_window=args.smooth_window, **{k: v for k, v in given.items() if v is not None})
     ball = ball_options(args.scene, args.ball, args.ball_crops, args.crop_frames)
     if args.train_held_out is not None:  # checked before the consensus pass, not after it
         names = _scene_rig_names(args.scene)

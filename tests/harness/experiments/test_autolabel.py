@@ -152,6 +152,7 @@ HOSTILE = [
     (["--source", "replay", "LOG"], r"--auto needs --source SPEC .* and --rig RIG"),
     (["--source", "replay", "LOG", "--rig", "lab4_vga", "--min-support", "2"], r"AutoOptions.min_support must be an integer >= 3"),
     (["--source", "replay", "LOG", "--rig", "lab4_vga", "--flight-window", "-1"], r"AutoOptions.flight_window must be"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--smooth-window", "51"], r"AutoOptions.smooth_window must be an integer in \[0, 50\], got 51"),
     (["--source", "replay", "LOG", "--rig", "lab4_vga", "--max-size-ratio", "0.5"], r"AutoOptions.max_size_ratio must be in \[1, 10\], got 0.5"),
     (["--source", "replay", "LOG", "--rig", "lab4_vga", "--max-size-ratio", "nan"], r"AutoOptions.max_size_ratio must be in \[1, 10\], got nan"),
     (["--source", "replay", "LOG", "--rig", "lab4_vga", "--trim", "0"], r"AutoOptions.trim_px must be in \(0, 50\] px, got 0.0"),
@@ -398,4 +399,4 @@ def test_recentring_moves_the_position_to_the_drawn_balls_centres():
     assert np.linalg.norm(recentred(images, start, rig, centre, AutoOptions()) - X) < 1e-3
     blank = [images[0], images[1]] + [np.full_like(images[2], 100)] * 2  # two cameras without the ball
     assert np.array_equal(recentred(blank, start, rig, centre, AutoOptions()), start)
-    assert centring(load_model("data/models/ball_seg_white.npz")).__name__ == "edge"  # the white ball: its edge
+    assert centring(load_model("data/models/ball_seg_white.npz")).__name__ == "silhouette_or_edge"  # the white ball: its grey silhouette, else its edge
