@@ -228,7 +228,8 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
                 train_set.append(LabelledImage(save(rs.images[j], f"f{rs.index:06d}_{cam.name}"), w, hh, box, fs.center_px[j][None, :]))
         if not train_set or not test_set:
             raise ValueError(f"--train-held-out {held_out}: {len(train_set)} training labels, {len(test_set)} held-out balls: nothing to compare")
-        opts = TrainOptions(seed=seed, ball_colour="any", augment_copies=3, **({} if epochs is None else {"epochs": epochs}))
+        # rt2 train's defaults (--learned auto: a model with a learned stage keeps training it, not dropping it)
+        opts = TrainOptions(seed=seed, ball_colour="any", augment_copies=3, learned="auto", **({} if epochs is None else {"epochs": epochs}))
         try:
             trained, info = train(train_set, opts, base=base, progress=False, log=lambda *a, **k: None)
         except NoBallFoundError as exc:  # one line naming what failed, not a model that finds nothing
