@@ -208,7 +208,7 @@ def run_auto(args) -> int:
     per_cam = per_camera_counts(rig, kept)
     print(f"rt2 label --auto: {counts['kept']} of {counts['frame_sets']} frame sets kept ({counts['agreed']} with >= "
           f"{options.min_support} agreeing cameras, {counts['second_look']} of them at the second look; flight window "
-          f"{options.flight_window}); wrote {path}")
+          f"{options.flight_window}; {counts['smoothed']} positions smoothed along their flight); wrote {path}")
     for name, c in per_cam.items():
         print(f"  {name}: {c['labels']} labels ({c['hard_positives']} where its detector missed the ball), {c['hard_negatives']} hard negatives")
     print(f"review: rt2 label {out / 'images'} --out {out}   train: rt2 train --data {out} --out {out / 'model.npz'}")

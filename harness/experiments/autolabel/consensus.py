@@ -431,7 +431,8 @@ def moved(labels: FrameSetLabels, position_m, rig, options: AutoOptions) -> Fram
 def auto_label(framesets, rig, model, options: AutoOptions = AutoOptions(), *, progress=None) -> tuple[list, dict]:
     """Run the consensus over ``framesets`` (an iterable of RecordedSet, rig camera order); returns (kept labels, counts).
 
-    counts : ``frame_sets`` read, ``agreed`` (rule 1, both looks), ``second_look`` (of them by the second look), ``kept`` (rule 2 too), ``low_support`` / ``reprojection`` (why rule 1
+    counts : ``frame_sets`` read, ``agreed`` (rule 1, both looks), ``second_look`` (of them by the second look), ``kept`` (rule 2 too),
+    ``smoothed`` (kept positions the flight's smoothing moved), ``low_support`` / ``reprojection`` (why rule 1
     failed where the tracker had a position), ``size_rejected`` (frame sets where the size test dropped a position first)
     """
     from tracker import RobustOptions, Status
@@ -514,4 +515,7 @@ def auto_label(framesets, rig, model, options: AutoOptions = AutoOptions(), *, p
     keep = flight_consistent(np.array(times, float), pos, agreed, options)
     counts["agreed"] = int(agreed.sum())
     counts["kept"] = int(keep.sum())
-    return smoothed([f for f, k in zip(found, keep) if k], rig, options), counts
+    kept = [f for f, k in zip(found, keep) if k]
+    out = smoothed(kept, rig, options)
+    counts["smoothed"] = sum(a is not b for a, b in zip(out, kept))
+    return out, counts

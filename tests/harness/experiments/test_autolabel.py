@@ -70,6 +70,9 @@ def test_auto_prints_labels_per_camera(recording, tmp_path, capsys):
                  "--max-frames", "8"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("rt2 label --auto: ") and " of 8 frame sets kept" in out
+    kept = int(out.split("rt2 label --auto: ")[1].split(" of 8")[0])
+    smoothed = int(re.search(r"; (\d+) positions smoothed along their flight\)", out).group(1))
+    assert 0 <= smoothed <= kept
     for cam in ("cam0", "cam1", "cam2", "cam3"):
         assert f"  {cam}: " in out and " labels (" in out
     n = sum(int(line.split(": ")[1].split(" labels")[0]) for line in out.splitlines() if line.startswith("  cam"))
