@@ -98,6 +98,7 @@ class SegmentationEngine:
         self._dets = [None] * n
         self._images = None
         # per camera its motion cue (TrackerOptions.motion_cue): full-frame candidates only where something moved
+        # (their full-frame searches that ignore the cue come in the same frame sets: a still ball needs three cameras at once)
         self.cues = [MotionCue(int(w), int(h), options.motion_cue) for w, h in self._wh] if spec.extras and options.motion_cue is not None else None
         self._margin_px = _region_margins(rig, options.ball_radius_m) if self.cues else None  # a ball's radius around the moving cells
         self._still = np.zeros(n, np.int64)  # per camera the candidates its cue dropped in this detector call
@@ -369,12 +370,13 @@ class SegmentationEngine:
             if x0 < 0:
                 dets[i] = None  # the predicted window lies outside this camera's image
             elif full:
-                boxes_i = None if cues is None else cues[i].regions(self._margin_px[i])
+                whole = cues is None or cues[i].whole_frame_due(self._t_s)  # no cue, or a still ball's turn
+                boxes_i = None if whole else cues[i].regions(self._margin_px[i])
                 if boxes_i is not None:  # only where the frame moved (tracker.motion)
                     dets[i] = self._moving(i, self._in_regions(det, images[i], boxes_i))
                 else:
                     d = det.detect(images[i]) if self.pyramid[i] is None else self.pyramid[i].detect(images[i])
-                    dets[i] = d if cues is None else self._moving(i, d)
+                    dets[i] = d if whole else self._moving(i, d)
             else:  # the neighbourhood: its window first, then at most the whole neighbourhood
                 dets[i] = search_around(det, images[i][y0:y1, x0:x1], roi_px[i] - boxes[i, :2], images[i].shape)
 

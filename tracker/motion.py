@@ -22,7 +22,9 @@ a new frame, which cells of it differ from that background:
 :meth:`MotionCue.moved` tells which candidates lie on moving cells (within their radius plus ``margin_cells``);
 where there is no cue every candidate passes. The tracker uses it on full-frame searches only
 (``TrackerOptions.motion_cue``): a new ball is one that moves; a ball already followed in windows is kept
-when it stops (a ball held still on the robot's end effector, a ball lying on the table).
+when it stops (a ball held still on the robot's end effector, a ball lying on the table); and every
+``still_search_s`` (0.5 s) a camera's full-frame search ignores the cue (:meth:`MotionCue.whole_frame_due`), so a ball
+lying still that was never followed is found too.
 
 :func:`observe_reference` is the plain numpy version of the per-frame kernel (steps 1, 2 and 4 in one pass over the
 cells), :func:`observe_cells` the compiled one (a test checks they agree).
@@ -58,6 +60,10 @@ class MotionOptions:
         on the simulated lab a full-frame frame set took half the time) while there are at most ``max_regions`` of them
         and they cover at most ``max_region_share`` of the frame; False = the whole frame is searched and the
         candidates where nothing moved dropped
+    still_search_s : a camera's full-frame search ignores the cue (the whole frame, every candidate kept) when its last
+        such search is at least this long ago (seconds; ``inf``: never): a ball lying still that was never followed
+        (on the table before a serve, held still in front of the cameras) is found within this time
+        (:meth:`MotionCue.whole_frame_due`)
     """
 
     cell_px: float = 4.0
@@ -71,8 +77,12 @@ class MotionOptions:
     regions: bool = True
     max_regions: int = 8
     max_region_share: float = 0.5
+    still_search_s: float = 0.5
 
     def __post_init__(self):
+        v = self.still_search_s
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not float(v) > 0:
+            raise ValueError(f"MotionOptions.still_search_s must be a number of seconds > 0 (inf: never), got {v!r}")
         for name, lo, hi in (("alpha", 0.0, 1.0), ("max_share", 0.0, 1.0), ("max_region_share", 0.0, 1.0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not lo < float(v) <= hi:
@@ -170,6 +180,7 @@ class MotionCue:
         self._frame = None  # the frame number last observed, and whether its cells were looked at
         self._seen = False
         self._count = 0
+        self._last_whole: float | None = None  # when a full-frame search last ignored the cue
         self.mask: np.ndarray | None = None
 
     def observe(self, image: np.ndarray, t_s: float = math.nan, *, frame=None, need_mask: bool = False) -> np.ndarray | None:
@@ -190,19 +201,38 @@ class MotionCue:
             return self.mask if need_mask else None  # (this frame's cue is known, or not asked for)
         self._seen = True
         if not self._has_bg:
-            self._restart(image)
+            self._restart(image, t_s)
             return None
         n = observe_cells(image, self._ys, self._xs, self._bg, o.threshold, o.relative, o.alpha, self._mask)  # against the frames before
         if n > o.max_share * self._mask.size:
-            self._restart(image)  # the whole scene changed: it is the background now
+            self._restart(image, t_s)  # the whole scene changed: it is the background now
             return None
         self.mask = self._mask
         return self.mask if need_mask else None
 
-    def _restart(self, image) -> None:
+    def _restart(self, image, t_s: float) -> None:
         self._bg[...] = image[np.ix_(self._ys, self._xs)]
         self._has_bg = True
         self.mask = None
+        if math.isfinite(t_s):  # a frame without a cue: what a full-frame search of it finds is not gated
+            self._last_whole = t_s
+
+    def whole_frame_due(self, t_s: float) -> bool:
+        """For a full-frame search of the frame observed at ``t_s``: whether it ignores the cue (the whole frame, every
+        candidate kept): when the frame gives no cue, or the last such search (or the last frame without a cue: the
+        background's start) is ``still_search_s`` or more ago (or later than ``t_s``: the clock went back); the time is
+        then remembered. A frame of unknown time (NaN) is searched by the cue, when there is one."""
+        if self.mask is None:
+            if math.isfinite(t_s):
+                self._last_whole = t_s
+            return True
+        if not (math.isfinite(t_s) and math.isfinite(self.options.still_search_s)):
+            return False
+        last = self._last_whole
+        if last is None or t_s - last >= self.options.still_search_s - 1e-9 or t_s < last:  # (1 ns: frame stamps in floats)
+            self._last_whole = t_s
+            return True
+        return False
 
     def regions(self, margin_px: float):
         """The boxes ``(x0, y0, x1, y1)`` (camera pixels, integers, inside the image) around the moving cells, each

@@ -183,3 +183,40 @@ def test_windows_keep_a_ball_that_stops_and_reset_forgets_the_background(rig, mo
         assert not trk.engine.cues[0].moved([still], [10.0]).any()  # still long enough to be background: a full frame would drop it
         trk.reset()  # the background is forgotten: the next frame gives no cue
         assert trk.engine.cues[0].observe(_scene(rig, X_far, pos[-1], 1.0, 99).images[0], 1.0, need_mask=True) is None
+
+
+def test_a_full_frame_search_ignores_the_cue_every_still_search_s():
+    cue = MotionCue(160, 120, MotionOptions(learn_every=1, still_search_s=0.5))
+    cue.observe(_frame(0), 0.0, frame=0, need_mask=True)
+    assert cue.whole_frame_due(0.0)  # no cue (the first frame): the whole frame, and the time is kept
+    cue.observe(_frame(1), 0.005, frame=1, need_mask=True)
+    assert cue.mask is not None and not cue.whole_frame_due(0.005)  # a cue, the last whole search 5 ms ago
+    cue.observe(_frame(2), 0.499, frame=2, need_mask=True)
+    assert not cue.whole_frame_due(0.499)
+    cue.observe(_frame(3), 0.5, frame=3, need_mask=True)
+    assert cue.whole_frame_due(0.5) and not cue.whole_frame_due(0.5)  # due, then counted
+    assert not cue.whole_frame_due(math.nan)  # an unknown time: the cue
+    assert cue.whole_frame_due(0.2)  # the clock went back: due
+    never = MotionCue(160, 120, MotionOptions(learn_every=1, still_search_s=math.inf))
+    never.observe(_frame(0), 0.0, frame=0)
+    never.observe(_frame(1), 0.005, frame=1, need_mask=True)
+    assert not never.whole_frame_due(0.005) and not never.whole_frame_due(1e9)
+
+
+@pytest.mark.parametrize("still_search_s", [0.1, math.inf])
+def test_a_still_ball_never_followed_is_found_every_still_search_s(rig, model, still_search_s):
+    """Full frames only (no windows to keep it): a ball lying still is found on the first frame set (no cue yet), then
+    dropped as still, and found again each time the full-frame search ignores the cue; never again with ``inf``."""
+    X_far, X = np.array([5.0, 5.0, 5.0]), np.array([-0.9, 0.2, 1.2])
+    cue = MotionOptions(learn_every=1, still_search_s=still_search_s)
+    with Tracker(rig, "rt2", model=model, roi=False, hypotheses=None, motion_cue=cue) as trk:
+        ok = [trk.process(_scene(rig, X_far, X, 0.02 * f, f)).status is Status.OK for f in range(16)]  # 0.3 s at 50 Hz
+    assert ok[0]
+    expect = [f == 0 or (math.isfinite(still_search_s) and f % 5 == 0) for f in range(16)]  # 0.1 s = every 5th set
+    assert ok == expect, ok
+
+
+@pytest.mark.parametrize("value", [0, -1.0, math.nan, True, "0.5"])
+def test_still_search_s_must_be_positive_seconds(value):
+    with pytest.raises(ValueError, match="MotionOptions.still_search_s must be a number of seconds > 0"):
+        MotionOptions(still_search_s=value)
