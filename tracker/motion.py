@@ -222,9 +222,7 @@ class MotionCue:
         candidate kept): when the frame gives no cue, or the last such search (or the last frame without a cue: the
         background's start) is ``still_search_s`` or more ago (or later than ``t_s``: the clock went back); the time is
         then remembered. A frame of unknown time (NaN) is searched by the cue, when there is one."""
-        if self.mask is None:
-            if math.isfinite(t_s):
-                self._last_whole = t_s
+        if self.mask is None:  # no cue: the background (re)started on this frame, which :meth:`_restart` remembered
             return True
         if not (math.isfinite(t_s) and math.isfinite(self.options.still_search_s)):
             return False

@@ -129,12 +129,13 @@ def _command_ahead(wam: WamClient, t_rel_s, q, qdot, lead_s: float, tries: int =
     trajectory is by then) or taken over late: refused, it is sent again ahead of a fresh clock reading with twice
     the lead (``tries`` in all); taken over late, the run stops with ValueError (the arm moved on another path)."""
     dt = 1.0 / wam.control_rate_hz
-    t_first = float(np.asarray(t_rel_s, float)[0])
+    t_rel = np.asarray(t_rel_s, float)
+    t_first = float(t_rel[0])
     for attempt in range(tries):
         lead = lead_s * 2 ** attempt
         t0 = float(np.ceil((_robot_now_s(wam) + lead) / dt) * dt)  # whole ticks: the robot samples as in process
         try:
-            t_taken = wam.command_trajectory(np.asarray(t_rel_s, float) + t0, q, qdot)
+            t_taken = wam.command_trajectory(t_rel + t0, q, qdot)
         except ValueError:
             if _robot_now_s(wam) <= t0 + t_first:
                 raise  # refused for another reason than lateness

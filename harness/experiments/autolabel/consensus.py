@@ -71,6 +71,9 @@ import numpy as np
 __all__ = ["AutoOptions", "FrameSetLabels", "auto_label", "centring", "flight_consistent", "flight_prediction", "flight_span_s", "labels_of", "max_ball_area_px", "moved", "recentred", "smoothed", "trimmed"]
 
 
+_INTEGER_OPTIONS = frozenset({"min_support", "flight_window", "max_candidates", "smooth_window"})  #: of AutoOptions
+
+
 @dataclass(frozen=True)
 class AutoOptions:
     """How ``rt2 label --auto`` decides (module docstring).
@@ -136,7 +139,7 @@ class AutoOptions:
                 raise ValueError(f"AutoOptions.{name} must be True or False, got {getattr(self, name)!r}")
         for name, ok, what in checks:  # t_high first: t_low's range is read from it
             value = getattr(self, name)
-            kind = int if what.startswith("an integer") else (int, float)
+            kind = int if name in _INTEGER_OPTIONS else (int, float)
             if isinstance(value, bool) or not isinstance(value, kind) or not math.isfinite(value) or not ok(value):
                 raise ValueError(f"AutoOptions.{name} must be {what}, got {value!r}")
 
@@ -173,6 +176,15 @@ class FrameSetLabels:
         return np.array([u + 0.5 - d / 2, v + 0.5 - d / 2, d, d])
 
 
+def _projected(cam, position_m: np.ndarray, ball_radius_m: float) -> tuple:
+    """The ball at ``position_m`` in ``cam``: ``(uv (2,), diameter px (NaN behind or too near), whether it gets a label:
+    the ball inside the image by half a diameter)``."""
+    z = float(cam.depth(position_m[None, :])[0])
+    uv = cam.project(position_m[None, :])[0]
+    d = 2.0 * ball_radius_m * float(cam.K[0, 0]) / z if z > 2 * ball_radius_m else math.nan
+    return uv, d, math.isfinite(d) and bool(cam.in_image(uv[None, :], d / 2 + 1.0)[0])
+
+
 def labels_of(rig, index, frame_id, t_s, position_m, estimate, uv_candidates_px, areas_px, options: AutoOptions):
     """The labels of one agreed frame set (module docstring), or None when no camera can hold one.
 
@@ -184,10 +196,8 @@ def labels_of(rig, index, frame_id, t_s, position_m, estimate, uv_candidates_px,
     diam = np.full(n, np.nan)
     negatives = []
     for j, cam in enumerate(rig):
-        z = float(cam.depth(P[None, :])[0])
-        uv = cam.project(P[None, :])[0]
-        d = 2.0 * options.ball_radius_m * float(cam.K[0, 0]) / z if z > 2 * options.ball_radius_m else math.nan
-        if math.isfinite(d) and bool(cam.in_image(uv[None, :], d / 2 + 1.0)[0]):
+        uv, d, inside = _projected(cam, P, options.ball_radius_m)
+        if inside:
             center[j], diam[j] = uv, d
         boxes = []
         if math.isfinite(d):
@@ -418,12 +428,8 @@ def moved(labels: FrameSetLabels, position_m, rig, options: AutoOptions) -> Fram
     center = np.full_like(labels.center_px, np.nan)
     diam = np.full_like(labels.diameter_px, np.nan)
     for j, cam in enumerate(rig):
-        z = float(cam.depth(P[None, :])[0])
-        if not z > 2 * options.ball_radius_m:
-            continue
-        uv = cam.project(P[None, :])[0]
-        d = 2.0 * options.ball_radius_m * float(cam.K[0, 0]) / z
-        if bool(cam.in_image(uv[None, :], d / 2 + 1.0)[0]):
+        uv, d, inside = _projected(cam, P, options.ball_radius_m)
+        if inside:
             center[j], diam[j] = uv, d
     return replace(labels, position_m=P, center_px=center, diameter_px=diam)
 

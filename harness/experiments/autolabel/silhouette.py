@@ -18,9 +18,10 @@ with the ball's projected diameter ``d`` (radius ``r``):
    than ``MAX_WIDTH d``, or longer than ``MAX_LENGTH d``;
 5. the centre is the silhouette's centroid, each pixel once.
 
-``LEVEL`` 0.65, not the half-way level, chosen on those frames: measured per camera (the 1280 labels of `rt2 eval
-autolabel --scene caliscope --ball white --crop-frames 58: --model data/models/ball_seg_white.npz --frames 400 --seed 0`,
-each from the consensus's projection), within 1.5 px of the truth: the edge fit 83.1 %; this, with the edge fit
+``LEVEL`` 0.65, not the half-way level, chosen on those frames: measured per camera by a one-off script (the 1280
+labels of `rt2 eval autolabel --scene caliscope --ball white --crop-frames 58: --model data/models/ball_seg_white.npz
+--frames 400 --seed 0`, each camera re-centred from the consensus's projection; the command prints the labels' figures,
+not these), within 1.5 px of the truth: the edge fit 83.1 %; this, with the edge fit
 where it refuses, 90.5 % at 0.65 (94 % answered here), 89.5 % at 0.5 (86 % answered), 86.8 % at 0.75, 85.9 % at 0.35;
 a second, lower level grown from the 0.65 silhouette (to take in a shaded rim) lost too (80-87 %). The truth there is
 the real crop's matte centroid, weighted by how far each pixel is from the background towards the ball's colour: a
@@ -31,8 +32,8 @@ shaded rim weighs less in it, as it does here. The misses left are the largest b
 A ball darker on one side *along its smear* moves the silhouette towards its lit end: a drawn capsule one diameter
 long whose every instant's disk is 8 % darker on one side than the other (4 % brighter, 4 % darker than its middle)
 came out 0.7-1.5 px off (24-50 px balls smeared over 1-1.1 diameters; 0.1 px for a round one), 16 % darker 1.1-2.3 px
-(round: 0.3 px). Unshaded, on a textured wall with a slope of light: 0.1-0.45 px
-(tests/harness/experiments/test_autolabel_smear.py draws these).
+(round: 0.3 px); a one-off run of the drawing of tests/harness/experiments/test_autolabel_smear.py, whose cases
+(unshaded on a textured wall with a slope of light: 0.1-0.45 px) hold it within 0.5 px.
 """
 
 from __future__ import annotations

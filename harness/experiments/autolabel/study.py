@@ -236,9 +236,12 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
             raise NoBallFoundError(f"--train-held-out {held_out}: the training on {len(train_set)} auto labels of the other cameras: {exc}") from exc
         before = {s.method: s for s in evaluate(base, test_set, methods=("ours",), progress=False)}["ours"]
         after = {s.method: s for s in evaluate(trained, test_set, methods=("ours",), progress=False)}["ours"]
+    stage = info.get("learned")  # the learned stage's cross-validated choice (rt2 train's log says the same)
     return {"held_out": held_out, "train_images": len(train_set), "held_out_balls": len(test_set), "kept_base": bool(info.get("kept_base")),
             "base": {"recall": before.recall, "outlier_rate": before.outlier_rate},
-            "trained": {"recall": after.recall, "outlier_rate": after.outlier_rate}}
+            "trained": {"recall": after.recall, "outlier_rate": after.outlier_rate},
+            "learned_stage": None if stage is None else {"chosen": stage["chosen"].name, "threshold": stage["chosen"].threshold,
+                                                          "choices": [c.line() for c in stage["choices"]]}}
 
 
 def study(scene: str, frames: int, seed: int, *, rate_hz: float = 100.0, flight_frames: int = 20, model=None,
@@ -363,6 +366,8 @@ def run(args) -> int:
               f"{t['held_out']}: recall {100 * b['recall']:.1f}% -> {100 * a['recall']:.1f}%, outliers {100 * b['outlier_rate']:.1f}% -> "
               f"{100 * a['outlier_rate']:.1f}%{' (the guard kept the base)' if t['kept_base'] else ''}: goal (recall up or already 100%, outliers not up) "
               f"{'met' if up else 'NOT met'}")
+        if t["learned_stage"] is not None:
+            print(f"  its learned stage: {t['learned_stage']['chosen']} by cross-validation ({'; '.join(t['learned_stage']['choices'])})")
         result["held_out_training"] = t
     if args.json:
         atomic_write_json(args.json, result, "--json")

@@ -229,6 +229,31 @@ def test_eval_autolabel_held_out_training_that_finds_no_ball_is_one_line_not_a_f
                                           r"cameras: no threshold finds a ball: \(the trainer's line\)", err[0]), err
 
 
+def test_eval_autolabel_held_out_training_reports_its_learned_stages_choice(monkeypatch, capsys, tmp_path):
+    """What the trained model's learned stage is (the cross-validated choice the training made), printed and in the
+    JSON: a stage kept at a new threshold explains a held-out figure that new weights did not make. (The trainer stands in
+    for rt2 train here: it returns the base with a made-up choice; the real training is the README's command.)"""
+    from types import SimpleNamespace
+
+    import harness.experiments.detector.train as train_module
+    from harness.experiments.detector.learned_train import StageChoice
+
+    choices = [StageChoice("shipped", 0.2, SimpleNamespace(recall=0.873, outlier_rate=0.724, median_center_error_px=4.53)),
+               StageChoice("scratch", 0.8, SimpleNamespace(recall=0.047, outlier_rate=0.0, median_center_error_px=2.15))]
+
+    def made_up(labelled, opts, *, base, **kw):
+        assert opts.learned == "auto"  # as rt2 train at its defaults
+        return base, {"kept_base": True, "learned": {"chosen": choices[0], "choices": choices}}
+
+    monkeypatch.setattr(train_module, "train", made_up)
+    out = tmp_path / "ho.json"
+    assert main(["eval", "autolabel", "--scene", "lab", "--frames", "6", "--seed", "3", "--train-held-out", "cam3", "--json", str(out)]) == 0
+    assert ("  its learned stage: shipped by cross-validation (shipped: recall 87.3%, outliers 72.4%, median 4.53 px at threshold "
+            "0.2; scratch: recall 4.7%, outliers 0.0%, median 2.15 px at threshold 0.8)") in capsys.readouterr().out
+    stage = json.loads(out.read_text())["held_out_training"]["learned_stage"]
+    assert stage["chosen"] == "shipped" and stage["threshold"] == 0.2 and len(stage["choices"]) == 2
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--scene", "lab", "--ball", "white"], "--ball applies to --scene caliscope (the lab's ball is its renderer's), got --scene lab"),
     (["--scene", "lab", "--crop-frames", "58:"], "--crop-frames applies to --scene caliscope"),

@@ -161,7 +161,6 @@ def test_moved_labels_are_projected_again():
 
     rig = resolve_rig("lab4_vga")
     X = np.array([0.1, 0.4, 1.1])
-    f = _labels([X], [0.0], [0])[0]
     f = FrameSetLabels(0, 0, 0.0, X, 3, 0.5, np.ones(4, bool), np.zeros(4), np.zeros((4, 2)), np.zeros(4), 0.9, ((),) * 4)
     Y = X + [0.01, 0.0, 0.0]
     g = moved(f, Y, rig, AutoOptions())
