@@ -240,7 +240,8 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
     return {"held_out": held_out, "train_images": len(train_set), "held_out_balls": len(test_set), "kept_base": bool(info.get("kept_base")),
             "base": {"recall": before.recall, "outlier_rate": before.outlier_rate},
             "trained": {"recall": after.recall, "outlier_rate": after.outlier_rate},
-            "learned_stage": None if stage is None else {"chosen": stage["chosen"].name, "threshold": stage["chosen"].threshold,
+            "learned_stage": None if stage is None else {"chosen": stage["chosen"].name,
+                                                          "threshold": stage["chosen"].threshold if stage["chosen"].name != "none" else None,
                                                           "choices": [c.line() for c in stage["choices"]]}}
 
 

@@ -462,8 +462,8 @@ TRACK_THRESHOLD = 0.2
 #: the stages training writes: on the semi-real caliscope flights contexts of 0-24 px gave the same 3D recall within
 #: noise (90-98 %), 8 px no wrong position on two seeds; a 64x64 window then costs the network 80x80 pixels, not 112x112
 WINDOW_CONTEXT_PX = 8
-#: the candidates of the choice
-CHOICES = ("shipped", "fine-tuned", "scratch")
+#: the candidates of the choice: "none" is the 5x5 filter alone (no learned stage written)
+CHOICES = ("none", "shipped", "fine-tuned", "scratch")
 #: a stage whose cross-validated recall is below this is not written by rt2 train (unless --force)
 MIN_CV_RECALL = 0.5
 #: the median ball at the network's scale, pixels: training a stage from scratch shrinks frames towards it
@@ -473,7 +473,8 @@ TARGET_DIAMETER_PX = 16.0
 @dataclass(frozen=True)
 class StageChoice:
     """One candidate stage's cross-validated figures: ``name`` (one of ``CHOICES``), ``threshold`` (its best heat
-    threshold on the pooled out-of-fold candidates) and the :class:`DetectorScores` there (``scores``, top-K)."""
+    threshold on the pooled out-of-fold candidates; NaN for "none", the filter alone at its own thresholds) and the
+    :class:`DetectorScores` there (``scores``, top-K)."""
 
     name: str
     threshold: float
@@ -485,8 +486,9 @@ class StageChoice:
 
     def line(self) -> str:
         s = self.scores
+        at = f"threshold {self.threshold:g}" if np.isfinite(self.threshold) else "the filter's thresholds"
         return (f"{self.name}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
-                f"median {s.median_center_error_px:.2f} px at threshold {self.threshold:g}")
+                f"median {s.median_center_error_px:.2f} px at {at}" + (f" ({s.n_images} images)" if self.name == "none" else ""))
 
 
 def max_side_for(labelled, base_max_side: int | None = None) -> int:
@@ -516,6 +518,26 @@ def _best_threshold(truth, cands, k: int, min_diameter_px: float):
     return best[1], best[2]
 
 
+def _alone_scores(alone: dict, images, labelled, k: int, min_diameter_px: float):
+    """Top-K scores of the 5x5 filter alone (no learned stage) on the images ``alone`` holds a held-out model of."""
+    import dataclasses
+
+    from harness.experiments.detector.scores import score_detections, truth_of
+    from tracker import BallDetector, DetectorOptions
+
+    detectors, found, centers, diameters = {}, [], [], []
+    for i in sorted(alone):
+        m = alone[i]
+        if id(m) not in detectors:
+            detectors[id(m)] = BallDetector(dataclasses.replace(m, learned=None, verifier=None),
+                                            DetectorOptions(method="ours", max_candidates=k))
+        found.append(detectors[id(m)].detect(images[i]).uv_px)
+        c, d = truth_of(labelled[i])
+        centers.append(c)
+        diameters.append(d)
+    return score_detections("topk", centers, diameters, found, min_diameter_px=min_diameter_px)
+
+
 def state_of_onnx(onnx_bytes: bytes) -> dict:
     """The torch state dict of a network exported by :func:`export_onnx` (its initializers by name; ``onnx`` package)."""
     import onnx
@@ -528,7 +550,7 @@ def state_of_onnx(onnx_bytes: bytes) -> dict:
 
 def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int, k: int = 4, min_diameter_px: float = 6.0,
                 finetune_steps: int = 150, scratch_steps: int = 400, batch: int = 16, patch_px: int = 96, extra=(),
-                log=print, progress: bool = False):
+                alone: dict | None = None, log=print, progress: bool = False):
     """The learned stage ``rt2 train`` writes, chosen by cross-validation; returns ``(stage, info)``.
 
     labelled : ``LabelledImage`` list (the user's labels); images : their (H, W, 3) uint8 RGB images
@@ -539,6 +561,9 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     is, the base fine-tuned (``finetune_steps``) and a stage from scratch (``scratch_steps``) are scored on the frames
     each fit did not see (top-K candidates, each at its best threshold); the best by recall - outliers is refitted on
     every image (the base itself when it wins) with that threshold. ``info``: the choices' figures, the chosen one.
+    alone : ``{index of labelled: BallSegmentationModel}``, the 5x5 filter as ``rt2 train`` writes it, fitted without
+    that image (a kept base model, a cross-validation fold's model or the validation split's): the choice "none", the
+    filter alone scored top-K on those images, which wins ties (returned stage None)
     """
     from harness.experiments.detector.scores import truth_of
 
@@ -580,13 +605,18 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     scored = [i for i in range(len(labelled)) if all(oof[n][i] is not None for n in names)]
     truth = ([truth_of(labelled[i])[0] for i in scored], [truth_of(labelled[i])[1] for i in scored])
     choices = []
-    for name in names:
+    if alone:
+        choices.append(StageChoice("none", float("nan"), _alone_scores(alone, images, labelled, k, min_diameter_px)))
+        names = ["none"] + names
+    for name in names[1 if alone else 0:]:
         th, s = _best_threshold(truth, [oof[name][i] for i in scored], k, min_diameter_px)
         choices.append(StageChoice(name, th, s))
     for c in choices:
         log(f"learned stage, {len(folds)}-fold cross-validation on {len(scored)} images: {c.line()}")
     best = max(choices, key=lambda c: (round(c.gain, 9), -names.index(c.name)))
-    if best.name == "shipped":
+    if best.name == "none":
+        stage = None
+    elif best.name == "shipped":
         stage = base.__class__(base.onnx, stride=base.stride, max_side_px=base.max_side_px, threshold=best.threshold,
                                diameter_range_px=base.diameter_range_px, context_px=base.context_px,
                                coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold,

@@ -78,7 +78,7 @@ PRIOR_MARGIN_BALLS = 2
 #: ``TrainOptions.keep_base`` / ``rt2 train --keep-base``: may fine-tuning end with the base model unchanged?
 KEEP_BASE_CHOICES = ("auto", "never")
 #: ``TrainOptions.learned`` / ``rt2 train --learned``: train the learned detector stage too?
-LEARNED_CHOICES = ("auto", "off")
+LEARNED_CHOICES = ("auto", "on", "off")
 #: ``TrainOptions.filter`` / ``rt2 train --filter``: fit the 5x5 filter, keep the base model's, or choose (see TrainOptions)
 FILTER_CHOICES = ("auto", "fit", "keep")
 #: rt2 train's exit status when the model it chose finds too few balls in cross-validation (not written without --force)
@@ -116,13 +116,13 @@ class TrainOptions:
         images, or the validation split) by more than ``PRIOR_MARGIN_BALLS`` balls' worth; "never" always
         writes the fine-tuned one (the behaviour before the guard)
     learned : "auto" also trains the learned detector stage (:mod:`harness.experiments.detector.learned_train`:
-        the base's stage as it is, fine-tuned, or from scratch, chosen by cross-validation; ``rt2 train``'s
-        default); "off" (the default of this function: the filter studies) writes the filter alone (and drops
+        no stage (the filter alone), the base's stage as it is, fine-tuned, or from scratch, chosen by
+        cross-validation; ``rt2 train``'s default); "on" the same without "no stage" among the choices; "off" (the default of this function: the filter studies) writes the filter alone (and drops
         a base model's stage)
     learned_folds : time-contiguous folds of the learned stage's cross-validation
     learned_steps : optimiser steps of a learned stage from scratch (fine-tuning takes 3/8 of them)
     filter : the 5x5 filter (Algorithm 1's model): "fit" trains it as above; "keep" writes the base model's filter
-        unchanged (needs a base and ``learned="auto"``: something must be trained); "auto" (default) keeps it when the
+        unchanged (needs a base and ``learned`` "auto" or "on": something must be trained); "auto" (default) keeps it when the
         learned stage is trained too and the base's stage does not take the filter's refinement
         (``LearnedStage.filter_refines`` False: the filter is of another ball, as the shipped white model's orange
         filter; fitting it to these labels takes minutes for a filter ``rt2`` does not use on this ball), else fits it
@@ -191,7 +191,7 @@ class TrainOptions:
             raise ValueError(f"TrainOptions.learned_steps must be a positive integer, got {self.learned_steps!r}")
         if self.filter not in FILTER_CHOICES:
             raise ValueError(f"TrainOptions.filter must be one of {FILTER_CHOICES}, got {self.filter!r}")
-        if self.filter == "keep" and self.learned != "auto":
+        if self.filter == "keep" and self.learned == "off":
             raise ValueError("TrainOptions.filter 'keep' with learned 'off' trains nothing: keep the filter only while training the learned stage")
 
 
@@ -697,16 +697,18 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             f"{len(labelled)}-image cv recall {100 * s_v.recall:.2f}%, outliers {100 * s_v.outlier_rate:.2f}%, "
             f"median {s_v.median_center_error_px:.3f} px; candidates reach {100 * v_info['candidate_recall']:.1f}% of the balls"))
     l_info = None
-    if opts.learned == "auto":
+    if opts.learned != "off":
         from harness.experiments.detector.learned_train import train_stage
 
         stage, l_info = train_stage(labelled, [load_image(li) for li in labelled], cv_folds(labelled, opts.learned_folds),
                                     base=None if base is None else base.learned, seed=opts.seed,
                                     scratch_steps=opts.learned_steps, finetune_steps=max(1, opts.learned_steps * 3 // 8),
-                                    extra=backgrounds, log=log, progress=progress)
+                                    extra=backgrounds, alone=finfo.get("alone") if opts.learned == "auto" else None, log=log, progress=progress)
         c = l_info["chosen"]
+        if stage is None:
+            log("learned stage: none written (the 5x5 filter alone scored best in cross-validation)")
         model = dataclasses.replace(model, learned=stage, description=model.description + (
-            f"; learned stage: {c.name} (of {', '.join(x.name for x in l_info['choices'])}) by {l_info['folds']}-fold cross-validation: "
+            f"; learned stage: {c.name if stage is not None else 'none, the filter alone'} (of {', '.join(x.name for x in l_info['choices'])}) by {l_info['folds']}-fold cross-validation: "
             + "; ".join(x.line() for x in l_info["choices"])))
     elif model.learned is not None:
         model = dataclasses.replace(model, learned=None)
@@ -739,7 +741,7 @@ def _fit_filter(torch, labelled, opts: TrainOptions, base, rng, *, progress: boo
             raise ValueError(f"no ball boxes among the {len(labelled)} images: nothing to learn")
         folds = cv_folds(labelled, opts.cv_folds)
         originals = [(load_image(li), li) for li in labelled]
-        oof_logits, oof_truth_c, oof_truth_d, loose, oof_images = [], [], [], [], []
+        oof_logits, oof_truth_c, oof_truth_d, loose, oof_images, fold_models = [], [], [], [], [], []
 
         for f, fold in enumerate(folds):
             inside = set(fold)
@@ -748,6 +750,7 @@ def _fit_filter(torch, labelled, opts: TrainOptions, base, rng, *, progress: boo
                 continue
             r_f = fitter.fit(_items(rest, opts, rng, False, backgrounds=backgrounds), None, log=log, label=f" (fold {f + 1}/{len(folds)})")
             m_f = _to_model(r_f["w"], r_f["b"], r_f["norm"], opts)
+            fold_models.append((m_f, fold))
             loose.append(r_f["loose_area"])
             for i in fold:
                 im, li = originals[i]
@@ -813,9 +816,17 @@ def _fit_filter(torch, labelled, opts: TrainOptions, base, rng, *, progress: boo
     desc += (f"{opts.ball_colour} balls, {opts.input_transform} input, {origin}, {n_train} train / {n_val} val images "
              f"(+{opts.augment_copies} augmented copies each), thresholds by {how}, seed {opts.seed}; {summary}")
     model = dataclasses.replace(base, description=desc) if kept_base else _to_model(r["w"], r["b"], r["norm"], opts, t_high, t_low, area, desc)
+    if kept_base:  # the base never saw these images: all of them are held out
+        alone = {i: model for i in range(len(labelled))}
+    elif choice == "split":
+        val_ids = {id(li) for li in val_set}
+        alone = {i: model for i, li in enumerate(labelled) if id(li) in val_ids}
+    else:  # each fold's model at the thresholds chosen on all folds
+        alone = {i: dataclasses.replace(m_f, t_high=t_high, t_low=t_low, area_range_px=area) for m_f, fold in fold_models for i in fold}
     info = dict(n_train=n_train, n_val=n_val, n_pos=r["n_pos"], n_neg=r["n_neg"], n_hard=r["n_hard"], history=r["history"],
                 best_epoch=epoch, t_high=t_high, t_low=t_low, area_range_px=area, val_ours=s_ours, val_paper=s_paper,
-                threshold_choice=choice, kept_base=kept_base, base_ours=None if base_scores is None else base_scores[0], filter_kept=False)
+                threshold_choice=choice, kept_base=kept_base, base_ours=None if base_scores is None else base_scores[0], filter_kept=False,
+                alone=alone)
     return model, info, desc
 
 
@@ -823,7 +834,7 @@ def keeps_filter(opts: TrainOptions, base) -> bool:
     """Whether :func:`train` keeps the base model's 5x5 filter unchanged (``TrainOptions.filter``)."""
     if opts.filter != "auto":
         return opts.filter == "keep"
-    return (opts.learned == "auto" and base is not None and base.learned is not None
+    return (opts.learned != "off" and base is not None and base.learned is not None
             and not base.learned.filter_refines)
 
 
@@ -840,6 +851,8 @@ def written_scores(info):
     cross-validation)."""
     if info.get("learned"):
         c = info["learned"]["chosen"]
+        if c.name == "none":
+            return c.scores, f"the filter alone, top-K (chosen over a learned stage by {info['learned']['folds']}-fold cross-validation)"
         return c.scores, f"the learned stage ({c.name}, {info['learned']['folds']}-fold cross-validation)"
     return info["val_ours"], f"the filter ({info['threshold_choice']})"
 
@@ -901,9 +914,10 @@ def add_arguments(parser) -> None:
                         help="use only images START:STOP in time order (file names sorted as frame numbers), e.g. 0:58; "
                              "keeps later frames out of training")
     parser.add_argument("--learned", choices=LEARNED_CHOICES, default="auto",
-                        help="'auto' (default): also train the learned detector stage (a small heatmap network): the base model's "
-                             "stage as it is, fine-tuned, or from scratch, whichever cross-validation over time-contiguous folds "
-                             "scores best; 'off': the 5x5 filter alone")
+                        help="'auto' (default): also train the learned detector stage (a small heatmap network): no stage (the 5x5 "
+                             "filter alone), the base model's stage as it is, fine-tuned, or from scratch, whichever cross-validation "
+                             "over time-contiguous folds scores best; 'on': the same without 'no stage' (a stage is always written); "
+                             "'off': the 5x5 filter alone")
     parser.add_argument("--learned-folds", type=int, default=TrainOptions.learned_folds,
                         help=f"folds of the learned stage's cross-validation (default {TrainOptions.learned_folds})")
     parser.add_argument("--learned-steps", type=int, default=TrainOptions.learned_steps,

@@ -124,7 +124,7 @@ def test_rt2_train_refuses_a_weak_model_with_exit_3_and_force_writes_it(syntheti
     """Two optimiser steps cannot find a ball: recall < 50 % -> exit 3, one line, nothing written; --force writes it."""
     out = tmp_path / "m.npz"
     args = ["train", "--data", str(synthetic_ball_coco(12, 3)), "--out", str(out), "--epochs", "1", "--from", "none",
-            "--learned-steps", "2", "--learned-folds", "2", "--thresholds", "cv", "--cv-folds", "2", "--seed", "0"]
+            "--learned", "on", "--learned-steps", "2", "--learned-folds", "2", "--thresholds", "cv", "--cv-folds", "2", "--seed", "0"]
     code = main(args)
     err = capsys.readouterr().err.strip().splitlines()
     if code == 0:  # the filter's cross-validated recall decides only without a learned stage: this one must be weak
@@ -142,7 +142,7 @@ def test_rt2_train_chooses_between_the_base_stage_fine_tuned_and_scratch(synthet
     """With a base model that has a stage, the three candidates are scored and the description says which won."""
     base_path = tmp_path / "base.npz"
     assert main(["train", "--data", str(synthetic_ball_coco(30, 0)), "--out", str(base_path), "--epochs", "1", "--from", "none",
-                 "--learned-steps", "40", "--learned-folds", "2", "--force", "--seed", "0"]) == 0
+                 "--learned", "on", "--learned-steps", "40", "--learned-folds", "2", "--force", "--seed", "0"]) == 0
     capsys.readouterr()
     out = tmp_path / "m.npz"
     assert main(["train", "--data", str(synthetic_ball_coco(12, 1)), "--out", str(out), "--epochs", "1", "--from", str(base_path),
@@ -151,7 +151,30 @@ def test_rt2_train_chooses_between_the_base_stage_fine_tuned_and_scratch(synthet
     for name in ("shipped:", "fine-tuned:", "scratch:"):
         assert f"learned stage, 2-fold cross-validation on 12 images: {name}" in text
     model = BallSegmentationModel.load(out)
-    assert "(of shipped, fine-tuned, scratch) by 2-fold cross-validation" in model.description
+    assert "(of none, shipped, fine-tuned, scratch) by 2-fold cross-validation" in model.description
+
+
+def test_the_filter_alone_is_a_choice_and_wins_over_a_weak_stage(synthetic_ball_coco, tmp_path, capsys):
+    """``--learned auto`` scores the 5x5 filter alone (fitted without each held-out fold) beside the stages: a stage of two
+    optimiser steps finds no ball, the filter alone does, so no stage is written and the figures printed are the
+    filter's; ``--learned on`` writes the weak stage (and so is refused: exit 3)."""
+    data = str(synthetic_ball_coco(12, 3))
+    common = ["train", "--data", data, "--epochs", "2", "--from", "none", "--learned-steps", "2", "--learned-folds", "2",
+              "--thresholds", "cv", "--cv-folds", "2", "--seed", "0"]
+    out = tmp_path / "m.npz"
+    assert main([*common, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    lines = [line for line in text.splitlines() if "learned stage, 2-fold cross-validation on 12 images" in line]
+    assert [line.split(": ")[1] for line in lines] == ["none", "scratch"], lines
+    none = float(lines[0].split("recall ")[1].split("%")[0])
+    scratch = float(lines[1].split("recall ")[1].split("%")[0])
+    assert none > 50.0 > scratch  # the filter finds these balls held out, two steps do not
+    assert "learned stage: none written (the 5x5 filter alone scored best" in text
+    assert "held-out figures of the model written (the filter alone, top-K" in text
+    model = BallSegmentationModel.load(out)
+    assert model.learned is None and "learned stage: none, the filter alone (of none, scratch)" in model.description
+    assert main([*common, "--learned", "on", "--out", str(tmp_path / "on.npz")]) == EXIT_WEAK_MODEL
+    assert not (tmp_path / "on.npz").exists()
 
 
 def test_a_base_whose_filter_does_not_see_its_ball_keeps_its_filter(synthetic_ball_coco, tmp_path, capsys):
@@ -162,7 +185,7 @@ def test_a_base_whose_filter_does_not_see_its_ball_keeps_its_filter(synthetic_ba
 
     base_path = tmp_path / "base.npz"
     assert main(["train", "--data", str(synthetic_ball_coco(30, 0)), "--out", str(base_path), "--epochs", "1", "--from", "none",
-                 "--learned-steps", "40", "--learned-folds", "2", "--force", "--seed", "0"]) == 0
+                 "--learned", "on", "--learned-steps", "40", "--learned-folds", "2", "--force", "--seed", "0"]) == 0
     base = BallSegmentationModel.load(base_path)
     other = tmp_path / "other.npz"  # its filter "of another ball": the stage says the filter does not refine it
     dataclasses.replace(base, learned=dataclasses.replace(base.learned, filter_refines=False)).save(other)
