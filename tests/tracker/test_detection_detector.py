@@ -140,6 +140,26 @@ def test_numba_and_python_backends_agree_on_scenes():
         np.testing.assert_array_equal(a.boxes_xywh, b.boxes_xywh)
 
 
+def test_the_coarse_to_fine_full_frame_finds_the_full_searchs_candidates():
+    """``coarse_full_frame`` (the default) against every pixel computed: the same candidates, to the bit, on synthetic
+    scenes with up to four balls of 6-14 px, on frames without a ball, and on a frame mostly of the ball's colour
+    (where the blocks would cover most of it and the whole frame is computed); "paper" never searches coarse."""
+    exact = BallDetector(MODEL, DetectorOptions(coarse_full_frame=False))
+    coarse = BallDetector(MODEL, DetectorOptions())
+    images = [_scene(40 + seed, n_balls=seed % 5, diameter_px=(6, 14))[0] for seed in range(40)]
+    orange = np.empty((96, 128, 3), np.uint8)
+    orange[:] = ORANGE_RGB
+    images.append(orange)
+    found = 0
+    for image in images:
+        a, b = exact.detect(image), coarse.detect(image)
+        assert a.uv_px.tobytes() == b.uv_px.tobytes() and a.boxes_xywh.tobytes() == b.boxes_xywh.tobytes()
+        assert a.scores.tobytes() == b.scores.tobytes() and a.areas_px.tobytes() == b.areas_px.tobytes()
+        found += len(a)
+    assert found >= 60  # the scenes' balls were found, not only their absence agreed on
+    assert not BallDetector(MODEL, DetectorOptions(method="paper"))._coarse
+
+
 # -- bad input -----------------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     "kwargs, match",
@@ -153,6 +173,7 @@ def test_numba_and_python_backends_agree_on_scenes():
         (dict(min_fill_ratio=2.0), "min_fill_ratio"),
         (dict(max_aspect=0.5), "max_aspect"),
         (dict(backend="gpu"), "backend"),
+        (dict(coarse_full_frame="yes"), "coarse_full_frame must be True or False"),
     ],
 )
 def test_bad_options(kwargs, match):

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from tracker import BallSegmentationModel
-from tracker.detection._correlate import correlate_5x5x3, correlate_5x5x3_reference, scratch_shape
+from tracker.detection._correlate import (coarse_blocks, coarse_blocks_reference, coarse_kernel, coarse_logits, coarse_logits_reference,
+                                          coarse_scratch_shape, correlate_5x5x3, correlate_5x5x3_blocks, correlate_5x5x3_reference,
+                                          scratch_shape)
 from tracker.detection.model import MODEL_FORMAT, logit, sigmoid, transform_lut
 from tracker.images import check_image
 from tracker.detection.synthetic import ORANGE_RGB, hand_made_model, synthetic_scene
@@ -100,6 +102,59 @@ def test_compiled_correlation_is_the_numpy_reference_bit_for_bit(shape):
     pad = np.pad(lut[image].astype(np.float64), ((2, 2), (2, 2), (0, 0)), mode="reflect")
     exact = 0.7 + sum(k[c, i, j] * pad[i : i + h, j : j + w, c] for c in range(3) for i in range(5) for j in range(5))
     np.testing.assert_allclose(whole, exact, atol=1e-5 * (1 + np.abs(exact).max()))
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (1, 1), (2, 3), (3, 2), (5, 7), (31, 17), (479, 639)])
+def test_the_coarse_logits_are_their_numpy_reference_bit_for_bit(shape):
+    """The coarse pass (every other pixel of every other row, a 3x3 kernel): the compiled kernel is its numpy twin,
+    and where the image is locally linear (a ramp) it is the exact logit of those pixels."""
+    h, w = shape
+    rng = np.random.default_rng(sum(shape))
+    image = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    lut = rng.normal(0, 3, 256).astype(np.float32)
+    k = rng.normal(size=(3, 5, 5)).astype(np.float32)
+    k3 = coarse_kernel(k)
+    out = np.full(((h + 1) // 2, (w + 1) // 2), np.nan, np.float32)
+    coarse_logits(image, lut, k3, np.float32(0.7), np.empty(coarse_scratch_shape(h, w), np.float32), out)
+    assert out.tobytes() == coarse_logits_reference(image, lut, k3, 0.7).tobytes()
+    assert k3.shape == (3, 3, 3) and np.isclose(k3.sum(), k.sum(), rtol=1e-5)  # every tap's weight is kept
+    ramp = np.broadcast_to((np.arange(64)[None, :, None] * 2 + np.arange(48)[:, None, None] + np.array([10, 30, 50])), (48, 64, 3))
+    ramp = np.ascontiguousarray(ramp.astype(np.uint8))
+    linear = np.arange(256, dtype=np.float32) * np.float32(0.01)
+    got = np.empty((24, 32), np.float32)
+    coarse_logits(ramp, linear, k3, np.float32(0.7), np.empty(coarse_scratch_shape(48, 64), np.float32), got)
+    exact = correlate_5x5x3_reference(ramp, linear, k, 0.7)[::2, ::2]
+    np.testing.assert_allclose(got[1:-1, 1:-1], exact[1:-1, 1:-1], atol=1e-4)  # inside: the borders reflect otherwise
+
+
+def test_the_blocks_logits_are_the_full_frames_inside_and_untouched_outside():
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (70, 90, 3), dtype=np.uint8)
+    lut = rng.normal(0, 3, 256).astype(np.float32)
+    k = rng.normal(size=(3, 5, 5)).astype(np.float32)
+    full = correlate_5x5x3_reference(image, lut, k, 0.7)
+    blocks = np.array([[0, 0, 16, 16], [32, 16, 90, 32], [80, 64, 90, 70], [16, 48, 17, 49]], np.int64)
+    out = np.full((70, 90), -np.inf, np.float32)
+    correlate_5x5x3_blocks(image, lut, k, np.float32(0.7), blocks, np.empty(scratch_shape(70, 90), np.float32), out)
+    inside = np.zeros((70, 90), bool)
+    for x0, y0, x1, y1 in blocks:
+        inside[y0:y1, x0:x1] = True
+    assert out[inside].tobytes() == full[inside].tobytes() and np.all(out[~inside] == -np.inf)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_compiled_coarse_blocks_are_their_numpy_reference(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(50):
+        h, w = (int(v) for v in rng.integers(1, 60, 2))
+        mask = rng.random((h, w)) < rng.choice([0.0, 0.002, 0.02, 0.2, 1.0])
+        height, width = 2 * h - int(rng.integers(0, 2)), 2 * w - int(rng.integers(0, 2))
+        got = coarse_blocks(mask, height, width)
+        assert got.tobytes() == coarse_blocks_reference(mask, height, width).tobytes()
+        assert np.all((got[:, 2] <= width) & (got[:, 3] <= height) & (got[:, 0] < got[:, 2]) & (got[:, 1] < got[:, 3]))
+    one = np.zeros((30, 40), bool)
+    one[7, 8] = True  # coarse cell (8, 7) = pixel (16, 14): its block and, one cell away at (7, *), the block on its left
+    assert coarse_blocks(one, 60, 80).tolist() == [[0, 0, 32, 16], [0, 16, 32, 32]]
 
 
 def test_a_read_only_frame_gives_the_same_logits_without_compiling_at_run_time():

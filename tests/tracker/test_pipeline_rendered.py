@@ -195,3 +195,26 @@ def test_bench_cli_writes_json(tmp_path, capsys):
     assert len(rows) == 5 and all({"mode", "framesets_per_s", "p50_ms", "p99_ms", "tracker", "workers"} <= set(r) for r in rows)
     text = capsys.readouterr().out
     assert "goal rt2 full workers=1" in text and "goal rt2 roi workers=1" in text
+
+
+def test_the_coarse_to_fine_full_frame_search_on_the_simulated_labs_frames(renderer):
+    """On rendered lab frames (VGA, the launcher's balls of 5-12 px among the lab's clutter, people and the arm) the
+    coarse-to-fine full-frame search (``DetectorOptions.coarse_full_frame``, the default) gives the candidates of the
+    search that computes every pixel, to the bit."""
+    import dataclasses
+
+    from harness.live.sources.sim import LauncherFlights
+    from tracker import BallDetector, DetectorOptions
+    from tracker.pipeline import load_model
+
+    flights = LauncherFlights(3)
+    model = load_model(None)
+    exact = BallDetector(model, DetectorOptions(coarse_full_frame=False))
+    coarse = BallDetector(model, DetectorOptions())
+    n = 0
+    for k in range(0, 400, 25):
+        for image in renderer.render(dataclasses.replace(flights(k / 200), frame_index=k)):
+            a, b = exact.detect(image), coarse.detect(image)
+            assert a.uv_px.tobytes() == b.uv_px.tobytes() and a.areas_px.tobytes() == b.areas_px.tobytes()
+            n += len(a)
+    assert n >= 20

@@ -28,7 +28,8 @@ import numpy as np
 
 from checks.numba_cache import key_cache_on_callees
 
-__all__ = ["correlate_5x5x3", "correlate_5x5x3_reference", "scratch_shape"]
+__all__ = ["COARSE_BLOCK_PX", "coarse_blocks", "coarse_blocks_reference", "coarse_kernel", "coarse_logits", "coarse_logits_reference", "coarse_scratch_shape", "correlate_5x5x3", "correlate_5x5x3_blocks",
+           "correlate_5x5x3_reference", "scratch_shape"]
 
 
 def scratch_shape(h: int, w: int) -> tuple[int, int, int]:
@@ -72,14 +73,10 @@ def _signatures():
             for ro in (False, True)]
 
 
-@numba.njit(_signatures(), cache=True, nogil=True)
-def correlate_5x5x3(image, lut, k, bias, x0, y0, x1, y1, t, out):
-    """out ((y1 - y0, x1 - x0) float32) = the logits of the window (see the module docstring).
-
-    image : (H, W, 3) uint8, C order (writable or not); lut : (256,) float32; k : (3, 5, 5) float32,
-    channel first, in the image's channel order; bias : float32; x0, y0, x1, y1 : int; t : float32
-    scratch of :func:`scratch_shape` (overwritten). Other types are refused (no compilation at run time).
-    """
+@numba.njit(cache=True, nogil=True)
+def _window_into(image, lut, k, bias, x0, y0, x1, y1, t, out, oy, ox):
+    """out[oy + y, ox + x] = the logit of the image's pixel (x0 + x, y0 + y) for the window's pixels (the body of
+    :func:`correlate_5x5x3`; :func:`correlate_5x5x3_blocks` writes several windows into one frame-sized array)."""
     hh, ww = image.shape[0], image.shape[1]
     h, w = y1 - y0, x1 - x0
     cols = np.empty(w + 4, np.int64)  # padded column -> the image's column
@@ -89,17 +86,116 @@ def correlate_5x5x3(image, lut, k, bias, x0, y0, x1, y1, t, out):
         _transform_row(image, lut, _reflect_101(y0 + p - 2, hh), cols, t, p)
     for y in range(h):
         _transform_row(image, lut, _reflect_101(y0 + y + 2, hh), cols, t, (y + 4) % 5)
-        acc = out[y]
+        acc = out[oy + y]
         for x in range(w):
-            acc[x] = 0.0
+            acc[ox + x] = 0.0
         for c in range(3):
             for i in range(5):
                 r = t[c, (y + i) % 5]
                 a0, a1, a2, a3, a4 = k[c, i, 0], k[c, i, 1], k[c, i, 2], k[c, i, 3], k[c, i, 4]
                 for x in range(w):  # contiguous: vectorised
-                    acc[x] += a0 * r[x] + a1 * r[x + 1] + a2 * r[x + 2] + a3 * r[x + 3] + a4 * r[x + 4]
+                    acc[ox + x] += a0 * r[x] + a1 * r[x + 1] + a2 * r[x + 2] + a3 * r[x + 3] + a4 * r[x + 4]
         for x in range(w):
+            acc[ox + x] += bias
+
+
+@numba.njit(_signatures(), cache=True, nogil=True)
+def correlate_5x5x3(image, lut, k, bias, x0, y0, x1, y1, t, out):
+    """out ((y1 - y0, x1 - x0) float32) = the logits of the window (see the module docstring).
+
+    image : (H, W, 3) uint8, C order (writable or not); lut : (256,) float32; k : (3, 5, 5) float32,
+    channel first, in the image's channel order; bias : float32; x0, y0, x1, y1 : int; t : float32
+    scratch of :func:`scratch_shape` (overwritten). Other types are refused (no compilation at run time).
+    """
+    _window_into(image, lut, k, bias, x0, y0, x1, y1, t, out, 0, 0)
+
+
+def _block_signatures():
+    f32 = [numba.types.Array(numba.float32, n, "C") for n in (1, 2, 3)]
+    i64 = numba.types.Array(numba.int64, 2, "C")
+    return [numba.void(numba.types.Array(numba.uint8, 3, "C", readonly=ro), f32[0], f32[2], numba.float32, i64, f32[2], f32[1])
+            for ro in (False, True)]
+
+
+@numba.njit(_block_signatures(), cache=True, nogil=True)
+def correlate_5x5x3_blocks(image, lut, k, bias, blocks, t, out):
+    """out (the frame's (H, W) float32) = the logits inside each box ``blocks[b] = (x0, y0, x1, y1)``; the rest of
+    ``out`` is left as it was. t : scratch of :func:`scratch_shape` for the widest box (or wider). A pixel's value is
+    the full frame's, bit for bit (the window's arithmetic is the same)."""
+    for b in range(blocks.shape[0]):
+        _window_into(image, lut, k, bias, blocks[b, 0], blocks[b, 1], blocks[b, 2], blocks[b, 3], t, out, blocks[b, 1], blocks[b, 0])
+
+
+def coarse_scratch_shape(h: int, w: int) -> tuple[int, int, int]:
+    """Shape of the float32 scratch of :func:`coarse_logits`: three rows of the half-resolution grid per channel."""
+    return (3, 3, (w + 1) // 2 + 2)
+
+
+def coarse_kernel(k: np.ndarray) -> np.ndarray:
+    """The (3, 3, 3) float32 kernel of :func:`coarse_logits` from a (3, 5, 5) one: each tap at an odd offset split in
+    half between its two even neighbours (the value there taken as the mean of theirs), per axis."""
+    split = np.array([[1, 0, 0], [0.5, 0.5, 0], [0, 1, 0], [0, 0.5, 0.5], [0, 0, 1]], np.float64)
+    return np.ascontiguousarray(np.einsum("cij,ia,jb->cab", np.asarray(k, np.float64), split, split).astype(np.float32))
+
+
+def _coarse_signatures():
+    f32 = [numba.types.Array(numba.float32, n, "C") for n in (1, 2, 3)]
+    return [numba.void(numba.types.Array(numba.uint8, 3, "C", readonly=ro), f32[0], f32[2], numba.float32, f32[2], f32[1])
+            for ro in (False, True)]
+
+
+@numba.njit(_coarse_signatures(), cache=True, nogil=True)
+def coarse_logits(image, lut, k3, bias, t, out):
+    """out ((ceil(H / 2), ceil(W / 2)) float32) ~ the logits at the pixels ``(2 m, 2 r)``, from those pixels alone: the
+    image's every other pixel of every other row, transformed, correlated with ``k3`` (:func:`coarse_kernel`; the
+    half-resolution grid's borders reflected without repeating the edge). About a sixteenth of the full frame's work;
+    an approximation (where the image is not locally linear, e.g. a ball's edge, it differs), for finding where to
+    compute the exact logits. t : scratch of :func:`coarse_scratch_shape`."""
+    ho, wo = out.shape[0], out.shape[1]
+    cols = np.empty(wo + 2, np.int64)  # padded half-grid column -> the image's column
+    for q in range(wo + 2):
+        cols[q] = 2 * _reflect_101(q - 1, wo)
+    for p in range(2):  # padded half-grid rows 0, 1; row p + 2 joins just before output row p
+        _transform_row(image, lut, 2 * _reflect_101(p - 1, ho), cols, t, p)
+    for y in range(ho):
+        _transform_row(image, lut, 2 * _reflect_101(y + 1, ho), cols, t, (y + 2) % 3)
+        acc = out[y]
+        for x in range(wo):
+            acc[x] = 0.0
+        for c in range(3):
+            for i in range(3):
+                r = t[c, (y + i) % 3]
+                a0, a1, a2 = k3[c, i, 0], k3[c, i, 1], k3[c, i, 2]
+                for x in range(wo):
+                    acc[x] += a0 * r[x] + a1 * r[x + 1] + a2 * r[x + 2]
+        for x in range(wo):
             acc[x] += bias
+
+
+def coarse_logits_reference(image: np.ndarray, lut: np.ndarray, k3: np.ndarray, bias) -> np.ndarray:
+    """The plain numpy twin of :func:`coarse_logits`: same operations in the same order; returns a new array."""
+    half = image[::2, ::2]
+    ho, wo = half.shape[:2]
+    t = np.asarray(lut, np.float32)[np.pad(half, ((1, 1), (1, 1), (0, 0)), mode="reflect")]
+    return _correlate_rows(t, k3, ho, wo, bias)
+
+
+def _correlate_rows(t: np.ndarray, k: np.ndarray, h: int, w: int, bias) -> np.ndarray:
+    """The references' sums: per channel and kernel row (in that order) the row's products summed left to right
+    and added to the running sum, the bias last; t : the transformed, padded pixels (h + n - 1, w + n - 1, 3)."""
+    k = np.asarray(k, np.float32)
+    n = k.shape[1]
+    out = np.zeros((h, w), np.float32)
+    for c in range(3):
+        for i in range(n):
+            rows = t[i : i + h, :, c]
+            a = k[c, i]
+            term = a[0] * rows[:, 0:w]
+            for j in range(1, n):
+                term = term + a[j] * rows[:, j : j + w]
+            out += term
+    out += np.float32(bias)
+    return out
 
 
 def correlate_5x5x3_reference(image: np.ndarray, lut: np.ndarray, k: np.ndarray, bias, window=None) -> np.ndarray:
@@ -109,16 +205,70 @@ def correlate_5x5x3_reference(image: np.ndarray, lut: np.ndarray, k: np.ndarray,
     x0, y0, x1, y1 = (0, 0, ww, hh) if window is None else window
     h, w = y1 - y0, x1 - x0
     t = np.asarray(lut, np.float32)[np.pad(image, ((2, 2), (2, 2), (0, 0)), mode="reflect")]  # (H + 4, W + 4, 3)
-    t = t[y0 : y1 + 4, x0 : x1 + 4]
-    k = np.asarray(k, np.float32)
-    out = np.zeros((h, w), np.float32)
-    for c in range(3):
-        for i in range(5):
-            rows = t[i : i + h, :, c]
-            a = k[c, i]
-            out += a[0] * rows[:, 0:w] + a[1] * rows[:, 1 : w + 1] + a[2] * rows[:, 2 : w + 2] + a[3] * rows[:, 3 : w + 3] + a[4] * rows[:, 4 : w + 4]
-    out += np.float32(bias)
-    return out
+    return _correlate_rows(t[y0 : y1 + 4, x0 : x1 + 4], k, h, w, bias)
+
+
+#: the fine pass's blocks, pixels (a multiple of 2: whole coarse cells)
+COARSE_BLOCK_PX = 16
+
+
+def _blocks_signatures():
+    i64 = numba.int64
+    return [i64(numba.types.Array(numba.boolean, 2, "C"), i64, i64, i64, i64, numba.types.Array(numba.boolean, 2, "C"),
+                numba.types.Array(numba.int64, 2, "C"))]
+
+
+def coarse_blocks(mask: np.ndarray, height: int, width: int, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:
+    """(n, 4) int64 boxes ``x0, y0, x1, y1`` of an (height, width) frame to compute at every pixel, from ``mask``, the
+    coarse samples (every other pixel of every other row) above the coarse threshold: the ``block_px`` blocks that
+    hold a sample within one coarse cell (2 pixels) of one above it, consecutive blocks of a row merged into one box,
+    in row-major order (compiled; :func:`coarse_blocks_reference` is its numpy twin)."""
+    cells = block_px // 2
+    on = np.zeros((-(-mask.shape[0] // cells), -(-mask.shape[1] // cells) + 2), np.bool_)
+    out = np.empty((on.size // 2 + 1, 4), np.int64)
+    n = _coarse_blocks_nb(np.ascontiguousarray(mask, np.bool_), cells, block_px, height, width, on, out)
+    return out[:n].copy()
+
+
+@numba.njit(_blocks_signatures(), cache=True, nogil=True)
+def _coarse_blocks_nb(mask, cells, block_px, height, width, on, out):
+    ho, wo = mask.shape
+    for r in range(ho):
+        for c in range(wo):
+            if mask[r, c]:
+                for d in range(-1, 2):
+                    br = min(max(r + d, 0), ho - 1) // cells
+                    for e in range(-1, 2):
+                        on[br, 1 + min(max(c + e, 0), wo - 1) // cells] = True
+    n = 0
+    for by in range(on.shape[0]):
+        for bx in range(on.shape[1] - 1):
+            if on[by, bx + 1] != on[by, bx]:
+                if on[by, bx + 1]:  # a run starts at block bx
+                    out[n, 0] = bx * block_px
+                    out[n, 1] = by * block_px
+                else:  # it ended at block bx - 1
+                    out[n, 2] = min(bx * block_px, width)
+                    out[n, 3] = min((by + 1) * block_px, height)
+                    n += 1
+    return n
+
+
+def coarse_blocks_reference(mask: np.ndarray, height: int, width: int, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:
+    """The plain numpy twin of :func:`coarse_blocks` (the same boxes in the same order)."""
+    rr, cc = np.nonzero(mask)
+    if len(rr) == 0:
+        return np.zeros((0, 4), np.int64)
+    cells = block_px // 2
+    hb, wb = -(-mask.shape[0] // cells), -(-mask.shape[1] // cells)
+    on = np.zeros((hb, wb + 2), np.bool_)  # a False column on each side ends every run
+    for d in (-1, 1, 0):  # a sample's neighbours one cell away: the blocks they fall in
+        r = np.clip(rr + d, 0, mask.shape[0] - 1) // cells
+        for e in (-1, 1, 0):
+            on[r, 1 + np.clip(cc + e, 0, mask.shape[1] - 1) // cells] = True
+    by, bx = np.nonzero(on[:, 1:] != on[:, :-1])  # run edges, in row-major order: start, stop, start, stop, ...
+    y0 = by[0::2] * block_px
+    return np.stack([bx[0::2] * block_px, y0, np.minimum(bx[1::2] * block_px, width), np.minimum(y0 + block_px, height)], axis=1).astype(np.int64)
 
 
 key_cache_on_callees(globals())  # the helpers live in this file, so an edit of them changes the kernel's own cache key too

@@ -31,6 +31,7 @@ import numpy as np
 
 from checks.arrays import describe
 from checks.per_thread import PerThread
+from tracker.detection._correlate import coarse_blocks
 from tracker.detection.blobs import find_blobs
 from tracker.detection.edge_refine import refine_edges
 from tracker.detection.model import BallSegmentationModel, LogitWorkspace, logit, sigmoid
@@ -71,6 +72,12 @@ class DetectorOptions:
         weighted centroid lies within 0.3 diameters of the candidate and it covers a quarter of the ball's disk, gives the centre (sub-pixel to a few
         hundredths of a pixel on balls of the filter's colour), for a stage whose filter sees its balls
         (``LearnedStage.filter_refines``)
+    coarse_full_frame : "ours" searches a full frame coarse to fine: approximate logits first on every other pixel
+        of every other row, from those pixels alone (a 3x3 kernel made of the 5x5 one: about a sixteenth of the work),
+        then the exact logits only in the 16x16-pixel blocks within 2 pixels of a coarse logit above
+        ``logit(T_l) - COARSE_MARGIN_LOGIT``, the rest of the frame below any threshold; Algorithm 1 then runs as on
+        the full frame, and finds the full search's candidates wherever the coarse pass reached them
+        (docs/detector.md, "Coarse to fine", measures how often); False computes every pixel ("paper" always does)
     refine_edges : where the stage's filter does not see its balls (a white ball, an orange filter), the centre of
         each candidate from a circle fitted to its radial edge (:mod:`tracker.detection.edge_refine`; on the
         semi-real caliscope frames' real white balls the median centre error 4.0 -> 0.6 px); its diameter stays
@@ -93,6 +100,7 @@ class DetectorOptions:
     learned_threshold: float | None = None
     refine_with_filter: bool = True
     refine_edges: bool = True
+    coarse_full_frame: bool = True
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -117,7 +125,7 @@ class DetectorOptions:
             raise ValueError(f"DetectorOptions.min_fill_ratio must be in [0, 1], got {self.min_fill_ratio!r}")
         if not self.max_aspect >= 1.0:
             raise ValueError(f"DetectorOptions.max_aspect must be >= 1, got {self.max_aspect!r}")
-        for name in ("verify", "learned", "refine_with_filter", "refine_edges"):
+        for name in ("verify", "learned", "refine_with_filter", "refine_edges", "coarse_full_frame"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"DetectorOptions.{name} must be True or False, got {getattr(self, name)!r}")
         v = self.learned_threshold
@@ -199,6 +207,7 @@ class BallDetector:
                 max_aspect=options.max_aspect,
             )
         self._blob_kw["backend"] = options.backend
+        self._coarse = options.method == "ours" and options.coarse_full_frame
         self._work = PerThread(_Work)  # each thread's buffers of the full-frame search (not pickled)
         self.verifier = model.verifier if options.method == "ours" and options.verify else None
         if self.verifier is not None:  # every accepted blob goes to the verifier, which picks the K best
@@ -237,12 +246,30 @@ class BallDetector:
         work = self._work.get()  # a detector may serve several cameras on several threads
         if window is None:
             x0 = y0 = 0
-            logits = self.model.logits_trusted(image, work.logits)  # into this thread's buffers: no allocation
+            if self._coarse:
+                logits = self._coarse_to_fine(image, work.logits)
+                if logits is None:
+                    return Detections.empty(False)
+            else:
+                logits = self.model.logits_trusted(image, work.logits)  # into this thread's buffers: no allocation
         else:
             x0, y0, x1, y1 = window
             logits = np.ascontiguousarray(self.model.logits_window_trusted(image, x0, y0, x1, y1))
         blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, queues=work.queues(logits.size), **self._blob_kw)
         return self._verified(image, _to_detections(blobs, x0, y0, window is not None))
+
+    def _coarse_to_fine(self, image, work: LogitWorkspace):
+        """The full frame's logits where they can matter (``DetectorOptions.coarse_full_frame``), -inf elsewhere (the
+        whole frame's when the blocks would cover most of it); None when no coarse logit reaches the coarse threshold
+        (no ball)."""
+        coarse = self.model.logits_coarse_trusted(image, work)
+        blocks = coarse_blocks(coarse >= self._tl_logit - COARSE_MARGIN_LOGIT, image.shape[0], image.shape[1])
+        if len(blocks) == 0:
+            return None
+        h, w = image.shape[:2]
+        if ((blocks[:, 2] - blocks[:, 0]) * (blocks[:, 3] - blocks[:, 1])).sum() > COARSE_MAX_SHARE * h * w:
+            return self.model.logits_trusted(image, work)
+        return self.model.logits_blocks_trusted(image, blocks, work)
 
     def _detect_learned(self, image, window, frame_shape) -> Detections:
         """The learned stage's candidates as :class:`Detections`: boxes of the predicted diameter around the
@@ -297,6 +324,13 @@ class BallDetector:
         keep = np.flatnonzero(prob >= self.verifier.threshold)
         keep = keep[np.argsort(-prob[keep], kind="stable")][: self.options.max_candidates]
         return Detections(uv[keep], prob[keep], det.boxes_xywh[keep], det.areas_px[keep], det.used_roi)
+
+
+#: the coarse pass's threshold is this far below logit(T_l): its approximation may fall short of the exact logits
+#: (the least margin seen at the full search's candidates on the simulated lab's renders: 0.58; docs/detector.md)
+COARSE_MARGIN_LOGIT = 1.0
+#: when the blocks would cover more than this share of the frame, the whole frame is computed (as fast, and exact)
+COARSE_MAX_SHARE = 0.5
 
 
 class _Work:

@@ -31,7 +31,8 @@ import numpy as np
 
 from checks.arrays import describe
 from checks.files import load_npz_checked
-from tracker.detection._correlate import correlate_5x5x3, scratch_shape
+from tracker.detection._correlate import (coarse_kernel, coarse_logits, coarse_scratch_shape, correlate_5x5x3, correlate_5x5x3_blocks,
+                                          scratch_shape)
 from tracker.detection.learned import LearnedStage
 from tracker.detection.verifier import CandidateVerifier
 from tracker.images import check_image
@@ -113,6 +114,7 @@ class BallSegmentationModel:
     # Derived at construction: the kernel for T(uint8 RGB channels) with the scaling folded in.
     _kernel_crgb: np.ndarray = field(init=False, repr=False, compare=False)
     _bias_eff: float = field(init=False, repr=False, compare=False)
+    _kernel_coarse: np.ndarray = field(init=False, repr=False, compare=False)
     _lut: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -179,6 +181,7 @@ class BallSegmentationModel:
         bias_eff = bias + float(sum(offset[c] * k64[:, :, c].sum() for c in range(3)))
         object.__setattr__(self, "_kernel_crgb", kernel_crgb)
         object.__setattr__(self, "_bias_eff", bias_eff)
+        object.__setattr__(self, "_kernel_coarse", coarse_kernel(kernel_crgb))
         object.__setattr__(self, "_lut", transform_lut(self.input_transform, log_offset))  # T of the 256 channel values
 
     # -- inference -----------------------------------------------------------------------------
@@ -238,6 +241,26 @@ class BallSegmentationModel:
         out = np.empty((h, w), np.float32)
         correlate_5x5x3(np.ascontiguousarray(image), self._lut, self._kernel_crgb, np.float32(self._bias_eff),
                         x0, y0, x1, y1, np.empty(scratch_shape(h, w), np.float32), out)
+        return out
+
+    def logits_coarse_trusted(self, image: np.ndarray, work: "LogitWorkspace") -> np.ndarray:
+        """(ceil(H / 2), ceil(W / 2)) float32 approximate logits of every other pixel of every other row of a trusted
+        image, from those pixels alone (:func:`tracker.detection._correlate.coarse_logits`), into ``work``'s buffer."""
+        h, w = image.shape[:2]
+        t, out = work.coarse_buffers((h, w))
+        coarse_logits(np.ascontiguousarray(image), self._lut, self._kernel_coarse, np.float32(self._bias_eff), t, out)
+        return out
+
+    def logits_blocks_trusted(self, image: np.ndarray, blocks: np.ndarray, work: "LogitWorkspace") -> np.ndarray:
+        """The (H, W) float32 logits of a trusted image inside the boxes ``blocks`` ((n, 4) int64 ``x0, y0, x1, y1``,
+        each inside the image) and -inf elsewhere, into ``work``'s full-frame buffer (the previous call's boxes are
+        reset, not the whole frame): the full frame's values in the boxes, bit for bit."""
+        h, w = image.shape[:2]
+        out = work.sparse_buffer((h, w))
+        widest = int((blocks[:, 2] - blocks[:, 0]).max()) if len(blocks) else 0
+        t = work.scratch((h, max(widest, 1)))
+        correlate_5x5x3_blocks(np.ascontiguousarray(image), self._lut, self._kernel_crgb, np.float32(self._bias_eff), blocks, t, out)
+        work.filled = blocks
         return out
 
     # -- files ---------------------------------------------------------------------------------
@@ -359,6 +382,10 @@ class LogitWorkspace:
     def __init__(self):
         self._shape = None
         self._bufs = None
+        self._coarse = (None, None)
+        self._sparse = None
+        self._scratch = np.empty((3, 5, 0), np.float32)
+        self.filled = np.zeros((0, 4), np.int64)  # the boxes of the sparse buffer that hold logits (the rest: -inf)
 
     def buffers(self, shape) -> tuple:
         shape = tuple(int(v) for v in shape)
@@ -366,3 +393,29 @@ class LogitWorkspace:
             self._bufs = (np.empty(scratch_shape(*shape), np.float32), np.empty(shape, np.float32))
             self._shape = shape
         return self._bufs
+
+    def coarse_buffers(self, shape) -> tuple:
+        """The scratch and the (ceil(H / 2), ceil(W / 2)) output of the coarse logits of frames of ``shape``."""
+        shape = tuple(int(v) for v in shape)
+        if self._coarse[0] != shape:
+            h, w = shape
+            self._coarse = (shape, (np.empty(coarse_scratch_shape(h, w), np.float32), np.empty(((h + 1) // 2, (w + 1) // 2), np.float32)))
+        return self._coarse[1]
+
+    def sparse_buffer(self, shape) -> np.ndarray:
+        """An (H, W) float32 buffer of -inf but for nothing: the boxes of the last call's logits reset to -inf."""
+        shape = tuple(int(v) for v in shape)
+        if self._sparse is None or self._sparse.shape != shape:
+            self._sparse = np.full(shape, -np.inf, np.float32)
+        else:
+            for x0, y0, x1, y1 in self.filled:
+                self._sparse[y0:y1, x0:x1] = -np.inf
+        self.filled = np.zeros((0, 4), np.int64)
+        return self._sparse
+
+    def scratch(self, shape) -> np.ndarray:
+        """A transformed-rows scratch wide enough for windows of ``shape`` (grown, never shrunk)."""
+        need = scratch_shape(*shape)
+        if self._scratch.shape[2] < need[2]:
+            self._scratch = np.empty(need, np.float32)
+        return self._scratch

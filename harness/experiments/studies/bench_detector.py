@@ -5,6 +5,8 @@ Rows (all in one process, one thread each, same image, same weights):
 * ``full / cv2`` — the production path: ``BallDetector.detect`` on the whole frame (the logits in one
   compiled pass: the input transform's lookup and the 5x5x3 correlation, ``tracker/detection/_correlate.py``;
   Algorithm 1 with top-K candidates, numba flood fill). The row keeps its name for the scripts that read it.
+* ``full / cv2 every pixel`` — the same with the logits of every pixel computed (``DetectorOptions.coarse_full_frame``
+  off): the full-frame search before its coarse pass, the ratio's baseline; a breakdown row times the coarse pass alone.
 * ``roi / cv2`` — the same in a window of side ``2 * roi_half_size_px`` around a predicted pixel.
 * ``full / cv2 without verifier``, ``roi / cv2 without verifier`` (models with a candidate verifier
   only) — the same detector with the filter alone, so the verifier's cost is the difference; a
@@ -154,10 +156,13 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
 
     from tracker import BallDetector, DetectorOptions
     from tracker.detection.blobs import find_blobs
+    from tracker.detection.model import LogitWorkspace
 
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
     det = BallDetector(model, DetectorOptions(roi_half_size_px=roi_half_size_px, learned=False))
+    every = BallDetector(model, DetectorOptions(roi_half_size_px=roi_half_size_px, learned=False, coarse_full_frame=False))
+    work = LogitWorkspace()
     learned = _window_detector(model, roi_half_size_px) if model.learned is not None else None
     window = _window(image, roi_center_px, roi_half_size_px)
     if len((learned or det).detect(image, window)) == 0:
@@ -197,17 +202,20 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
             **extra_learned_full,
             **extra_full,
             ("full", "cv2"): lambda: det.detect(image),
+            ("full", "cv2 every pixel"): lambda: every.detect(image),
             ("full", "torch"): lambda: tdet(image),
             ("full", "cv2: logits only (LUT + one compiled 5x5x3 pass)"): lambda: model.logits(image),
             ("full", "cv2: logits as 3 x filter2D, summed (baseline)"): lambda: filter2d_logits(model, image),
             ("full", "cv2: Algorithm 1 top-K on given logits"): lambda: find_blobs(lg, th, tl, **blob_kw),
+            ("full", "cv2: coarse pass only (every other pixel, 3x3)"): lambda: model.logits_coarse_trusted(image, work),
         },
         repeats,
     )
     roi = _median_ms({**extra_learned_roi, ("roi", "cv2"): lambda: det.detect(image, window), ("roi", "torch"): lambda: tdet(image, window), **extra_roi},
                      repeats * 10)
     timed = {**full, **roi}
-    main = ([("full", "learned"), ("roi", "learned")] if learned is not None else []) + [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")]
+    main = ([("full", "learned"), ("roi", "learned")] if learned is not None else []) + [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch"),
+                                                                                      ("full", "cv2 every pixel")]
     if model.verifier is not None:
         main += [("full", "cv2 without verifier"), ("roi", "cv2 without verifier")]
     rows = [dict(mode=m, backend=b, median_ms=timed[m, b]) for m, b in main]
@@ -246,6 +254,7 @@ def run(args) -> int:
     by = {(r["mode"], r["backend"]): r["median_ms"] for r in rows}
     for mode in ("full", "roi"):
         print(f"{mode}: torch / cv2 = {by[(mode, 'torch')] / by[(mode, 'cv2')]:.2f}x")
+    print(f"full: every pixel / coarse to fine = {by[('full', 'cv2 every pixel')] / by[('full', 'cv2')]:.2f}x")
     if model.verifier is not None:
         for mode in ("full", "roi"):
             print(f"{mode}: with verifier / without = {by[(mode, 'cv2')] / by[(mode, 'cv2 without verifier')]:.2f}x")

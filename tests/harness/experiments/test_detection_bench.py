@@ -10,14 +10,14 @@ import pytest
 from harness.cli import main
 from tracker.detection.synthetic import hand_made_model
 
-ROWS = {("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")}
+ROWS = {("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch"), ("full", "cv2 every pixel")}
 
 
 def test_bench_json_rows_rendered_frame(tmp_path, capsys):
     out = tmp_path / "bench.json"  # default: the shipped model on a rendered lab4_vga frame
     assert main(["bench", "detector", "--repeats", "3", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())
-    assert [(r["mode"], r["backend"]) for r in rows] == [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")]
+    assert [(r["mode"], r["backend"]) for r in rows] == [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch"), ("full", "cv2 every pixel")]
     assert all(set(r) == {"mode", "backend", "median_ms"} and 0 < r["median_ms"] < 10_000 for r in rows)
     text = capsys.readouterr().out
     assert "rendered lab4_vga cam0 frame, orange ball (seed 0, scene" in text and "medians of 3 (ROI: 30) runs" in text
@@ -39,9 +39,9 @@ def test_bench_times_the_detector_on_a_frame_where_it_finds_the_ball():
     image = np.full((480, 640, 3), 100, np.uint8)
     draw_disk(image, (300.0, 200.0), 12.0, (245, 120, 20))
     rows, breakdown = bench(model, image, (300.0, 200.0), repeats=2)
-    assert [(r["mode"], r["backend"]) for r in rows] == [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch")]
+    assert [(r["mode"], r["backend"]) for r in rows] == [("full", "cv2"), ("roi", "cv2"), ("full", "torch"), ("roi", "torch"), ("full", "cv2 every pixel")]
     assert [r["backend"] for r in breakdown] == ["cv2: logits only (LUT + one compiled 5x5x3 pass)", "cv2: logits as 3 x filter2D, summed (baseline)",
-                                                 "cv2: Algorithm 1 top-K on given logits"]
+                                                 "cv2: Algorithm 1 top-K on given logits", "cv2: coarse pass only (every other pixel, 3x3)"]
     # the baseline row computes the same logits (up to float32 rounding: other summation order)
     np.testing.assert_allclose(filter2d_logits(model, image), model.logits(image), atol=1e-4)
     empty = np.full((480, 640, 3), 100, np.uint8)
