@@ -82,8 +82,8 @@ class TrackerOptions:
         occluded, out of view or gone; measured: 1 of 141 retries on ``rt2 track --source sim``
         confirmed the ball, none right after a failed one), yet each costs the window pass plus full
         frames. 0 = retry at every such frame set
-    retry_confirm_support : the full-frame fallback goes a batch of cameras at a time (``max(2, workers)``: one
-        per thread), the cameras that see most of the rig's workspace first, and stops once the consensus is
+    retry_confirm_support : the full-frame fallback goes a batch of cameras at a time (``2 * workers``: two per
+        thread), the cameras that see most of the rig's workspace first, and stops once the consensus is
         ``OK`` with at least this many cameras; the cameras left are searched in windows around that position's
         pixels (the windows' usual search, then the full frame if that does not confirm it). With at most
         ``retry_confirm_support + 1`` cameras, and with ``hypotheses`` unless the ball found is the ball in play

@@ -214,17 +214,18 @@ class SegmentationEngine:
 
     def _retry(self, t_s: float, redo: list[int], roi_px: np.ndarray, used_roi: np.ndarray, window_status: Status, notes: list):
         """The full-frame fallback over the cameras ``redo`` (their rows cleared): a batch of
-        ``max(2, workers)`` cameras at a time in :attr:`_search_order` (one per thread), until the consensus
+        ``2 * workers`` cameras at a time in :attr:`_search_order` (two per thread), until the consensus
         is ``OK`` with ``retry_confirm_support`` cameras; then, unless the ball hypotheses want every camera's
         full frame for it (:meth:`_windows_will_do`), the cameras left search windows around that position's pixels (``roi_px`` and ``used_roi`` updated), and the full frame only if they do not
-        confirm it (``TrackerOptions.retry_confirm_support``). Returns ``(X, info, ratio)``."""
+        confirm it (``TrackerOptions.retry_confirm_support``); when the hypotheses want them, the cameras left search
+        their full frames all at once (one parallel call, not batch by batch). Returns ``(X, info, ratio)``."""
         need = self.options.retry_confirm_support
         if need is None or len(redo) <= need + 1:  # every camera at once
             notes.append(f"window search gave {window_status.value}; full frame searched in {', '.join(self._names[i] for i in redo)}")
             used_roi[redo] = False
             self._detect(redo, roi_px, used_roi)
             return self._estimate(notes)
-        batch = max(2, self.options.workers)
+        batch = 2 * max(1, self.options.workers)  # two frames per thread: often enough for a confirmed position
         left = [i for i in self._search_order if i in redo]
         full: list[int] = []
         X = info = ratio = None
@@ -234,7 +235,13 @@ class SegmentationEngine:
             self._detect(step, roi_px, used_roi)
             full += step
             X, info, ratio = self._estimate(notes)
-            if left and info.status is Status.OK and info.support >= need and self._windows_will_do(t_s, X):
+            if left and info.status is Status.OK and info.support >= need and not self._windows_will_do(t_s, X):
+                used_roi[left] = False  # every full frame is wanted: the rest at once, on every thread
+                self._detect(left, roi_px, used_roi)
+                full += left
+                left = []
+                X, info, ratio = self._estimate(notes)
+            elif left and info.status is Status.OK and info.support >= need:
                 roi_px[left] = self._project(X, left)
                 used_roi[left] = np.isfinite(roi_px[left, 0])
                 rest = [i for i in left if used_roi[i]]  # a camera the ball is behind is not searched
