@@ -149,15 +149,16 @@ def _command_ahead(wam: WamClient, t_rel_s, q, qdot, lead_s: float, tries: int =
                      f"{lead:g} s ahead): this machine is too busy to command it")
 
 
-def link_motion_source(address: str):
+def link_motion_source(address: str, *, state_timeout_s: float = 0.25):
     """``run_accuracy``'s ``motion_source`` for the robot at ``address``; ``"sim"`` starts ``rt2 robot serve --sim
-    --publish-truth`` with the session's robot seed as a separate process for the run (and stops it after)."""
+    --publish-truth`` with the session's robot seed as a separate process for the run (and stops it after).
+    state_timeout_s : no joint state for this long = link lost (:class:`harness.link.client.WamClient`'s ``timeout_s``)."""
     if not isinstance(address, str) or not (address == "sim" or address.startswith(("tcp://", "ipc://"))):
         raise ValueError(f"--robot must be a bridge address like tcp://127.0.0.1:7650 or 'sim', got {address!r}")
 
     def run_on(addr: str, kin, config) -> RobotMotion:
         try:
-            wam = WamClient(addr, kinematics=kin)
+            wam = WamClient(addr, kinematics=kin, timeout_s=state_timeout_s)
         except LinkLostError as exc:  # no robot there: a bad address (exit 2)
             raise ValueError(f"robot link: {exc}") from None
         with wam:  # a link lost from here on is a failure at run time (LinkLostError: exit 1)
