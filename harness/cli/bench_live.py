@@ -57,6 +57,11 @@ def run(args) -> int:
                   f"{'met' if goals['rate'] else 'NOT met'}, p99 <= {target['p99_ms']:g} ms {'met' if goals['p99'] else 'NOT met'}"
                   + ("" if goals["max"] is None else f", max <= {target['max_ms']:g} ms {'met' if goals['max'] else 'NOT met'}")
                   + f", no drops by rt2 {'met' if goals['no_drops_by_rt2'] else 'NOT met'}")
+        full = doc.get("full_goals_met")
+        if full is not None:
+            print(f"goals ({doc['rig']}, full frame, the 5x5 filter alone): sustained {doc['full_goals']['rate_hz']:g}/s "
+                  f"{'met' if full['rate'] else 'NOT met'}, longest wait <= {doc['full_goals']['wait_periods']:g} period "
+                  f"{'met' if full['wait'] else 'NOT met'}")
         for r in doc["modes"]:
             print("\n".join(format_budget(r["latency_budget_ms"], f"{doc['rig']}, mode {r['mode']}")))
     if args.json:
