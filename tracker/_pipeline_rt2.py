@@ -236,11 +236,7 @@ class SegmentationEngine:
             full += step
             X, info, ratio = self._estimate(notes)
             if left and info.status is Status.OK and info.support >= need and not self._windows_will_do(t_s, X):
-                used_roi[left] = False  # every full frame is wanted: the rest at once, on every thread
-                self._detect(left, roi_px, used_roi)
-                full += left
-                left = []
-                X, info, ratio = self._estimate(notes)
+                batch = len(left)  # every full frame is wanted: the rest at once, on every thread
             elif left and info.status is Status.OK and info.support >= need:
                 roi_px[left] = self._project(X, left)
                 used_roi[left] = np.isfinite(roi_px[left, 0])

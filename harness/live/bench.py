@@ -54,6 +54,8 @@ RIG_GOALS = {"lab9_ace": {"p99_ms": 8.0, "max_ms": None}}
 #: the full-frame mode's goals with the 5x5 filter alone (a model without a learned stage): it keeps up, and a frame
 #: set waits for the tracker at most one frame period
 FULL_GOALS = {"rate_hz": 200.0, "wait_periods": 1.0}
+#: "sustained": at least this share of the rate asked is delivered (199 of 200 frame sets/s)
+RATE_SHARE = 0.995
 
 
 def goals_for(rig) -> dict:
@@ -95,14 +97,14 @@ def bench_live(args, modes: list[str], config, *, progress=None, truth_scene=Non
     roi = next((r for r in rows if r["mode"] == "roi"), None)
     goals, target = None, goals_for(args.rig)
     if roi is not None:
-        goals = {"rate": roi["rate_hz"] >= 0.995 * target["rate_hz"] if args.rate_hz >= target["rate_hz"] else None,
+        goals = {"rate": roi["rate_hz"] >= RATE_SHARE * target["rate_hz"] if args.rate_hz >= target["rate_hz"] else None,
                  "p99": roi["latency_ms"]["p99"] <= target["p99_ms"],
                  "max": None if target["max_ms"] is None else roi["latency_ms"]["max"] <= target["max_ms"],
                  "no_drops_by_rt2": roi["dropped_by_rt2_total"] == 0}
     full = next((r for r in rows if r["mode"] == "full"), None)
     full_goals = None
     if full is not None and args.rate_hz >= FULL_GOALS["rate_hz"] and not _has_learned_stage(config.model_path):
-        full_goals = {"rate": full["rate_hz"] >= 0.995 * FULL_GOALS["rate_hz"],
+        full_goals = {"rate": full["rate_hz"] >= RATE_SHARE * FULL_GOALS["rate_hz"],
                       "wait": full["backlog_wait_periods"].get("max", math.inf) <= FULL_GOALS["wait_periods"]}
     return {"date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "cpus": os.cpu_count(),
             "source": list(args.source), "rig": args.rig, "rate_hz": args.rate_hz, "tracker": args.tracker,

@@ -256,11 +256,10 @@ class BallSegmentationModel:
         each inside the image) and -inf elsewhere, into ``work``'s full-frame buffer (the previous call's boxes are
         reset, not the whole frame): the full frame's values in the boxes, bit for bit."""
         h, w = image.shape[:2]
-        out = work.sparse_buffer((h, w))
+        out = work.sparse_buffer((h, w), blocks)
         widest = int((blocks[:, 2] - blocks[:, 0]).max()) if len(blocks) else 0
         t = work.scratch((h, max(widest, 1)))
         correlate_5x5x3_blocks(np.ascontiguousarray(image), self._lut, self._kernel_crgb, np.float32(self._bias_eff), blocks, t, out)
-        work.filled = blocks
         return out
 
     # -- files ---------------------------------------------------------------------------------
@@ -385,7 +384,7 @@ class LogitWorkspace:
         self._coarse = (None, None)
         self._sparse = None
         self._scratch = np.empty((3, 5, 0), np.float32)
-        self.filled = np.zeros((0, 4), np.int64)  # the boxes of the sparse buffer that hold logits (the rest: -inf)
+        self._filled = np.zeros((0, 4), np.int64)  # the boxes of the sparse buffer that hold logits (the rest: -inf)
 
     def buffers(self, shape) -> tuple:
         shape = tuple(int(v) for v in shape)
@@ -402,15 +401,16 @@ class LogitWorkspace:
             self._coarse = (shape, (np.empty(coarse_scratch_shape(h, w), np.float32), np.empty(((h + 1) // 2, (w + 1) // 2), np.float32)))
         return self._coarse[1]
 
-    def sparse_buffer(self, shape) -> np.ndarray:
-        """An (H, W) float32 buffer of -inf but for nothing: the boxes of the last call's logits reset to -inf."""
+    def sparse_buffer(self, shape, blocks: np.ndarray) -> np.ndarray:
+        """An (H, W) float32 buffer of -inf, for logits to be written in the boxes ``blocks`` (remembered: the next call
+        resets them, not the whole frame)."""
         shape = tuple(int(v) for v in shape)
         if self._sparse is None or self._sparse.shape != shape:
             self._sparse = np.full(shape, -np.inf, np.float32)
         else:
-            for x0, y0, x1, y1 in self.filled:
+            for x0, y0, x1, y1 in self._filled:
                 self._sparse[y0:y1, x0:x1] = -np.inf
-        self.filled = np.zeros((0, 4), np.int64)
+        self._filled = blocks
         return self._sparse
 
     def scratch(self, shape) -> np.ndarray:

@@ -518,23 +518,20 @@ def _best_threshold(truth, cands, k: int, min_diameter_px: float):
     return best[1], best[2]
 
 
-def _alone_scores(alone: dict, images, labelled, k: int, min_diameter_px: float):
-    """Top-K scores of the 5x5 filter alone (no learned stage) on the images ``alone`` holds a held-out model of."""
-    import dataclasses
-
+def _alone_scores(alone, images, labelled, k: int, min_diameter_px: float):
+    """Top-K scores of the 5x5 filter alone (no learned stage, no verifier) on the images each of ``alone``'s
+    ``(model, indices)`` pairs holds out."""
     from harness.experiments.detector.scores import score_detections, truth_of
     from tracker import BallDetector, DetectorOptions
 
-    detectors, found, centers, diameters = {}, [], [], []
-    for i in sorted(alone):
-        m = alone[i]
-        if id(m) not in detectors:
-            detectors[id(m)] = BallDetector(dataclasses.replace(m, learned=None, verifier=None),
-                                            DetectorOptions(method="ours", max_candidates=k))
-        found.append(detectors[id(m)].detect(images[i]).uv_px)
-        c, d = truth_of(labelled[i])
-        centers.append(c)
-        diameters.append(d)
+    found, centers, diameters = [], [], []
+    for model, indices in alone:
+        det = BallDetector(model, DetectorOptions(method="ours", max_candidates=k, learned=False, verify=False))
+        for i in indices:
+            found.append(det.detect(images[i]).uv_px)
+            c, d = truth_of(labelled[i])
+            centers.append(c)
+            diameters.append(d)
     return score_detections("topk", centers, diameters, found, min_diameter_px=min_diameter_px)
 
 
@@ -550,7 +547,7 @@ def state_of_onnx(onnx_bytes: bytes) -> dict:
 
 def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int, k: int = 4, min_diameter_px: float = 6.0,
                 finetune_steps: int = 150, scratch_steps: int = 400, batch: int = 16, patch_px: int = 96, extra=(),
-                alone: dict | None = None, log=print, progress: bool = False):
+                alone=None, log=print, progress: bool = False):
     """The learned stage ``rt2 train`` writes, chosen by cross-validation; returns ``(stage, info)``.
 
     labelled : ``LabelledImage`` list (the user's labels); images : their (H, W, 3) uint8 RGB images
@@ -561,9 +558,9 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     is, the base fine-tuned (``finetune_steps``) and a stage from scratch (``scratch_steps``) are scored on the frames
     each fit did not see (top-K candidates, each at its best threshold); the best by recall - outliers is refitted on
     every image (the base itself when it wins) with that threshold. ``info``: the choices' figures, the chosen one.
-    alone : ``{index of labelled: BallSegmentationModel}``, the 5x5 filter as ``rt2 train`` writes it, fitted without
-    that image (a kept base model, a cross-validation fold's model or the validation split's): the choice "none", the
-    filter alone scored top-K on those images, which wins ties (returned stage None)
+    alone : ``(BallSegmentationModel, indices of labelled)`` pairs, the 5x5 filter as ``rt2 train`` writes it, fitted
+    without those images (a kept base model, a cross-validation fold's model or the validation split's): the choice
+    "none", the filter alone scored top-K on those images, which wins ties (returned stage None)
     """
     from harness.experiments.detector.scores import truth_of
 
@@ -604,13 +601,10 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
         log(f"learned stage: fold {f + 1}/{len(folds)} done")
     scored = [i for i in range(len(labelled)) if all(oof[n][i] is not None for n in names)]
     truth = ([truth_of(labelled[i])[0] for i in scored], [truth_of(labelled[i])[1] for i in scored])
-    choices = []
+    choices = [StageChoice(name, *_best_threshold(truth, [oof[name][i] for i in scored], k, min_diameter_px)) for name in names]
     if alone:
-        choices.append(StageChoice("none", float("nan"), _alone_scores(alone, images, labelled, k, min_diameter_px)))
-        names = ["none"] + names
-    for name in names[1 if alone else 0:]:
-        th, s = _best_threshold(truth, [oof[name][i] for i in scored], k, min_diameter_px)
-        choices.append(StageChoice(name, th, s))
+        choices.insert(0, StageChoice("none", float("nan"), _alone_scores(alone, images, labelled, k, min_diameter_px)))
+        names = ["none", *names]
     for c in choices:
         log(f"learned stage, {len(folds)}-fold cross-validation on {len(scored)} images: {c.line()}")
     best = max(choices, key=lambda c: (round(c.gain, 9), -names.index(c.name)))

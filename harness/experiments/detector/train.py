@@ -817,12 +817,12 @@ def _fit_filter(torch, labelled, opts: TrainOptions, base, rng, *, progress: boo
              f"(+{opts.augment_copies} augmented copies each), thresholds by {how}, seed {opts.seed}; {summary}")
     model = dataclasses.replace(base, description=desc) if kept_base else _to_model(r["w"], r["b"], r["norm"], opts, t_high, t_low, area, desc)
     if kept_base:  # the base never saw these images: all of them are held out
-        alone = {i: model for i in range(len(labelled))}
+        alone = [(model, list(range(len(labelled))))]
     elif choice == "split":
         val_ids = {id(li) for li in val_set}
-        alone = {i: model for i, li in enumerate(labelled) if id(li) in val_ids}
+        alone = [(model, [i for i, li in enumerate(labelled) if id(li) in val_ids])]
     else:  # each fold's model at the thresholds chosen on all folds
-        alone = {i: dataclasses.replace(m_f, t_high=t_high, t_low=t_low, area_range_px=area) for m_f, fold in fold_models for i in fold}
+        alone = [(dataclasses.replace(m_f, t_high=t_high, t_low=t_low, area_range_px=area), fold) for m_f, fold in fold_models]
     info = dict(n_train=n_train, n_val=n_val, n_pos=r["n_pos"], n_neg=r["n_neg"], n_hard=r["n_hard"], history=r["history"],
                 best_epoch=epoch, t_high=t_high, t_low=t_low, area_range_px=area, val_ours=s_ours, val_paper=s_paper,
                 threshold_choice=choice, kept_base=kept_base, base_ours=None if base_scores is None else base_scores[0], filter_kept=False,
