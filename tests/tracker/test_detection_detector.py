@@ -160,6 +160,36 @@ def test_the_coarse_to_fine_full_frame_finds_the_full_searchs_candidates():
     assert not BallDetector(MODEL, DetectorOptions(method="paper"))._coarse
 
 
+def test_the_coarse_to_fine_search_grows_its_blocks_until_no_blob_is_cut():
+    """A blob above T_l that reaches past the blocks the coarse pass chose (one-pixel stripes of the ball's colour
+    hanging from a ball: the coarse pass samples every other column and sees only the grey between them) is flood
+    filled as on the full frame: the blocks grow until no pixel above T_l lies on the edge of the computed region."""
+    import cv2
+
+    from tracker.detection._correlate import coarse_blocks
+    from tracker.detection.detector import COARSE_MARGIN_LOGIT
+    from tracker.detection.model import LogitWorkspace, logit
+
+    image = np.full((96, 128, 3), 90, np.uint8)
+    draw_disk(image, (40.0, 20.0), 6.0, ORANGE_RGB)
+    image[20:90, 35:46:2] = ORANGE_RGB  # stripes at odd columns from the ball down to near the bottom
+    opts = dict(min_area_px=1, max_area_px=100000, min_fill_ratio=0.0, max_aspect=100.0)
+    exact = BallDetector(MODEL, DetectorOptions(coarse_full_frame=False, **opts)).detect(image)
+    coarse = BallDetector(MODEL, DetectorOptions(**opts)).detect(image)
+    assert len(exact) >= 1
+    assert exact.uv_px.tobytes() == coarse.uv_px.tobytes() and exact.areas_px.tobytes() == coarse.areas_px.tobytes()
+    assert exact.scores.tobytes() == coarse.scores.tobytes() and exact.boxes_xywh.tobytes() == coarse.boxes_xywh.tobytes()
+    # the scene does need the growth: the full search's blob reaches past the coarse pass's own blocks
+    tl = logit(MODEL.t_low)
+    first = coarse_blocks(MODEL.logits_coarse_trusted(image, LogitWorkspace()) >= tl - COARSE_MARGIN_LOGIT, 96, 128)
+    inside = np.zeros((96, 128), bool)
+    for x0, y0, x1, y1 in first:
+        inside[y0:y1, x0:x1] = True
+    _, labels = cv2.connectedComponents((MODEL.logits(image) > tl).astype(np.uint8), connectivity=4)
+    blob = labels == labels[20, 40]
+    assert blob.sum() == exact.areas_px[0] and (blob & ~inside).any()
+
+
 # -- bad input -----------------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     "kwargs, match",

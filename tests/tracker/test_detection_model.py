@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tracker import BallSegmentationModel
-from tracker.detection._correlate import (coarse_blocks, coarse_blocks_reference, coarse_kernel, coarse_logits, coarse_logits_reference,
+from tracker.detection._correlate import (COARSE_BLOCK_PX, blob_frontier, blob_frontier_reference, coarse_blocks, coarse_blocks_reference, coarse_kernel, coarse_logits, coarse_logits_reference,
                                           coarse_scratch_shape, correlate_5x5x3, correlate_5x5x3_blocks, correlate_5x5x3_reference,
                                           scratch_shape)
 from tracker.detection.model import MODEL_FORMAT, logit, sigmoid, transform_lut
@@ -155,6 +155,32 @@ def test_the_compiled_coarse_blocks_are_their_numpy_reference(seed):
     one = np.zeros((30, 40), bool)
     one[7, 8] = True  # coarse cell (8, 7) = pixel (16, 14): its block and, one cell away at (7, *), the block on its left
     assert coarse_blocks(one, 60, 80).tolist() == [[0, 0, 32, 16], [0, 16, 32, 32]]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_compiled_blob_frontier_is_its_numpy_reference(seed):
+    """The blocks the coarse-to-fine search adds so that no blob above T_l is cut at the computed region's edge."""
+    rng = np.random.default_rng(seed)
+    for _ in range(40):
+        h, w = (int(v) for v in rng.integers(1, 90, 2))
+        logits = rng.normal(0, 1, (h, w)).astype(np.float32)
+        hb, wb = -(-h // COARSE_BLOCK_PX), -(-w // COARSE_BLOCK_PX)
+        computed = np.zeros((hb, wb + 2), np.bool_)
+        computed[:, 1:-1] = rng.random((hb, wb)) < rng.choice([0.0, 0.2, 0.5, 1.0])
+        logits[np.repeat(np.repeat(~computed[:, 1:-1], COARSE_BLOCK_PX, 0), COARSE_BLOCK_PX, 1)[:h, :w]] = -np.inf
+        theta = float(rng.choice([-1.0, 1.0, 2.5, 9.0]))
+        got = blob_frontier(logits, computed, theta)
+        assert got.tobytes() == blob_frontier_reference(logits, computed, theta).tobytes()
+        assert not (got & computed).any() and not got[:, 0].any() and not got[:, -1].any()
+    # one computed block; a pixel above theta on its right edge, one on its top edge of the frame (no block there)
+    logits = np.full((40, 40), -np.inf, np.float32)
+    logits[16:32, 16:32] = 0.0
+    logits[20, 31] = logits[16, 20] = 3.0
+    computed = np.zeros((3, 5), np.bool_)
+    computed[1, 2] = True
+    got = blob_frontier(logits, computed, 2.0)
+    assert np.argwhere(got).tolist() == [[0, 2], [1, 3]]  # the block above and the one on the right
+    assert not blob_frontier(logits, computed, 3.5).any()
 
 
 def test_a_read_only_frame_gives_the_same_logits_without_compiling_at_run_time():

@@ -28,8 +28,8 @@ import numpy as np
 
 from checks.numba_cache import key_cache_on_callees
 
-__all__ = ["COARSE_BLOCK_PX", "coarse_blocks", "coarse_blocks_reference", "coarse_kernel", "coarse_logits", "coarse_logits_reference", "coarse_scratch_shape", "correlate_5x5x3", "correlate_5x5x3_blocks",
-           "correlate_5x5x3_reference", "scratch_shape"]
+__all__ = ["COARSE_BLOCK_PX", "blob_frontier", "blob_frontier_reference", "coarse_blocks", "coarse_grid", "coarse_blocks_reference", "coarse_kernel", "coarse_logits", "coarse_logits_reference", "coarse_scratch_shape", "correlate_5x5x3", "correlate_5x5x3_blocks",
+           "correlate_5x5x3_reference", "grid_boxes", "scratch_shape"]
 
 
 def scratch_shape(h: int, w: int) -> tuple[int, int, int]:
@@ -212,26 +212,49 @@ def correlate_5x5x3_reference(image: np.ndarray, lut: np.ndarray, k: np.ndarray,
 COARSE_BLOCK_PX = 16
 
 
-def _blocks_signatures():
+def _grid_signatures():
+    b2 = numba.types.Array(numba.boolean, 2, "C")
+    return [numba.void(b2, numba.int64, b2)]
+
+
+def _runs_signatures():
     i64 = numba.int64
-    return [i64(numba.types.Array(numba.boolean, 2, "C"), i64, i64, i64, i64, numba.types.Array(numba.boolean, 2, "C"),
-                numba.types.Array(numba.int64, 2, "C"))]
+    return [i64(numba.types.Array(numba.boolean, 2, "C"), i64, i64, i64, numba.types.Array(numba.int64, 2, "C"))]
 
 
-def coarse_blocks(mask: np.ndarray, height: int, width: int, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:
-    """(n, 4) int64 boxes ``x0, y0, x1, y1`` of an (height, width) frame to compute at every pixel, from ``mask``, the
-    coarse samples (every other pixel of every other row) above the coarse threshold: the ``block_px`` blocks that
-    hold a sample within one coarse cell (2 pixels) of one above it, consecutive blocks of a row merged into one box,
-    in row-major order (compiled; :func:`coarse_blocks_reference` is its numpy twin)."""
+def _frontier_signatures():
+    i64 = numba.int64
+    b2 = numba.types.Array(numba.boolean, 2, "C")
+    return [i64(numba.types.Array(numba.float32, 2, "C"), b2, numba.float32, i64, b2)]
+
+
+def coarse_grid(mask: np.ndarray, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:
+    """The blocks of the frame to compute at every pixel, from ``mask``, the coarse samples (every other pixel of every
+    other row) above the coarse threshold: the ``block_px`` blocks that hold a sample within one coarse cell (2 pixels)
+    of one above it, as a bool grid (block rows, block columns + 2) whose first and last columns stay False (compiled;
+    :func:`coarse_blocks_reference` is the numpy twin of it and :func:`grid_boxes` together)."""
     cells = block_px // 2
     on = np.zeros((-(-mask.shape[0] // cells), -(-mask.shape[1] // cells) + 2), np.bool_)
+    _coarse_grid_nb(np.ascontiguousarray(mask, np.bool_), cells, on)
+    return on
+
+
+def grid_boxes(on: np.ndarray, height: int, width: int, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:
+    """(n, 4) int64 boxes ``x0, y0, x1, y1`` of the blocks set in ``on`` (a grid of :func:`coarse_grid`'s layout) in an
+    (height, width) frame, consecutive blocks of a row merged into one box, in row-major order (compiled)."""
     out = np.empty((on.size // 2 + 1, 4), np.int64)
-    n = _coarse_blocks_nb(np.ascontiguousarray(mask, np.bool_), cells, block_px, height, width, on, out)
+    n = _grid_boxes_nb(on, block_px, height, width, out)
     return out[:n].copy()
 
 
-@numba.njit(_blocks_signatures(), cache=True, nogil=True)
-def _coarse_blocks_nb(mask, cells, block_px, height, width, on, out):
+def coarse_blocks(mask: np.ndarray, height: int, width: int, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:
+    """(n, 4) int64 boxes of :func:`coarse_grid`'s blocks (:func:`grid_boxes`); :func:`coarse_blocks_reference` is
+    its numpy twin."""
+    return grid_boxes(coarse_grid(mask, block_px), height, width, block_px)
+
+
+@numba.njit(_grid_signatures(), cache=True, nogil=True)
+def _coarse_grid_nb(mask, cells, on):
     ho, wo = mask.shape
     for r in range(ho):
         for c in range(wo):
@@ -240,6 +263,10 @@ def _coarse_blocks_nb(mask, cells, block_px, height, width, on, out):
                     br = min(max(r + d, 0), ho - 1) // cells
                     for e in range(-1, 2):
                         on[br, 1 + min(max(c + e, 0), wo - 1) // cells] = True
+
+
+@numba.njit(_runs_signatures(), cache=True, nogil=True)
+def _grid_boxes_nb(on, block_px, height, width, out):
     n = 0
     for by in range(on.shape[0]):
         for bx in range(on.shape[1] - 1):
@@ -252,6 +279,73 @@ def _coarse_blocks_nb(mask, cells, block_px, height, width, on, out):
                     out[n, 3] = min((by + 1) * block_px, height)
                     n += 1
     return n
+
+
+def blob_frontier(logits: np.ndarray, computed: np.ndarray, theta, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:
+    """The blocks to compute next so that no blob of pixels above ``theta`` (4-connected, as Algorithm 1 grows it) is
+    cut by the edge of the computed region: ``computed`` (:func:`coarse_grid`'s layout) holds the blocks whose logits
+    ``logits`` (the frame's, -inf elsewhere) has; returns a grid of the same layout with the blocks not computed that
+    lie across an edge of a computed block from one of its pixels at or above ``theta`` (a float32 at or below the
+    flood fill's threshold: the test errs on the side of computing more) (compiled;
+    :func:`blob_frontier_reference` is its numpy twin)."""
+    new = np.zeros_like(computed)
+    _blob_frontier_nb(logits, computed, np.float32(theta), block_px, new)
+    return new
+
+
+@numba.njit(_frontier_signatures(), cache=True, nogil=True)
+def _blob_frontier_nb(logits, computed, theta, block_px, new):
+    h, w = logits.shape
+    nby, nbx = computed.shape[0], computed.shape[1] - 2
+    n = 0
+    for by in range(nby):
+        for bx in range(nbx):
+            if not computed[by, bx + 1]:
+                continue
+            y0, x0 = by * block_px, bx * block_px
+            y1, x1 = min(y0 + block_px, h), min(x0 + block_px, w)
+            if by > 0 and not computed[by - 1, bx + 1] and not new[by - 1, bx + 1]:
+                for x in range(x0, x1):
+                    if logits[y0, x] >= theta:
+                        new[by - 1, bx + 1] = True
+                        n += 1
+                        break
+            if by + 1 < nby and not computed[by + 1, bx + 1] and not new[by + 1, bx + 1]:
+                for x in range(x0, x1):
+                    if logits[y1 - 1, x] >= theta:
+                        new[by + 1, bx + 1] = True
+                        n += 1
+                        break
+            if bx > 0 and not computed[by, bx] and not new[by, bx]:
+                for y in range(y0, y1):
+                    if logits[y, x0] >= theta:
+                        new[by, bx] = True
+                        n += 1
+                        break
+            if bx + 1 < nbx and not computed[by, bx + 2] and not new[by, bx + 2]:
+                for y in range(y0, y1):
+                    if logits[y, x1 - 1] >= theta:
+                        new[by, bx + 2] = True
+                        n += 1
+                        break
+    return n
+
+
+def blob_frontier_reference(logits: np.ndarray, computed: np.ndarray, theta, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:
+    """The plain numpy twin of :func:`blob_frontier` (the same grid)."""
+    h, w = logits.shape
+    above = logits >= np.float32(theta)
+    new = np.zeros_like(computed)
+    inner = computed[:, 1:-1]
+    for by, bx in zip(*np.nonzero(inner)):
+        y0, x0 = by * block_px, bx * block_px
+        y1, x1 = min(y0 + block_px, h), min(x0 + block_px, w)
+        edges = ((by - 1, bx, above[y0, x0:x1]), (by + 1, bx, above[y1 - 1, x0:x1]),
+                 (by, bx - 1, above[y0:y1, x0]), (by, bx + 1, above[y0:y1, x1 - 1]))
+        for ny, nx, edge in edges:
+            if 0 <= ny < inner.shape[0] and 0 <= nx < inner.shape[1] and not inner[ny, nx] and edge.any():
+                new[ny, nx + 1] = True
+    return new
 
 
 def coarse_blocks_reference(mask: np.ndarray, height: int, width: int, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:

@@ -31,7 +31,7 @@ import numpy as np
 
 from checks.arrays import describe
 from checks.per_thread import PerThread
-from tracker.detection._correlate import coarse_blocks
+from tracker.detection._correlate import blob_frontier, coarse_grid, grid_boxes
 from tracker.detection.blobs import find_blobs
 from tracker.detection.edge_refine import refine_edges
 from tracker.detection.model import BallSegmentationModel, LogitWorkspace, logit, sigmoid
@@ -187,6 +187,7 @@ class BallDetector:
         self.options = options
         self.t_high, self.t_low = float(t_high), float(t_low)
         self._th_logit, self._tl_logit = logit(self.t_high), logit(self.t_low)  # B > T  <=>  logit(B) > logit(T)
+        self._tl_frontier = _float32_at_or_below(self._tl_logit)  # the coarse-to-fine search's blob edge test
         self.learned = model.learned if options.method == "ours" and options.learned else None
         # the learned stage reports each ball's diameter; its area range is open unless the options set one
         own_area = (1.0, float(LEARNED_MAX_AREA_PX)) if self.learned is not None else model.area_range_px
@@ -261,15 +262,29 @@ class BallDetector:
     def _coarse_to_fine(self, image, work: LogitWorkspace):
         """The full frame's logits where they can matter (``DetectorOptions.coarse_full_frame``), -inf elsewhere (the
         whole frame's when the blocks would cover most of it); None when no coarse logit reaches the coarse threshold
-        (no ball)."""
+        (no ball). The blocks grow until no blob above T_l reaches the edge of the computed region: Algorithm 1's
+        flood fills are the full frame's (a blob cut at a block's edge would be smaller, its centre moved, or pass an
+        area limit the whole blob fails)."""
         coarse = self.model.logits_coarse_trusted(image, work)
-        blocks = coarse_blocks(coarse >= self._tl_logit - COARSE_MARGIN_LOGIT, image.shape[0], image.shape[1])
+        on = coarse_grid(coarse >= self._tl_logit - COARSE_MARGIN_LOGIT)
+        h, w = image.shape[:2]
+        blocks = grid_boxes(on, h, w)
         if len(blocks) == 0:
             return None
-        h, w = image.shape[:2]
-        if ((blocks[:, 2] - blocks[:, 0]) * (blocks[:, 3] - blocks[:, 1])).sum() > COARSE_MAX_SHARE * h * w:
+        room = COARSE_MAX_SHARE * h * w - _box_area(blocks)
+        if room < 0:
             return self.model.logits_trusted(image, work)
-        return self.model.logits_blocks_trusted(image, blocks, work)
+        logits = self.model.logits_blocks_trusted(image, blocks, work)
+        while True:
+            new = blob_frontier(logits, on, self._tl_frontier)
+            more = grid_boxes(new, h, w)
+            if len(more) == 0:
+                return logits
+            room -= _box_area(more)
+            if room < 0:
+                return self.model.logits_trusted(image, work)
+            on |= new
+            logits = self.model.logits_more_blocks_trusted(image, more, work)
 
     def _detect_learned(self, image, window, frame_shape) -> Detections:
         """The learned stage's candidates as :class:`Detections`: boxes of the predicted diameter around the
@@ -324,6 +339,16 @@ class BallDetector:
         keep = np.flatnonzero(prob >= self.verifier.threshold)
         keep = keep[np.argsort(-prob[keep], kind="stable")][: self.options.max_candidates]
         return Detections(uv[keep], prob[keep], det.boxes_xywh[keep], det.areas_px[keep], det.used_roi)
+
+
+def _box_area(boxes: np.ndarray) -> int:
+    return int(((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])).sum())
+
+
+def _float32_at_or_below(x: float) -> np.float32:
+    """The largest float32 not above ``x``: a float32 logit at or above it includes every one above ``x``."""
+    f = np.float32(x)
+    return f if float(f) <= x else np.nextafter(f, np.float32(-np.inf))
 
 
 #: the coarse pass's threshold is this far below logit(T_l): its approximation may fall short of the exact logits

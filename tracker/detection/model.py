@@ -256,7 +256,14 @@ class BallSegmentationModel:
         each inside the image) and -inf elsewhere, into ``work``'s full-frame buffer (the previous call's boxes are
         reset, not the whole frame): the full frame's values in the boxes, bit for bit."""
         h, w = image.shape[:2]
-        out = work.sparse_buffer((h, w), blocks)
+        return self._into_blocks(image, blocks, work, work.sparse_buffer((h, w), blocks))
+
+    def logits_more_blocks_trusted(self, image: np.ndarray, blocks: np.ndarray, work: "LogitWorkspace") -> np.ndarray:
+        """:meth:`logits_blocks_trusted`'s buffer with the logits of the boxes ``blocks`` added (the others kept)."""
+        return self._into_blocks(image, blocks, work, work.sparse_extend(blocks))
+
+    def _into_blocks(self, image, blocks, work, out) -> np.ndarray:
+        h = image.shape[0]
         widest = int((blocks[:, 2] - blocks[:, 0]).max()) if len(blocks) else 0
         t = work.scratch((h, max(widest, 1)))
         correlate_5x5x3_blocks(np.ascontiguousarray(image), self._lut, self._kernel_crgb, np.float32(self._bias_eff), blocks, t, out)
@@ -411,6 +418,11 @@ class LogitWorkspace:
             for x0, y0, x1, y1 in self._filled:
                 self._sparse[y0:y1, x0:x1] = -np.inf
         self._filled = blocks
+        return self._sparse
+
+    def sparse_extend(self, blocks: np.ndarray) -> np.ndarray:
+        """The buffer of :meth:`sparse_buffer`, its boxes now also ``blocks`` (to be written by the caller)."""
+        self._filled = np.concatenate([self._filled, blocks])
         return self._sparse
 
     def scratch(self, shape) -> np.ndarray:
