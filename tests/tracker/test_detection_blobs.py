@@ -8,7 +8,7 @@ from collections import deque
 import numpy as np
 import pytest
 
-from tracker.detection.blobs import find_blobs
+from tracker.detection.blobs import argmax_in_boxes, argmax_in_boxes_reference, find_blobs
 from tracker.detection.model import logit
 
 
@@ -160,3 +160,30 @@ def test_bad_arguments():
     with pytest.raises(ValueError, match="max_blobs must be >= 1"):
         find_blobs(lg, 1.0, 0.0, max_blobs=0)
     assert math.isfinite(logit(0.5)) and logit(0.5) == 0.0
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_argmax_in_boxes_is_numpys_argmax_where_the_rest_is_minus_inf(seed):
+    """The coarse-to-fine full frame's seeds: the argmax over its computed boxes alone is np.argmax of the frame (ties
+    to the first pixel in row-major order, boxes in any order), its numpy twin the same; and Algorithm 1 with
+    ``seed_boxes`` finds the same blobs."""
+    rng = np.random.default_rng(seed)
+    for _ in range(30):
+        h, w = (int(v) for v in rng.integers(1, 70, 2))
+        work = np.full((h, w), -np.inf, np.float32)
+        boxes = []
+        for _ in range(int(rng.integers(1, 6))):
+            x0, y0 = int(rng.integers(0, w)), int(rng.integers(0, h))
+            x1, y1 = int(rng.integers(x0 + 1, w + 1)), int(rng.integers(y0 + 1, h + 1))
+            boxes.append((x0, y0, x1, y1))
+            work[y0:y1, x0:x1] = rng.integers(-3, 4, (y1 - y0, x1 - x0))  # few values: many ties
+        boxes = np.array(boxes, np.int64)[rng.permutation(len(boxes))]
+        want = int(np.argmax(work))
+        assert argmax_in_boxes(work, boxes) == want == argmax_in_boxes_reference(work, boxes)
+        plain = find_blobs(work.copy(), 1.5, 0.5, max_blobs=4)
+        boxed = find_blobs(work.copy(), 1.5, 0.5, max_blobs=4, seed_boxes=boxes)
+        for a, b in ((plain.centers_px, boxed.centers_px), (plain.areas_px, boxed.areas_px), (plain.boxes, boxed.boxes)):
+            assert a.tobytes() == b.tobytes()
+    empty = np.zeros((0, 4), np.int64)
+    assert argmax_in_boxes(np.zeros((3, 3), np.float32), empty) == -1 == argmax_in_boxes_reference(np.zeros((3, 3), np.float32), empty)
+    assert len(find_blobs(np.zeros((3, 3), np.float32), 1.5, 0.5, seed_boxes=empty)) == 0

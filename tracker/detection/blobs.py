@@ -17,7 +17,9 @@ Choices the paper leaves open, fixed here:
   rest of the image. The candidates are thus the connected components of ``{B > T_l}`` with a peak
   ``>= T_h``, in order of decreasing peak. Blobs failing the shape test (area, fill ratio, aspect)
   are suppressed too but not reported; at most ``max_seeds`` blobs are grown per image.
-* Ties in the argmax go to the first pixel in row-major order (``np.argmax``).
+* Ties in the argmax go to the first pixel in row-major order (``np.argmax``). Where only some boxes of the image
+  hold logits and the rest is -inf (rt2's coarse-to-fine full frame), the argmax looks in the boxes alone
+  (``seed_boxes``; :func:`argmax_in_boxes`, the same pixel).
 
 The flood fill has a numba implementation (``backend="numba"``, the default) and a plain Python
 reference (``backend="python"``); tests check they return identical blobs.
@@ -33,7 +35,7 @@ import numba
 import numpy as np
 from checks.numba_cache import key_cache_on_callees
 
-__all__ = ["BACKENDS", "Blobs", "find_blobs"]
+__all__ = ["BACKENDS", "Blobs", "argmax_in_boxes", "argmax_in_boxes_reference", "find_blobs"]
 
 _DR = np.array([-1, 1, 0, 0], dtype=np.int64)  # neighbour order: up, down, left, right
 _DC = np.array([0, 0, -1, 1], dtype=np.int64)
@@ -131,6 +133,35 @@ def _fill_python(work, r0, c0, t_low, p_low, qr, qc):
     return area, sw, sx, sy, xmin, ymin, xmax, ymax
 
 
+@numba.njit(numba.int64(numba.types.Array(numba.float32, 2, "C"), numba.types.Array(numba.int64, 2, "C")), cache=True, nogil=True)
+def argmax_in_boxes(work, boxes):
+    """The flat index of ``np.argmax(work)`` when every logit outside the boxes ``boxes`` ((n, 4) int64 ``x0, y0, x1,
+    y1``) is -inf: the largest value in the boxes, the first in row-major order among equals (-1 without a box;
+    :func:`argmax_in_boxes_reference` is its numpy twin). The coarse-to-fine full frame's seeds, without reading the
+    frame's -inf."""
+    w = work.shape[1]
+    best, at = -np.inf, -1
+    for b in range(boxes.shape[0]):
+        x0, y0, x1, y1 = boxes[b, 0], boxes[b, 1], boxes[b, 2], boxes[b, 3]
+        for r in range(y0, y1):
+            row = work[r]
+            for c in range(x0, x1):
+                v = row[c]
+                if v > best or (v == best and (at < 0 or r * w + c < at)):
+                    best, at = v, r * w + c
+    return at
+
+
+def argmax_in_boxes_reference(work: np.ndarray, boxes: np.ndarray) -> int:
+    """The plain numpy twin of :func:`argmax_in_boxes`."""
+    if len(boxes) == 0:
+        return -1
+    w = work.shape[1]
+    idx = np.concatenate([(np.arange(y0, y1)[:, None] * w + np.arange(x0, x1)[None, :]).ravel() for x0, y0, x1, y1 in boxes])
+    idx = np.sort(idx)
+    return int(idx[np.argmax(work.reshape(-1)[idx])])
+
+
 #: flood-fill implementations by name
 BACKENDS = {"numba": _fill_numba, "python": _fill_python}
 
@@ -149,6 +180,7 @@ def find_blobs(
     backend: str = "numba",
     overwrite: bool = False,
     queues: tuple[np.ndarray, np.ndarray] | None = None,
+    seed_boxes: np.ndarray | None = None,
 ) -> Blobs:
     """Algorithm 1, repeated for up to ``max_blobs`` candidates.
 
@@ -163,6 +195,8 @@ def find_blobs(
     overwrite : allow suppressing found blobs in ``logits`` itself instead of a copy
     queues : optional reusable (rows, cols) int64 arrays of at least H * W entries for the flood
         fill's queue (``backend="numba"``; default: new ones per call)
+    seed_boxes : optional (n, 4) int64 boxes ``x0, y0, x1, y1`` outside which every logit is -inf: the argmax looks
+        in them alone (:func:`argmax_in_boxes`: the same pixel; the blobs' pixels lie in them)
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {sorted(BACKENDS)}, got {backend!r}")
@@ -194,7 +228,9 @@ def find_blobs(
     rows = []
     grown = 0
     while grown < max_seeds and len(rows) < max_blobs:
-        idx = int(np.argmax(flat))  # line 1: (a, b) = argmax B (first in row-major order on ties)
+        idx = int(np.argmax(flat)) if seed_boxes is None else argmax_in_boxes(work, seed_boxes)  # line 1: (a, b) = argmax B (first in row-major order on ties)
+        if idx < 0:  # no box
+            break
         peak = float(flat[idx])
         if not peak >= t_high_logit:  # lines 2-4: B_ab < T_h -> no (more) ball
             break

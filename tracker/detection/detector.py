@@ -248,41 +248,41 @@ class BallDetector:
         if window is None:
             x0 = y0 = 0
             if self._coarse:
-                logits = self._coarse_to_fine(image, work.logits)
+                logits, boxes = self._coarse_to_fine(image, work.logits)
                 if logits is None:
                     return Detections.empty(False)
             else:
-                logits = self.model.logits_trusted(image, work.logits)  # into this thread's buffers: no allocation
+                logits, boxes = self.model.logits_trusted(image, work.logits), None  # into this thread's buffers: no allocation
         else:
             x0, y0, x1, y1 = window
-            logits = np.ascontiguousarray(self.model.logits_window_trusted(image, x0, y0, x1, y1))
-        blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, queues=work.queues(logits.size), **self._blob_kw)
+            logits, boxes = np.ascontiguousarray(self.model.logits_window_trusted(image, x0, y0, x1, y1)), None
+        blobs = find_blobs(logits, self._th_logit, self._tl_logit, overwrite=True, queues=work.queues(logits.size), seed_boxes=boxes, **self._blob_kw)
         return self._verified(image, _to_detections(blobs, x0, y0, window is not None))
 
     def _coarse_to_fine(self, image, work: LogitWorkspace):
-        """The full frame's logits where they can matter (``DetectorOptions.coarse_full_frame``), -inf elsewhere (the
-        whole frame's when the blocks would cover most of it); None when no coarse logit reaches the coarse threshold
-        (no ball). The blocks grow until no blob above T_l reaches the edge of the computed region: Algorithm 1's
-        flood fills are the full frame's (a blob cut at a block's edge would be smaller, its centre moved, or pass an
-        area limit the whole blob fails)."""
+        """``(logits, boxes)``: the full frame's logits where they can matter (``DetectorOptions.coarse_full_frame``),
+        -inf outside the (n, 4) boxes ``boxes`` computed (the whole frame's and None when the blocks would cover most
+        of it); ``(None, None)`` when no coarse logit reaches the coarse threshold (no ball). The blocks grow until no
+        blob above T_l reaches the edge of the computed region: Algorithm 1's flood fills are the full frame's (a blob
+        cut at a block's edge would be smaller, its centre moved, or pass an area limit the whole blob fails)."""
         coarse = self.model.logits_coarse_trusted(image, work)
         on = coarse_grid(coarse >= self._tl_logit - COARSE_MARGIN_LOGIT)
         h, w = image.shape[:2]
         blocks = grid_boxes(on, h, w)
         if len(blocks) == 0:
-            return None
+            return None, None
         room = COARSE_MAX_SHARE * h * w - _box_area(blocks)
         if room < 0:
-            return self.model.logits_trusted(image, work)
+            return self.model.logits_trusted(image, work), None
         logits = self.model.logits_blocks_trusted(image, blocks, work)
         while True:
             new = blob_frontier(logits, on, self._tl_frontier)
             more = grid_boxes(new, h, w)
             if len(more) == 0:
-                return logits
+                return logits, work.filled_boxes
             room -= _box_area(more)
             if room < 0:
-                return self.model.logits_trusted(image, work)
+                return self.model.logits_trusted(image, work), None
             on |= new
             logits = self.model.logits_more_blocks_trusted(image, more, work)
 

@@ -420,6 +420,11 @@ class LogitWorkspace:
         self._filled = blocks
         return self._sparse
 
+    @property
+    def filled_boxes(self) -> np.ndarray:
+        """(n, 4) int64 the boxes of the sparse buffer that hold logits (the rest of it is -inf)."""
+        return self._filled
+
     def sparse_extend(self, blocks: np.ndarray) -> np.ndarray:
         """The buffer of :meth:`sparse_buffer`, its boxes now also ``blocks`` (to be written by the caller)."""
         self._filled = np.concatenate([self._filled, blocks])
