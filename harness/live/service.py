@@ -135,6 +135,7 @@ class TrackingService:
         if not isinstance(afs, AssembledFrameSet):
             raise ValueError(f"the service takes AssembledFrameSet objects, got {type(afs).__name__}")
         t_taken = time.monotonic()
+        full0 = self._full_frame_searches()
         obs, info = self.tracker.process_with_info(afs.frameset)
         num = self.num
         self.num += 1
@@ -152,7 +153,8 @@ class TrackingService:
         latency = t_done - t_first  # the figures: to the messages handed to the sockets (the stages' sum)
         t_asm = float(afs.t_assembled_s)
         self.stats.add(afs, obs, latency, t_done,
-                       (t_asm - t_first, t_taken - t_asm, t_tracked - t_taken, t_done - t_tracked, math.nan))
+                       (t_asm - t_first, t_taken - t_asm, t_tracked - t_taken, t_done - t_tracked, math.nan),
+                       full_frame=self._full_frame_searches() > full0)
         if self.log is not None and self.log_error is None:
             try:
                 self.log.write(num, self.log.log_time(t_first), afs, obs, info)
@@ -164,6 +166,10 @@ class TrackingService:
             self.view.update(num, afs, obs, info)
         self.stats.stage("after", time.monotonic() - t_done)
         return obs
+
+    def _full_frame_searches(self) -> int:
+        """The tracker's count of full-frame searches so far (0 for a tracker that does not count them)."""
+        return int(getattr(getattr(self.tracker, "stats", None), "full_frame_searches", 0) or 0)
 
     # -- the loop -------------------------------------------------------------------------------
     def _frames(self, source, stop: threading.Event, deadline: float):

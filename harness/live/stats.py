@@ -9,7 +9,9 @@ consecutive stamps on the host's monotonic clock): ``assembly`` (first frame's a
 complete or timed out), ``backlog`` (-> the service takes it), ``tracker`` (-> the observation),
 ``publish`` (-> the messages handed to the sockets); ``after`` is the work of the loop after the
 messages left (the log's and the view's hand-over, the figures): not part of this set's latency, it
-delays the next one.
+delays the next one. Where some frame sets searched a camera's full frame (a new ball, a lost one) and
+others only windows, the budget also gives the tracker stage and the whole latency of the former alone
+(``tracker_full``, ``total_full``): what a window-mode run's tail is made of.
 """
 
 from __future__ import annotations
@@ -27,6 +29,14 @@ __all__ = ["LiveStats", "STAGES", "format_budget"]
 STAGES = ("assembly", "backlog", "tracker", "publish", "after")
 
 _NUMBER = re.compile(r"(?<![A-Za-z_])[-+]?\d[\d.e+-]*")
+
+
+def _percentiles_ms(values_s: np.ndarray) -> dict:
+    """n, p50, p99, max in ms of the finite ``values_s`` (seconds); only n when there is none."""
+    v = values_s[np.isfinite(values_s)] * 1e3
+    if v.size == 0:
+        return {"n": 0}
+    return {"n": int(v.size), "p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)), "max": float(v.max())}
 
 
 def _pct_ms(values: np.ndarray, q: float) -> float:
@@ -49,6 +59,7 @@ class LiveStats:
         self._lat = np.zeros(keep)
         self._proc = np.zeros(keep)
         self._stages = np.full((keep, len(STAGES)), np.nan)
+        self._full = np.zeros(keep, bool)  # the frame set searched a camera's full frame
         self.window = int(window)
         self.missing = np.zeros(len(self.names), np.int64)  # frame sets without this camera's frame
         self.status = Counter()
@@ -60,12 +71,14 @@ class LiveStats:
         self._mark = (self.t_start, 0)
         self.first_missing_after: dict[str, int] = {}
 
-    def add(self, afs, obs, latency_s: float, t_done_s: float, stages_s=None) -> None:
+    def add(self, afs, obs, latency_s: float, t_done_s: float, stages_s=None, *, full_frame: bool = False) -> None:
         """One frame set: its assembled set, observation, host-stamp-to-publication latency (s), and
-        optionally its stage durations in the order of :data:`STAGES` (s; NaN = not measured)."""
+        optionally its stage durations in the order of :data:`STAGES` (s; NaN = not measured) and whether
+        the tracker searched a camera's full frame in it."""
         i = self.n % len(self._lat)
         self._lat[i] = latency_s
         self._proc[i] = obs.latency_s
+        self._full[i] = bool(full_frame)
         if stages_s is not None:
             self._stages[i] = stages_s
         self.n += 1
@@ -107,11 +120,11 @@ class LiveStats:
         first = min(max(int(first), 0), k)
         out = {}
         for j, name in enumerate((*STAGES, "total")):
-            v = self._lat[first:k] if name == "total" else self._stages[first:k, j]
-            v = v[np.isfinite(v)] * 1e3
-            out[name] = {"n": int(v.size)} if v.size == 0 else {
-                "n": int(v.size), "p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)),
-                "max": float(v.max())}
+            out[name] = _percentiles_ms(self._lat[first:k] if name == "total" else self._stages[first:k, j])
+        full = self._full[first:k]
+        if full.any() and not full.all():  # window sets and full-frame sets: the latter's share of the tail
+            out["tracker_full"] = _percentiles_ms(self._stages[first:k, STAGES.index("tracker")][full])
+            out["total_full"] = _percentiles_ms(self._lat[first:k][full])
         return out
 
     def status_line(self) -> str:
@@ -161,7 +174,8 @@ def process_per_set(use0, use1, n_sets: int) -> dict:
 
 _STAGE_WHAT = {"assembly": "first frame -> set assembled", "backlog": "assembled -> taken by the tracker",
                "tracker": "tracker", "publish": "messages encoded and sent",
-               "after": "log, view, figures (before the next set)", "total": "first frame -> messages sent"}
+               "after": "log, view, figures (before the next set)", "total": "first frame -> messages sent",
+               "tracker_full": "tracker, sets with a full-frame search", "total_full": "first frame -> sent, those sets"}
 
 
 def format_budget(budget: dict, what: str = "") -> list[str]:

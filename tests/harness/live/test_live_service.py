@@ -201,6 +201,31 @@ def test_latency_budget_stages_add_up_to_the_latency_and_the_collector_is_frozen
     np.testing.assert_allclose(stages[:, :4].sum(axis=1), lat, atol=1e-9)
     budget = summary["latency_budget_ms"]
     assert budget["total"]["n"] == 30 and budget["tracker"]["max"] <= budget["total"]["max"] + 1e-9
+    # the first frame set searched every full frame (no prediction yet), the later ones windows: the former's own rows
+    assert tr.stats.full_frame_searches > 0 and tr.stats.roi_searches > 0
+    assert 1 <= budget["tracker_full"]["n"] == budget["total_full"]["n"] < 30
+    assert budget["tracker_full"]["max"] <= budget["tracker"]["max"] and budget["total_full"]["max"] <= budget["total"]["max"]
+
+
+def test_the_budget_splits_out_the_full_frame_sets_only_where_both_kinds_ran():
+    from types import SimpleNamespace
+
+    from harness.live.stats import LiveStats, format_budget
+
+    def run(flags):
+        st = LiveStats(["a"])
+        afs = SimpleNamespace(frameset=SimpleNamespace(images=[np.zeros(1)]), notes=(), frame_id=0)
+        for k, full in enumerate(flags):
+            afs.frame_id = k
+            obs = SimpleNamespace(latency_s=0.001 * (1 + 4 * full), status="ok", position_m=None, notes=())
+            st.add(afs, obs, 0.002 * (1 + 4 * full), float(k), (0.0005, 0.0, 0.001 * (1 + 4 * full), 0.0005, 0.0), full_frame=full)
+        return st.budget_ms()
+
+    mixed = run([True] + [False] * 9 + [True])
+    assert mixed["tracker_full"] == {"n": 2, "p50": pytest.approx(5.0), "p99": pytest.approx(5.0), "max": pytest.approx(5.0)}
+    assert mixed["total_full"]["max"] == pytest.approx(10.0) and mixed["total"]["p50"] == pytest.approx(2.0)
+    assert any("sets with a full-frame search" in line for line in format_budget(mixed))
+    assert "tracker_full" not in run([False] * 5) and "tracker_full" not in run([True] * 5)  # one kind: nothing to split
 
 
 def test_a_failing_log_never_stops_tracking_or_publishing(rig, tmp_path):
