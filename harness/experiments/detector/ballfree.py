@@ -16,7 +16,7 @@ import math
 import cv2
 import numpy as np
 
-__all__ = ["ball_free", "mask_balls"]
+__all__ = ["ball_free", "mask_balls", "without_balls"]
 
 
 def mask_balls(image: np.ndarray, boxes_xywh, margin_px: float = 4.0) -> np.ndarray:
@@ -32,7 +32,11 @@ def mask_balls(image: np.ndarray, boxes_xywh, margin_px: float = 4.0) -> np.ndar
     return cv2.inpaint(image, mask, 5, cv2.INPAINT_TELEA)
 
 
+def without_balls(labelled):
+    """``labelled`` (a ``LabelledImage``) with no ball: the labels of its ball-free frame."""
+    return dataclasses.replace(labelled, boxes_xywh=np.zeros((0, 4)), centers_px=np.zeros((0, 2)))
+
+
 def ball_free(image: np.ndarray, labelled, margin_px: float = 4.0):
     """``(image with its balls inpainted, labelled without boxes)``: a ball-free frame of the same scene."""
-    empty = dataclasses.replace(labelled, boxes_xywh=np.zeros((0, 4)), centers_px=np.zeros((0, 2)))
-    return mask_balls(image, labelled.boxes_xywh, margin_px), empty
+    return mask_balls(image, labelled.boxes_xywh, margin_px), without_balls(labelled)

@@ -59,11 +59,13 @@ def find_failures(labelled, candidates_uv, *, min_diameter_px: float = 6.0) -> l
 
 
 def contact_sheet(labelled, candidates_uv, candidates_boxes, path, *, min_diameter_px: float = 6.0, max_tiles: int = 48,
-                  columns: int = 8, tile_px: int = 160) -> tuple[Path, int, int]:
+                  columns: int = 8, tile_px: int = 160, load=None) -> tuple[Path, int, int]:
     """Draw the contact sheet to ``path`` (PNG); returns (path, misses, false alarms).
 
     candidates_uv : per image the (k, 2) top-K candidate centres, rt2 pixels, best first
     candidates_boxes : per image their (k, 4) boxes ``[x, y, w, h]`` px
+    load : image index -> the (H, W, 3) RGB image the candidates were found on (default: the labelled file as it is;
+        e.g. the frame with its balls painted out for ``rt2 eval detector --ball-free``)
     """
     import cv2
 
@@ -80,7 +82,7 @@ def contact_sheet(labelled, candidates_uv, candidates_boxes, path, *, min_diamet
     tiles = []
     for f in shown:
         if f.image not in cache:
-            cache = {f.image: load_image(labelled[f.image])}  # tiles are in image order: one image in memory
+            cache = {f.image: load_image(labelled[f.image]) if load is None else load(f.image)}  # tiles in image order: one image in memory
         tiles.append(_tile(cache[f.image], labelled[f.image], boxes[f.image], f, tile_px))
     caption_h = 34
     cols = max(1, min(columns, len(tiles)))

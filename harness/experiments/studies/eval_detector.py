@@ -169,20 +169,42 @@ def format_table(scores) -> str:
     return "\n".join(lines)
 
 
-def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80)) -> Path:
+def _evaluated_image(li, ball_free_margin_px):
+    """The image of ``li`` as :func:`evaluate` searched it (its balls painted out when ``ball_free_margin_px`` is set)."""
+    from harness.experiments.detector.train import load_image
+
+    image = load_image(li)
+    if ball_free_margin_px is None:
+        return image
+    from harness.experiments.detector.ballfree import ball_free
+
+    return ball_free(image, li, ball_free_margin_px)[0]
+
+
+def _ours_options(max_candidates: int, t_high, t_low, learned_threshold, area_px):
+    """The ``ours`` detector options of :func:`evaluate` (the figures draw what the table scored)."""
+    from tracker import DetectorOptions
+
+    area = {} if area_px is None else dict(min_area_px=int(area_px[0]), max_area_px=int(area_px[1]))
+    return DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low, learned_threshold=learned_threshold, **area)
+
+
+def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80), t_high=None, t_low=None, learned_threshold=None,
+                       area_px=None, ball_free_margin_px: float | None = None) -> Path:
     """Write the paper's probability-image figure: per row an image crop around a ball, the
     probability image ``B`` (black 0, white 1) and the crop with our detection's box (green; the
     paper method's in red where it differs) and the label's (blue). Uses the first ``n`` images with a
     ball >= 8 px. Each column has a title, the figure a legend, and a crop where a method found
-    nothing says "no detection" (ours, or the paper's) instead of showing no box at all.
+    nothing says "no detection" (ours, or the paper's) instead of showing no box at all. The detectors and the
+    images are :func:`evaluate`'s with the same arguments (with ``ball_free_margin_px`` the crops show where the ball
+    was painted out, and any detection there is a false alarm).
     """
     import cv2
 
-    from harness.experiments.detector.train import load_image
     from tracker import BallDetector, DetectorOptions
 
-    ours = BallDetector(model, DetectorOptions(max_candidates=1))
-    paper = BallDetector(model, DetectorOptions(method="paper"))
+    ours = BallDetector(model, _ours_options(1, t_high, t_low, learned_threshold, area_px))
+    paper = BallDetector(model, DetectorOptions(method="paper", t_high=t_high, t_low=t_low))
     hh, hw = half_hw
     rows, empty = [], []
     for li in labelled:
@@ -191,7 +213,7 @@ def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80)) -
         big = np.flatnonzero(np.minimum(li.boxes_xywh[:, 2], li.boxes_xywh[:, 3]) >= 8)
         if not len(big):
             continue
-        image = load_image(li)
+        image = _evaluated_image(li, ball_free_margin_px)
         u, v = np.rint(li.centers_px[big[0]]).astype(int)
         pad = cv2.copyMakeBorder(image, hh, hh, hw, hw, cv2.BORDER_CONSTANT)
         crop = pad[v : v + 2 * hh, u : u + 2 * hw].copy()
@@ -211,7 +233,8 @@ def probability_figure(model, labelled, path, *, n: int = 3, half_hw=(60, 80)) -
         empty.append(missing)
     if not rows:
         raise ValueError("no labelled ball of at least 8 px to draw")
-    fig = _titled(cv2.resize(np.vstack(rows), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST), empty, 4 * hw, 4 * hh)
+    titles = FIGURE_TITLES if ball_free_margin_px is None else ("image (the labelled ball painted out)", *FIGURE_TITLES[1:])
+    fig = _titled(cv2.resize(np.vstack(rows), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST), empty, 4 * hw, 4 * hh, titles)
     from harness.common.outputs import atomic_path
 
     path = Path(path)
@@ -226,7 +249,7 @@ FIGURE_TITLES = ("image (crop around a labelled ball)", "probability B (black 0,
 FIGURE_LEGEND = "blue: label   green: ours (first candidate)   red: the paper's method   'no detection': the method found nothing"
 
 
-def _titled(fig: np.ndarray, empty: list, col_w: int, row_h: int) -> np.ndarray:
+def _titled(fig: np.ndarray, empty: list, col_w: int, row_h: int, titles=FIGURE_TITLES) -> np.ndarray:
     """``fig`` (rows of 3 columns ``col_w`` x ``row_h`` px) with column titles above, a legend below and "no detection"
     written into the detection column of each row where a method found nothing (``empty``: per row the methods' names)."""
     import cv2
@@ -236,7 +259,7 @@ def _titled(fig: np.ndarray, empty: list, col_w: int, row_h: int) -> np.ndarray:
     width = max(fig.shape[1], 820)
     out = np.full((title_h + fig.shape[0] + legend_h, width, 3), 255, np.uint8)
     out[title_h : title_h + fig.shape[0], : fig.shape[1]] = fig
-    for k, title in enumerate(FIGURE_TITLES):
+    for k, title in enumerate(titles):
         cv2.putText(out, title, (k * col_w + 6, 19), font, 0.45, black, 1, cv2.LINE_AA)
     for r, missing in enumerate(empty):
         for j, name in enumerate(missing):
@@ -248,16 +271,24 @@ def _titled(fig: np.ndarray, empty: list, col_w: int, row_h: int) -> np.ndarray:
     return out
 
 
-def failure_sheet(model, labelled, path, *, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None):
+def failure_sheet(model, labelled, path, *, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None,
+                  learned_threshold=None, area_px=None, ball_free_margin_px: float | None = None):
     """Write the contact sheet of misses and false alarms (harness/experiments/detector/failures.py) of the
-    top-K detector on ``labelled`` to ``path``; returns (path, misses, false alarms)."""
+    top-K detector on ``labelled`` to ``path``, with :func:`evaluate`'s detector and images for the same arguments
+    (with ``ball_free_margin_px`` the balls painted out: no ball to miss, every detection a false alarm); returns
+    (path, misses, false alarms)."""
     from harness.experiments.detector.failures import contact_sheet
-    from harness.experiments.detector.train import load_image
-    from tracker import BallDetector, DetectorOptions
+    from tracker import BallDetector
 
-    ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low))
-    dets = [ours.detect(load_image(li)) for li in labelled]
-    return contact_sheet(labelled, [d.uv_px for d in dets], [d.boxes_xywh for d in dets], path, min_diameter_px=min_diameter_px)
+    ours = BallDetector(model, _ours_options(max_candidates, t_high, t_low, learned_threshold, area_px))
+    dets = [ours.detect(_evaluated_image(li, ball_free_margin_px)) for li in labelled]
+    shown, load = labelled, None
+    if ball_free_margin_px is not None:
+        from harness.experiments.detector.ballfree import without_balls
+
+        shown = [without_balls(li) for li in labelled]  # no ball left to miss
+        load = lambda k: _evaluated_image(labelled[k], ball_free_margin_px)  # noqa: E731 - the painted frame
+    return contact_sheet(shown, [d.uv_px for d in dets], [d.boxes_xywh for d in dets], path, min_diameter_px=min_diameter_px, load=load)
 
 
 def add_arguments(parser) -> None:
@@ -374,8 +405,10 @@ def run(args) -> int:
     if args.json:
         atomic_write_json(args.json, [s.as_json() for s in scores], "--json")
     if args.figure:
-        print(f"wrote {probability_figure(model, labelled, args.figure)}")
+        same = dict(t_high=args.t_high, t_low=args.t_low, learned_threshold=learned_threshold, area_px=area_px,
+                    ball_free_margin_px=ball_free_margin)  # the figures draw what the table scored
+        print(f"wrote {probability_figure(model, labelled, args.figure, **same)}")
         path, n_miss, n_alarm = failure_sheet(model, labelled, sheet, max_candidates=args.max_candidates,
-                                              min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low)
+                                              min_diameter_px=args.min_diameter_px, **same)
         print(f"wrote {path}: contact sheet of {n_miss} misses and {n_alarm} false alarms")
     return 0

@@ -82,3 +82,28 @@ def test_figure_sheet_path_checked_before_the_run(synthetic_ball_coco, tmp_path,
     (tmp_path / "fig_failures.png").mkdir()  # the sheet's path is a folder: refused before evaluating
     rc = main(["eval", "detector", "--data", str(synthetic_ball_coco(30, 1)), "--model", str(model), "--figure", str(tmp_path / "fig.png")])
     assert rc == 2 and "fig_failures.png" in capsys.readouterr().err
+
+
+def test_the_ball_free_figures_show_what_the_table_scored(tmp_path, capsys):
+    """``--ball-free --figure``: the contact sheet is of the painted frames (no ball left to miss; a detection anywhere
+    is a false alarm), as the table counts them, not of the frames with their balls."""
+    from harness.experiments.detector.coco import write_coco
+    from tracker.detection.synthetic import ORANGE_RGB, draw_disk
+
+    labelled = []
+    (tmp_path / "set").mkdir()
+    for i in range(4):
+        image = np.full((96, 128, 3), 90, np.uint8)
+        draw_disk(image, (20.0 + i, 20.0), 5.0, ORANGE_RGB)  # the labelled ball, first in row-major order
+        draw_disk(image, (90.0, 70.0 - i), 5.0, ORANGE_RGB)  # a ball-coloured thing nobody labelled
+        path = tmp_path / "set" / f"f{i:06d}_cam0.png"
+        cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        labelled.append(LabelledImage(path, 128, 96, [[15.5 + i, 15.5, 10.0, 10.0]], [[20.0 + i, 20.0]]))
+    write_coco(tmp_path / "set", labelled)
+    model = hand_made_model().save(tmp_path / "hand.npz")
+    fig = tmp_path / "fig.png"
+    assert main(["eval", "detector", "--data", str(tmp_path / "set"), "--model", str(model), "--ball-free", "--figure", str(fig)]) == 0
+    out = capsys.readouterr().out
+    ours = next(line for line in out.splitlines() if line.startswith("ours"))
+    assert ours.split()[-1] == "4/4"  # every painted frame still shows the other thing: four false alarms
+    assert "contact sheet of 0 misses and 4 false alarms" in out  # (of the frames with their balls: 0 and 0)
