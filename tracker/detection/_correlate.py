@@ -223,9 +223,8 @@ def _runs_signatures():
 
 
 def _frontier_signatures():
-    i64 = numba.int64
     b2 = numba.types.Array(numba.boolean, 2, "C")
-    return [i64(numba.types.Array(numba.float32, 2, "C"), b2, numba.float32, i64, b2)]
+    return [numba.void(numba.types.Array(numba.float32, 2, "C"), b2, numba.float32, numba.int64, b2)]
 
 
 def coarse_grid(mask: np.ndarray, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:
@@ -297,7 +296,6 @@ def blob_frontier(logits: np.ndarray, computed: np.ndarray, theta, block_px: int
 def _blob_frontier_nb(logits, computed, theta, block_px, new):
     h, w = logits.shape
     nby, nbx = computed.shape[0], computed.shape[1] - 2
-    n = 0
     for by in range(nby):
         for bx in range(nbx):
             if not computed[by, bx + 1]:
@@ -308,27 +306,22 @@ def _blob_frontier_nb(logits, computed, theta, block_px, new):
                 for x in range(x0, x1):
                     if logits[y0, x] >= theta:
                         new[by - 1, bx + 1] = True
-                        n += 1
                         break
             if by + 1 < nby and not computed[by + 1, bx + 1] and not new[by + 1, bx + 1]:
                 for x in range(x0, x1):
                     if logits[y1 - 1, x] >= theta:
                         new[by + 1, bx + 1] = True
-                        n += 1
                         break
             if bx > 0 and not computed[by, bx] and not new[by, bx]:
                 for y in range(y0, y1):
                     if logits[y, x0] >= theta:
                         new[by, bx] = True
-                        n += 1
                         break
             if bx + 1 < nbx and not computed[by, bx + 2] and not new[by, bx + 2]:
                 for y in range(y0, y1):
                     if logits[y, x1 - 1] >= theta:
                         new[by, bx + 2] = True
-                        n += 1
                         break
-    return n
 
 
 def blob_frontier_reference(logits: np.ndarray, computed: np.ndarray, theta, block_px: int = COARSE_BLOCK_PX) -> np.ndarray:
