@@ -187,3 +187,17 @@ def test_the_argmax_in_boxes_is_numpys_argmax_where_the_rest_is_minus_inf(seed):
     empty = np.zeros((0, 4), np.int64)
     assert argmax_in_boxes(np.zeros((3, 3), np.float32), empty) == -1 == argmax_in_boxes_reference(np.zeros((3, 3), np.float32), empty)
     assert len(find_blobs(np.zeros((3, 3), np.float32), 1.5, 0.5, seed_boxes=empty)) == 0
+
+
+@pytest.mark.parametrize("boxes, match", [
+    (np.array([[0, 0, 5]]), r"\(n, 4\) integer array"),
+    (np.array([[0.0, 0.0, 5.0, 5.0]]), r"\(n, 4\) integer array"),
+    (np.array([[0, 0, 11, 5]]), r"inside the 10x8 logits .*\[0, 0, 11, 5\]"),
+    (np.array([[-1, 0, 5, 5]]), "inside the 10x8 logits"),
+    (np.array([[4, 0, 4, 5]]), "x0 < x1"),
+    (np.array([[0, 6, 5, 3]]), "y0 < y1"),
+])
+def test_find_blobs_refuses_seed_boxes_outside_its_logits(boxes, match):
+    """The compiled argmax does not check its boxes' bounds: find_blobs does, before reading anything."""
+    with pytest.raises(ValueError, match=match):
+        find_blobs(np.zeros((8, 10), np.float32), 1.5, 0.5, seed_boxes=boxes)

@@ -388,3 +388,12 @@ def test_edge_loss_roundtrip_and_older_files(tmp_path):
     from tests.conftest import DATA
 
     assert BallSegmentationModel.load(DATA / "models" / "ball_seg_default.npz").edge_loss_px == 2.8  # measured, docs/pipeline.md step 8
+
+
+def test_the_blob_frontier_refuses_a_grid_of_another_frame():
+    logits = np.zeros((40, 50), np.float32)
+    with pytest.raises(ValueError, match=r"bool grid of shape \(3, 6\) for 50x40 logits"):
+        blob_frontier(logits, np.zeros((3, 5), np.bool_), 0.0)
+    with pytest.raises(ValueError, match="float32 logits"):
+        blob_frontier(logits.astype(np.float64), np.zeros((3, 6), np.bool_), 0.0)
+    assert not blob_frontier(logits, np.zeros((3, 6), np.bool_), 0.0).any()

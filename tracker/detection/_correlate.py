@@ -287,8 +287,13 @@ def blob_frontier(logits: np.ndarray, computed: np.ndarray, theta, block_px: int
     lie across an edge of a computed block from one of its pixels at or above ``theta`` (a float32 at or below the
     flood fill's threshold: the test errs on the side of computing more) (compiled;
     :func:`blob_frontier_reference` is its numpy twin)."""
+    h, w = logits.shape
+    want = (-(-h // block_px), -(-w // block_px) + 2)
+    if computed.shape != want or computed.dtype != np.bool_ or logits.dtype != np.float32:
+        raise ValueError(f"blob_frontier: need float32 logits and a bool grid of shape {want} for {w}x{h} logits and "
+                         f"{block_px} px blocks (coarse_grid's layout), got {logits.dtype} logits and a {computed.dtype} grid of {computed.shape}")
     new = np.zeros_like(computed)
-    _blob_frontier_nb(logits, computed, np.float32(theta), block_px, new)
+    _blob_frontier_nb(np.ascontiguousarray(logits), np.ascontiguousarray(computed), np.float32(theta), block_px, new)
     return new
 
 

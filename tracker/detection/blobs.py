@@ -136,9 +136,9 @@ def _fill_python(work, r0, c0, t_low, p_low, qr, qc):
 @numba.njit(numba.int64(numba.types.Array(numba.float32, 2, "C"), numba.types.Array(numba.int64, 2, "C")), cache=True, nogil=True)
 def argmax_in_boxes(work, boxes):
     """The flat index of ``np.argmax(work)`` when every logit outside the boxes ``boxes`` ((n, 4) int64 ``x0, y0, x1,
-    y1``) is -inf: the largest value in the boxes, the first in row-major order among equals (-1 without a box;
-    :func:`argmax_in_boxes_reference` is its numpy twin). The coarse-to-fine full frame's seeds, without reading the
-    frame's -inf."""
+    y1``, inside ``work``: not checked here, :func:`find_blobs` checks them) is -inf: the largest value in the boxes, the
+    first in row-major order among equals (-1 without a box; :func:`argmax_in_boxes_reference` is its numpy twin). The
+    coarse-to-fine full frame's seeds, without reading the frame's -inf."""
     w = work.shape[1]
     best, at = -np.inf, -1
     for b in range(boxes.shape[0]):
@@ -160,6 +160,21 @@ def argmax_in_boxes_reference(work: np.ndarray, boxes: np.ndarray) -> int:
     idx = np.concatenate([(np.arange(y0, y1)[:, None] * w + np.arange(x0, x1)[None, :]).ravel() for x0, y0, x1, y1 in boxes])
     idx = np.sort(idx)
     return int(idx[np.argmax(work.reshape(-1)[idx])])
+
+
+def _checked_boxes(boxes, shape) -> np.ndarray:
+    """``boxes`` as the (n, 4) C-ordered int64 array :func:`argmax_in_boxes` reads (it does not check its bounds), or a
+    ValueError naming ``seed_boxes``: integer ``x0, y0, x1, y1`` with ``0 <= x0 < x1 <= W`` and ``0 <= y0 < y1 <= H``."""
+    arr = np.asarray(boxes)
+    if arr.ndim != 2 or arr.shape[1:] != (4,) or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+        raise ValueError(f"seed_boxes must be an (n, 4) integer array of x0, y0, x1, y1, got shape {arr.shape} of {arr.dtype}")
+    arr = np.ascontiguousarray(arr, np.int64)
+    h, w = shape
+    x0, y0, x1, y1 = arr.T
+    bad = ~((0 <= x0) & (x0 < x1) & (x1 <= w) & (0 <= y0) & (y0 < y1) & (y1 <= h))
+    if bad.any():
+        raise ValueError(f"seed_boxes must lie inside the {w}x{h} logits with x0 < x1 and y0 < y1, got {arr[bad][0].tolist()}")
+    return arr
 
 
 #: flood-fill implementations by name
@@ -207,6 +222,8 @@ def find_blobs(
         raise ValueError(f"need t_low_logit < t_high_logit, got {t_low_logit} and {t_high_logit}")
     if max_blobs < 1:
         raise ValueError(f"max_blobs must be >= 1, got {max_blobs}")
+    if seed_boxes is not None:
+        seed_boxes = _checked_boxes(seed_boxes, logits.shape)
     max_seeds = max(4 * max_blobs, 8) if max_seeds is None else int(max_seeds)
     max_area = math.inf if max_area_px is None else max_area_px
     if overwrite and logits.dtype == np.float32 and logits.flags.c_contiguous and logits.flags.writeable:
