@@ -4,7 +4,9 @@ A full-frame search costs in proportion to the frame's pixels: on a 1440x1080 ca
 ~3.5x as long as on a VGA one, and the rig's balls there are 11-55 px wide where the filter was trained on
 VGA balls of 5.5-15 px. So (``TrackerOptions.full_frame_pyramid``) a camera whose smallest ball in the rig's
 workspace (:mod:`tracker.ball_size`) is at least ``2^k x MIN_SEARCH_DIAMETER_PX`` wide is searched on its
-frame reduced ``2^k`` times (k <= ``MAX_LEVEL``; ``cv2.resize`` with pixel-area averaging), and each candidate
+frame reduced ``2^k`` times (k <= ``MAX_LEVEL``; halved k times by ``cv2.resize`` with pixel-area averaging, whose
+halving has a fast path: a one-off probe timed a 1440x1080 frame reduced 4x at once at 1.6 ms, halved twice at 0.45 ms, one thread, the values
+within one grey level of each other), and each candidate
 is then found again in a window at the full resolution around it: its centre, score, box and area are the
 full frame's, as without the pyramid (the reduced frame's, scaled, only where that window holds none).
 Two candidates that land on one blob are kept once. VGA rigs (balls of 5.5-16 px) stay at level 0: their
@@ -72,7 +74,9 @@ class PyramidSearch:
         """The candidates of the full ``image`` ((H, W, 3) uint8 RGB, trusted), in its pixels, best first."""
         f = self.factor
         h, w = image.shape[:2]
-        small = cv2.resize(image, (w // f, h // f), interpolation=cv2.INTER_AREA)
+        small = image
+        for _ in range(self.level):  # halvings: cv2's fast path (one 4x reduction is ~3.5x slower)
+            small = cv2.resize(small, (small.shape[1] // 2, small.shape[0] // 2), interpolation=cv2.INTER_AREA)
         coarse = self.reduced.detect(small)
         if len(coarse) == 0:
             return Detections.empty()
