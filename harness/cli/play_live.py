@@ -102,7 +102,7 @@ def run_live(args, config, open_log, print_rows) -> int:
     row = summarise(config, results, args.seed) if results else None
     if row is not None:
         row.update(live=True, latency_ms=latency_budget(run), refused_commands=run.refused,
-                   warm_up_ms=round(run.warm_up_s * 1e3, 1))
+                   warm_up_ms=round(run.warm_up_s * 1e3, 1), gc=run.gc)
         if error or len(results) < args.balls:
             row["partial"] = True
         if log is not None:
@@ -115,6 +115,10 @@ def run_live(args, config, open_log, print_rows) -> int:
         print_rows([row], args)
         for line in _budget_lines(row["latency_ms"]):
             print(line)
+        if row.get("gc"):
+            g = row["gc"]
+            print(f"  (garbage collector in the policy process: {sum(g['collections_per_generation'])} collections, "
+                  f"longest pause {g['pause_max_ms']:.1f} ms)")
         lag = row["latency_ms"]["world_lag_ms"]
         if lag["n"] and lag["max"] > LAG_WARN_MS:
             print(f"note: the simulated lab fell up to {lag['max'] / 1e3:.2f} s behind real time (the machine is short of "

@@ -16,7 +16,6 @@ with the assembler's note, the tracker goes on with the others, and the figures 
 
 from __future__ import annotations
 
-import gc
 import math
 import resource
 import sys
@@ -26,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from harness.common.gc_pauses import GcPauses, frozen_gc
 from harness.live.frames import AssembledFrameSet
 from harness.live.publish import rich_message, tennicam_message
 from harness.live.stats import LiveStats, process_per_set
@@ -125,7 +125,7 @@ class TrackingService:
         self.status = status
         self.log_error: str | None = None  # the log failed (disk full, ...): tracking and publishing went on
         self.stats = LiveStats(rig.names)
-        self._gc_pauses = _GcPauses()
+        self._gc_pauses = GcPauses()
         self.num = 0
         self._names = rig.names
 
@@ -203,29 +203,22 @@ class TrackingService:
         old_switch = sys.getswitchinterval()
         if self.options.switch_interval_s is not None:
             sys.setswitchinterval(self.options.switch_interval_s)
-        froze = self.options.gc_freeze and not gc.get_freeze_count()
-        if froze:  # everything alive now (rig, tracker, model, sockets) leaves the collector's generations
-            gc.collect()
-            gc.freeze()
-        gc.callbacks.append(self._gc_pauses.on_gc)
         use0 = resource.getrusage(resource.RUSAGE_SELF)
-        try:
-            for afs in self._frames(source, stop, deadline):
-                if afs is not None:
-                    self.step(afs)
-                if time.monotonic() >= next_status:
-                    next_status = time.monotonic() + period
-                    if self.status is not None:
-                        self.status(self.stats.status_line() + _assembly_status(source))
+        try:  # everything alive now (rig, tracker, model, sockets) leaves the collector's generations
+            with frozen_gc(self._gc_pauses, freeze=self.options.gc_freeze):
+                for afs in self._frames(source, stop, deadline):
+                    if afs is not None:
+                        self.step(afs)
+                    if time.monotonic() >= next_status:
+                        next_status = time.monotonic() + period
+                        if self.status is not None:
+                            self.status(self.stats.status_line() + _assembly_status(source))
         except BaseException as exc:
             error = f"{type(exc).__name__}: {exc}"
             raise
         finally:
             self._process = process_per_set(use0, resource.getrusage(resource.RUSAGE_SELF), self.stats.n)
             sys.setswitchinterval(old_switch)
-            gc.callbacks.remove(self._gc_pauses.on_gc)
-            if froze:
-                gc.unfreeze()
             self.finish(error=error, source=source)
         return self.summary()
 
@@ -271,30 +264,6 @@ class TrackingService:
             except Exception as exc:  # reported in the summary (``log.error``); the run's figures stand
                 what = f"closing it: {type(exc).__name__}: {exc}"
                 self.log_error = what if self.log_error is None else f"{self.log_error}; {what}"
-
-
-class _GcPauses:
-    """The garbage collector's runs during a service run (``gc.callbacks``, any thread): count per
-    generation and the pauses (every thread waits for a collection)."""
-
-    def __init__(self):
-        self.runs = [0, 0, 0]
-        self.total_s = self.max_s = 0.0
-        self._t0 = None
-
-    def on_gc(self, phase: str, info: dict) -> None:
-        if phase == "start":
-            self._t0 = time.perf_counter()
-        elif self._t0 is not None:
-            dt = time.perf_counter() - self._t0
-            self._t0 = None
-            self.runs[min(int(info.get("generation", 0)), 2)] += 1
-            self.total_s += dt
-            self.max_s = max(self.max_s, dt)
-
-    def summary(self) -> dict:
-        return {"collections_per_generation": list(self.runs), "pause_total_ms": self.total_s * 1e3,
-                "pause_max_ms": self.max_s * 1e3}
 
 
 def _assembly_status(source) -> str:

@@ -38,6 +38,7 @@ on an error and on SIGINT.
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import sys
 import time
@@ -47,6 +48,7 @@ from types import SimpleNamespace
 import numpy as np
 import zmq
 
+from harness.common.gc_pauses import GcPauses, frozen_gc
 from robot_models.robot_interface import JointState
 
 __all__ = ["BallClockWam", "LivePolicy", "LiveRun", "latency_budget", "play_live", "play_live_local", "prepare_policy"]
@@ -87,6 +89,7 @@ class LiveRun:
     warm_up_s: float = 0.0  #: the policy's and filter's warm-up before the first ball (HittingPolicy.warm_up)
     refused: int = 0
     error: str | None = None
+    gc: dict | None = None  #: the garbage collector's runs while playing (GcPauses.summary; what was alive before, frozen)
 
 
 def latency_budget(run: LiveRun) -> dict:
@@ -166,6 +169,9 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, player: LivePolicy, ba
     last_event = time.monotonic()
     plan_times = {kind: collections.deque(maxlen=5) for kind in ("first", "replan")}  # wall s of planning steps
     dt = 1.0 / wam.control_rate_hz
+    gc_pauses = GcPauses()
+    frozen = contextlib.ExitStack()
+    frozen.enter_context(frozen_gc(gc_pauses))  # the policy, its kernels and the filter leave the collector's generations
     try:
         while done_balls < balls and not stop():
             samples = wam.advance_to(wam.t_s)
@@ -276,6 +282,8 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, player: LivePolicy, ba
         exc.run = run
         raise
     finally:
+        frozen.close()
+        run.gc = gc_pauses.summary()
         obs_sub.close(linger=0)
         world_sub.close(linger=0)
     return run

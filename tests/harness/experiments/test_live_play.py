@@ -94,11 +94,12 @@ def test_live_success_rate_agrees_with_the_in_process_run(tmp_path):
     assert live["balls"] == n and live["live"] is True
     p = inproc["success_rate"]
     tol = max(2.0, 2.0 * math.sqrt(n * p * (1 - p)))
-    why = {k: (live.get(k), inproc.get(k)) for k in ("successes", "outcomes", "no_attempt_reasons", "refused_commands", "warm_up_ms")}
+    why = {k: (live.get(k), inproc.get(k)) for k in ("successes", "outcomes", "no_attempt_reasons", "refused_commands", "warm_up_ms", "gc")}
     why["live latency p99 ms"] = {stage: v.get("p99") for stage, v in live["latency_ms"].items() if isinstance(v, dict)}
     assert abs(live["successes"] - inproc["successes"]) <= tol, why  # (live, in process) of what decides a ball
     for stage in ("exposure_to_obs_ms", "obs_to_command_ms", "command_to_robot_ms"):
         assert live["latency_ms"][stage]["n"] > 0
+    assert len(live["gc"]["collections_per_generation"]) == 3 and live["gc"]["pause_max_ms"] >= 0  # what it reports
 
 
 def test_the_tracker_process_draws_the_in_process_observations():
