@@ -54,24 +54,20 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
     """
     from harness.common.progress import progress_bar
 
-    from harness.experiments.detector.train import load_image
+    from harness.experiments.detector.ballfree import without_balls
     from tracker import BallDetector, DetectorOptions
 
     for m in methods:
         if m not in EVAL_METHODS:
             raise ValueError(f"unknown method {m!r}; valid: {EVAL_METHODS}")
     paper = BallDetector(model, DetectorOptions(method="paper", t_high=t_high, t_low=t_low))
-    area = {} if area_px is None else dict(min_area_px=int(area_px[0]), max_area_px=int(area_px[1]))
-    ours = BallDetector(model, DetectorOptions(method="ours", max_candidates=max_candidates, t_high=t_high, t_low=t_low,
-                                               learned_threshold=learned_threshold, **area))
+    ours = BallDetector(model, _ours_options(max_candidates, t_high, t_low, learned_threshold, area_px))
     found = {m: [] for m in methods}
     centers, diameters = [], []
     for li in progress_bar(labelled, desc="eval detector", unit="img", disable=not progress, leave=False):
-        image = load_image(li)
+        image = _evaluated_image(li, ball_free_margin_px)
         if ball_free_margin_px is not None:
-            from harness.experiments.detector.ballfree import ball_free
-
-            image, li = ball_free(image, li, ball_free_margin_px)
+            li = without_balls(li)
         c, d = truth_of(li)
         centers.append(c)
         diameters.append(d)
