@@ -59,6 +59,9 @@ class TrackerEngine(Protocol):
     def forget_motion(self) -> None:
         """Forget what was learnt from earlier frame sets (a new rally, a time that went backwards)."""
 
+    def settle(self) -> None:
+        """Wait for work the engine runs after a frame set was reported (:meth:`tracker.Tracker.settle`)."""
+
     def close(self) -> None:
         """Stop what the engine started (threads)."""
 
@@ -133,6 +136,17 @@ class TrackerOptions:
         1440x1080 rig's full-frame search 3x faster). VGA rigs stay at full resolution. Off by default (the offline
         experiments' figures are the full resolution's: on the reduced frame the K best candidates can differ); the
         live service turns it on (``harness.live.config.TrackConfig.full_frame_pyramid``)
+    defer_full_frame : ``rt2`` with ``roi``, live: a frame set that would search full frames (no predicted ball, or
+        windows that did not confirm it: the fallback) is reported at once without a position, and those full frames
+        are searched on a worker thread while the next frames arrive; at the start of the next frame set the result
+        joins the tracker's state (the motion prediction, the ball hypotheses, the retry back-off) as if it had come
+        in time, so that frame set's windows search where the ball was found. A new or lost ball is reported one
+        frame set later, and no frame set waits for a full-frame search of its own (a new ball's frame set on eight
+        VGA cameras took ~8 ms). A frame set that arrives while the search still runs (nine 1440x1080 cameras: longer
+        than a period) is reported unsearched (``TrackerStats.not_searched``); the first one after it takes up its
+        result. The ball hypotheses' own full-frame sets, while windows follow a ball, are not deferred. Off by default (offline runs report each full-frame result in its own frame set); the live service
+        turns it on
+        (``harness.live.config.TrackConfig.defer_full_frame``)
     motion_cue : fixed cameras (``rt2`` only): :class:`MotionOptions` of a per-camera background at reduced
         resolution (:mod:`tracker.motion`); a full-frame search keeps only the candidates on cells that moved (a new
         ball is one that moves: lamps, shelves and white objects do not), while a frame gives a cue (not the first
@@ -155,12 +169,13 @@ class TrackerOptions:
     hypotheses: HypothesisOptions | None = HypothesisOptions()
     size_from_rig: bool = True
     full_frame_pyramid: bool = False
+    defer_full_frame: bool = False
     motion_cue: MotionOptions | None = None
 
     def __post_init__(self):
         if self.roi is not None and not isinstance(self.roi, (bool, np.bool_)):
             raise ValueError(f"TrackerOptions.roi must be True, False or None, got {self.roi!r}")
-        for name in ("retry_full_frame", "threads_for_roi", "size_from_rig", "full_frame_pyramid", "model_size_ratio"):
+        for name in ("retry_full_frame", "threads_for_roi", "size_from_rig", "full_frame_pyramid", "model_size_ratio", "defer_full_frame"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"TrackerOptions.{name} must be True or False, got {getattr(self, name)!r}")
         g = self.max_gap_s
@@ -207,6 +222,10 @@ class TrackerStats:
     roi_misses : of those, windows without a ball candidate (incl. a prediction outside the image)
     full_frame_searches : camera images searched over the full frame (no prediction, or a retry)
     full_frame_retries : frame sets re-searched on full frames after the windows gave no OK estimate
+    deferred_searches : frame sets whose full-frame search (no prediction, or the windows' fallback) ran after the set
+        was reported (``TrackerOptions.defer_full_frame``)
+    deferred_found : of those, searches that confirmed a ball (the next frame set's windows searched at it)
+    not_searched : frame sets that arrived while a deferred search still ran: reported without a search or a position
     retries_held : frame sets whose windows gave no OK estimate and whose retry waited
         (``TrackerOptions.retry_backoff_sets``)
     size_rejections : positions rejected by the 3D size test (``TrackerOptions.max_size_ratio``)
@@ -229,6 +248,9 @@ class TrackerStats:
     roi_misses: int = 0
     full_frame_searches: int = 0
     full_frame_retries: int = 0
+    deferred_searches: int = 0
+    deferred_found: int = 0
+    not_searched: int = 0
     retries_held: int = 0
     size_rejections: int = 0
     handovers: int = 0

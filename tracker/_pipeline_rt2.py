@@ -10,10 +10,11 @@ did not confirm the ball, the ball hypotheses and the support hand-over (``rt2``
 
 from __future__ import annotations
 
+import concurrent.futures
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from tracker.hypotheses import BallHypotheses
 from tracker.motion import MotionCue
 from tracker.observation import BallObservation, Status
 from tracker.rig import Rig
-from tracker.robust import RobustTriangulator
+from tracker.robust import EstimateInfo, RobustTriangulator
 from tracker.size_test import SizeTest, size_threshold
 
 __all__ = ["JUMP_M", "SegmentationEngine"]
@@ -106,10 +107,16 @@ class SegmentationEngine:
         self._pool = None
         if options.workers > 1:
             self._pool = ThreadPoolExecutor(options.workers - 1, thread_name_prefix="rt2-detect")
+        # TrackerOptions.defer_full_frame: the fallback after its frame set was reported, on this thread (which
+        # shares the detector calls with the pool as the calling thread does); _Deferred of the one in flight
+        self._deferrer = ThreadPoolExecutor(1, thread_name_prefix="rt2-deferred") if options.defer_full_frame and self.roi else None
+        self._pending: _Deferred | None = None
 
     # -- life cycle -------------------------------------------------------------------------------
     def forget_motion(self, *, hypotheses: bool = True) -> None:
-        """Forget the motion prediction, the hand-over's history and (``hypotheses``) the ball hypotheses."""
+        """Forget the motion prediction, the hand-over's history and (``hypotheses``) the ball hypotheses (and a
+        deferred full-frame search still running: its result is dropped)."""
+        self._drop_deferred()
         self._motion.reset()
         self._retry_wait, self._retry_gap = 0, 1  # TrackerOptions.retry_backoff_sets
         if self.handover is not None:
@@ -121,6 +128,10 @@ class SegmentationEngine:
                 cue.reset()
 
     def close(self) -> None:
+        self._drop_deferred()
+        if self._deferrer is not None:
+            self._deferrer.shutdown(wait=True)
+            self._deferrer = None
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
@@ -131,6 +142,10 @@ class SegmentationEngine:
         """One frame set: ``t_s`` its time (NaN when not finite), ``usable`` the cameras with a usable
         frame, ``notes`` the notes so far (appended to), ``t0`` ``time.perf_counter()`` at entry; ``prior_m``
         a (3,) world point whose pixels are searched instead of the motion prediction's."""
+        if self._pending is not None:  # an earlier frame set's full frames: their result first (it steers these windows)
+            if not self._pending.future.done():
+                return self._not_searched(t_s, notes, t0)
+            self._finish_deferred(notes)
         n = self.n_cams
         self._images = frameset.images
         self._frame_no += 1
@@ -140,6 +155,7 @@ class SegmentationEngine:
         else:
             roi_px = self._motion.predict_pixels(t_s) if self.roi else None
         hyp = self.hypotheses
+        predicted = roi_px is not None
         if prior_m is None and roi_px is not None and hyp is not None and hyp.wants_full_frame(t_s):
             roi_px = None  # no ball in play: look at everything now and then (step 10)
             self.stats.hypothesis_full_frames += 1
@@ -153,10 +169,19 @@ class SegmentationEngine:
         used_roi = np.isfinite(roi_px[:, 0])
         used_roi[[i for i in range(n) if i not in usable]] = False
         searched = usable if prior_m is None else [i for i in usable if used_roi[i]]  # the prior behind a camera: not searched
-        self._detect(searched, roi_px, used_roi)  # Algorithm 1 per camera (paper Sec. 2.1)
+        # no prediction (a new ball, or none in view): with defer_full_frame the full frames are searched after this
+        # frame set is reported (the ball hypotheses' own full-frame sets, while a ball is followed, are not deferred)
+        deferred = (searched and self._deferrer is not None and prior_m is None and math.isfinite(t_s) and not predicted)
+        if deferred:
+            self.stats.deferred_searches += 1
+            notes.append(f"no predicted ball: full frames of {', '.join(self._names[i] for i in searched)} searched after this "
+                         "frame set was reported, until they confirm a ball (it steers the next frame set's windows)")
+            job = (self._search_full, searched, roi_px.copy(), used_roi.copy())
+        else:
+            self._detect(searched, roi_px, used_roi)  # Algorithm 1 per camera (paper Sec. 2.1)
         X, info, size_ratio = self._estimate(notes)  # Algorithm 2 (paper Sec. 2.2; "ours" extends it), then the 3D size test
         retried = False
-        if self.options.retry_full_frame and info.status is not Status.OK and used_roi.any():
+        if self.options.retry_full_frame and info.status is not Status.OK and used_roi.any() and not deferred:
             # The full-frame fallback, only when the windows did not confirm the ball (also when the
             # size test rejected what they held). Every camera that searched a window is redone: with
             # two agreeing cameras, those two may be the ones whose windows hold the wrong object (any
@@ -167,6 +192,13 @@ class SegmentationEngine:
                 self._retry_wait -= 1
                 self.stats.retries_held += 1
                 notes.append(f"window search gave {info.status.value}; full-frame retry held back (the last one did not confirm the ball)")
+            elif redo and self._deferrer is not None and prior_m is None and math.isfinite(t_s):
+                deferred = True  # reported now without a position; the fallback runs once this frame set is out
+                self.stats.full_frame_retries += 1
+                self.stats.deferred_searches += 1
+                notes.append(f"window search gave {info.status.value}; full frames of {', '.join(self._names[i] for i in redo)} searched after "
+                             "this frame set was reported, until they confirm a ball (it steers the next frame set's windows)")
+                job = (self._retry_deferred, redo, roi_px.copy(), used_roi.copy(), info.status)
             elif redo:
                 retried = True
                 self.stats.full_frame_retries += 1
@@ -180,7 +212,9 @@ class SegmentationEngine:
         if info.status is Status.OK:
             self._retry_wait, self._retry_gap = 0, 1
         withheld = False
-        if hyp is not None and math.isfinite(t_s):
+        if deferred:
+            X, size_ratio, withheld = None, math.nan, True  # the ball hypotheses take the full frames' positions instead
+        elif hyp is not None and math.isfinite(t_s):
             X, info, size_ratio, withheld = self._choose_ball(t_s, X, info, size_ratio, usable, used_roi, notes)
         ok = info.status is Status.OK and not withheld
         cand = info.candidate_index
@@ -197,14 +231,17 @@ class SegmentationEngine:
         self.stats.ok += ok
         pinfo = PipelineInfo(self._uv.copy(), self._scores.copy(), roi_px, used_roi, retried, info, size_ratio, self._areas.copy(),
                              *((hyp.positions(), hyp.in_play()) if hyp is not None else (None, None)))
-        self._images = None  # do not keep the frames alive
+        if deferred:  # (after the evidence above was copied: the search refills the rows of these cameras)
+            self._defer(t_s, usable, *job)
+        else:
+            self._images = None  # do not keep the frames alive
         obs = BallObservation(
             t_s=t_s,
             position_m=X,
             covariance_m2=None if withheld else info.covariance_m2,
             support=0 if withheld else info.support,
             inliers=np.zeros(n, bool) if withheld else info.inliers,
-            status=Status.NO_CONSENSUS if withheld else info.status,
+            status=info.status if deferred else Status.NO_CONSENSUS if withheld else info.status,
             latency_s=time.perf_counter() - t0,  # entry to return
             tracker=self.kind,
             uv_px=uv_px,
@@ -212,13 +249,16 @@ class SegmentationEngine:
         )
         return obs, pinfo
 
-    def _retry(self, t_s: float, redo: list[int], roi_px: np.ndarray, used_roi: np.ndarray, window_status: Status, notes: list):
+    def _retry(self, t_s: float, redo: list[int], roi_px: np.ndarray, used_roi: np.ndarray, window_status: Status, notes: list, *,
+               first_confirmation: bool = False):
         """The full-frame fallback over the cameras ``redo`` (their rows cleared): a batch of
         ``2 * workers`` cameras at a time in :attr:`_search_order` (two per thread), until the consensus
         is ``OK`` with ``retry_confirm_support`` cameras; then, unless the ball hypotheses want every camera's
         full frame for it (:meth:`_windows_will_do`), the cameras left search windows around that position's pixels (``roi_px`` and ``used_roi`` updated), and the full frame only if they do not
         confirm it (``TrackerOptions.retry_confirm_support``); when the hypotheses want them, the cameras left search
-        their full frames all at once (one parallel call, not batch by batch). Returns ``(X, info, ratio)``."""
+        their full frames all at once (one parallel call, not batch by batch). ``first_confirmation`` (a deferred search:
+        the next frame set's windows look at every camera): stop at the first batch that confirms the ball. Returns
+        ``(X, info, ratio)``."""
         need = self.options.retry_confirm_support
         if need is None or len(redo) <= need + 1:  # every camera at once
             notes.append(f"window search gave {window_status.value}; full frame searched in {', '.join(self._names[i] for i in redo)}")
@@ -235,6 +275,8 @@ class SegmentationEngine:
             self._detect(step, roi_px, used_roi)
             full += step
             X, info, ratio = self._estimate(notes)
+            if left and first_confirmation and info.status is Status.OK and info.support >= need:
+                break
             if left and info.status is Status.OK and info.support >= need and not self._windows_will_do(t_s, X):
                 batch = len(left)  # every full frame is wanted: the rest at once, on every thread
             elif left and info.status is Status.OK and info.support >= need:
@@ -253,6 +295,86 @@ class SegmentationEngine:
                 self._areas[rest] = np.nan
         notes.append(f"window search gave {window_status.value}; full frame searched in {', '.join(self._names[i] for i in sorted(full))}")
         return X, info, ratio
+
+    # -- the deferred fallback (TrackerOptions.defer_full_frame) ------------------------------------
+    def _defer(self, t_s: float, usable: list, search, cams: list, roi_px: np.ndarray, used_roi: np.ndarray, *args) -> None:
+        """Start ``search(t_s, cams, roi_px, used_roi, *args, notes)`` (:meth:`_search_full` or :meth:`_retry_deferred`)
+        for the frame set just reported, on the deferred thread; its images stay in ``self._images`` until
+        :meth:`_finish_deferred`, and nothing else touches the engine's arrays meanwhile."""
+        self._uv[cams] = np.nan
+        self._scores[cams] = np.nan
+        self._areas[cams] = np.nan
+        late_notes: list = []
+        future = self._deferrer.submit(search, t_s, cams, roi_px, used_roi, *args, late_notes)
+        self._pending = _Deferred(future, t_s, list(usable), used_roi, search == self._retry_deferred, late_notes)
+
+    def _search_full(self, t_s: float, cams: list, roi_px: np.ndarray, used_roi: np.ndarray, notes: list):
+        """The full frames of ``cams`` (a frame set without a prediction, deferred), batch by batch as the fallback
+        goes, until a batch confirms the ball (the next frame set's windows search every camera at it)."""
+        return self._retry(t_s, cams, roi_px, used_roi, Status.TOO_FEW_OBSERVATIONS, notes, first_confirmation=True)
+
+    def _retry_deferred(self, t_s: float, cams: list, roi_px: np.ndarray, used_roi: np.ndarray, status: Status, notes: list):
+        """The windows' full-frame fallback (:meth:`_retry`), deferred: until a batch confirms the ball."""
+        return self._retry(t_s, cams, roi_px, used_roi, status, notes, first_confirmation=True)
+
+    def _finish_deferred(self, notes: list) -> None:
+        """Wait for the deferred search and let its result join the state as :meth:`process` does after a search in
+        time: the retry back-off, the ball hypotheses and the motion prediction (which the next windows follow).
+        One note in ``notes`` (the frame set being processed) says what it found."""
+        p, self._pending = self._pending, None
+        try:
+            X, info, ratio = p.future.result()
+        finally:
+            self._images = None
+        if info.status is Status.OK:
+            self._retry_wait, self._retry_gap = 0, 1
+        elif p.retry and self.options.retry_backoff_sets > 0:
+            self._retry_wait = self._retry_gap
+            self._retry_gap = min(2 * self._retry_gap, self.options.retry_backoff_sets)
+        withheld = False
+        if self.hypotheses is not None:  # as a full-frame search (it stops at the first batch that confirms the ball: the
+            # next frame set's windows search every camera there, and a look for other balls waits for its period)
+            full = np.zeros_like(p.used_roi)
+            X, info, ratio, withheld = self._choose_ball(p.t_s, X, info, ratio, p.usable, full, p.notes)
+        what = "the full-frame fallback" if p.retry else "the full-frame search"
+        if info.status is Status.OK and not withheld:
+            self.stats.deferred_found += 1
+            if p.retry and self._jumped(p.t_s, X):
+                self._motion.reset()  # a new ball, or one far from where it was (as after a fallback in time)
+            self._motion.update(p.t_s, X)
+            notes.append(f"{what} after the frame set at t={p.t_s:.6f} s found the ball with {info.support} cameras: windows at it")
+        else:
+            notes.append(f"{what} after the frame set at t={p.t_s:.6f} s gave {'no ball in play' if withheld else info.status.value}")
+
+    def settle(self) -> None:
+        """Wait for a deferred full-frame search still running (its result is taken up by the next frame set)."""
+        p = self._pending
+        if p is not None:
+            concurrent.futures.wait([p.future])
+
+    def _not_searched(self, t_s: float, notes: list, t0: float) -> tuple[BallObservation, PipelineInfo]:
+        """The observation of a frame set that arrives while a deferred full-frame search still runs: not searched
+        (the search uses the engine's arrays; the next frame set after it ends takes up its result), no position."""
+        n, k = self.n_cams, self.candidates_per_camera
+        self.stats.not_searched += 1
+        notes.append(f"not searched: the full-frame search after the frame set at t={self._pending.t_s:.6f} s still runs")
+        info = EstimateInfo(Status.TOO_FEW_OBSERVATIONS, 0, np.zeros(n, bool), np.full(n, -1, np.int64), np.full(n, np.nan), None,
+                            math.nan, 0, 0, self.estimator.method)
+        hyp = self.hypotheses
+        pinfo = PipelineInfo(np.full((n, k, 2), np.nan), np.full((n, k), np.nan), np.full((n, 2), np.nan), np.zeros(n, bool), False, info,
+                             math.nan, np.full((n, k), np.nan), *((hyp.positions(), hyp.in_play()) if hyp is not None else (None, None)))
+        obs = BallObservation(t_s=t_s, position_m=None, covariance_m2=None, support=0, inliers=np.zeros(n, bool), status=info.status,
+                              latency_s=time.perf_counter() - t0, tracker=self.kind, uv_px=np.full((n, 2), np.nan), notes=tuple(notes))
+        return obs, pinfo
+
+    def _drop_deferred(self) -> None:
+        """Wait for a deferred fallback still running and forget its result."""
+        p, self._pending = self._pending, None
+        if p is not None:
+            try:
+                p.future.result()
+            finally:
+                self._images = None
 
     def _windows_will_do(self, t_s: float, X: np.ndarray) -> bool:
         """Whether the cameras the fallback has not searched yet may search windows at ``X`` (3,): always without
@@ -418,6 +540,19 @@ class SegmentationEngine:
             return det
         self._still[i] = int((~keep).sum())  # (counted in _detect once the threads are done)
         return Detections(det.uv_px[keep], det.scores[keep], det.boxes_xywh[keep], det.areas_px[keep], det.used_roi)
+
+
+@dataclass
+class _Deferred:
+    """A full-frame search in flight (``TrackerOptions.defer_full_frame``): its future (-> ``(X, info, ratio)``), the
+    frame set's time, usable cameras and window mask (the fallback updates it), its kind, and the notes it wrote."""
+
+    future: Future
+    t_s: float
+    usable: list
+    used_roi: np.ndarray
+    retry: bool  #: the windows' fallback (else a frame set without a prediction)
+    notes: list
 
 
 def _region_margins(rig: Rig, ball_radius_m: float) -> np.ndarray:

@@ -44,6 +44,9 @@ class RTBlobEngine:
     def forget_motion(self) -> None:
         """Nothing: RTBlob keeps no motion state."""
 
+    def settle(self) -> None:
+        """Nothing: RTBlob defers no work."""
+
     def close(self) -> None:
         """Nothing to stop."""
 

@@ -137,6 +137,12 @@ class Tracker:
         if clear_stats:
             self.stats.clear()
 
+    def settle(self) -> None:
+        """Wait until a full-frame search deferred by the last frame set (``TrackerOptions.defer_full_frame``) has
+        ended, so the next frame set takes up its result rather than being reported unsearched: a replay or a test
+        that wants the live tracker's answers without its timing. Returns at once when none runs."""
+        self.engine.settle()
+
     def close(self) -> None:
         """Stop the worker threads (``workers > 1``); the tracker refuses frame sets afterwards."""
         self.engine.close()

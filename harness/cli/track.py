@@ -43,7 +43,7 @@ CLOSE_BY_S = 1.0  #: after SIGINT / SIGTERM, what is not closed this long after 
 FLAGS = {"rig": "--rig", "source": "--source", "rate_hz": "--rate-hz", "seed": "--seed", "prerender_s": "--prerender",
          "truth_stream": "--truth-stream", "scene": "--scene", "max_behind_s": "--max-behind", "sim_rig": "--sim-rig",
          "sim_render": "--sim-render", "sim_render_nice": "--sim-render-nice", "sim_ball": "--sim-ball", "queue_s": "--queue-s", "max_backlog": "--max-backlog", "tracker": "--tracker",
-         "model_path": "--model", "workers": "--workers", "full_frame_pyramid": "--full-frame-pyramid", "motion_cue": "--motion-cue", "publish": "--publish", "publish_rt2": "--publish-rt2",
+         "model_path": "--model", "workers": "--workers", "full_frame_pyramid": "--full-frame-pyramid", "defer_full_frame": "--defer-full-frame", "motion_cue": "--motion-cue", "publish": "--publish", "publish_rt2": "--publish-rt2",
          "foxglove_port": "--foxglove", "foxglove_host": "--foxglove-host", "log_path": "--log", "log_overwrite": "--log-overwrite",
          "log_images": "--log-images", "log_image_format": "--log-image-format", "duration_s": "--duration",
          "status_period_s": "--status-period", "json": "--json"}
@@ -70,7 +70,7 @@ def track_config(args, **fields) -> TrackConfig:
             rig=str(args.rig), source=tuple(args.source), rate_hz=args.rate_hz, seed=args.seed, prerender_s=args.prerender,
             truth_stream=args.truth_stream, scene=args.scene, max_behind_s=args.max_behind, sim_rig=args.sim_rig,
             sim_render=args.sim_render, sim_render_nice=args.sim_render_nice, sim_ball=args.sim_ball, queue_s=args.queue_s, max_backlog=args.max_backlog, tracker=args.tracker,
-            model_path=args.model, workers=args.workers, full_frame_pyramid=args.full_frame_pyramid, motion_cue=args.motion_cue,
+            model_path=args.model, workers=args.workers, full_frame_pyramid=args.full_frame_pyramid, defer_full_frame=args.defer_full_frame, motion_cue=args.motion_cue,
         )
         if hasattr(args, "publish"):  # rt2 track's own options (rt2 bench live sets its streams itself)
             mine.update(
@@ -105,6 +105,11 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> None:
                         help="rt2: a camera whose ball is large (>= 11 px across the workspace: high-resolution cameras) searches its "
                              "full frame at a reduced resolution, each candidate then found again at full resolution (default on; "
                              "VGA cameras are searched at full resolution either way; docs/pipeline.md)")
+    parser.add_argument("--defer-full-frame", action=argparse.BooleanOptionalAction, default=None,
+                        help="rt2: when the windows lose the ball (or a new one comes), report the frame set at once without a "
+                             "position and search the full frames while the next frames arrive; their ball places the next "
+                             "frame set's windows (a new ball is reported a frame set later, and no frame set waits for eight full "
+                             "frames). Default: on for a model without a learned stage, off with one (docs/pipeline.md)")
     parser.add_argument("--motion-cue", action=argparse.BooleanOptionalAction, default=False,
                         help="rt2, fixed cameras: a full-frame search (a new ball, a lost one) keeps only the candidates where the "
                              "frame moved against the camera's own background (lamps, shelves and white objects do not move; a "

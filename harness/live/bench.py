@@ -109,7 +109,7 @@ def bench_live(args, modes: list[str], config, *, progress=None, truth_scene=Non
     return {"date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "cpus": os.cpu_count(),
             "source": list(args.source), "rig": args.rig, "rate_hz": args.rate_hz, "tracker": args.tracker,
             "workers": config.tracker_workers, "max_backlog": config.max_backlog, "model": config.model_path,
-            "full_frame_pyramid": config.full_frame_pyramid, "motion_cue": config.motion_cue, "sim_ball": config.sim_ball,
+            "full_frame_pyramid": config.full_frame_pyramid, "defer_full_frame": config.defer_full_frame, "motion_cue": config.motion_cue, "sim_ball": config.sim_ball,
             "duration_s": args.duration, "warmup_s": args.warmup, "prerender_s": args.prerender,
             "cameras": len(rig), "image_size": list(rig[0].image_size),
             "goals": target, "goals_met": goals, "full_goals": FULL_GOALS, "full_goals_met": full_goals, "modes": rows}
@@ -171,7 +171,8 @@ def acquisition(truth_at, rec: dict, first_frame: int) -> dict:
     measured part, after the warm-up). A new ball is a frame id whose ball was absent (or elsewhere: more than
     ``NEW_BALL_JUMP_M``) at the one before; it is acquired at the first message of a later or the same frame id of its
     flight with status ``ok`` and a position within ``ACQUIRED_WITHIN_M``: the frame sets counted from the new ball's
-    first (0 = at once), skipped frame sets included. Returns ``{"new_balls", "acquired", "frame_sets_p50",
+    first (0 = at once), skipped frame sets included. A ball that appears in the record's last 3 frame sets is not
+    counted (the run ended before it could show whether it was acquired within 3). Returns ``{"new_balls", "acquired", "frame_sets_p50",
     "frame_sets_max", "within_3"}`` (``within_3``: the share of the new balls acquired within 3 frame sets)."""
     ids = np.asarray(rec["frame_id"], np.int64)
     if len(ids) == 0:
@@ -187,7 +188,7 @@ def acquisition(truth_at, rec: dict, first_frame: int) -> dict:
     k = first_frame
     while k <= last:
         t = truth_at(k)
-        if t is not None and (prev is None or float(np.linalg.norm(t - prev)) > NEW_BALL_JUMP_M):
+        if t is not None and (prev is None or float(np.linalg.norm(t - prev)) > NEW_BALL_JUMP_M) and k <= last - 3:
             new_balls += 1
             j, tj, pj = k, t, prev
             while j <= last and tj is not None and (j == k or float(np.linalg.norm(tj - pj)) <= NEW_BALL_JUMP_M):
@@ -228,6 +229,7 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
                      status_period_s=0.0, duration_s=float(args.duration), prerender_s=args.prerender, **MODES[mode])
     live = open_service(config, status=None, truth_scene=truth_scene)
     service, assembler = live.service, live.assembler
+    deferred = bool(getattr(service.tracker.options, "defer_full_frame", False))  # (auto resolved by the model)
     out = str(Path(tmp) / f"sub_{mode}.json")
     sub = None
     try:
@@ -268,6 +270,7 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
     truth_at = _sim_truth(args, config)
     return {
         "mode": mode,
+        "defer_full_frame": deferred,
         "frame_sets_published": published,
         "frame_sets_measured": int(keep.sum()),
         "rate_hz": (keep.sum() - 1) / span if span and span > 0 else math.nan,

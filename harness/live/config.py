@@ -80,6 +80,11 @@ class TrackConfig:
     whose full-frame searches then run two cameras at a time, 1 for rtblob; :attr:`tracker_workers`); roi : the rt2 kinds' window search (None = the
     kind's default; False = full frame every frame set); full_frame_pyramid : the rt2 kind's full-frame search of a camera
     whose ball is large at a reduced resolution (``tracker.TrackerOptions.full_frame_pyramid``; on here, off offline);
+    defer_full_frame : the rt2 kind's full-frame searches after their frame set was reported, their ball steering the
+    next frame set's windows (``tracker.TrackerOptions.defer_full_frame``; off offline). None = auto: on for a model
+    without a learned stage, off with one (a learned stage's windows fall back to full frames often, and while such a
+    search runs the frame sets are reported unsearched: on lab4_vga with the white stage the ok share fell from 63 to
+    34 %; docs/pipeline.md, "Full frames after the frame set");
     motion_cue : the rt2 kind's full-frame candidates only where the frame moved against the camera's background
     (``tracker.TrackerOptions.motion_cue`` with its default :class:`tracker.MotionOptions`; off by default)
 
@@ -111,6 +116,7 @@ class TrackConfig:
     workers: int | None = None
     roi: bool | None = None
     full_frame_pyramid: bool = True
+    defer_full_frame: bool | None = None
     motion_cue: bool = False
     publish: str | None = "tcp://127.0.0.1:7660"
     publish_rt2: str | None = NEXT_PORT
@@ -179,6 +185,8 @@ class TrackConfig:
             raise ConfigError("roi", f"{{roi}} must be True, False or None (the kind's default), got {self.roi!r}")
         if not isinstance(self.full_frame_pyramid, bool):
             raise ConfigError("full_frame_pyramid", f"{{full_frame_pyramid}} must be True or False, got {self.full_frame_pyramid!r}")
+        if self.defer_full_frame is not None and not isinstance(self.defer_full_frame, bool):
+            raise ConfigError("defer_full_frame", f"{{defer_full_frame}} must be True, False or None (auto), got {self.defer_full_frame!r}")
         if not isinstance(self.motion_cue, bool):
             raise ConfigError("motion_cue", f"{{motion_cue}} must be True or False, got {self.motion_cue!r}")
         if self.duration_s is not None and not (_number(self.duration_s) and self.duration_s > 0):

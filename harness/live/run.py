@@ -158,7 +158,14 @@ def open_service(config: TrackConfig, *, status=print, truth_scene=None) -> Live
             from tracker import MotionOptions
 
             kw["motion_cue"] = MotionOptions()
-        tracker = Tracker(rig, config.tracker, full_frame_pyramid=config.full_frame_pyramid, **kw)
+        defer = config.defer_full_frame
+        if defer is None:  # auto: on for the filter alone, off with a learned stage (its windows fall back often: see TrackConfig)
+            from tracker.pipeline import load_model
+
+            if config.tracker != "rtblob":
+                kw["model"] = load_model(config.model_path)
+            defer = config.tracker != "rtblob" and kw["model"].learned is None
+        tracker = Tracker(rig, config.tracker, full_frame_pyramid=config.full_frame_pyramid, defer_full_frame=defer, **kw)
         closers.append(tracker.close)
         warm_up(tracker, rig)
         publisher = None

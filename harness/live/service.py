@@ -67,7 +67,8 @@ WARM_UP_BALL_RADIUS_M = 0.02
 def warm_up(tracker, rig, *, n: int = 3) -> None:
     """Run ``tracker`` on ``n`` made-up frame sets (an orange disk of a ball's size where a ball at the
     centre of the rig's workspace would be: the first a full-frame search that confirms it, the next window
-    searches around its prediction), build and encode their messages without sending them, and forget them,
+    searches around its prediction; then two frame sets without it: the windows' full-frame fallback), build and
+    encode their messages without sending them, and forget them,
     so the first real frame sets do not pay for compiled kernels (loaded from numba's cache or compiled),
     first-call allocations and lazy imports."""
     import json
@@ -88,9 +89,10 @@ def warm_up(tracker, rig, *, n: int = 3) -> None:
             cv2.circle(img, (int(round(u)), int(round(v))), radius_px, (255, 120, 0), -1)
         images.append(img)
     n_cams = len(images)
-    for k in range(n):
+    blank = tuple(np.zeros_like(img) for img in images)
+    for k in range(n + 2):  # then two without the ball: the windows' fallback (on its own thread when deferred) and its end
         t = time.monotonic()
-        afs = AssembledFrameSet(FrameSet(float(k) * 1e-3, tuple(images), k), k, np.full(n_cams, t),
+        afs = AssembledFrameSet(FrameSet(float(k) * 1e-3, tuple(images) if k < n else blank, k), k, np.full(n_cams, t),
                                 np.full(n_cams, np.nan), t)
         obs, info = tracker.process_with_info(afs.frameset)
         json.dumps(rich_message(k, afs, obs, t_first_host_s=t, camera_names=rig.names, info=info), allow_nan=False)

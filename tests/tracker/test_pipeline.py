@@ -701,3 +701,115 @@ def test_motion_predictor_rules(rig, backend):
     np.testing.assert_allclose(p.predict_pixels(0.085), rig.project(np.array([-0.4, 0.0, 1.0])), atol=1e-9)
     p.reset()
     assert p.predict(0.09) is None and p.predict_pixels(0.09) is None
+
+
+# -- the deferred full-frame search (TrackerOptions.defer_full_frame) ------------------------------------------------
+def test_a_deferred_full_frame_search_gives_the_ball_one_frame_set_later_and_then_the_same_answers(rig, model, flight):
+    sets, X = flight
+    sync = [o for o, _ in _run(Tracker(rig, model=model), sets)]
+    trk = Tracker(rig, model=model, workers=2, defer_full_frame=True)
+    try:
+        late = []
+        for fs in sets:
+            late.append(trk.process(fs))
+            trk.settle()  # the live timing aside: each search ends before the next frame set
+    finally:
+        trk.close()
+    assert sync[0].status is Status.OK  # in time: the first frame set's full frames give the ball
+    assert late[0].position_m is None and late[0].status is Status.TOO_FEW_OBSERVATIONS and late[0].support == 0
+    assert "searched after this frame set was reported" in late[0].notes[0]
+    assert "found the ball with 4 cameras: windows at it" in late[1].notes[0]
+    for a, b in zip(sync[1:], late[1:]):  # from the next frame set on: the windows at the same prediction
+        assert b.status is a.status is Status.OK
+        assert np.allclose(a.position_m, b.position_m, atol=1e-9)
+    st = trk.stats
+    assert (st.deferred_searches, st.deferred_found, st.not_searched, st.ok) == (1, 1, 0, 11)
+
+
+def test_a_frame_set_that_comes_while_the_deferred_search_runs_is_reported_unsearched(rig, model, flight, monkeypatch):
+    import threading
+
+    sets, X = flight
+    trk = Tracker(rig, model=model, defer_full_frame=True)
+    gate = threading.Event()
+    for det in {id(d): d for d in trk.engine.detectors}.values():
+        slow = det.detect
+
+        def held(image, *a, _detect=slow, **k):
+            gate.wait(10.0)  # the full frames take longer than a frame period
+            return _detect(image, *a, **k)
+
+        monkeypatch.setattr(det, "detect", held)
+    try:
+        o0 = trk.process(sets[0])
+        o1, info1 = trk.process_with_info(sets[1])
+        assert o1.position_m is None and o1.status is Status.TOO_FEW_OBSERVATIONS and not info1.used_roi.any()
+        assert o1.notes == ("not searched: the full-frame search after the frame set at t=0.000000 s still runs",)
+        assert np.isnan(info1.uv_candidates_px).all() and trk.stats.not_searched == 1
+        gate.set()
+        trk.settle()
+        o2 = trk.process(sets[2])  # takes up the first frame set's ball: its windows find this one
+        assert o0.position_m is None and o2.status is Status.OK and np.linalg.norm(o2.position_m - X[2]) < 0.01
+        assert "the full-frame search after the frame set at t=0.000000 s found the ball" in o2.notes[0]
+    finally:
+        gate.set()
+        trk.close()
+
+
+def test_the_deferred_windows_fallback_finds_a_ball_that_jumped(rig, model):
+    # as test_full_frame_retry_when_windows_hold_inconsistent_objects, deferred: the jump's frame set is reported
+    # without a position, the next one at the ball (the motion restarted there, not a velocity across the jump)
+    trk = Tracker(rig, model=model, defer_full_frame=True)
+    X = X0_M + V_MPS * DT_S * np.arange(4)[:, None]
+    for f in range(3):
+        trk.process(_drawn_frameset(rig, rig.project(X[f])[:, None], f * DT_S, f, diameter_px=_ball_px(rig, X[f])))
+        trk.settle()
+    assert trk.stats.ok == 2  # the first frame set deferred
+    X_jump = X[3] + np.array([0.0, -0.4, 0.1])
+    o3 = trk.process(_drawn_frameset(rig, rig.project(X_jump)[:, None], 3 * DT_S, 3, diameter_px=_ball_px(rig, X_jump)))
+    assert o3.position_m is None and trk.stats.full_frame_retries == 1
+    assert "full frames of cam0, cam1, cam2, cam3 searched after this frame set was reported, until" in o3.notes[-1]
+    trk.settle()
+    X4 = X_jump + V_MPS * DT_S
+    o4 = trk.process(_drawn_frameset(rig, rig.project(X4)[:, None], 4 * DT_S, 4, diameter_px=_ball_px(rig, X4)))
+    assert o4.status is Status.OK and o4.support == 4 and np.linalg.norm(o4.position_m - X4) < 0.01
+    assert "the full-frame fallback after the frame set at t=0.015000 s found the ball" in o4.notes[0]
+    trk.close()
+
+
+def test_reset_drops_a_deferred_search_and_offline_trackers_never_defer(rig, model, flight):
+    sets, _ = flight
+    trk = Tracker(rig, model=model, defer_full_frame=True)
+    trk.process(sets[0])
+    trk.reset()  # a new recording: the search's ball belongs to the old one
+    o = trk.process(sets[1])
+    assert o.position_m is None and not any("found the ball" in n for n in o.notes) and trk.stats.deferred_searches == 2
+    trk.close()
+    off = Tracker(rig, model=model, defer_full_frame=True, roi=False)  # no windows to steer: every frame set in full, in time
+    assert off.process(sets[0]).status is Status.OK and off.stats.deferred_searches == 0
+    assert Tracker(rig, model=model).process(sets[0]).status is Status.OK  # the default: off
+    with pytest.raises(ValueError, match="TrackerOptions.defer_full_frame must be True or False, got 'yes'"):
+        TrackerOptions(defer_full_frame="yes")
+
+
+def test_a_deferred_search_on_eight_cameras_stops_at_the_first_batch_that_confirms_the_ball(model):
+    # lab8_vga: the search goes two cameras per thread (a batch of 4 with workers=2), those that see most of the
+    # workspace first; once 3 confirm the ball it stops, and the next frame set's windows find it in every camera
+    from tests.tracker._tracker_scenes import shipped_rig
+
+    rig8 = shipped_rig("lab8_vga")
+    X = X0_M + V_MPS * DT_S * np.arange(2)[:, None]
+    sets = [_drawn_frameset(rig8, rig8.project(X[f])[:, None], f * DT_S, f, diameter_px=_ball_px(rig8, X[f])) for f in range(2)]
+    seen = [i for i in range(len(rig8)) if np.isfinite(rig8.project(X[1])[i]).all()]
+    in_time = Tracker(rig8, model=model, workers=2)
+    assert in_time.process(sets[0]).status is Status.OK and in_time.stats.full_frame_searches == 8
+    in_time.close()
+    trk = Tracker(rig8, model=model, workers=2, defer_full_frame=True)
+    try:
+        trk.process(sets[0])
+        trk.settle()
+        o = trk.process(sets[1])
+        assert trk.stats.full_frame_searches == 4 and trk.stats.deferred_found == 1
+        assert o.status is Status.OK and o.support == len(seen) >= 6 and np.linalg.norm(o.position_m - X[1]) < 0.01
+    finally:
+        trk.close()

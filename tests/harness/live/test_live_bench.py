@@ -153,6 +153,10 @@ def test_acquisition_counts_frame_sets_from_a_new_ball_to_its_first_right_ok_pos
     assert acq["new_balls"] == 3 and acq["acquired"] == 2
     assert acq["frame_sets_p50"] == 2.0 and acq["frame_sets_max"] == 4.0 and acq["within_3"] == 1 / 3
     assert acquisition(truth_at, rec, first_frame=12)["new_balls"] == 2  # flight A began before the measured part
+    # a ball that appears in the record's last 3 frame sets (here 43 of 5-44) is not counted: the run ended first
+    late = lambda k: np.array([3.0, 0.0, 1.0]) if k >= 43 else truth_at(k)  # noqa: E731
+    assert acquisition(late, rec, first_frame=5)["new_balls"] == 3
+    assert acquisition(lambda k: np.array([3.0, 0.0, 1.0]) if k >= 41 else truth_at(k), rec, first_frame=5)["new_balls"] == 4
     assert acquisition(truth_at, {"frame_id": [], "status": [], "position_m": []}, 0)["new_balls"] == 0
 
 

@@ -358,6 +358,33 @@ def test_motion_cue_flag_reaches_the_config_and_bad_values_name_the_field():
     assert track_config(parser.parse_args(["--motion-cue"])).motion_cue is True
 
 
+def test_defer_full_frame_is_auto_by_the_model_live_and_bad_values_name_the_field():
+    import argparse
+
+    from harness.cli.track import add_arguments, track_config
+    from harness.live.config import ConfigError, TrackConfig
+    from harness.live.run import open_service
+
+    assert TrackConfig().defer_full_frame is None  # auto
+    for bad in ("yes", 1, 0.0):
+        with pytest.raises(ConfigError, match=r"defer_full_frame must be True, False or None \(auto\)"):
+            TrackConfig(defer_full_frame=bad)
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    assert track_config(parser.parse_args([])).defer_full_frame is None  # rt2 track, rt2 bench live
+    assert track_config(parser.parse_args(["--no-defer-full-frame"])).defer_full_frame is False
+    assert track_config(parser.parse_args(["--defer-full-frame"])).defer_full_frame is True
+    cases = [(None, None, True),  # auto: the shipped filter alone
+             (None, "data/models/ball_seg_white.npz", False),  # auto: a learned stage
+             (True, "data/models/ball_seg_white.npz", True), (False, None, False)]
+    for given, model, resolved in cases:  # the service's tracker gets what it resolves to
+        config = TrackConfig(publish=None, publish_rt2=None, prerender_s=0.1, status_period_s=0, defer_full_frame=given, model_path=model)
+        with open_service(config, status=None) as live:
+            assert live.service.tracker.options.defer_full_frame is resolved, (given, model)
+    with open_service(TrackConfig(publish=None, publish_rt2=None, prerender_s=0.1, status_period_s=0, tracker="rtblob"), status=None) as live:
+        assert live.service.tracker.options.defer_full_frame is False  # no windows to steer
+
+
 def test_the_sim_source_renders_a_white_ball_when_asked():
     from harness.live.sources.sim import LauncherFlights, SimOptions
 
