@@ -51,7 +51,11 @@ import zmq
 from harness.common.gc_pauses import GcPauses, frozen_gc
 from robot_models.robot_interface import JointState
 
-__all__ = ["BallClockWam", "LivePolicy", "LiveRun", "latency_budget", "play_live", "play_live_local", "prepare_policy"]
+__all__ = ["MAX_PLAN_LEAD_S", "BallClockWam", "LivePolicy", "LiveRun", "latency_budget", "play_live", "play_live_local", "prepare_policy"]
+
+#: the longest lead a plan is made with (s): a planning step that takes longer reaches the robot after the moment it
+#: planned from (the robot may then refuse it: its start lies behind the arm), whatever the lead
+MAX_PLAN_LEAD_S = 0.2
 
 
 class BallClockWam:
@@ -252,7 +256,7 @@ def play_live(wam, tracker_addr: str, world_addr: str, *, player: LivePolicy, ba
             if policy.status == PolicyStatus.DONE:
                 continue
             kind = "first" if policy.plan is None else "replan"
-            lead = plan_lead_s if plan_lead_s is not None else min(max(plan_times[kind], default=0.0), 0.2)
+            lead = plan_lead_s if plan_lead_s is not None else min(max(plan_times[kind], default=0.0), MAX_PLAN_LEAD_S)
             t_now = (time.monotonic_ns() + est.offset_ns) * 1e-9 - bwam.t0_s
             n_sent = len(bwam.sent)
             t0 = time.perf_counter()

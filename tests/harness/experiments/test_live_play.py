@@ -83,19 +83,38 @@ def test_link_loss_mid_session_is_a_clear_error_and_the_log_is_closed(tmp_path):
 @pytest.mark.realtime
 def test_live_success_rate_agrees_with_the_in_process_run(tmp_path):
     """Same seed, same serves and robots: live and in-process success counts differ by at most
-    max(2 balls, 2 binomial std) -- timing (planning takes real time live, none in process) changes single balls."""
+    max(2 balls, 2 binomial std) -- timing (planning takes real time live, none in process) changes single balls.
+    A live run in which a planning step outlasted the longest lead a plan is made with (``MAX_PLAN_LEAD_S``: the
+    machine stalled the policy process, its plan reached the robot after the moment it planned from) is not the
+    comparison this test makes: such a run that misses the tolerance is run once more, and its figures go into the
+    failure message of the second."""
+    from harness.experiments.play.live import MAX_PLAN_LEAD_S
+
     n, seed = 12, 0  # 12 balls: the live run takes real time (~2 s a ball), and the test runs alone
-    live_json, proc_json = tmp_path / "live.json", tmp_path / "proc.json"
-    assert main(["play", "--live", "--balls", str(n), "--seed", str(seed), "--no-log", "--quiet",
-                 "--json", str(live_json), "--out", str(tmp_path)]) == 0
+    proc_json = tmp_path / "proc.json"
     assert main(["play", "--balls", str(n), "--seed", str(seed), "--no-log", "--no-figure", "--quiet",
                  "--json", str(proc_json), "--out", str(tmp_path)]) == 0
-    live, inproc = json.loads(live_json.read_text())[0], json.loads(proc_json.read_text())[0]
-    assert live["balls"] == n and live["live"] is True
+    inproc = json.loads(proc_json.read_text())[0]
     p = inproc["success_rate"]
     tol = max(2.0, 2.0 * math.sqrt(n * p * (1 - p)))
-    why = {k: (live.get(k), inproc.get(k)) for k in ("successes", "outcomes", "no_attempt_reasons", "refused_commands", "warm_up_ms", "gc")}
-    why["live latency p99 ms"] = {stage: v.get("p99") for stage, v in live["latency_ms"].items() if isinstance(v, dict)}
+
+    def live_run(attempt):
+        live_json = tmp_path / f"live{attempt}.json"
+        assert main(["play", "--live", "--balls", str(n), "--seed", str(seed), "--no-log", "--quiet",
+                     "--json", str(live_json), "--out", str(tmp_path)]) == 0
+        live = json.loads(live_json.read_text())[0]
+        why = {k: (live.get(k), inproc.get(k)) for k in ("successes", "outcomes", "no_attempt_reasons", "refused_commands", "warm_up_ms", "gc")}
+        why["live latency p95 / max ms"] = {stage: (v.get("p95"), v.get("max")) for stage, v in live["latency_ms"].items() if isinstance(v, dict)}
+        why["live longest planning step ms"] = live["latency_ms"]["plan_step_ms"].get("max")
+        return live, why
+
+    live, why = live_run(0)
+    stalled = (live["latency_ms"]["plan_step_ms"].get("max") or 0.0) > 1e3 * MAX_PLAN_LEAD_S
+    if abs(live["successes"] - inproc["successes"]) > tol and stalled:
+        first = why
+        live, why = live_run(1)
+        why["the first run (a planning step over the longest lead)"] = first
+    assert live["balls"] == n and live["live"] is True
     assert abs(live["successes"] - inproc["successes"]) <= tol, why  # (live, in process) of what decides a ball
     for stage in ("exposure_to_obs_ms", "obs_to_command_ms", "command_to_robot_ms"):
         assert live["latency_ms"][stage]["n"] > 0
