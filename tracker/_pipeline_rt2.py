@@ -241,7 +241,8 @@ class SegmentationEngine:
             covariance_m2=None if withheld else info.covariance_m2,
             support=0 if withheld else info.support,
             inliers=np.zeros(n, bool) if withheld else info.inliers,
-            status=info.status if deferred else Status.NO_CONSENSUS if withheld else info.status,
+            # (a deferred frame set reports no position: the windows' low_support becomes no_consensus, as when withheld)
+            status=(Status.NO_CONSENSUS if info.status.has_position else info.status) if deferred else Status.NO_CONSENSUS if withheld else info.status,
             latency_s=time.perf_counter() - t0,  # entry to return
             tracker=self.kind,
             uv_px=uv_px,

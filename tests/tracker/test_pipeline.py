@@ -756,14 +756,21 @@ def test_a_frame_set_that_comes_while_the_deferred_search_runs_is_reported_unsea
         trk.close()
 
 
-def test_the_deferred_windows_fallback_finds_a_ball_that_jumped(rig, model):
-    # as test_full_frame_retry_when_windows_hold_inconsistent_objects, deferred: the jump's frame set is reported
-    # without a position, the next one at the ball (the motion restarted there, not a velocity across the jump)
-    trk = Tracker(rig, model=model, defer_full_frame=True)
+def _three_frame_sets(trk, rig):
+    """The drawn flight's first three frame sets through ``trk`` (each deferred search ended before the next);
+    returns the flight's first four positions."""
     X = X0_M + V_MPS * DT_S * np.arange(4)[:, None]
     for f in range(3):
         trk.process(_drawn_frameset(rig, rig.project(X[f])[:, None], f * DT_S, f, diameter_px=_ball_px(rig, X[f])))
         trk.settle()
+    return X
+
+
+def test_the_deferred_windows_fallback_finds_a_ball_that_jumped(rig, model):
+    # as test_full_frame_retry_when_windows_hold_inconsistent_objects, deferred: the jump's frame set is reported
+    # without a position, the next one at the ball (the motion restarted there, not a velocity across the jump)
+    trk = Tracker(rig, model=model, defer_full_frame=True)
+    X = _three_frame_sets(trk, rig)
     assert trk.stats.ok == 2  # the first frame set deferred
     X_jump = X[3] + np.array([0.0, -0.4, 0.1])
     o3 = trk.process(_drawn_frameset(rig, rig.project(X_jump)[:, None], 3 * DT_S, 3, diameter_px=_ball_px(rig, X_jump)))
@@ -774,6 +781,23 @@ def test_the_deferred_windows_fallback_finds_a_ball_that_jumped(rig, model):
     o4 = trk.process(_drawn_frameset(rig, rig.project(X4)[:, None], 4 * DT_S, 4, diameter_px=_ball_px(rig, X4)))
     assert o4.status is Status.OK and o4.support == 4 and np.linalg.norm(o4.position_m - X4) < 0.01
     assert "the full-frame fallback after the frame set at t=0.015000 s found the ball" in o4.notes[0]
+    trk.close()
+
+
+def test_a_deferred_frame_set_whose_windows_hold_two_cameras_reports_no_position_and_no_consensus(rig, model):
+    # the ball hidden in cameras 2 and 3: the windows of 0 and 1 agree (low_support, a position in time), and the
+    # fallback is deferred: the frame set has no position, so its status is not one that has a position
+    trk = Tracker(rig, model=model, defer_full_frame=True)
+    X = _three_frame_sets(trk, rig)
+    pts = rig.project(X[3])[:, None].copy()
+    pts[2:] = np.nan
+    in_time = Tracker(rig, model=model)
+    _three_frame_sets(in_time, rig)
+    frames3 = _drawn_frameset(rig, pts, 3 * DT_S, 3, diameter_px=_ball_px(rig, X[3]))
+    assert in_time.process(frames3).status is Status.LOW_SUPPORT  # the same frame set in time: two cameras' position
+    o = trk.process(frames3)
+    assert o.position_m is None and o.status is Status.NO_CONSENSUS and o.support == 0
+    assert "window search gave low_support; full frames of" in o.notes[-1]
     trk.close()
 
 
