@@ -197,6 +197,12 @@ def _print_summary(s: dict) -> None:
                 print(f"  camera failed (not restarted): {e}")
     if "latency_budget_ms" in s:
         print("\n".join("  " + line for line in format_budget(s["latency_budget_ms"], "whole run")))
+    slow = s.get("slowest_frame_sets") or []
+    if slow:
+        w = slow[0]
+        stages = ", ".join(f"{k} {v:.2f}" for k, v in (w.get("stages_ms") or {}).items() if v is not None)
+        print(f"  slowest frame set: frame id {w['frame_id']}, {w['latency_ms']:.2f} ms ({stages or 'stages not kept'}), "
+              f"{w['status']}" + (f"; {'; '.join(w['notes'])}" if w["notes"] else "") + " (JSON slowest_frame_sets: the 5 slowest)")
     if "published" in s:
         print(f"  published: {s['published']} on {s['addresses']}")
     if "log" in s:

@@ -16,6 +16,7 @@ others only windows, the budget also gives the tracker stage and the whole laten
 
 from __future__ import annotations
 
+import heapq
 import math
 import re
 import time
@@ -27,6 +28,8 @@ __all__ = ["LiveStats", "STAGES", "format_budget"]
 
 #: the stages of the latency budget, in order (the module docstring)
 STAGES = ("assembly", "backlog", "tracker", "publish", "after")
+#: the slowest frame sets a run keeps with their stages and notes (``LiveStats.slowest``)
+SLOWEST_KEPT = 5
 
 _NUMBER = re.compile(r"(?<![A-Za-z_])[-+]?\d[\d.e+-]*")
 
@@ -70,6 +73,7 @@ class LiveStats:
         self.frame_id_gaps = 0  # frame ids skipped between consecutive frame sets (lost before rt2)
         self._mark = (self.t_start, 0)
         self.first_missing_after: dict[str, int] = {}
+        self._slowest: list = []  # a min-heap of (latency_s, n, frame_id, status, notes) of the SLOWEST_KEPT slowest sets
 
     def add(self, afs, obs, latency_s: float, t_done_s: float, stages_s=None, *, full_frame: bool = False) -> None:
         """One frame set: its assembled set, observation, host-stamp-to-publication latency (s), and
@@ -81,6 +85,9 @@ class LiveStats:
         self._full[i] = bool(full_frame)
         if stages_s is not None:
             self._stages[i] = stages_s
+        if len(self._slowest) < SLOWEST_KEPT or latency_s > self._slowest[0][0]:  # (two comparisons per set)
+            item = (latency_s, self.n, int(afs.frame_id), str(obs.status), (*afs.notes, *obs.notes))
+            (heapq.heappush if len(self._slowest) < SLOWEST_KEPT else heapq.heapreplace)(self._slowest, item)
         self.n += 1
         self.max_latency_s = max(self.max_latency_s, latency_s)
         if self.t_first is None:
@@ -127,6 +134,19 @@ class LiveStats:
             out["total_full"] = _percentiles_ms(self._lat[first:k][full])
         return out
 
+    def slowest(self) -> list[dict]:
+        """The slowest frame sets of the run (at most :data:`SLOWEST_KEPT`), slowest first: frame id, latency, each
+        stage (ms; while the set is still among the kept latencies), status and the assembly's and tracker's notes:
+        where a run's max came from."""
+        out = []
+        for lat, n, fid, status, notes in sorted(self._slowest, reverse=True):
+            row = {"frame_id": fid, "latency_ms": lat * 1e3, "status": status, "notes": [str(x) for x in notes]}
+            if n >= self.n - len(self._lat):
+                row["stages_ms"] = {name: (None if math.isnan(v) else float(v) * 1e3)
+                                    for name, v in zip(STAGES, self._stages[n % len(self._lat)])}
+            out.append(row)
+        return out
+
     def status_line(self) -> str:
         """One line: rate since the last call, latency p50/p99 over the last ``window`` frame sets,
         frame sets without each camera's frame so far."""
@@ -159,6 +179,7 @@ class LiveStats:
             "missing_frames": dict(zip(self.names, self.missing.tolist())),
             "frame_id_gaps": self.frame_id_gaps,
             "notes": dict(self.notes.most_common(20)),
+            "slowest_frame_sets": self.slowest(),
         }
 
 

@@ -228,6 +228,34 @@ def test_the_budget_splits_out_the_full_frame_sets_only_where_both_kinds_ran():
     assert "tracker_full" not in run([False] * 5) and "tracker_full" not in run([True] * 5)  # one kind: nothing to split
 
 
+def test_the_summary_keeps_the_slowest_frame_sets_with_their_stages_and_notes(capsys):
+    from types import SimpleNamespace
+
+    from harness.cli.track import _print_summary
+    from harness.live.stats import SLOWEST_KEPT, LiveStats
+
+    st = LiveStats(["a"], keep=8)  # a short ring: the oldest slow set's stages are gone by the end
+    lat = [0.002] * 20
+    lat[1], lat[12], lat[15] = 0.050, 0.009, 0.030  # the three slowest, and many alike below them
+    for k, x in enumerate(lat):
+        afs = SimpleNamespace(frameset=SimpleNamespace(images=[np.zeros(1)]), notes=(f"assembly note {k}",) if k == 15 else (), frame_id=100 + k)
+        obs = SimpleNamespace(latency_s=x / 2, status="ok" if k != 12 else "too_few_observations", position_m=None,
+                              notes=("not searched: the full-frame search after ... still runs",) if k == 12 else ())
+        st.add(afs, obs, x, float(k), (0.0001, 0.0, x / 2, 0.0002, 0.0))
+    slow = st.slowest()
+    assert len(slow) == SLOWEST_KEPT and [r["frame_id"] for r in slow[:3]] == [101, 115, 112]
+    assert [r["latency_ms"] for r in slow[:3]] == pytest.approx([50.0, 30.0, 9.0])
+    assert "stages_ms" not in slow[0]  # frame 101 left the 8-set ring
+    assert slow[1]["stages_ms"]["tracker"] == pytest.approx(15.0) and slow[1]["notes"] == ["assembly note 15"]
+    assert slow[2]["status"] == "too_few_observations" and slow[2]["notes"][0].startswith("not searched")
+    summary = st.summary()
+    assert summary["slowest_frame_sets"] == slow
+    _print_summary({**summary, "tracker": "rt2"})
+    line = [x for x in capsys.readouterr().out.splitlines() if "slowest frame set" in x]
+    assert line == ["  slowest frame set: frame id 101, 50.00 ms (stages not kept), ok (JSON slowest_frame_sets: the 5 slowest)"]
+    assert LiveStats(["a"]).summary()["slowest_frame_sets"] == []
+
+
 def test_a_failing_log_never_stops_tracking_or_publishing(rig, tmp_path):
     """The log's file fails mid-run (as a full disk would): the service says so once and goes on."""
     lines = []
