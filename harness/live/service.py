@@ -67,7 +67,9 @@ WARM_UP_BALL_RADIUS_M = 0.02
 def warm_up(tracker, rig, *, n: int = 3) -> None:
     """Run ``tracker`` on ``n`` made-up frame sets (an orange disk of a ball's size where a ball at the
     centre of the rig's workspace would be: the first a full-frame search that confirms it, the next window
-    searches around its prediction; then two frame sets without it: the windows' full-frame fallback), build and
+    searches around its prediction, each full-frame search after its frame set (``TrackerOptions.defer_full_frame``)
+    waited for, so the next set runs the windows at its ball; then two frame sets without it: the windows' full-frame
+    fallback), build and
     encode their messages without sending them, and forget them,
     so the first real frame sets do not pay for compiled kernels (loaded from numba's cache or compiled),
     first-call allocations and lazy imports."""
@@ -95,6 +97,7 @@ def warm_up(tracker, rig, *, n: int = 3) -> None:
         afs = AssembledFrameSet(FrameSet(float(k) * 1e-3, tuple(images) if k < n else blank, k), k, np.full(n_cams, t),
                                 np.full(n_cams, np.nan), t)
         obs, info = tracker.process_with_info(afs.frameset)
+        tracker.settle()  # a full-frame search after the set ends before the next: the next one takes up its ball
         json.dumps(rich_message(k, afs, obs, t_first_host_s=t, camera_names=rig.names, info=info), allow_nan=False)
         json.dumps(tennicam_message(k, _time_ns(afs.frameset.t_s), 0.0, obs.position_m), allow_nan=False)
     tracker.reset(clear_stats=True)
