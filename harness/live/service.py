@@ -67,12 +67,11 @@ WARM_UP_BALL_RADIUS_M = 0.02
 def warm_up(tracker, rig, *, n: int = 3) -> None:
     """Run ``tracker`` on ``n`` made-up frame sets (an orange disk of a ball's size where a ball at the
     centre of the rig's workspace would be: the first a full-frame search that confirms it, the next window
-    searches around its prediction, each full-frame search after its frame set (``TrackerOptions.defer_full_frame``)
-    waited for, so the next set runs the windows at its ball; then two frame sets without it: the windows' full-frame
-    fallback), build and
-    encode their messages without sending them, and forget them,
-    so the first real frame sets do not pay for compiled kernels (loaded from numba's cache or compiled),
-    first-call allocations and lazy imports."""
+    searches around its prediction; a full-frame search after its frame set (``TrackerOptions.defer_full_frame``)
+    is waited for, so the next set runs the windows at its ball), then two frame sets without it (the windows'
+    full-frame fallback); build and encode their messages without sending them, and forget them, so the first real
+    frame sets do not pay for compiled kernels (loaded from numba's cache or compiled), first-call allocations and
+    lazy imports."""
     import json
 
     import cv2
