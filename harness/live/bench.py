@@ -229,7 +229,8 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
                      status_period_s=0.0, duration_s=float(args.duration), prerender_s=args.prerender, **MODES[mode])
     live = open_service(config, status=None, truth_scene=truth_scene)
     service, assembler = live.service, live.assembler
-    deferred = bool(getattr(service.tracker.options, "defer_full_frame", False))  # (auto resolved by the model)
+    # full frames searched after the frame set (auto resolved by the model; only windows have a next set to steer)
+    deferred = bool(service.tracker.options.defer_full_frame and service.tracker.roi)
     out = str(Path(tmp) / f"sub_{mode}.json")
     sub = None
     try:

@@ -122,6 +122,7 @@ def test_bench_live_from_python_gives_one_row_per_mode():
     doc = bench_live(args, check_options(args), track_config(args), progress=lines.append)
     assert [r["mode"] for r in doc["modes"]] == ["roi"] and len(lines) == 1 and "mode roi" in lines[0]
     row = doc["modes"][0]
+    assert row["defer_full_frame"] is True  # the shipped filter alone: its full frames after the frame set
     assert row["frame_sets_published"] > 0 and row["frame_sets_measured"] > 0
     assert row["dropped_by_rt2_total"] >= 0 and set(row["latency_ms"]) == {"p50", "p90", "p99", "max"}
     assert set(doc["goals_met"]) == {"rate", "p99", "max", "no_drops_by_rt2"} and doc["prerender_s"] == 0.1
@@ -201,6 +202,7 @@ def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
     said = [line for line in printed.splitlines() if line.startswith("goals (lab4_vga, full frame, the 5x5 filter alone)")]
     assert len(said) == 1 and said[0].endswith(f"longest wait <= 1 period {'met' if full['wait'] else 'NOT met'}")
     assert [r["mode"] for r in doc["modes"]] == ["full"] and doc["modes"][0]["frame_sets_published"] > 0
+    assert doc["modes"][0]["defer_full_frame"] is False  # every frame set in full: nothing to defer
 
 
 def test_rt2_bench_live_rigs_gives_a_row_per_rig_on_the_same_scene(tmp_path, capsys):
