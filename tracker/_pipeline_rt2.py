@@ -10,10 +10,9 @@ did not confirm the ball, the ball hypotheses and the support hand-over (``rt2``
 
 from __future__ import annotations
 
-import concurrent.futures
 import math
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -176,7 +175,7 @@ class SegmentationEngine:
             self.stats.deferred_searches += 1
             notes.append(f"no predicted ball: full frames of {', '.join(self._names[i] for i in searched)} searched after this "
                          "frame set was reported, until they confirm a ball (it steers the next frame set's windows)")
-            job = (self._search_full, searched, roi_px.copy(), used_roi.copy())
+            job = (False, searched, roi_px.copy(), used_roi.copy(), Status.TOO_FEW_OBSERVATIONS)
         else:
             self._detect(searched, roi_px, used_roi)  # Algorithm 1 per camera (paper Sec. 2.1)
         X, info, size_ratio = self._estimate(notes)  # Algorithm 2 (paper Sec. 2.2; "ours" extends it), then the 3D size test
@@ -198,7 +197,7 @@ class SegmentationEngine:
                 self.stats.deferred_searches += 1
                 notes.append(f"window search gave {info.status.value}; full frames of {', '.join(self._names[i] for i in redo)} searched after "
                              "this frame set was reported, until they confirm a ball (it steers the next frame set's windows)")
-                job = (self._retry_deferred, redo, roi_px.copy(), used_roi.copy(), info.status)
+                job = (True, redo, roi_px.copy(), used_roi.copy(), info.status)
             elif redo:
                 retried = True
                 self.stats.full_frame_retries += 1
@@ -298,25 +297,17 @@ class SegmentationEngine:
         return X, info, ratio
 
     # -- the deferred fallback (TrackerOptions.defer_full_frame) ------------------------------------
-    def _defer(self, t_s: float, usable: list, search, cams: list, roi_px: np.ndarray, used_roi: np.ndarray, *args) -> None:
-        """Start ``search(t_s, cams, roi_px, used_roi, *args, notes)`` (:meth:`_search_full` or :meth:`_retry_deferred`)
-        for the frame set just reported, on the deferred thread; its images stay in ``self._images`` until
-        :meth:`_finish_deferred`, and nothing else touches the engine's arrays meanwhile."""
+    def _defer(self, t_s: float, usable: list, retry: bool, cams: list, roi_px: np.ndarray, used_roi: np.ndarray,
+               status: Status) -> None:
+        """Start the full-frame search of the frame set just reported (``retry``: the windows' fallback, else a frame set
+        without a prediction) on the deferred thread: :meth:`_retry` batch by batch until a batch confirms the ball (the
+        next frame set's windows search every camera at it). Its images stay in ``self._images`` until
+        :meth:`_finish_deferred`, and nothing else touches the engine's arrays meanwhile; its notes are not reported."""
         self._uv[cams] = np.nan
         self._scores[cams] = np.nan
         self._areas[cams] = np.nan
-        late_notes: list = []
-        future = self._deferrer.submit(search, t_s, cams, roi_px, used_roi, *args, late_notes)
-        self._pending = _Deferred(future, t_s, list(usable), used_roi, search == self._retry_deferred, late_notes)
-
-    def _search_full(self, t_s: float, cams: list, roi_px: np.ndarray, used_roi: np.ndarray, notes: list):
-        """The full frames of ``cams`` (a frame set without a prediction, deferred), batch by batch as the fallback
-        goes, until a batch confirms the ball (the next frame set's windows search every camera at it)."""
-        return self._retry(t_s, cams, roi_px, used_roi, Status.TOO_FEW_OBSERVATIONS, notes, first_confirmation=True)
-
-    def _retry_deferred(self, t_s: float, cams: list, roi_px: np.ndarray, used_roi: np.ndarray, status: Status, notes: list):
-        """The windows' full-frame fallback (:meth:`_retry`), deferred: until a batch confirms the ball."""
-        return self._retry(t_s, cams, roi_px, used_roi, status, notes, first_confirmation=True)
+        future = self._deferrer.submit(self._retry, t_s, cams, roi_px, used_roi, status, [], first_confirmation=True)
+        self._pending = _Deferred(future, t_s, list(usable), used_roi, retry)
 
     def _finish_deferred(self, notes: list) -> None:
         """Wait for the deferred search and let its result join the state as :meth:`process` does after a search in
@@ -336,7 +327,7 @@ class SegmentationEngine:
         if self.hypotheses is not None:  # as a full-frame search (it stops at the first batch that confirms the ball: the
             # next frame set's windows search every camera there, and a look for other balls waits for its period)
             full = np.zeros_like(p.used_roi)
-            X, info, ratio, withheld = self._choose_ball(p.t_s, X, info, ratio, p.usable, full, p.notes)
+            X, info, ratio, withheld = self._choose_ball(p.t_s, X, info, ratio, p.usable, full, [])  # (notes of the set reported)
         what = "the full-frame fallback" if p.retry else "the full-frame search"
         if info.status is Status.OK and not withheld:
             self.stats.deferred_found += 1
@@ -351,7 +342,7 @@ class SegmentationEngine:
         """Wait for a deferred full-frame search still running (its result is taken up by the next frame set)."""
         p = self._pending
         if p is not None:
-            concurrent.futures.wait([p.future])
+            wait([p.future])
 
     def _not_searched(self, t_s: float, notes: list, t0: float) -> tuple[BallObservation, PipelineInfo]:
         """The observation of a frame set that arrives while a deferred full-frame search still runs: not searched
@@ -546,14 +537,13 @@ class SegmentationEngine:
 @dataclass
 class _Deferred:
     """A full-frame search in flight (``TrackerOptions.defer_full_frame``): its future (-> ``(X, info, ratio)``), the
-    frame set's time, usable cameras and window mask (the fallback updates it), its kind, and the notes it wrote."""
+    frame set's time, usable cameras and window mask (the fallback updates it) and its kind."""
 
     future: Future
     t_s: float
     usable: list
     used_roi: np.ndarray
     retry: bool  #: the windows' fallback (else a frame set without a prediction)
-    notes: list
 
 
 def _region_margins(rig: Rig, ball_radius_m: float) -> np.ndarray:
