@@ -26,7 +26,7 @@ from tracker.detection import BallDetector, Detections
 from tracker.handover import SupportHandover
 from tracker.hypotheses import BallHypotheses
 from tracker.motion import MotionCue
-from tracker.observation import BallObservation, Status
+from tracker.observation import DEFERRED_NOTE, NOT_SEARCHED_NOTE, BallObservation, Status
 from tracker.rig import Rig
 from tracker.robust import EstimateInfo, RobustTriangulator
 from tracker.size_test import SizeTest, size_threshold
@@ -173,8 +173,8 @@ class SegmentationEngine:
         deferred = (searched and self._deferrer is not None and prior_m is None and math.isfinite(t_s) and not predicted)
         if deferred:
             self.stats.deferred_searches += 1
-            notes.append(f"no predicted ball: full frames of {', '.join(self._names[i] for i in searched)} searched after this "
-                         "frame set was reported, until they confirm a ball (it steers the next frame set's windows)")
+            notes.append(f"no predicted ball: full frames of {', '.join(self._names[i] for i in searched)} {DEFERRED_NOTE}, "
+                         "until they confirm a ball (it steers the next frame set's windows)")
             job = (False, searched, roi_px.copy(), used_roi.copy(), Status.TOO_FEW_OBSERVATIONS)
         else:
             self._detect(searched, roi_px, used_roi)  # Algorithm 1 per camera (paper Sec. 2.1)
@@ -195,8 +195,8 @@ class SegmentationEngine:
                 deferred = True  # reported now without a position; the fallback runs once this frame set is out
                 self.stats.full_frame_retries += 1
                 self.stats.deferred_searches += 1
-                notes.append(f"window search gave {info.status.value}; full frames of {', '.join(self._names[i] for i in redo)} searched after "
-                             "this frame set was reported, until they confirm a ball (it steers the next frame set's windows)")
+                notes.append(f"window search gave {info.status.value}; full frames of {', '.join(self._names[i] for i in redo)} {DEFERRED_NOTE}, "
+                             "until they confirm a ball (it steers the next frame set's windows)")
                 job = (True, redo, roi_px.copy(), used_roi.copy(), info.status)
             elif redo:
                 retried = True
@@ -241,7 +241,7 @@ class SegmentationEngine:
             support=0 if withheld else info.support,
             inliers=np.zeros(n, bool) if withheld else info.inliers,
             # (a deferred frame set reports no position: the windows' low_support becomes no_consensus, as when withheld)
-            status=(Status.NO_CONSENSUS if info.status.has_position else info.status) if deferred else Status.NO_CONSENSUS if withheld else info.status,
+            status=info.status.unreported() if deferred else Status.NO_CONSENSUS if withheld else info.status,
             latency_s=time.perf_counter() - t0,  # entry to return
             tracker=self.kind,
             uv_px=uv_px,
@@ -349,7 +349,7 @@ class SegmentationEngine:
         (the search uses the engine's arrays; the next frame set after it ends takes up its result), no position."""
         n, k = self.n_cams, self.candidates_per_camera
         self.stats.not_searched += 1
-        notes.append(f"not searched: the full-frame search after the frame set at t={self._pending.t_s:.6f} s still runs")
+        notes.append(f"{NOT_SEARCHED_NOTE}the full-frame search after the frame set at t={self._pending.t_s:.6f} s still runs")
         info = EstimateInfo(Status.TOO_FEW_OBSERVATIONS, 0, np.zeros(n, bool), np.full(n, -1, np.int64), np.full(n, np.nan), None,
                             math.nan, 0, 0, self.estimator.method)
         hyp = self.hypotheses

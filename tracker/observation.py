@@ -26,6 +26,18 @@ class Status(StrEnum):
     def has_position(self) -> bool:
         return self in (Status.OK, Status.LOW_SUPPORT)
 
+    def unreported(self) -> "Status":
+        """The status of a frame set reported without the position its estimate held (its full frames deferred):
+        a status with a position becomes ``no_consensus``."""
+        return Status.NO_CONSENSUS if self.has_position else self
+
+
+#: the note of a frame set whose full frames were searched after it was reported (``TrackerOptions.defer_full_frame``):
+#: reported without a position, its windows' candidates (if any) logged as searched
+DEFERRED_NOTE = "searched after this frame set was reported"
+#: the note (its beginning) of a frame set that came while a deferred full-frame search still ran: not searched at all
+NOT_SEARCHED_NOTE = "not searched: "
+
 
 @dataclass(frozen=True)
 class FrameSet:
@@ -71,3 +83,13 @@ class BallObservation:
     @property
     def has_position(self) -> bool:
         return self.position_m is not None
+
+    @property
+    def full_frames_deferred(self) -> bool:
+        """Whether this frame set's full frames were searched after it was reported (:data:`DEFERRED_NOTE`)."""
+        return any(DEFERRED_NOTE in n for n in self.notes)
+
+    @property
+    def not_searched(self) -> bool:
+        """Whether this frame set came while a deferred full-frame search ran and was not searched (:data:`NOT_SEARCHED_NOTE`)."""
+        return any(n.startswith(NOT_SEARCHED_NOTE) for n in self.notes)

@@ -12,6 +12,11 @@ statuses, positions, and whether the re-run reproduces the live observations. Tw
   candidates (exactly what the live estimator saw), so with the same settings every status and position is reproduced;
   ``--eps-px`` shows what another threshold would have made of the same session.
 
+A live tracker that searched full frames after reporting the frame set (``defer_full_frame``) reported
+that frame set without a position and the frame sets that came during the search unsearched: both
+re-runs do the same (the images re-run defers as live did, waits for each search where live's had
+ended, and leaves unsearched what live left unsearched), so those frame sets are reproduced too.
+
 RTBlob sessions log no detections: their observations are counted as recorded.
 """
 
@@ -61,7 +66,9 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto", decode_worker
             if kind != "rtblob":
                 model = Path(tmp.name) / "model.npz"
                 model.write_bytes(reader.attachment("model.npz"))
-            tracker = Tracker(rig, kind, model=model, **({} if eps_px is None else {"eps_px": float(eps_px)}))
+            defer = bool(session.get("defer_full_frame", False))
+            tracker = Tracker(rig, kind, model=model, defer_full_frame=defer,
+                              **({} if eps_px is None else {"eps_px": float(eps_px)}))
             topics = [f"/tracker/{kind}/ball", "/camera/*/image"]
         elif source == "detections":
             model = Path(tmp.name) / "model.npz"
@@ -73,7 +80,8 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto", decode_worker
             topics = [f"/tracker/{kind}/ball"]
         cam = {c: i for i, c in enumerate(names)}
         live, rerun = Counter(), Counter()
-        counts = {"frame_sets": 0, "identical": 0, "with_position_live": 0, "with_position_rerun": 0}
+        counts = {"frame_sets": 0, "identical": 0, "with_position_live": 0, "with_position_rerun": 0,
+                  "deferred_live": 0, "not_searched_live": 0}
         state = {"seq": None, "obs": None, "items": {}, "max_diff": 0.0}
 
         def flush():
@@ -83,7 +91,12 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto", decode_worker
             counts["frame_sets"] += 1
             live[str(obs.status)] += 1
             counts["with_position_live"] += obs.position_m is not None
-            if source == "images":
+            counts["deferred_live"] += obs.full_frames_deferred
+            counts["not_searched_live"] += obs.not_searched
+            if source == "images" and obs.not_searched and tracker.options.defer_full_frame:
+                status, pos = obs.status, obs.position_m  # live's search still ran: nothing was searched, nor is it now
+            elif source == "images":
+                tracker.settle()  # live's deferred search had ended before this frame set (else it was not searched)
                 imgs = tuple(state["items"].get(i) for i in range(len(names)))
                 new = tracker.process(FrameSet(obs.t_s, imgs, state["seq"]))
                 status, pos = new.status, new.position_m
@@ -99,6 +112,8 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto", decode_worker
                         areas[i, : len(area)] = area[:k_per]
                 X, info = est.estimate(obs.t_s, uv, areas if have_areas else None)  # as the live tracker
                 status, pos = info.status, X
+                if obs.full_frames_deferred:  # reported before its full frames were searched: no position, as live
+                    status, pos = status.unreported(), None
             else:
                 status, pos = obs.status, obs.position_m
             rerun[str(status)] += 1
@@ -123,6 +138,9 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto", decode_worker
                 if c in cam:
                     state["items"][cam[c]] = (np.asarray(m.data.uv_px, float).reshape(-1, 2), m.data.areas_px)
         flush()
+        if counts["deferred_live"] or counts["not_searched_live"]:
+            notes.append(f"{counts['deferred_live']} frame set(s) had their full frames searched after they were reported and "
+                         f"{counts['not_searched_live']} came while such a search ran: re-run as live reported them (no position)")
     finally:
         if tracker is not None:
             tracker.close()

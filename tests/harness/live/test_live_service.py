@@ -3,6 +3,7 @@ streams, a camera that stops mid-run, the session log and its re-evaluation, and
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import threading
 
@@ -16,7 +17,7 @@ from harness.live.service import ServiceOptions, TrackingService
 from harness.live.session_log import LiveLog
 from harness.logs import SessionLogReader
 from tests.harness.live._live_frames import assembled, lab_rig, rendered_images
-from tracker import Tracker
+from tracker import Status, Tracker
 
 
 @pytest.fixture(scope="module")
@@ -289,3 +290,40 @@ def test_a_log_that_fails_only_when_closed_is_reported_not_raised(rig, tmp_path)
 
         summary = service.run(frames())
     assert summary["frame_sets"] == 30 and summary["log"]["error"]
+
+
+def _two_cameras_lose_the_ball(n_sets: int, lost: range):
+    """The rendered flight through the service's input, cameras 2 and 3 showing another frame's image during
+    ``lost``: their windows hold no ball while cameras 0 and 1 agree (a two-camera position in time)."""
+    images = rendered_images()
+    for afs in assembled(n_sets):
+        k = afs.frame_id
+        if k in lost:
+            imgs = list(afs.frameset.images)
+            imgs[2] = imgs[3] = images[(k + len(images) // 2) % len(images)][2]
+            afs = dataclasses.replace(afs, frameset=dataclasses.replace(afs.frameset, images=tuple(imgs)))
+        yield afs
+
+
+def test_a_log_of_deferred_full_frame_searches_reevaluates_exactly(rig, tmp_path, capsys):
+    # live, the full frames of a frame set without a confirmed ball are searched after it is reported
+    # (defer_full_frame): that frame set has no position although its windows' candidates (logged) held one, and
+    # the frame sets that come during the search are not searched. Both re-runs reproduce every frame set.
+    path = tmp_path / "deferred.mcap"
+    with Tracker(rig, "rt2", defer_full_frame=True) as tr:
+        log = LiveLog(path, rig, tr, source="test", seed=0, log_images="all", image_format="png", max_pending_images=1000)
+        TrackingService(rig, tr, log=log, options=ServiceOptions(status_period_s=0)).run(
+            _two_cameras_lose_the_ball(40, range(14, 17)))
+    with SessionLogReader(path) as r:
+        obs = [m.data for m in r.messages(["/tracker/rt2/ball"])]
+        assert r.metadata("session")["defer_full_frame"] is True
+    deferred = [o for o in obs if o.full_frames_deferred]
+    assert any("window search gave low_support" in n for o in deferred for n in o.notes), [o.notes for o in obs]
+    assert all(o.position_m is None and o.status is Status.NO_CONSENSUS for o in deferred if "window search gave low_support" in o.notes[-1])
+    for source in ("detections", "images"):
+        assert rt2(["reevaluate", str(path), "--from", source, "--json", str(tmp_path / f"{source}.json")]) == 0
+        out = capsys.readouterr().out
+        assert "identical observations (status and position): 40 of 40" in out, out
+        doc = json.loads((tmp_path / f"{source}.json").read_text())
+        assert doc["deferred_live"] == len(deferred) and doc["not_searched_live"] == sum(o.not_searched for o in obs)
+        assert f"{len(deferred)} frame set(s) had their full frames searched after they were reported" in out
