@@ -65,7 +65,7 @@ SEMIREAL_CAMERAS = (0, 1)
 
 
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
-          diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, log=print,
+          diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, log=print,
           progress: bool = True):
     """The model (base filter + trained learned stage) and a dict of what it was trained on and its validation figures."""
     from harness.experiments.detector.labels import read_labels
@@ -91,11 +91,12 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     weights += [WEIGHTS["drawn"]] * len(drawn)
     sources.append(f"{len(drawn)} frames with drawn {colour} balls (caliscope cameras 0-1, rally {rally_range} painted out)")
     if colour == "white":
-        pasted = _pasted(rally_range, bg, seed, frames_per_video, diameter_px, log)
+        pasted = _pasted(rally_range, bg, seed, frames_per_video, diameter_px, log, hard_share=hard_pastes)
         if pasted:
             pairs += pasted
             weights += [WEIGHTS["pasted"]] * len(pasted)
-            sources.append(f"{len(pasted)} frames with the rally's real ball crops pasted in")
+            sources.append(f"{len(pasted)} frames with the rally's real ball crops pasted in"
+                           + (f" ({100 * hard_pastes:g} % of them long-smeared or partly hidden)" if hard_pastes else ""))
     if colour == "white" and semireal_sets:
         semi = _semireal(rally_range, semireal_sets, seed, log)
         pairs += semi
@@ -202,9 +203,37 @@ def _semireal(rally_range: str, n_sets: int, seed: int, log):
     return out
 
 
-def _pasted(rally_range: str, bg_sources, seed: int, n_per_video: int, diameter_px, log):
+def _occlude(im: np.ndarray, c, d: float, rng) -> np.ndarray:
+    """``im`` with the ball at ``c`` (diameter ``d``) 20-56 % hidden behind an object: a region bounded by a line
+    across the ball at a random angle, out to 1-2 diameters, filled with another part of the frame (its texture) or
+    a flat bat-red, dark or skin colour with noise, its edge softened."""
+    import cv2
+
+    h, w = im.shape[:2]
+    a = rng.uniform(0, 2 * math.pi)
+    n = np.array([math.cos(a), math.sin(a)])
+    off = d / 2 * rng.uniform(-0.1, 0.5)  # the line's distance from the centre: 56-20 % of the disc behind it
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    rel_u, rel_v = xx - c[0], yy - c[1]
+    side = rel_u * n[0] + rel_v * n[1] - off  # > 0: behind the object
+    reach = d * rng.uniform(1.0, 2.0)
+    mask = ((side > 0) & (np.hypot(rel_u, rel_v) < reach)).astype(np.float32)
+    mask = cv2.GaussianBlur(mask, (0, 0), float(rng.uniform(0.5, 1.5)))[..., None]
+    if rng.random() < 0.5:  # another part of the frame, moved over the ball
+        du, dv = int(rng.integers(-w // 3, w // 3 + 1)), int(rng.integers(-h // 3, h // 3 + 1))
+        fill = np.roll(im, (dv, du), axis=(0, 1)).astype(np.float32)
+    else:
+        colour = [(200, 40, 40), (30, 30, 30), (210, 160, 130), (120, 80, 60)][int(rng.integers(4))]
+        fill = np.empty_like(im, np.float32)
+        fill[:] = np.asarray(colour, np.float32) * rng.uniform(0.7, 1.2)
+        fill += rng.normal(0, 4, fill.shape).astype(np.float32)
+    return np.clip(im * (1 - mask) + fill * mask, 0, 255).astype(np.uint8)
+
+
+def _pasted(rally_range: str, bg_sources, seed: int, n_per_video: int, diameter_px, log, *, hard_share: float = 0.0):
     """Frames of the background sources (VGA) with the rally's real ball crops (its training part, clean mattes only)
-    pasted in at random size, place, motion blur and defocus; a fifth of them stay ball-free."""
+    pasted in at random size, place, motion blur and defocus; a fifth of them stay ball-free. ``hard_share`` of the
+    balls are hard: half flown 1-3 diameters over the exposure, half partly hidden (:func:`_occlude`)."""
     import cv2
 
     from harness.experiments.detector.backgrounds import read_backgrounds
@@ -227,9 +256,17 @@ def _pasted(rally_range: str, bg_sources, seed: int, n_per_video: int, diameter_
         if rng.random() > 0.2:
             d = float(math.exp(rng.uniform(math.log(diameter_px[0]), math.log(diameter_px[1]))))
             c = rng.uniform([d, d], [w - 1 - d, h - 1 - d])
-            blur = rng.normal(0, 0.35 * d, 2) if rng.random() < 0.5 else (0.0, 0.0)
+            hard = hard_share > 0 and rng.random() < hard_share  # (no draw without: the shipped recipe's frames unchanged)
+            smear = hard and rng.random() < 0.5
+            if smear:  # a long smear: the ball flown 1-3 diameters over the exposure
+                a = rng.uniform(0, 2 * math.pi)
+                blur = d * rng.uniform(1.0, 3.0) * np.array([math.cos(a), math.sin(a)])
+            else:
+                blur = rng.normal(0, 0.35 * d, 2) if rng.random() < 0.5 else (0.0, 0.0)
             r = paste_ball(im, crops[int(rng.integers(len(crops)))], c, d, rng, blur_px=blur, defocus_px=float(rng.uniform(0, 1.2)))
             im = r.image
+            if hard and not smear:  # partly hidden: a bat, fingers, an edge in front of it
+                im = _occlude(im, c, d, rng)
             boxes.append(r.box_xywh)
             centers.append(r.center_px)
         out.append((im, LabelledImage(f"pasted/{seed}/{i:05d}.png", w, h, np.array(boxes, float).reshape(-1, 4), np.array(centers, float).reshape(-1, 2))))
@@ -250,6 +287,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--semireal-sets", type=int, default=160,
                         help="white: semi-real frame sets (caliscope cameras 0-1, the rally's training balls flown in 3D) added "
                              "to training (default 160; 0 = none)")
+    parser.add_argument("--hard-pastes", type=float, default=0.0,
+                        help="white: the share of pasted real balls made hard, half flown 1-3 diameters over the exposure, half "
+                             "partly hidden behind an object (default 0)")
     parser.add_argument("--max-side-px", type=int, default=960,
                         help="frames with a longer side are shrunk to it before the network (default 960: VGA frames as they are)")
 
@@ -261,9 +301,13 @@ def run(args) -> int:
     if out.suffix != ".npz":
         raise ValueError(f"--out must end in .npz, got {args.out!r}")
     check_output_file(out, "--out")
+    if not (0.0 <= args.hard_pastes <= 1.0):
+        raise ValueError(f"--hard-pastes must be a share between 0 and 1, got {args.hard_pastes!r}")
+    if args.hard_pastes and args.colour != "white":
+        raise ValueError(f"--hard-pastes: only the white model has pasted real balls (--colour {args.colour})")
     model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
-                        semireal_sets=args.semireal_sets, arch=args.arch)
+                        semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes)
     with atomic_path(out, "--out") as tmp:
         model.save(tmp)
     print(f"wrote {out}: learned stage threshold {info['threshold']:g}")

@@ -141,3 +141,40 @@ def test_a_training_that_keeps_the_shipped_stage_keeps_its_size_record():
     assert info["chosen"].name == "shipped" and stage.onnx == white.onnx and stage.size_ratio == 1.54
     fresh, info = train_stage(labelled, images, cv_folds(labelled, 2), base=None, **kw)
     assert info["chosen"].name == "scratch" and fresh.size_ratio is None
+
+
+def test_hard_pastes_hide_part_of_the_ball_or_smear_it_long():
+    """rt2 train-shipped --hard-pastes: a hidden ball keeps 44-80 % of its disc and nothing changes beyond 2
+    diameters; a long smear's box spans at least 1 diameter more than the ball; without it the frames are those of
+    the shipped recipe (no random draw added)."""
+    from harness.experiments.detector import shipped
+
+    rng = np.random.default_rng(0)
+    im = np.full((200, 200, 3), 90, np.uint8)
+    im[90:111, 90:111] = 250
+    yy, xx = np.mgrid[0:200, 0:200]
+    disc = np.hypot(xx - 100, yy - 100) < 10
+    for _ in range(20):
+        out = shipped._occlude(im, (100.0, 100.0), 20.0, rng)
+        changed = np.abs(out.astype(int) - im).max(axis=2) > 20
+        assert 0.15 <= changed[disc].mean() <= 0.62
+        assert not changed[np.hypot(xx - 100, yy - 100) > 2 * 20 + 4].any()
+    bg = [str(p) for p in shipped.CALISCOPE_VIDEOS]
+    hard = shipped._pasted("40:46", bg, 3, 4, (20.0, 30.0), lambda m: None, hard_share=1.0)
+    plain = shipped._pasted("40:46", bg, 3, 4, (20.0, 30.0), lambda m: None)
+    again = shipped._pasted("40:46", bg, 3, 4, (20.0, 30.0), lambda m: None, hard_share=0.0)
+    assert all(np.array_equal(a[0], b[0]) for a, b in zip(plain, again))
+    spans = [max(li.boxes_xywh[0][2:]) - 30.0 for _, li in hard if len(li.boxes_xywh)]
+    assert spans and any(s >= 20.0 for s in spans)  # some smeared over >= 1 diameter (d <= 30 px)
+    assert any(not np.array_equal(a[0], b[0]) for a, b in zip(hard, plain))
+
+
+@pytest.mark.parametrize("value, colour, message", [
+    ("1.5", "white", "--hard-pastes must be a share between 0 and 1, got 1.5"),
+    ("-0.1", "white", "--hard-pastes must be a share between 0 and 1, got -0.1"),
+    ("0.5", "orange", "--hard-pastes: only the white model has pasted real balls (--colour orange)"),
+])
+def test_train_shipped_hard_pastes_bad_values_are_one_line(tmp_path, capsys, value, colour, message):
+    assert main(["train-shipped", "--colour", colour, "--hard-pastes", value, "--out", str(tmp_path / "m.npz")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and not (tmp_path / "m.npz").exists()
