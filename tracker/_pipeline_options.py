@@ -147,6 +147,10 @@ class TrackerOptions:
         result. The ball hypotheses' own full-frame sets, while windows follow a ball, are not deferred. Off by default (offline runs report each full-frame result in its own frame set); the live service
         turns it on
         (``harness.live.config.TrackConfig.defer_full_frame``)
+    deferred_wait_s : with ``defer_full_frame``: how long a frame set that arrives while the deferred search still
+        runs waits for it before it is reported unsearched (0: not at once). The live service waits 0.4 of a frame
+        period: a search that ends within it gives this frame set its windows at the ball (on eight VGA cameras a
+        few frame sets per minute found the search just short of done), for that much latency on those frame sets
     motion_cue : fixed cameras (``rt2`` only): :class:`MotionOptions` of a per-camera background at reduced
         resolution (:mod:`tracker.motion`); a full-frame search keeps only the candidates on cells that moved (a new
         ball is one that moves: lamps, shelves and white objects do not), while a frame gives a cue (not the first
@@ -170,6 +174,7 @@ class TrackerOptions:
     size_from_rig: bool = True
     full_frame_pyramid: bool = False
     defer_full_frame: bool = False
+    deferred_wait_s: float = 0.0
     motion_cue: MotionOptions | None = None
 
     def __post_init__(self):
@@ -196,6 +201,9 @@ class TrackerOptions:
         m = self.max_size_ratio
         if m is not None and (isinstance(m, bool) or not isinstance(m, (int, float, np.floating, np.integer)) or not (math.isfinite(m) and m > 0)):
             raise ValueError(f"TrackerOptions.max_size_ratio must be a positive number or None (off), got {m!r}")
+        dw = self.deferred_wait_s
+        if isinstance(dw, bool) or not isinstance(dw, (int, float, np.floating, np.integer)) or not (math.isfinite(dw) and dw >= 0):
+            raise ValueError(f"TrackerOptions.deferred_wait_s must be a number of seconds >= 0, got {dw!r}")
         h = self.handover_max_age_s
         if h is not None and (isinstance(h, bool) or not isinstance(h, (int, float, np.floating, np.integer)) or not (math.isfinite(h) and h > 0)):
             raise ValueError(f"TrackerOptions.handover_max_age_s must be a positive number of seconds or None (off), got {h!r}")

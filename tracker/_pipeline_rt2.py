@@ -142,6 +142,8 @@ class SegmentationEngine:
         frame, ``notes`` the notes so far (appended to), ``t0`` ``time.perf_counter()`` at entry; ``prior_m``
         a (3,) world point whose pixels are searched instead of the motion prediction's."""
         if self._pending is not None:  # an earlier frame set's full frames: their result first (it steers these windows)
+            if not self._pending.future.done() and self.options.deferred_wait_s > 0:
+                wait([self._pending.future], timeout=self.options.deferred_wait_s)  # TrackerOptions.deferred_wait_s
             if not self._pending.future.done():
                 return self._not_searched(t_s, notes, t0)
             self._finish_deferred(notes)

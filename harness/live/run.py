@@ -19,7 +19,12 @@ from pathlib import Path
 
 from harness.live.config import DEFAULT_MAX_BACKLOG, NEXT_PORT, SIM_RENDER, ConfigError, TrackConfig
 
-__all__ = ["DEFAULT_MAX_BACKLOG", "SIM_RENDER", "LiveService", "open_frames", "open_service", "stream_addresses"]
+__all__ = ["DEFAULT_MAX_BACKLOG", "DEFERRED_WAIT_PERIODS", "SIM_RENDER", "LiveService", "open_frames", "open_service",
+           "stream_addresses"]
+
+#: with the deferred full-frame search: how long (frame periods) a frame set that comes while it runs waits for it
+#: (``TrackerOptions.deferred_wait_s``): on eight VGA cameras 6-11 frame sets in 15 s came just before it ended
+DEFERRED_WAIT_PERIODS = 0.4
 
 
 def stream_addresses(config: TrackConfig) -> tuple[str | None, str | None]:
@@ -165,6 +170,8 @@ def open_service(config: TrackConfig, *, status=print, truth_scene=None) -> Live
             if config.tracker != "rtblob":
                 kw["model"] = load_model(config.model_path)
             defer = config.tracker != "rtblob" and kw["model"].learned is None
+        if defer:  # a frame set that comes while the search runs waits for it 0.4 of a period (TrackerOptions.deferred_wait_s)
+            kw["deferred_wait_s"] = DEFERRED_WAIT_PERIODS / config.rate_hz
         tracker = Tracker(rig, config.tracker, full_frame_pyramid=config.full_frame_pyramid, defer_full_frame=defer, **kw)
         closers.append(tracker.close)
         warm_up(tracker, rig)

@@ -9,6 +9,7 @@ sensor noise, a real flight, the benchmark) is tests/test_pipeline_rendered.py.
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -754,6 +755,37 @@ def test_a_frame_set_that_comes_while_the_deferred_search_runs_is_reported_unsea
     finally:
         gate.set()
         trk.close()
+
+
+def test_a_frame_set_that_comes_while_the_deferred_search_runs_waits_for_it_up_to_deferred_wait_s(rig, model, flight, monkeypatch):
+    # TrackerOptions.deferred_wait_s: the search ends 0.1 s into the next frame set's wait of 5 s: that frame set takes
+    # up its ball and searches windows there (status ok) instead of being reported unsearched
+    import threading
+
+    sets, X = flight
+    trk = Tracker(rig, model=model, defer_full_frame=True, deferred_wait_s=5.0)
+    gate = threading.Event()
+    for det in {id(d): d for d in trk.engine.detectors}.values():
+        slow = det.detect
+
+        def held(image, *a, _detect=slow, **k):
+            gate.wait(10.0)
+            return _detect(image, *a, **k)
+
+        monkeypatch.setattr(det, "detect", held)
+    try:
+        assert trk.process(sets[0]).position_m is None
+        timer = threading.Timer(0.1, gate.set)
+        timer.start()
+        o1 = trk.process(sets[1])
+        assert o1.status is Status.OK and np.linalg.norm(o1.position_m - X[1]) < 0.01 and trk.stats.not_searched == 0
+        assert "the full-frame search after the frame set at t=0.000000 s found the ball" in o1.notes[0]
+    finally:
+        gate.set()
+        trk.close()
+    for bad in (-0.001, math.nan, math.inf, "1", True, None):
+        with pytest.raises(ValueError, match=r"TrackerOptions.deferred_wait_s must be a number of seconds >= 0, got"):
+            TrackerOptions(deferred_wait_s=bad)
 
 
 def _three_frame_sets(trk, rig):

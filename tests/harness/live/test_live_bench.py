@@ -137,6 +137,10 @@ def test_bench_live_from_python_gives_one_row_per_mode():
         assert 0 < budget["tracker_full"]["n"] == budget["total_full"]["n"] < budget["total"]["n"]
     assert budget["tracker"]["p50"] <= budget["total"]["p50"] and set(row["backlog_wait_periods"]) == {"p50", "p99", "max"}
     assert row["process_per_set"]["cpu_ms"] > 0 and row["process_per_set"]["page_faults"] >= 0
+    # the tracker's counters over the run: every frame set the tracker took counted (not the warm-up's before it)
+    st = row["tracker_stats"]
+    assert st["frames"] == sum(row["status"].values()) and st["ok"] == row["status"].get("ok", 0)
+    assert st["deferred_searches"] >= st["deferred_found"] >= 0 and st["not_searched"] >= 0
 
 
 def test_acquisition_counts_frame_sets_from_a_new_ball_to_its_first_right_ok_position():

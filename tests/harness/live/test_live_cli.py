@@ -381,6 +381,8 @@ def test_defer_full_frame_is_auto_by_the_model_live_and_bad_values_name_the_fiel
         config = TrackConfig(publish=None, publish_rt2=None, prerender_s=0.1, status_period_s=0, defer_full_frame=given, model_path=model)
         with open_service(config, status=None) as live:
             assert live.service.tracker.options.defer_full_frame is resolved, (given, model)
+            # a frame set that comes during the search waits for it 0.4 of a period (run.DEFERRED_WAIT_PERIODS)
+            assert live.service.tracker.options.deferred_wait_s == pytest.approx(0.4 / 200 if resolved else 0.0)
     with open_service(TrackConfig(publish=None, publish_rt2=None, prerender_s=0.1, status_period_s=0, tracker="rtblob"), status=None) as live:
         assert live.service.tracker.options.defer_full_frame is False  # no windows to steer
 
