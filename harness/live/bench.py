@@ -242,11 +242,9 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
             time.sleep(0.01)
         probes = dict(pub.sent)
         load0 = os.getloadavg()
-        stats0 = service.tracker.stats.as_dict()
         assembler.start()
         t_start = time.monotonic()
         summary = service.run(assembler, duration_s=config.duration_s)
-        stats1 = service.tracker.stats.as_dict()
         for _ in range(20):
             pub.publish(None, {"end": True})
             time.sleep(0.01)
@@ -299,5 +297,5 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
         "process_per_set": summary["process_per_set"],
         # the tracker's counters over the run (warm-up of the run included): full-frame searches, deferred ones and the
         # frame sets that came while one ran (not searched), retries, size rejections ... (tracker.TrackerStats)
-        "tracker_stats": {k: v - stats0.get(k, 0) for k, v in stats1.items() if isinstance(v, (int, float)) and not isinstance(v, bool)},
+        "tracker_stats": summary.get("tracker_stats", {}),
     }

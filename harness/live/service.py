@@ -208,6 +208,7 @@ class TrackingService:
         if self.options.switch_interval_s is not None:
             sys.setswitchinterval(self.options.switch_interval_s)
         use0 = resource.getrusage(resource.RUSAGE_SELF)
+        counters0 = _counters(self.tracker)
         try:  # everything alive now (rig, tracker, model, sockets) leaves the collector's generations
             with frozen_gc(self._gc_pauses, freeze=self.options.gc_freeze):
                 for afs in self._frames(source, stop, deadline):
@@ -222,6 +223,8 @@ class TrackingService:
             raise
         finally:
             self._process = process_per_set(use0, resource.getrusage(resource.RUSAGE_SELF), self.stats.n)
+            counters1 = _counters(self.tracker)
+            self._tracker_stats = {k: v - counters0.get(k, 0) for k, v in counters1.items()}
             sys.setswitchinterval(old_switch)
             self.finish(error=error, source=source)
         return self.summary()
@@ -241,6 +244,8 @@ class TrackingService:
         s["gc"] = self._gc_pauses.summary()
         if self._process is not None:
             s["process_per_set"] = self._process  # CPU ms, page faults, context switches per frame set (the run)
+        if self._tracker_stats is not None:  # the tracker's counters over the run (tracker.TrackerStats)
+            s["tracker_stats"] = self._tracker_stats
         if self._assembly is not None:
             s["assembly"] = self._assembly
             if isinstance(self._assembly, dict) and "dropped_framesets" in self._assembly:
@@ -251,6 +256,7 @@ class TrackingService:
     _assembly = None
     _finished = False
     _process = None
+    _tracker_stats = None
 
     def finish(self, *, error: str | None = None, source=None) -> None:
         """Record the assembler's figures (if it has ``stats()``) and close the log with the summary."""
@@ -288,3 +294,11 @@ def _assembly_status(source) -> str:
 def _time_ns(t_s: float) -> int:
     """The tennicam ``time``: the frame set's capture time (host CLOCK_MONOTONIC seconds) in ns."""
     return int(round(float(t_s) * 1e9)) if math.isfinite(t_s) else 0
+
+
+def _counters(tracker) -> dict:
+    """The tracker's numeric counters (``tracker.TrackerStats``; none for a tracker without them)."""
+    stats = getattr(tracker, "stats", None)
+    if stats is None or not hasattr(stats, "as_dict"):
+        return {}
+    return {k: v for k, v in stats.as_dict().items() if isinstance(v, (int, float)) and not isinstance(v, bool)}

@@ -98,6 +98,10 @@ def test_session_log_is_the_experiments_format_and_reevaluates_exactly(rig, tmp_
                       max_pending_images=1000)  # offline: PNG is slow, keep every image
         service = TrackingService(rig, tr, log=log, options=ServiceOptions(status_period_s=0))
         summary = service.run(assembled(60, drop_camera=1, drop_from=40))
+    # the tracker's counters over the run (rt2 track's JSON): every frame set, the 20 without cam1's frame
+    st = summary["tracker_stats"]
+    assert st["frames"] == 60 and st["missing_frames"] == 20 and st["ok"] == summary["status"].get("ok", 0)
+    assert st["full_frame_searches"] >= 1 and st["roi_searches"] > 0
     with SessionLogReader(path) as r:
         assert r.finished_cleanly
         assert r.metadata("session")["kind"] == "track"
