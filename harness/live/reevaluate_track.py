@@ -18,6 +18,10 @@ re-runs do the same (the images re-run defers as live did, waits for each search
 ended, and leaves unsearched what live left unsearched), so those frame sets are reproduced too.
 
 RTBlob sessions log no detections: their observations are counted as recorded.
+
+Images the log's writer dropped (an encoder that could not keep up: counted in the log's ``session_end``)
+are missing from the images re-run: ``auto`` then re-runs on the detections, and ``--from images`` says
+so in a note.
 """
 
 from __future__ import annotations
@@ -45,14 +49,24 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto", decode_worker
     if rig.names != names:
         raise ValueError(f"{where}: the attached rig's cameras {rig.names} differ from the session's {names}")
     every = reader.metadata("environment").get("writer", {}).get("log_images_every", 0)
+    end = reader.metadata("session_end") if reader.finished_cleanly else None
+    dropped = int(((end or {}).get("dropped") or {}).get("image", 0) or 0)  # images the writer could not encode in time
+    notes = []
     if source == "auto":
-        source = "images" if every == 1 else "detections"
+        source = "images" if every == 1 and (not dropped or kind == "rtblob") else "detections"  # (RTBlob logs no detections)
+        if source == "detections" and every == 1:
+            notes.append(f"the writer dropped {dropped} images (the encoder could not keep up; the log's session_end): "
+                         "re-running the estimator on the logged detections, which every frame set has (--from images "
+                         "re-runs the tracker without the dropped images)")
+    elif source == "images" and dropped:
+        notes.append(f"the writer dropped {dropped} images (the encoder could not keep up; the log's session_end): the frame "
+                     "sets that lost some are re-run without them, so their observations can differ from live "
+                     "(--from detections re-runs every frame set on its logged candidates)")
     if source == "images" and every != 1:
         raise ValueError(f"{where}: cannot re-run on images: the log keeps every {every}th frame set's images "
                          "(0 = none); record with --log-images all, or use --from detections")
     if source == "detections" and kind == "rtblob":
         source = "recorded"
-    notes = []
     if not reader.finished_cleanly:
         notes.append("the log was not finished cleanly: re-evaluating the frame sets recovered")
     k_per = int(session.get("candidates_per_camera") or 1)

@@ -331,3 +331,31 @@ def test_a_log_of_deferred_full_frame_searches_reevaluates_exactly(rig, tmp_path
         doc = json.loads((tmp_path / f"{source}.json").read_text())
         assert doc["deferred_live"] == len(deferred) and doc["not_searched_live"] == sum(o.not_searched for o in obs)
         assert f"{len(deferred)} frame set(s) had their full frames searched after they were reported" in out
+
+
+def test_a_log_whose_writer_dropped_images_reevaluates_on_the_detections_and_says_why(rig, tmp_path, capsys, monkeypatch):
+    # an encoder that cannot keep up (stalled until the run ends): images dropped and counted in session_end; the
+    # auto re-run takes the detections (every frame set has them) and reproduces every observation, and --from images
+    # says that its frame sets lost images
+    from harness.logs import SessionLogWriter
+
+    gate = threading.Event()
+    real = SessionLogWriter.write_image
+    monkeypatch.setattr(SessionLogWriter, "write_image", lambda self, *a, **k: (gate.wait(10), real(self, *a, **k))[1])
+    path = tmp_path / "dropped.mcap"
+    with Tracker(rig, "rt2") as tr:
+        log = LiveLog(path, rig, tr, source="test", seed=0, log_images="all", image_format="png", max_pending_images=2)
+        service = TrackingService(rig, tr, log=log, options=ServiceOptions(status_period_s=0))
+        with pytest.warns(RuntimeWarning, match="dropping image"):
+            threading.Timer(2.0, gate.set).start()
+            summary = service.run(assembled(30))
+    dropped = summary["log"]["dropped"]["image"]
+    assert dropped > 0
+    assert rt2(["reevaluate", str(path), "--json", str(tmp_path / "auto.json")]) == 0
+    out = capsys.readouterr().out
+    assert f"note: the writer dropped {dropped} images" in out and "re-running the estimator on the logged detections" in out
+    assert "identical observations (status and position): 30 of 30" in out
+    assert json.loads((tmp_path / "auto.json").read_text())["source"] == "detections"
+    assert rt2(["reevaluate", str(path), "--from", "images"]) == 0
+    out = capsys.readouterr().out
+    assert f"note: the writer dropped {dropped} images" in out and "re-run without them" in out
