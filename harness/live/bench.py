@@ -297,5 +297,5 @@ def measure_mode(args, mode: str, tmp: str, config, *, truth_scene=None) -> dict
         "process_per_set": summary["process_per_set"],
         # the tracker's counters over the run (warm-up of the run included): full-frame searches, deferred ones and the
         # frame sets that came while one ran (not searched), retries, size rejections ... (tracker.TrackerStats)
-        "tracker_stats": summary.get("tracker_stats", {}),
+        "tracker_stats": summary["tracker_stats"],
     }

@@ -52,16 +52,15 @@ def reevaluate_track(reader, *, eps_px=None, source: str = "auto", decode_worker
     end = reader.metadata("session_end") if reader.finished_cleanly else None
     dropped = int(((end or {}).get("dropped") or {}).get("image", 0) or 0)  # images the writer could not encode in time
     notes = []
+    lost = f"the writer dropped {dropped} images (the encoder could not keep up; the log's session_end): "
     if source == "auto":
         source = "images" if every == 1 and (not dropped or kind == "rtblob") else "detections"  # (RTBlob logs no detections)
         if source == "detections" and every == 1:
-            notes.append(f"the writer dropped {dropped} images (the encoder could not keep up; the log's session_end): "
-                         "re-running the estimator on the logged detections, which every frame set has (--from images "
+            notes.append(lost + "re-running the estimator on the logged detections, which every frame set has (--from images "
                          "re-runs the tracker without the dropped images)")
     elif source == "images" and dropped:
-        notes.append(f"the writer dropped {dropped} images (the encoder could not keep up; the log's session_end): the frame "
-                     "sets that lost some are re-run without them, so their observations can differ from live "
-                     "(--from detections re-runs every frame set on its logged candidates)")
+        notes.append(lost + "the frame sets that lost some are re-run without them, so their observations can differ from "
+                     "live (--from detections re-runs every frame set on its logged candidates)")
     if source == "images" and every != 1:
         raise ValueError(f"{where}: cannot re-run on images: the log keeps every {every}th frame set's images "
                          "(0 = none); record with --log-images all, or use --from detections")

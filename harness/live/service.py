@@ -208,7 +208,7 @@ class TrackingService:
         if self.options.switch_interval_s is not None:
             sys.setswitchinterval(self.options.switch_interval_s)
         use0 = resource.getrusage(resource.RUSAGE_SELF)
-        counters0 = _counters(self.tracker)
+        counters0 = self.tracker.stats.as_dict()
         try:  # everything alive now (rig, tracker, model, sockets) leaves the collector's generations
             with frozen_gc(self._gc_pauses, freeze=self.options.gc_freeze):
                 for afs in self._frames(source, stop, deadline):
@@ -223,8 +223,7 @@ class TrackingService:
             raise
         finally:
             self._process = process_per_set(use0, resource.getrusage(resource.RUSAGE_SELF), self.stats.n)
-            counters1 = _counters(self.tracker)
-            self._tracker_stats = {k: v - counters0.get(k, 0) for k, v in counters1.items()}
+            self._tracker_stats = {k: v - counters0[k] for k, v in self.tracker.stats.as_dict().items()}
             sys.setswitchinterval(old_switch)
             self.finish(error=error, source=source)
         return self.summary()
@@ -294,11 +293,3 @@ def _assembly_status(source) -> str:
 def _time_ns(t_s: float) -> int:
     """The tennicam ``time``: the frame set's capture time (host CLOCK_MONOTONIC seconds) in ns."""
     return int(round(float(t_s) * 1e9)) if math.isfinite(t_s) else 0
-
-
-def _counters(tracker) -> dict:
-    """The tracker's numeric counters (``tracker.TrackerStats``; none for a tracker without them)."""
-    stats = getattr(tracker, "stats", None)
-    if stats is None or not hasattr(stats, "as_dict"):
-        return {}
-    return {k: v for k, v in stats.as_dict().items() if isinstance(v, (int, float)) and not isinstance(v, bool)}

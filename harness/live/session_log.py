@@ -30,9 +30,9 @@ __all__ = ["LiveLog", "session_metadata"]
 
 def session_metadata(rig, tracker, *, source: str, seed: int | None, config: dict | None = None) -> dict:
     k = tracker.candidates_per_camera  # None for rtblob (one peak per camera, no candidates)
-    defer = bool(getattr(getattr(tracker, "options", None), "defer_full_frame", False))  # a re-run on the images defers as live did
-    return {"kind": "track", "tracker": tracker.kind, "source": source, "seed": seed,
-            "camera_names": list(rig.names), "candidates_per_camera": k, "defer_full_frame": defer, "config": config or {}}
+    return {"kind": "track", "tracker": tracker.kind, "source": source, "seed": seed, "camera_names": list(rig.names),
+            "candidates_per_camera": k, "config": config or {},
+            "defer_full_frame": bool(tracker.options.defer_full_frame)}  # a re-run on the images defers as live did
 
 
 class LiveLog:
