@@ -4,7 +4,8 @@ N random frame sets (:func:`harness.sim.render.scenes.random_scene`) are rendere
 the rig. Each image ``f{frame:06d}_cam{i}.png`` gets one COCO box per ball whose visibility is at
 least 0.5 (category ``ball``), with the exact projected centre (``center_px``), the apparent
 diameter and the visibility as extra annotation fields; balls seen less than that are listed in
-the image's ``hidden_balls`` field instead (not labels, not lost). Frame f uses the generator
+the image's ``hidden_balls`` field instead (not labels, not lost). ``--ball white|orange`` makes every ball
+that colour (the scenes are otherwise the same; by default each ball is white or orange at random). Frame f uses the generator
 ``default_rng([seed, f])`` and the renderer's noise for (seed, f), so the output is byte-identical
 for a seed whatever the number of workers. A signal or a lost worker leaves ``--out`` as it was (the
 set is rendered into a staging folder and moved into place only when complete).
@@ -48,7 +49,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--scene", choices=("lab", "caliscope"), default="lab",
                         help="lab: rendered frame sets of --rig (default); caliscope: semi-real sequences on the real 4-camera caliscope session")
     parser.add_argument("--ball", choices=("orange", "white"), default=None,
-                        help="--scene caliscope: white = real white balls cut from the real rally frames and pasted; orange = the drawn orange ball (default)")
+                        help="--scene caliscope: white = real white balls cut from the real rally frames and pasted; orange = the drawn orange ball (default); "
+                             "--scene lab: every rendered ball of that colour (default: each white or orange at random)")
     parser.add_argument("--session", default=None, help="--scene caliscope: the session folder (default ../shared/data/real/caliscope_4cam)")
     parser.add_argument("--ball-crops", default=None, help="--ball white: the COCO set whose balls are cut (default ../shared/data/real/phone_rally)")
     parser.add_argument("--crop-frames", default=None, help="--ball white: START:STOP of the crops' time order whose balls are used (default all)")
@@ -72,10 +74,10 @@ def run(args) -> int:
                                  workers=args.workers, overwrite=args.overwrite)
         print(f"wrote {path}")
         return 0
-    for name in ("ball", "session", "ball_crops", "crop_frames", "flight_frames"):
+    for name in ("session", "ball_crops", "crop_frames", "flight_frames"):
         if getattr(args, name) is not None:
             raise ValueError(f"--{name.replace('_', '-')} applies to --scene caliscope only")
-    path = generate(args.rig, args.frames, args.seed, args.out, workers=args.workers, overwrite=args.overwrite)
+    path = generate(args.rig, args.frames, args.seed, args.out, workers=args.workers, overwrite=args.overwrite, ball=args.ball)
     print(f"wrote {path}")
     return 0
 
@@ -107,18 +109,24 @@ def _staged(out, overwrite: bool, write) -> Path:
     return out / ANNOTATIONS_FILE
 
 
-def generate(rig, frames: int, seed: int, out, *, workers: int = 1, overwrite: bool = False, progress: bool = True) -> Path:
+def generate(rig, frames: int, seed: int, out, *, workers: int = 1, overwrite: bool = False, progress: bool = True,
+             ball: str | None = None) -> Path:
     """Write the data set and return the path of its ``annotations.json`` (see the module docstring).
 
     rig : a :class:`tracker.Rig`, a rig name in ``data/rigs`` or a rig file
+    ball : None = each ball white or orange at random; "white" / "orange" = every ball that colour
+        (:attr:`harness.sim.render.scenes.SceneOptions.ball_colour`: the same scenes otherwise)
     """
+    from harness.sim.render.scenes import BALL_COLOURS
     from tracker.rig_files import resolve_rig
 
     _check(frames, seed, workers)
+    if ball is not None and ball not in BALL_COLOURS:
+        raise ValueError(f"--ball must be one of {list(BALL_COLOURS)}, got {ball!r}")
     rig_obj = resolve_rig(rig)
     # Rendered into a staging folder inside --out, moved into place only when the whole set is written:
     # a failure (disk full, a worker's error) leaves --out as it was.
-    return _staged(out, overwrite, lambda staging: _generate_in(rig, rig_obj, frames, seed, staging, workers, progress))
+    return _staged(out, overwrite, lambda staging: _generate_in(rig, rig_obj, frames, seed, staging, workers, progress, ball))
 
 
 def generate_semireal(frames: int, seed: int, out, *, ball: str = "white", session=None, crops=None, crop_frames: str | None = None,
@@ -230,10 +238,10 @@ def _semireal_chunk(task):
     return rows
 
 
-def _generate_in(rig, rig_obj, frames: int, seed: int, out: Path, workers: int, progress: bool) -> Path:
+def _generate_in(rig, rig_obj, frames: int, seed: int, out: Path, workers: int, progress: bool, ball: str | None = None) -> Path:
     """Render and label into ``out`` (the staging folder); returns the path of its annotations.json."""
     chunks = [list(range(s, min(s + _CHUNK, frames))) for s in range(0, frames, _CHUNK)]
-    tasks = [(rig_obj.to_dict(), seed, c, str(out)) for c in chunks]
+    tasks = [(rig_obj.to_dict(), seed, ball, c, str(out)) for c in chunks]
     rows = _run_tasks(_render_chunk, tasks, frames, workers, progress)
     images = [im for _, im, _, _ in rows]
     extra = [ex for _, _, ex, _ in rows]
@@ -244,6 +252,7 @@ def _generate_in(rig, rig_obj, frames: int, seed: int, out: Path, workers: int, 
         "frames": int(frames),
         "seed": int(seed),
         "cameras": rig_obj.names,
+        **({} if ball is None else {"ball": ball}),
         "visible_fraction": _visible_fraction(),
         "center_px_convention": "rt2/OpenCV: pixel (0, 0) is the centre of the top-left pixel; bbox is COCO (image = [0, W] x [0, H])",
     }
@@ -273,14 +282,15 @@ def _renderer(rig_dict: dict, seed: int):
 
 def _render_chunk(task):
     """Render and write the frames of one task; returns rows (key, LabelledImage, extras, image fields)."""
-    from harness.sim.render.scenes import random_scene
+    from harness.sim.render.scenes import SceneOptions, random_scene
 
-    rig_dict, seed, frames, out = task
+    rig_dict, seed, ball, frames, out = task
     renderer = _renderer(rig_dict, seed)
     rig = renderer.rig
+    options = SceneOptions(ball_colour=ball)
     rows = []
     for f in frames:
-        scene = random_scene(np.random.default_rng([seed, f]), rig.workspace_m, frame_index=f)
+        scene = random_scene(np.random.default_rng([seed, f]), rig.workspace_m, options, frame_index=f)
         images, truths = renderer.render_labelled(scene)
         for i, (img, truth) in enumerate(zip(images, truths)):
             name = f"f{f:06d}_cam{i}.png"

@@ -25,7 +25,10 @@ from harness.sim import lab
 from harness.sim.render.renderer import RenderOptions
 from harness.sim.render.scene_state import Ball, Box, Capsule, Disk, Exposure, Scene, Sphere
 
-__all__ = ["SceneOptions", "ball_in_hand", "person", "random_scene", "robot_arm"]
+__all__ = ["BALL_COLOURS", "SceneOptions", "ball_in_hand", "person", "random_scene", "robot_arm"]
+
+#: the ball colours a scene may be limited to (``SceneOptions.ball_colour``)
+BALL_COLOURS = ("orange", "white")
 
 _SKINS = ("skin_light", "skin_medium", "skin_tan", "skin_dark")
 _SHIRTS = ("shirt_blue", "shirt_red", "shirt_black", "shirt_green", "white", "orange", "yellow")
@@ -47,6 +50,9 @@ class SceneOptions:
     max_speed_mps : flying balls move at up to this speed
     brightness : (min, max) auto-exposure target, 1 = nominal
     exposure_s : (min, max) shutter time, seconds
+    ball_colour : None = each ball white or orange at random (``p_white``; the lying second ball half and half); a
+        colour (``"white"``, ``"orange"``) = every ball that colour, the rest of the scene as with None (the same
+        random draws: the same seed gives the same scene but for the balls' colour)
     """
 
     p_no_ball: float = 0.12
@@ -61,8 +67,11 @@ class SceneOptions:
     max_speed_mps: float = 8.0
     brightness: tuple = (0.55, 1.6)
     exposure_s: tuple = (0.0008, 0.003)
+    ball_colour: str | None = None
 
     def __post_init__(self):
+        if self.ball_colour is not None and self.ball_colour not in BALL_COLOURS:
+            raise ValueError(f"SceneOptions.ball_colour must be None or one of {list(BALL_COLOURS)}, got {self.ball_colour!r}")
         for name in ("p_no_ball", "p_near_hand", "p_near_net", "p_second_ball", "p_white", "p_person", "p_robot", "p_racket"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not 0 <= v <= 1:
@@ -242,6 +251,7 @@ def random_scene(rng: np.random.Generator, workspace_m=None, options: SceneOptio
         sph += s
     if has_ball:
         colour = "white" if rng.random() < opt.p_white else "orange"
+        colour = opt.ball_colour or colour
         if mode == "hand" and tip is not None:  # held between the fingers or just released
             pos = tip + rng.normal(0, 0.03, 3)
             vel = rng.normal(0, 0.3, 3)
@@ -261,7 +271,8 @@ def random_scene(rng: np.random.Generator, workspace_m=None, options: SceneOptio
             on_table = rng.random() < 0.5
             xy = rng.uniform([-1.3, -0.7], [1.3, 0.7]) if on_table else rng.uniform([-3.5, -2.5], [1.0, 2.5])
             z = (lab.TABLE_TOP_Z_M if on_table else 0.0) + 0.02
-            balls.append(Ball([xy[0], xy[1], z], (0, 0, 0), "white" if rng.random() < 0.5 else "orange"))
+            second = "white" if rng.random() < 0.5 else "orange"
+            balls.append(Ball([xy[0], xy[1], z], (0, 0, 0), opt.ball_colour or second))
     for _ in range(int(rng.integers(0, opt.max_distractors + 1))):
         item = _distractor(rng, tip if not (has_ball and mode == "hand") else None)
         (sph if isinstance(item, Sphere) else boxes).append(item)

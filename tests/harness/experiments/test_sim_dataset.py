@@ -70,6 +70,34 @@ def test_hidden_balls_are_recorded_not_labelled(dataset):
         assert all(0 < h["visibility"] < 0.5 for h in im["hidden_balls"])
 
 
+def test_ball_colour_makes_every_ball_that_colour_and_keeps_the_scenes(rig_file, dataset, tmp_path):
+    """--ball white: every rendered ball white (none orange), the rest of each scene as without it."""
+    from harness.sim.render import Ball
+    from harness.sim.render.scenes import SceneOptions
+
+    white = tmp_path / "white"
+    assert main(["sim", "dataset", "--rig", str(rig_file), "--frames", "12", "--seed", "5", "--ball", "white", "--out", str(white)]) == 0
+    doc = json.loads((white / "annotations.json").read_text())
+    assert doc["info"]["ball"] == "white" and "ball" not in json.loads((dataset / "annotations.json").read_text())["info"]
+    rgb = {c: Ball([0, 0, 1], colour=c).colour for c in ("white", "orange")}
+    from tracker import Rig
+
+    ws = Rig.load(rig_file).workspace_m
+    mixed = [random_scene(np.random.default_rng([5, f]), ws, frame_index=f) for f in range(12)]
+    only = [random_scene(np.random.default_rng([5, f]), ws, SceneOptions(ball_colour="white"), frame_index=f) for f in range(12)]
+    assert any(np.allclose(b.colour, rgb["orange"]) for s in mixed for b in s.balls)  # the default mixes colours
+    for a, b in zip(mixed, only):
+        assert [x.position_m.tolist() for x in a.balls] == [x.position_m.tolist() for x in b.balls]
+        assert all(np.allclose(x.colour, rgb["white"]) for x in b.balls)
+        assert a.exposure == b.exposure and len(a.capsules) == len(b.capsules) and len(a.spheres) == len(b.spheres)
+    # frames whose balls were all white already are the same pixels; the labels are the same balls
+    same = [f for f, s in enumerate(mixed) if all(np.allclose(x.colour, rgb["white"]) for x in s.balls)]
+    assert same
+    name = f"f{same[0]:06d}_cam0.png"
+    assert (white / name).read_bytes() == (dataset / name).read_bytes()
+    assert [a["bbox"] for a in doc["annotations"]] == [a["bbox"] for a in json.loads((dataset / "annotations.json").read_text())["annotations"]]
+
+
 # -- bad input -------------------------------------------------------------------------------------
 def test_bad_arguments(rig_file, dataset, tmp_path, capsys):
     with pytest.raises(ValueError, match="--frames must be an integer >= 1, got 0"):
@@ -81,6 +109,13 @@ def test_bad_arguments(rig_file, dataset, tmp_path, capsys):
     (tmp_path / "file").write_text("x")
     with pytest.raises(ValueError, match="exists and is a file, not a folder"):
         generate(rig_file, 1, 1, tmp_path / "file")
+    with pytest.raises(ValueError, match=r"--ball must be one of \['orange', 'white'\], got 'red'"):
+        generate(rig_file, 1, 1, tmp_path / "z", ball="red")
+    from harness.sim.render.scenes import SceneOptions
+
+    with pytest.raises(ValueError, match=r"SceneOptions.ball_colour must be None or one of \['orange', 'white'\], got 'red'"):
+        SceneOptions(ball_colour="red")
+    assert not (tmp_path / "z").exists() or not (tmp_path / "z" / "annotations.json").exists()
 
 
 # -- determinism -----------------------------------------------------------------------------------
