@@ -154,7 +154,8 @@ def test_dataset_of_sequences_same_seed_same_bytes(folder, rally, tmp_path, caps
         err = capsys.readouterr().err
         assert message in err and "Traceback" not in err
     assert not (tmp_path / "c" / "annotations.json").exists()
-    for extra, message in ((["--ball", "white"], "--ball applies to --scene caliscope only"),):
+    for extra, message in ((["--crop-frames", "0:5"], "--crop-frames applies to --scene caliscope only"),
+                           (["--ball-crops", str(tmp_path)], "--ball-crops applies to --scene caliscope only")):
         assert main(["sim", "dataset", "--frames", "1", "--out", str(tmp_path / "d"), *extra]) == 2
         assert message in capsys.readouterr().err
 
