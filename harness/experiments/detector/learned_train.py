@@ -29,7 +29,7 @@ import numpy as np
 from harness.experiments.detector.augment import AugmentOptions, jpeg, optics
 from tracker.detection.learned import LearnedStage, learned_scale
 
-__all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "items_at_scale", "sample_patches",
+__all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "items_at_scale", "kept_passes", "sample_patches",
            "stage_candidates", "targets"]
 
 STRIDE = 4
@@ -545,6 +545,15 @@ def state_of_onnx(onnx_bytes: bytes) -> dict:
     return {t.name: torch.from_numpy(numpy_helper.to_array(t).copy()) for t in graph.initializer if t.name.endswith((".weight", ".bias"))}
 
 
+def kept_passes(name: str, base: LearnedStage | None) -> dict:
+    """The full-frame passes a trained stage keeps of ``base``: a fine-tune (``name`` "fine-tuned") searches full frames as
+    its base does (its coarse pass: side, threshold, candidates), in the cross-validation and in the file, since it is
+    the base's network a little changed and keeps its scale; a stage from scratch has one pass (no fields)."""
+    if name != "fine-tuned" or base is None:
+        return {}
+    return dict(coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold, coarse_candidates=base.coarse_candidates)
+
+
 def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int, k: int = 4, min_diameter_px: float = 6.0,
                 finetune_steps: int = 150, scratch_steps: int = 400, batch: int = 16, patch_px: int = 96, extra=(),
                 alone=None, log=print, progress: bool = False):
@@ -574,9 +583,9 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     names = (["shipped", "fine-tuned"] if base is not None else []) + ["scratch"]
     oof = {n: [None] * len(labelled) for n in names}
 
-    def stage_of(onnx_bytes):
+    def stage_of(onnx_bytes, name):
         return LearnedStage(onnx_bytes, max_side_px=max_side, threshold=0.5, diameter_range_px=LearnedTrainOptions().diameter_range_px,
-                            context_px=WINDOW_CONTEXT_PX if base is None else base.context_px)
+                            context_px=WINDOW_CONTEXT_PX if base is None else base.context_px, **kept_passes(name, base))
 
     def candidates(stage, idx):
         for i in idx:
@@ -596,7 +605,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
             opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
                                        lr=1e-3 if state is not None else 3e-3)
             _, onnx_f = fit_learned(rest, opts, seed + 101 * f, state=state, log=lambda m: None, progress=False)
-            for i, c in candidates(stage_of(onnx_f), fold):
+            for i, c in candidates(stage_of(onnx_f, name), fold):
                 oof[name][i] = c
         log(f"learned stage: fold {f + 1}/{len(folds)} done")
     scored = [i for i in range(len(labelled)) if all(oof[n][i] is not None for n in names)]
@@ -628,6 +637,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
         inherited = base.size_ratio if best.name == "fine-tuned" and base is not None else None
         stage = LearnedStage(onnx_all, max_side_px=max_side, threshold=best.threshold, diameter_range_px=opts.diameter_range_px,
                              context_px=WINDOW_CONTEXT_PX if base is None else base.context_px, track_threshold=min(best.threshold, TRACK_THRESHOLD),
+                             **kept_passes(best.name, base),
                              filter_refines=True if base is None else base.filter_refines, size_ratio=inherited,
                              description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed})"
                              + ("" if inherited is None else f"; size ratio {inherited:g}, the base's"))

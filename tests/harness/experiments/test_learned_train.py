@@ -255,3 +255,34 @@ class _no_raise:
 
     def __exit__(self, *exc):
         return False
+
+
+def test_a_fine_tune_keeps_its_base_coarse_pass_in_cross_validation_and_in_the_file(synthetic_ball_coco, monkeypatch):
+    """A fine-tuned stage is the base's network a little changed: it searches full frames in the base's two passes
+    (scored so in the cross-validation, written so); a stage from scratch has one pass."""
+    from harness.experiments.detector import learned_train as L
+    from harness.experiments.detector.train import cv_folds
+    from tracker.detection.learned import LearnedStage
+
+    labelled = read_coco(synthetic_ball_coco(12, 1))
+    images = [load_image(li) for li in labelled]
+    _, onnx = fit_learned(items_at_scale(list(zip(images, labelled)), 128), LearnedTrainOptions(iterations=4, batch=4, patch_px=32, max_side_px=128), 0,
+                          log=lambda m: None)
+    base = LearnedStage(onnx, max_side_px=128, threshold=0.5, coarse_side_px=64, coarse_threshold=0.15, coarse_candidates=5)
+    made = []
+
+    class Recording(LearnedStage):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            made.append(self)
+
+    monkeypatch.setattr(L, "LearnedStage", Recording)
+    monkeypatch.setattr(L.StageChoice, "gain", property(lambda c: 1.0 if c.name == "fine-tuned" else 0.0))  # the fine-tune wins
+    stage, info = L.train_stage(labelled, images, cv_folds(labelled, 2), base=base, seed=0, finetune_steps=3, scratch_steps=3, batch=4,
+                                patch_px=32, log=lambda m: None)
+    assert info["chosen"].name == "fine-tuned"
+    assert (stage.coarse_side_px, stage.coarse_threshold, stage.coarse_candidates) == (64, 0.15, 5)
+    assert stage.onnx != base.onnx
+    # the cross-validation's stages: two folds x (fine-tuned with the coarse pass, scratch without), then the file's
+    assert [s.coarse_side_px for s in made] == [64, 0, 64, 0, 64]
+    assert L.kept_passes("scratch", base) == {} and L.kept_passes("fine-tuned", None) == {}
