@@ -44,11 +44,10 @@ import numpy as np
 
 from harness.live.sources._feed import FeedItem, PacedFeed
 from harness.sim.render import Ball, Exposure, Renderer, RenderOptions, Scene
+from harness.sim.render.scenes import BALL_COLOURS  # the default scene's ball colours (``SimOptions.ball_colour``)
 
 __all__ = ["BALL_COLOURS", "LauncherFlights", "SimOptions", "open_sim"]
 
-#: the default scene's ball colours (``SimOptions.ball_colour``; the renderer's names)
-BALL_COLOURS = ("orange", "white")
 
 
 @dataclass(frozen=True)
