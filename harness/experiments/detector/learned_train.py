@@ -29,7 +29,7 @@ import numpy as np
 from harness.experiments.detector.augment import AugmentOptions, jpeg, optics
 from tracker.detection.learned import LearnedStage, learned_scale
 
-__all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "items_at_scale", "kept_passes", "sample_patches",
+__all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "contrast_crops", "items_at_scale", "kept_passes", "sample_patches", "with_contrast",
            "stage_candidates", "targets"]
 
 STRIDE = 4
@@ -545,6 +545,56 @@ def state_of_onnx(onnx_bytes: bytes) -> dict:
     return {t.name: torch.from_numpy(numpy_helper.to_array(t).copy()) for t in graph.initializer if t.name.endswith((".weight", ".bias"))}
 
 
+#: a fine-tune's contrast crops (:func:`contrast_crops`): the base's candidates considered (at least this heat, best first)
+CONTRAST_MIN_HEAT = 0.1
+CONTRAST_PER_IMAGE = 8
+#: half the side of a crop, network pixels (a crop holds the false candidate and a labelled ball within this of it)
+CONTRAST_HALF_PX = 80
+#: the share of a fine-tune's patches drawn from its contrast crops (when it has any)
+CONTRAST_SHARE = 0.7
+
+
+def contrast_crops(items: list[LearnedItem], candidates, labelled, indices) -> list[LearnedItem]:
+    """Crops of the training images where the base is wrong next to a ball: around each of the base's own candidates
+    (``candidates[i]``: ``(uv, scores)`` in image pixels, best first) that is off every labelled ball of image ``i``
+    (farther than half its diameter, and 6 px), a square of ``2 CONTRAST_HALF_PX`` network pixels (clipped to the
+    image) that holds a labelled ball, with that ball's label; only of the images ``indices``. A fine-tune draws most
+    of its patches from them (``CONTRAST_SHARE``): on the auto labels of caliscope cameras 0-2 it kept the fine-tune
+    from raising a held-out camera's bright window above the ball (README Results, "Labels for free"); crops around
+    random labelled balls, or around the false candidates with no ball in them, did not."""
+    from harness.experiments.detector.scores import truth_of
+
+    out = []
+    for i in indices:
+        it, (uv, sc) = items[i], candidates[i]
+        c, d = truth_of(labelled[i])
+        if not len(it.centers) or not len(uv):
+            continue
+        h0, w0 = labelled[i].height, labelled[i].width
+        sx, sy = it.image.shape[1] / w0, it.image.shape[0] / h0
+        for u in uv[sc >= CONTRAST_MIN_HEAT][:CONTRAST_PER_IMAGE]:
+            if np.min(np.linalg.norm(c - u, axis=1) - np.maximum(d / 2, 6.0)) < 0:
+                continue  # on a ball: not a false candidate
+            x, y = (u[0] + 0.5) * sx - 0.5, (u[1] + 0.5) * sy - 0.5
+            x0, y0 = int(max(0, x - CONTRAST_HALF_PX)), int(max(0, y - CONTRAST_HALF_PX))
+            x1, y1 = int(min(it.image.shape[1], x + CONTRAST_HALF_PX)), int(min(it.image.shape[0], y + CONTRAST_HALF_PX))
+            if x1 - x0 < 64 or y1 - y0 < 64:
+                continue
+            cc = it.centers - [x0, y0]
+            inside = (cc[:, 0] >= 0) & (cc[:, 0] < x1 - x0) & (cc[:, 1] >= 0) & (cc[:, 1] < y1 - y0)
+            if inside.any():
+                out.append(LearnedItem(np.ascontiguousarray(it.image[y0:y1, x0:x1]), cc[inside], it.diameters[inside], 1.0, it.name + " (contrast)"))
+    return out
+
+
+def with_contrast(rest: list[LearnedItem], crops: list[LearnedItem]) -> list[LearnedItem]:
+    """``rest`` and the contrast ``crops`` weighted so that the crops give ``CONTRAST_SHARE`` of the patches."""
+    if not crops:
+        return rest
+    w = CONTRAST_SHARE / (1 - CONTRAST_SHARE) * sum(it.weight for it in rest) / len(crops)
+    return rest + [LearnedItem(c.image, c.centers, c.diameters, w, c.name) for c in crops]
+
+
 def kept_passes(name: str, base: LearnedStage | None) -> dict:
     """The full-frame passes a trained stage keeps of ``base``: a fine-tune (``name`` "fine-tuned") searches full frames as
     its base does (its coarse pass: side, threshold, candidates), in the cross-validation and in the file, since it is
@@ -604,7 +654,9 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
             steps, state = (finetune_steps, base_state) if name == "fine-tuned" else (scratch_steps, None)
             opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
                                        lr=1e-3 if state is not None else 3e-3)
-            _, onnx_f = fit_learned(rest, opts, seed + 101 * f, state=state, log=lambda m: None, progress=False)
+            train_items = rest if name != "fine-tuned" else with_contrast(
+                rest, contrast_crops(items, oof["shipped"], labelled, [i for i in range(len(items)) if i not in inside]))
+            _, onnx_f = fit_learned(train_items, opts, seed + 101 * f, state=state, log=lambda m: None, progress=False)
             for i, c in candidates(stage_of(onnx_f, name), fold):
                 oof[name][i] = c
         log(f"learned stage: fold {f + 1}/{len(folds)} done")
@@ -631,7 +683,12 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
         steps, state = (finetune_steps, base_state) if best.name == "fine-tuned" else (scratch_steps, None)
         opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
                                    lr=1e-3 if state is not None else 3e-3)
-        _, onnx_all = fit_learned(items + extra_items, opts, seed, state=state, log=log, progress=progress)
+        train_items = items + extra_items
+        if best.name == "fine-tuned":
+            crops = contrast_crops(items, oof["shipped"], labelled, range(len(items)))
+            log(f"learned stage: fine-tuned with {len(crops)} contrast crops (the base's own false candidates next to a ball)")
+            train_items = with_contrast(train_items, crops)
+        _, onnx_all = fit_learned(train_items, opts, seed, log=log, progress=progress, state=state)
         # a fine-tune starts from the base's network and keeps its size record (not measured again: the labels' boxes
         # are hand-drawn); a network trained from scratch has none (the tracker's own size test)
         inherited = base.size_ratio if best.name == "fine-tuned" and base is not None else None

@@ -278,11 +278,44 @@ def test_a_fine_tune_keeps_its_base_coarse_pass_in_cross_validation_and_in_the_f
 
     monkeypatch.setattr(L, "LearnedStage", Recording)
     monkeypatch.setattr(L.StageChoice, "gain", property(lambda c: 1.0 if c.name == "fine-tuned" else 0.0))  # the fine-tune wins
+    lines = []
     stage, info = L.train_stage(labelled, images, cv_folds(labelled, 2), base=base, seed=0, finetune_steps=3, scratch_steps=3, batch=4,
-                                patch_px=32, log=lambda m: None)
+                                patch_px=32, log=lines.append)
     assert info["chosen"].name == "fine-tuned"
+    assert any(line.startswith("learned stage: fine-tuned with ") and "contrast crops" in line for line in lines)
     assert (stage.coarse_side_px, stage.coarse_threshold, stage.coarse_candidates) == (64, 0.15, 5)
     assert stage.onnx != base.onnx
     # the cross-validation's stages: two folds x (fine-tuned with the coarse pass, scratch without), then the file's
     assert [s.coarse_side_px for s in made] == [64, 0, 64, 0, 64]
     assert L.kept_passes("scratch", base) == {} and L.kept_passes("fine-tuned", None) == {}
+
+
+def test_contrast_crops_are_the_bases_false_candidates_next_to_a_ball():
+    """A crop around each false candidate of the base (off every ball, heat >= CONTRAST_MIN_HEAT) that holds a
+    labelled ball, with the ball's label at the crop's pixels; candidates on a ball, too weak, or with no ball near
+    make none; with_contrast gives the crops CONTRAST_SHARE of the patches."""
+    from pathlib import Path
+
+    from harness.experiments.detector import learned_train as L
+    from harness.experiments.detector.coco import LabelledImage
+
+    img = np.zeros((400, 600, 3), np.uint8)
+    li = LabelledImage(Path("x.png"), 600, 400, np.array([[290.0, 190.0, 20.0, 20.0]]), np.array([[299.5, 199.5]]))
+    item = items_at_scale([(img, li)], 300)[0]  # half scale: the ball at (149.5, 99.5), 10 px
+    assert item.image.shape[:2] == (200, 300)
+    uv = np.array([[300.0, 200.0], [360.0, 180.0], [40.0, 40.0], [330.0, 230.0]])  # on the ball, next to it, far, weak
+    sc = np.array([0.9, 0.5, 0.6, 0.05])
+    crops = L.contrast_crops([item], [(uv, sc)], [li], [0])
+    assert len(crops) == 1
+    c = crops[0]
+    x, y = (360.0 + 0.5) * 0.5 - 0.5, (180.0 + 0.5) * 0.5 - 0.5  # the false candidate at the network's scale
+    x0, y0 = int(max(0, x - L.CONTRAST_HALF_PX)), int(max(0, y - L.CONTRAST_HALF_PX))
+    np.testing.assert_allclose(c.centers, item.centers - [x0, y0])
+    np.testing.assert_allclose(c.diameters, item.diameters)
+    assert c.image.shape[1] == int(min(300, x + L.CONTRAST_HALF_PX)) - x0
+    assert L.contrast_crops([item], [(uv, sc)], [li], []) == []  # only the images asked for (a fold's training part)
+    rest = [item, LearnedItem(img[:64, :64], np.zeros((0, 2)), np.zeros(0), 0.5)]
+    mixed = L.with_contrast(rest, crops * 2)
+    w_crops = sum(it.weight for it in mixed[2:])
+    assert w_crops / sum(it.weight for it in mixed) == pytest.approx(L.CONTRAST_SHARE)
+    assert L.with_contrast(rest, []) == rest

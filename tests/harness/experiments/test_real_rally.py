@@ -125,11 +125,11 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     assert "--out must end in .npz" in err and "Traceback" not in err
 
 
-def test_a_training_that_keeps_the_shipped_stage_keeps_its_size_record():
+def test_a_training_that_keeps_the_shipped_stage_keeps_its_size_record(monkeypatch):
     """When the cross-validation keeps the base's network (rt2 train, the shipped white stage against a fine-tune and
-    a new stage of 2 steps), the stage written keeps the size ratio that network's diameters need; a network trained
-    from scratch has none (the tracker's own size test). (A fine-tune keeps the base's: learned_train.train_stage.)"""
-    from harness.experiments.detector.learned_train import train_stage
+    a new stage of 2 steps), the stage written keeps the size ratio that network's diameters need, and its passes; a
+    fine-tune keeps them too; a network trained from scratch has none (the tracker's own size test)."""
+    from harness.experiments.detector import learned_train as L
     from harness.experiments.detector.train import cv_folds
 
     white = BallSegmentationModel.load("data/models/ball_seg_white.npz").learned
@@ -137,9 +137,17 @@ def test_a_training_that_keeps_the_shipped_stage_keeps_its_size_record():
     labelled = take_range(read_coco(RALLY), "46:58")
     images = [load_image(li) for li in labelled]
     kw = dict(seed=0, finetune_steps=2, scratch_steps=2, batch=2, patch_px=64, log=lambda m: None)
-    stage, info = train_stage(labelled, images, cv_folds(labelled, 2), base=white, **kw)
+    passes = (white.coarse_side_px, white.coarse_threshold, white.coarse_candidates)
+    stage, info = L.train_stage(labelled, images, cv_folds(labelled, 2), base=white, **kw)  # 2 steps: either of the two
+    assert info["chosen"].name in ("shipped", "fine-tuned") and stage.size_ratio == 1.54
+    assert (stage.onnx == white.onnx) == (info["chosen"].name == "shipped")
+    assert (stage.coarse_side_px, stage.coarse_threshold, stage.coarse_candidates) == passes
+    with monkeypatch.context() as m:
+        m.setattr(L.StageChoice, "gain", property(lambda c: 1.0 if c.name == "shipped" else 0.0))
+        stage, info = L.train_stage(labelled, images, cv_folds(labelled, 2), base=white, **kw)
     assert info["chosen"].name == "shipped" and stage.onnx == white.onnx and stage.size_ratio == 1.54
-    fresh, info = train_stage(labelled, images, cv_folds(labelled, 2), base=None, **kw)
+    assert (stage.coarse_side_px, stage.coarse_threshold, stage.coarse_candidates) == passes
+    fresh, info = L.train_stage(labelled, images, cv_folds(labelled, 2), base=None, **kw)
     assert info["chosen"].name == "scratch" and fresh.size_ratio is None
 
 
