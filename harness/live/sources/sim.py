@@ -49,7 +49,6 @@ from harness.sim.render.scenes import BALL_COLOURS  # the default scene's ball c
 __all__ = ["BALL_COLOURS", "LauncherFlights", "SimOptions", "open_sim"]
 
 
-
 @dataclass(frozen=True)
 class SimOptions:
     """Options of the ``sim`` source.

@@ -91,7 +91,7 @@ def test_ball_colour_makes_every_ball_that_colour_and_keeps_the_scenes(rig_file,
         assert all(np.allclose(x.colour, rgb["white"]) for x in b.balls)
         assert a.exposure == b.exposure and len(a.capsules) == len(b.capsules) and len(a.spheres) == len(b.spheres)
     # frames whose balls were all white already are the same pixels; the labels are the same balls
-    same = [f for f, s in enumerate(mixed) if all(np.allclose(x.colour, rgb["white"]) for x in s.balls)]
+    same = [f for f, s in enumerate(mixed) if s.balls and all(np.allclose(x.colour, rgb["white"]) for x in s.balls)]
     assert same
     name = f"f{same[0]:06d}_cam0.png"
     assert (white / name).read_bytes() == (dataset / name).read_bytes()
