@@ -21,7 +21,7 @@ on one thread, so the same data and seed give the same weights.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -592,14 +592,14 @@ def with_contrast(rest: list[LearnedItem], crops: list[LearnedItem]) -> list[Lea
     if not crops:
         return rest
     w = CONTRAST_SHARE / (1 - CONTRAST_SHARE) * sum(it.weight for it in rest) / len(crops)
-    return rest + [LearnedItem(c.image, c.centers, c.diameters, w, c.name) for c in crops]
+    return rest + [replace(c, weight=w) for c in crops]
 
 
 def kept_passes(name: str, base: LearnedStage | None) -> dict:
-    """The full-frame passes a trained stage keeps of ``base``: a fine-tune (``name`` "fine-tuned") searches full frames as
-    its base does (its coarse pass: side, threshold, candidates), in the cross-validation and in the file, since it is
-    the base's network a little changed and keeps its scale; a stage from scratch has one pass (no fields)."""
-    if name != "fine-tuned" or base is None:
+    """The full-frame passes a trained stage keeps of ``base``: the base's network as it is ("shipped") or fine-tuned
+    ("fine-tuned", a little changed, at the base's scale) searches full frames as the base does (its coarse pass: side,
+    threshold, candidates), in the cross-validation and in the file; a stage from scratch has one pass (no fields)."""
+    if name not in ("shipped", "fine-tuned") or base is None:
         return {}
     return dict(coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold, coarse_candidates=base.coarse_candidates)
 
@@ -642,21 +642,24 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
             uv, sc, _ = stage.candidates(pairs[i][0], None, k=4 * k, threshold=min(THRESHOLD_GRID))
             yield i, (uv, sc)
 
+    def fit_items(name, idx):  # what a fit of `name` trains on: the frames `idx`, the backgrounds, a fine-tune's contrast crops
+        rest = [items[i] for i in idx] + extra_items
+        crops = contrast_crops(items, oof["shipped"], labelled, idx) if name == "fine-tuned" else []
+        return with_contrast(rest, crops), len(crops)
+
     if base is not None:
         for i, c in candidates(base, range(len(labelled))):
             oof["shipped"][i] = c
     for f, fold in enumerate(folds):
         inside = set(fold)
-        rest = [items[i] for i in range(len(items)) if i not in inside] + extra_items
-        if not any(len(it.centers) for it in rest):
+        fitted = [i for i in range(len(items)) if i not in inside]
+        if not any(len(it.centers) for it in [items[i] for i in fitted] + extra_items):
             continue
         for name in names[1 if base is not None else 0:]:
             steps, state = (finetune_steps, base_state) if name == "fine-tuned" else (scratch_steps, None)
             opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
                                        lr=1e-3 if state is not None else 3e-3)
-            train_items = rest if name != "fine-tuned" else with_contrast(
-                rest, contrast_crops(items, oof["shipped"], labelled, [i for i in range(len(items)) if i not in inside]))
-            _, onnx_f = fit_learned(train_items, opts, seed + 101 * f, state=state, log=lambda m: None, progress=False)
+            _, onnx_f = fit_learned(fit_items(name, fitted)[0], opts, seed + 101 * f, state=state, log=lambda m: None, progress=False)
             for i, c in candidates(stage_of(onnx_f, name), fold):
                 oof[name][i] = c
         log(f"learned stage: fold {f + 1}/{len(folds)} done")
@@ -674,8 +677,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     elif best.name == "shipped":
         stage = base.__class__(base.onnx, stride=base.stride, max_side_px=base.max_side_px, threshold=best.threshold,
                                diameter_range_px=base.diameter_range_px, context_px=base.context_px,
-                               coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold,
-                               coarse_candidates=base.coarse_candidates, filter_refines=base.filter_refines,
+                               **kept_passes(best.name, base), filter_refines=base.filter_refines,
                                track_threshold=min(best.threshold, TRACK_THRESHOLD),
                                size_ratio=base.size_ratio,  # the same network: its diameters' record holds
                                description=base.description + f"; threshold {best.threshold:g} by cross-validation on {len(labelled)} images")
@@ -683,11 +685,9 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
         steps, state = (finetune_steps, base_state) if best.name == "fine-tuned" else (scratch_steps, None)
         opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
                                    lr=1e-3 if state is not None else 3e-3)
-        train_items = items + extra_items
+        train_items, n_crops = fit_items(best.name, range(len(items)))
         if best.name == "fine-tuned":
-            crops = contrast_crops(items, oof["shipped"], labelled, range(len(items)))
-            log(f"learned stage: fine-tuned with {len(crops)} contrast crops (the base's own false candidates next to a ball)")
-            train_items = with_contrast(train_items, crops)
+            log(f"learned stage: fine-tuned with {n_crops} contrast crops (the base's own false candidates next to a ball)")
         _, onnx_all = fit_learned(train_items, opts, seed, log=log, progress=progress, state=state)
         # a fine-tune starts from the base's network and keeps its size record (not measured again: the labels' boxes
         # are hand-drawn); a network trained from scratch has none (the tracker's own size test)
