@@ -214,7 +214,8 @@ class LearnedStage:
         rejects true positions (``TrackerOptions.model_size_ratio``)
     filter_refines : whether the model's 5x5 filter sees this stage's balls (it refines their centres,
         :class:`~tracker.detection.detector.DetectorOptions` ``refine_with_filter``); False where the file's
-        filter is of another colour (the white model keeps the orange filter for ``rt2-paper``)
+        filter is of another colour (the white model keeps the orange filter for ``rt2-paper``) or another look (the
+        real-camera orange model keeps the filter trained on renders; the ball's edge centres its balls better)
     """
 
     onnx: bytes

@@ -1,5 +1,5 @@
-"""The shipped detector models (``data/models/ball_seg_white.npz``, ``ball_seg_default.npz``): the recipe that
-trains their learned stage for transfer to cameras they never saw, as one command.
+"""The shipped detector models with a learned stage (``data/models/ball_seg_white.npz``, ``ball_seg_orange.npz``):
+the recipe that trains it for transfer to cameras it never saw, as one command.
 
 ``rt2 train-shipped --colour white|orange --out M.npz --seed 0 [--steps N] [--base M0.npz]``
 
@@ -13,13 +13,17 @@ model's description):
   0 and 1 (cameras 2 and 3 stay held out) and the rally frames of the training part with their ball painted
   out, VGA, balls of ``--diameter-px`` (log-uniform), motion blur, highlights, Bayer and camera randomisation
   (white balance, exposure, gamma, lamp tint, blur, noise, JPEG), a quarter of the frames ball-free;
-* **real ball crops pasted into real frames** (white; :mod:`harness.sim.render.ball_crops` when present):
-  the rally's own ball, cut from the training frames with its matte, at random scale and blur;
-* **semi-real frames** (white): the caliscope session's cameras 0 and 1 with the rally's real balls of the
-  training part flown through the rig in 3D (:class:`harness.sim.semireal.SemiRealSession`, as ``rt2 eval
-  framesets --scene caliscope --ball white`` makes them on cameras 2-3 with the held-out balls): exact centres and
-  apparent diameters, the flight's smear, the frame's own light (``--semireal-sets``);
-* **renders** of the simulated lab (orange; ``--renders DIR``: an ``rt2 sim dataset`` set).
+* **real ball crops pasted into real frames** (:mod:`harness.sim.render.ball_crops` when present): the rally's
+  own ball, cut from the training frames with its matte, at random scale and blur; for orange its colour made
+  orange (per-channel gains ``ORANGE_GAIN``: a real ball's shading, highlight and smear, an orange ball's colour;
+  ``../shared`` holds no real orange ball);
+* **semi-real frames**: the caliscope session's cameras 0 and 1 with balls flown through the rig in 3D
+  (:class:`harness.sim.semireal.SemiRealSession`, as ``rt2 eval framesets --scene caliscope`` makes them on every
+  camera): white, the rally's real balls of the training part; orange, the drawn ball of ``rt2 eval framesets``;
+  exact centres and apparent diameters (what teaches the diameter head the ball's true size and gives the 3D size
+  test's ratio), the flight's smear, the frame's own light (``--semireal-sets``);
+* **renders** of the simulated lab (``--renders DIR``: an ``rt2 sim dataset`` set; none by default: in trials
+  the renders' look crowded out the real frames', and the stage missed balls in held-out real frames).
 
 The stage's threshold (recall - outliers, top-K candidates) is chosen on the real training frames where there
 are any (white: the rally's training part), else on a validation set of balls drawn into other frames with other
@@ -58,10 +62,14 @@ def _drawn(sources, n_per_video: int, seed: int, colour: str, diameter_px, log):
     return out
 
 
-#: relative sampling weights of the sources (the real frames count most; the drawn balls, whose look is ours, least)
-WEIGHTS = {"real": 4.0, "pasted": 1.0, "drawn": 0.3, "renders": 1.0, "semireal": 1.0}
+#: relative sampling weights of the sources per ball colour (white: the real frames count most, the drawn balls, whose
+#: look is ours, least; orange has no real frame of its ball: the drawn balls count as much as the rest)
+WEIGHTS = {"white": {"real": 4.0, "pasted": 1.0, "drawn": 0.3, "renders": 1.0, "semireal": 1.0},
+           "orange": {"real": 4.0, "pasted": 1.0, "drawn": 1.0, "renders": 1.0, "semireal": 1.0}}
 #: the semi-real source's cameras (the caliscope session's; 2 and 3 stay held out for evaluation)
 SEMIREAL_CAMERAS = (0, 1)
+#: an orange ball from a real white one: per-channel gains (sRGB levels) drawn between these (orange to yellow-orange)
+ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 
 
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
@@ -77,35 +85,36 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     from tracker.detection.learned import LearnedStage
 
     base = BallSegmentationModel.load(base_path)
+    weight = WEIGHTS[colour]
     pairs, weights, sources, semi = [], [], [], []
     rally_train = take_range(read_labels(RALLY, "auto"), rally_range) if RALLY.is_file() else []
     if colour == "white":
         if not rally_train:
             raise ValueError(f"the real rally frames are missing ({RALLY}): the white model's real frames")
         pairs += [(load_image(li), li) for li in rally_train]
-        weights += [WEIGHTS["real"]] * len(rally_train)
+        weights += [weight["real"]] * len(rally_train)
         sources.append(f"{len(rally_train)} real rally frames ({rally_range})")
     bg = [str(p) for p in CALISCOPE_VIDEOS if p.is_file()] + ([f"{RALLY}@{rally_range}"] if rally_train else [])
     drawn = _drawn(bg, frames_per_video, seed, colour, diameter_px, log)
     pairs += drawn
-    weights += [WEIGHTS["drawn"]] * len(drawn)
+    weights += [weight["drawn"]] * len(drawn)
     sources.append(f"{len(drawn)} frames with drawn {colour} balls (caliscope cameras 0-1, rally {rally_range} painted out)")
-    if colour == "white":
-        pasted = _pasted(rally_range, bg, seed, frames_per_video, diameter_px, log, hard_share=hard_pastes)
+    if rally_train:
+        pasted = _pasted(rally_range, bg, seed, frames_per_video, diameter_px, log, hard_share=hard_pastes, colour=colour)
         if pasted:
             pairs += pasted
-            weights += [WEIGHTS["pasted"]] * len(pasted)
-            sources.append(f"{len(pasted)} frames with the rally's real ball crops pasted in"
+            weights += [weight["pasted"]] * len(pasted)
+            sources.append(f"{len(pasted)} frames with the rally's real ball crops" + (f" made {colour}" if colour != "white" else "") + " pasted in"
                            + (f" ({100 * hard_pastes:g} % of them long-smeared or partly hidden)" if hard_pastes else ""))
-    if colour == "white" and semireal_sets:
-        semi = _semireal(rally_range, semireal_sets, seed, log)
+    if semireal_sets:
+        semi = _semireal(rally_range, semireal_sets, seed, log, colour)
         pairs += semi
-        weights += [WEIGHTS["semireal"]] * len(semi)
-        sources.append(f"{len(semi)} semi-real frames (caliscope cameras 0-1, the rally's real balls {rally_range} flown in 3D)")
+        weights += [weight["semireal"]] * len(semi)
+        sources.append(f"{len(semi)} semi-real frames (caliscope cameras 0-1, " + (f"the rally's real balls {rally_range}" if colour == "white" else f"drawn {colour} balls") + " flown in 3D)")
     if renders:
         r = read_labels(renders, "auto")
         pairs += [(load_image(li), li) for li in r]
-        weights += [WEIGHTS["renders"]] * len(r)
+        weights += [weight["renders"]] * len(r)
         sources.append(f"{len(r)} renders ({renders})")
     items = []
     for (im, li), w in zip(pairs, weights):
@@ -113,9 +122,10 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0),
                                **({} if arch is None else {"arch": arch}))
     _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
-    # the file keeps the base's filter (orange): it refines the stage's centres only for balls of its colour
+    # the file keeps the base's filter (of orange balls, trained on renders): it never refines the stage's centres, the
+    # ball's edge does (for orange too: on the caliscope frame sets the 3D median 0.29 cm with the edge, 0.39 with the filter)
     stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px, coarse_side_px=max_side // 2,
-                         context_px=WINDOW_CONTEXT_PX, filter_refines=colour == "orange")
+                         context_px=WINDOW_CONTEXT_PX, filter_refines=False)
     # the threshold: on the real training frames where there are any (white: the rally's training part, never its
     # held-out frames), else on a validation set made like the drawn training frames from other frames and seeds
     if colour == "white":
@@ -170,7 +180,7 @@ def size_ratio_of(stage, frames) -> tuple[float | None, int, float]:
     return max(1.0, math.ceil(100.0 * float(np.percentile(ratios, 99)) - 1e-9) / 100.0), len(ratios), median
 
 
-def _semireal(rally_range: str, n_sets: int, seed: int, log):
+def _semireal(rally_range: str, n_sets: int, seed: int, log, colour: str = "white"):
     """Frames of the caliscope session's training cameras (``SEMIREAL_CAMERAS``) with the rally's real balls of
     ``rally_range`` flown through the rig as ``rt2 eval framesets --scene caliscope --ball white`` flies them
     (:class:`harness.sim.semireal.SemiRealSession`: projected centre and apparent diameter exact, the flight's
@@ -179,10 +189,11 @@ def _semireal(rally_range: str, n_sets: int, seed: int, log):
     from harness.experiments.detector.coco import LabelledImage
     from harness.sim.semireal import DEFAULT_RALLY, DEFAULT_SESSION, SemiRealOptions, SemiRealSession
 
-    if not (DEFAULT_SESSION.is_dir() and DEFAULT_RALLY.is_dir()):
+    if not (DEFAULT_SESSION.is_dir() and (colour != "white" or DEFAULT_RALLY.is_dir())):
         return []
-    session = SemiRealSession(DEFAULT_SESSION, SemiRealOptions(ball_colour="white", real_balls=DEFAULT_RALLY, crop_frames=rally_range,
-                                                               backgrounds=48, moving_backgrounds=False), seed=seed + 7000)
+    real = dict(real_balls=DEFAULT_RALLY, crop_frames=rally_range) if colour == "white" else {}  # no real orange ball: drawn
+    session = SemiRealSession(DEFAULT_SESSION, SemiRealOptions(ball_colour=colour, backgrounds=48, moving_backgrounds=False, **real),
+                              seed=seed + 7000)
     out = []
     for f in range(n_sets):
         images, truths, _, k = session.frameset(f)
@@ -198,8 +209,8 @@ def _semireal(rally_range: str, n_sets: int, seed: int, log):
                 boxes, centers = [], []
             out.append((im, LabelledImage(f"semireal/{seed}/{f:05d}_cam{c}.png", w, h, np.array(boxes, float).reshape(-1, 4),
                                           np.array(centers, float).reshape(-1, 2))))
-    log(f"{len(out)} semi-real frames (caliscope cameras {', '.join(map(str, SEMIREAL_CAMERAS))}, {n_sets} frame sets, "
-        f"{len(session.real.crops)} real ball crops of {rally_range})")
+    balls = f"{len(session.real.crops)} real ball crops of {rally_range}" if colour == "white" else f"drawn {colour} balls"
+    log(f"{len(out)} semi-real frames (caliscope cameras {', '.join(map(str, SEMIREAL_CAMERAS))}, {n_sets} frame sets, {balls})")
     return out
 
 
@@ -230,7 +241,7 @@ def _occlude(im: np.ndarray, c, d: float, rng) -> np.ndarray:
     return np.clip(im * (1 - mask) + fill * mask, 0, 255).astype(np.uint8)
 
 
-def _pasted(rally_range: str, bg_sources, seed: int, n_per_video: int, diameter_px, log, *, hard_share: float = 0.0):
+def _pasted(rally_range: str, bg_sources, seed: int, n_per_video: int, diameter_px, log, *, hard_share: float = 0.0, colour: str = "white"):
     """Frames of the background sources (VGA) with the rally's real ball crops (its training part, clean mattes only)
     pasted in at random size, place, motion blur and defocus; a fifth of them stay ball-free. ``hard_share`` of the
     balls are hard: half flown 1-3 diameters over the exposure, half partly hidden (:func:`_occlude`)."""
@@ -263,7 +274,8 @@ def _pasted(rally_range: str, bg_sources, seed: int, n_per_video: int, diameter_
                 blur = d * rng.uniform(1.0, 3.0) * np.array([math.cos(a), math.sin(a)])
             else:
                 blur = rng.normal(0, 0.35 * d, 2) if rng.random() < 0.5 else (0.0, 0.0)
-            r = paste_ball(im, crops[int(rng.integers(len(crops)))], c, d, rng, blur_px=blur, defocus_px=float(rng.uniform(0, 1.2)))
+            gain = None if colour == "white" else rng.uniform(*ORANGE_GAIN)  # a white ball's shading and smear, an orange ball's colour
+            r = paste_ball(im, crops[int(rng.integers(len(crops)))], c, d, rng, blur_px=blur, defocus_px=float(rng.uniform(0, 1.2)), colour_gain=gain)
             im = r.image
             if hard and not smear:  # partly hidden: a bat, fingers, an edge in front of it
                 im = _occlude(im, c, d, rng)
@@ -281,14 +293,14 @@ def add_arguments(parser) -> None:
     parser.add_argument("--steps", type=int, default=3000, help="optimiser steps of the learned stage (default 3000, as shipped)")
     parser.add_argument("--base", default=str(DEFAULT_BASE), help="the model whose 5x5 filter the file keeps (default: the shipped orange model)")
     parser.add_argument("--rally-range", default="0:58", help="the rally frames trained on, in time order (default 0:58; the rest stays held out)")
-    parser.add_argument("--renders", default=None, help="an rt2 sim dataset folder of renders added to training (e.g. for orange)")
+    parser.add_argument("--renders", default=None, help="an rt2 sim dataset folder of renders added to training (default none)")
     parser.add_argument("--frames-per-video", type=int, default=64, help="background frames taken from each video (default 64)")
     parser.add_argument("--arch", default=None, choices=ARCHS, help="the network's layout (default: the training default)")
     parser.add_argument("--semireal-sets", type=int, default=160,
-                        help="white: semi-real frame sets (caliscope cameras 0-1, the rally's training balls flown in 3D) added "
-                             "to training (default 160; 0 = none)")
+                        help="semi-real frame sets (caliscope cameras 0-1, the rally's training balls or, orange, a drawn ball "
+                             "flown in 3D) added to training (default 160; 0 = none)")
     parser.add_argument("--hard-pastes", type=float, default=0.0,
-                        help="white: the share of pasted real balls made hard, half flown 1-3 diameters over the exposure, half "
+                        help="the share of pasted real balls made hard, half flown 1-3 diameters over the exposure, half "
                              "partly hidden behind an object (default 0)")
     parser.add_argument("--max-side-px", type=int, default=960,
                         help="frames with a longer side are shrunk to it before the network (default 960: VGA frames as they are)")
@@ -303,8 +315,6 @@ def run(args) -> int:
     check_output_file(out, "--out")
     if not (0.0 <= args.hard_pastes <= 1.0):
         raise ValueError(f"--hard-pastes must be a share between 0 and 1, got {args.hard_pastes!r}")
-    if args.hard_pastes and args.colour != "white":
-        raise ValueError(f"--hard-pastes: only the white model has pasted real balls (--colour {args.colour})")
     model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
                         semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes)

@@ -125,7 +125,7 @@ class TrainOptions:
         unchanged (needs a base and ``learned`` "auto" or "on": something must be trained); "auto" (default) keeps it when the
         learned stage is trained too and the base's stage does not take the filter's refinement
         (``LearnedStage.filter_refines`` False: the filter is of another ball, as the shipped white model's orange
-        filter; fitting it to these labels takes minutes for a filter ``rt2`` does not use on this ball), else fits it
+        filter, or of another look, as the real-camera orange model's filter of renders; fitting it to these labels takes minutes for a filter ``rt2`` does not use on this ball), else fits it
     allow_no_ball : keep a threshold choice that finds no held-out ball when none does (the model written finds
         nothing, its figures say so: ``rt2 train --force``); False = :class:`NoBallFoundError`
     """
@@ -670,7 +670,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         if not any(li.n_balls for li in labelled):
             raise ValueError(f"no ball boxes among the {len(labelled)} images: nothing to learn")
         why = ("--filter keep" if opts.filter == "keep" else
-               "its learned stage does not take the filter's refinement: the filter is of another ball; --filter fit trains it")
+               "its learned stage does not take the filter's refinement: the filter is of another ball or look; --filter fit trains it")
         log(f"the 5x5 filter: the base model's kept unchanged (T_h={base.t_high:g}, T_l={base.t_low:g}; {why})")
         desc = (f"{description}; " if description else "") + (
             f"{opts.ball_colour} balls, the base model's 5x5 filter kept unchanged ({why}), {len(labelled)} images, seed {opts.seed}")

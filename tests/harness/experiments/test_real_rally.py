@@ -125,6 +125,48 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     assert "--out must end in .npz" in err and "Traceback" not in err
 
 
+def test_train_shipped_makes_an_orange_model_for_real_cameras(tmp_path):
+    """rt2 train-shipped --colour orange, cut short: an orange model whose learned stage learned from drawn orange
+    balls, the rally's real balls made orange and semi-real frames with a drawn orange ball flown in 3D (no rally frame
+    itself: its ball is white); the file's filter (of renders) never refines it; the same seed gives the same file."""
+    pytest.importorskip("torch", reason="training needs rt2[train]")
+    args = ["train-shipped", "--colour", "orange", "--steps", "2", "--frames-per-video", "2", "--semireal-sets", "2",
+            "--rally-range", "40:46", "--seed", "3"]
+    a, b = tmp_path / "a.npz", tmp_path / "b.npz"
+    assert main([*args, "--out", str(a)]) == 0 and main([*args, "--out", str(b)]) == 0
+    assert a.read_bytes() == b.read_bytes()
+    model = BallSegmentationModel.load(a)
+    stage = model.learned
+    assert model.ball_colour == "orange" and not stage.filter_refines and stage.track_threshold == min(stage.threshold, 0.2)
+    for source in ("drawn orange balls", "real ball crops made orange pasted", "semi-real frames (caliscope cameras 0-1, drawn orange balls"):
+        assert source in stage.description, source
+    assert "real rally frames" not in stage.description
+
+
+def test_pasted_real_balls_take_the_colour_asked_for():
+    """The recipe's pasted real balls: orange ones are the rally's real white balls with an orange ball's colour
+    (red over green over blue inside the ball, as on a real orange ball), white ones stay grey; the white frames are
+    those of the shipped white recipe (the colour draws no random number for white)."""
+    from harness.experiments.detector import shipped
+
+    bg = [str(p) for p in shipped.CALISCOPE_VIDEOS]
+    white = shipped._pasted("40:46", bg, 3, 4, (24.0, 32.0), lambda m: None)
+    again = shipped._pasted("40:46", bg, 3, 4, (24.0, 32.0), lambda m: None, colour="white")
+    orange = shipped._pasted("40:46", bg, 3, 4, (24.0, 32.0), lambda m: None, colour="orange")
+    assert all(np.array_equal(x[0], y[0]) for x, y in zip(white, again))
+    ratios = {"white": [], "orange": []}
+    for name, frames in (("white", white), ("orange", orange)):
+        for im, li in frames:
+            if len(li.centers_px):
+                u, v = li.centers_px[0]
+                yy, xx = np.mgrid[0:im.shape[0], 0:im.shape[1]]
+                core = im[np.hypot(xx - u, yy - v) < 5].astype(float).mean(axis=0)
+                ratios[name].append((core[0] / core[1], core[1] / max(core[2], 1.0)))
+    assert ratios["orange"] and ratios["white"]
+    assert all(rg > 1.3 and gb > 1.3 for rg, gb in ratios["orange"]), ratios["orange"]
+    assert all(rg < 1.2 for rg, _ in ratios["white"]), ratios["white"]
+
+
 def test_a_training_that_keeps_the_shipped_stage_keeps_its_size_record(monkeypatch):
     """When the cross-validation keeps the base's network (rt2 train, the shipped white stage against a fine-tune and
     a new stage of 2 steps), the stage written keeps the size ratio that network's diameters need, and its passes; a
@@ -180,7 +222,7 @@ def test_hard_pastes_hide_part_of_the_ball_or_smear_it_long():
 @pytest.mark.parametrize("value, colour, message", [
     ("1.5", "white", "--hard-pastes must be a share between 0 and 1, got 1.5"),
     ("-0.1", "white", "--hard-pastes must be a share between 0 and 1, got -0.1"),
-    ("0.5", "orange", "--hard-pastes: only the white model has pasted real balls (--colour orange)"),
+    ("nan", "orange", "--hard-pastes must be a share between 0 and 1, got nan"),
 ])
 def test_train_shipped_hard_pastes_bad_values_are_one_line(tmp_path, capsys, value, colour, message):
     assert main(["train-shipped", "--colour", colour, "--hard-pastes", value, "--out", str(tmp_path / "m.npz")]) == 2
