@@ -32,7 +32,8 @@ sees the ball: the centroid of the ball's silhouette, the pixels of a disk of ``
 probability reaches ``RECENTRE_SILHOUETTE`` (30 %) of its peak there, each pixel counted once, where the peak reaches
 ``t_low``; a learned stage the filter does not see, the white ball: the centroid of the grey image's silhouette,
 :mod:`~harness.experiments.autolabel.silhouette`, where it is clear, else the edge fit of
-:mod:`tracker.detection.edge_refine`), the ball triangulated from those centres, twice. The silhouette, not the
+:mod:`tracker.detection.edge_refine`; a learned stage with a filter of its ball's colour that does not refine it, the
+real-camera orange model: the filter's silhouette where the filter sees the ball, else the edge fit), the ball triangulated from those centres, twice. The silhouette, not the
 probability-weighted centroid: a lit ball is more probable on its lit side, and the weighted centroid moved towards
 the light by up to a pixel on the caliscope frames' 35-100 px balls, differently in each camera. Kept only when at
 least ``min_support`` cameras re-centre within ``max(2 px, d / 4)`` of the projection, the new position reprojects
@@ -261,19 +262,6 @@ def centring(model, min_peak: float = AutoOptions.t_low):
     """``centre(image, uv (2,), diameter) -> (2,) or None``: the model's own way to find a ball's centre near ``uv``
     (module docstring, re-centring); the centroid of the filter's silhouette only where its probability reaches
     ``min_peak`` in the disk (None: no ball there)."""
-    learned = model.learned
-    if learned is not None and not learned.filter_refines:
-        from harness.experiments.autolabel.silhouette import silhouette_centre
-        from tracker.detection.edge_refine import refine_edges
-
-        def silhouette_or_edge(image, uv, d):
-            c = silhouette_centre(image, uv, d)
-            if c is not None:
-                return c
-            c, _, ok = refine_edges(image, np.asarray(uv, float)[None], np.array([d], float))
-            return c[0] if ok[0] else None
-
-        return silhouette_or_edge
 
     def centroid(image, uv, d):
         h, w = image.shape[:2]
@@ -291,7 +279,29 @@ def centring(model, min_peak: float = AutoOptions.t_low):
         inside = p >= RECENTRE_SILHOUETTE * peak  # the silhouette, each pixel once: the lit side weighs no more
         return np.array([xx[inside].mean(), yy[inside].mean()])
 
-    return centroid
+    learned = model.learned
+    if learned is None or learned.filter_refines:
+        return centroid
+    from harness.experiments.autolabel.silhouette import silhouette_centre
+    from tracker.detection.edge_refine import refine_edges
+
+    def edge(image, uv, d):
+        c, _, ok = refine_edges(image, np.asarray(uv, float)[None], np.array([d], float))
+        return c[0] if ok[0] else None
+
+    if model.ball_colour != "white":  # a filter of the ball's colour (the real-camera orange model): its silhouette
+
+        def filter_or_edge(image, uv, d):  # where it sees the ball, else the ball's edge
+            c = centroid(image, uv, d)
+            return edge(image, uv, d) if c is None else c
+
+        return filter_or_edge
+
+    def silhouette_or_edge(image, uv, d):  # the white ball: its grey silhouette where clear, else its edge
+        c = silhouette_centre(image, uv, d)
+        return edge(image, uv, d) if c is None else c
+
+    return silhouette_or_edge
 
 
 def recentred(images, position_m, rig, centre, options: AutoOptions) -> np.ndarray:

@@ -428,3 +428,28 @@ def test_recentring_moves_the_position_to_the_drawn_balls_centres():
     blank = [images[0], images[1]] + [np.full_like(images[2], 100)] * 2  # two cameras without the ball
     assert np.array_equal(recentred(blank, start, rig, centre, AutoOptions()), start)
     assert centring(load_model("data/models/ball_seg_white.npz")).__name__ == "silhouette_or_edge"  # the white ball: its grey silhouette, else its edge
+
+
+def test_the_orange_models_centring_uses_the_filter_then_the_edge():
+    """The orange model for real cameras (a learned stage its filter does not refine, the filter of the ball's colour):
+    re-centring takes the filter's silhouette where the filter sees the ball (as the default does: the same centre) and
+    the ball's edge where it does not (a ball of a colour the filter misses; the default then has none)."""
+    from harness.experiments.autolabel.consensus import centring
+    from tracker.detection.synthetic import draw_disk
+    from tracker.pipeline import load_model
+
+    real, default = load_model("data/models/ball_seg_orange.npz"), load_model(None)
+    assert real.ball_colour == "orange" and not real.learned.filter_refines
+    centre = centring(real)
+    assert centre.__name__ == "filter_or_edge"
+    rng = np.random.default_rng(1)
+    c, d = np.array([80.4, 70.7]), 30.0
+    for colour, filter_sees in (((245, 120, 20), True), ((40, 60, 230), False)):  # orange; blue: the filter sees nothing
+        img = np.clip(rng.normal(100, 3, (150, 160, 3)), 0, 255).astype(np.uint8)
+        draw_disk(img, c, d, colour)
+        got, own = centre(img, c + [1.5, -1.0], d), centring(default)(img, c + [1.5, -1.0], d)
+        assert got is not None and np.linalg.norm(got - c) < 0.5, (colour, got)
+        if filter_sees:
+            assert np.allclose(got, own)
+        else:
+            assert own is None
