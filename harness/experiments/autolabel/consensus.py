@@ -33,8 +33,8 @@ probability reaches ``RECENTRE_SILHOUETTE`` (30 %) of its peak there, each pixel
 ``t_low``; a learned stage the filter does not see, the white ball: the centroid of the grey image's silhouette,
 :mod:`~harness.experiments.autolabel.silhouette`, where it is clear, else the edge fit of
 :mod:`tracker.detection.edge_refine`; a learned stage with a filter of its ball's colour that does not refine it, the
-real-camera orange model: the filter's silhouette where the filter sees the ball, else the edge fit), the ball triangulated from those centres, twice. The silhouette, not the
-probability-weighted centroid: a lit ball is more probable on its lit side, and the weighted centroid moved towards
+real-camera orange model: the filter's silhouette where the filter sees the ball, else the edge fit), the ball
+triangulated from those centres, twice. The silhouette, not the probability-weighted centroid: a lit ball is more probable on its lit side, and the weighted centroid moved towards
 the light by up to a pixel on the caliscope frames' 35-100 px balls, differently in each camera. Kept only when at
 least ``min_support`` cameras re-centre within ``max(2 px, d / 4)`` of the projection, the new position reprojects
 within ``max_reprojection_px`` of them and lies within a ball radius of the consensus's; otherwise the consensus's

@@ -123,7 +123,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
                                **({} if arch is None else {"arch": arch}))
     _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
     # the file keeps the base's filter (of orange balls, trained on renders): it never refines the stage's centres, the
-    # ball's edge does (for orange too: on the caliscope frame sets the 3D median 0.29 cm with the edge, 0.39 with the filter)
+    # ball's edge does (for orange too: docs/detector.md, "The shipped models")
     stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px, coarse_side_px=max_side // 2,
                          context_px=WINDOW_CONTEXT_PX, filter_refines=False)
     # the threshold: on the real training frames where there are any (white: the rally's training part, never its
@@ -181,8 +181,9 @@ def size_ratio_of(stage, frames) -> tuple[float | None, int, float]:
 
 
 def _semireal(rally_range: str, n_sets: int, seed: int, log, colour: str = "white"):
-    """Frames of the caliscope session's training cameras (``SEMIREAL_CAMERAS``) with the rally's real balls of
-    ``rally_range`` flown through the rig as ``rt2 eval framesets --scene caliscope --ball white`` flies them
+    """Frames of the caliscope session's training cameras (``SEMIREAL_CAMERAS``) with a ball of ``colour`` flown
+    through the rig (white: the rally's real balls of ``rally_range``, as ``rt2 eval framesets --scene caliscope --ball
+    white`` flies them; orange: the drawn ball of ``rt2 eval framesets --scene caliscope``)
     (:class:`harness.sim.semireal.SemiRealSession`: projected centre and apparent diameter exact, the flight's
     smear, the frame's light and sharpness); labels: the exact centre and a square of the apparent diameter.
     A ball less than half inside a camera's image leaves that frame out (neither ball nor background)."""
@@ -244,7 +245,8 @@ def _occlude(im: np.ndarray, c, d: float, rng) -> np.ndarray:
 def _pasted(rally_range: str, bg_sources, seed: int, n_per_video: int, diameter_px, log, *, hard_share: float = 0.0, colour: str = "white"):
     """Frames of the background sources (VGA) with the rally's real ball crops (its training part, clean mattes only)
     pasted in at random size, place, motion blur and defocus; a fifth of them stay ball-free. ``hard_share`` of the
-    balls are hard: half flown 1-3 diameters over the exposure, half partly hidden (:func:`_occlude`)."""
+    balls are hard: half flown 1-3 diameters over the exposure, half partly hidden (:func:`_occlude`). ``colour``
+    other than white: each ball given that colour by per-channel gains (``ORANGE_GAIN``) on its real shading."""
     import cv2
 
     from harness.experiments.detector.backgrounds import read_backgrounds

@@ -125,7 +125,8 @@ class TrainOptions:
         unchanged (needs a base and ``learned`` "auto" or "on": something must be trained); "auto" (default) keeps it when the
         learned stage is trained too and the base's stage does not take the filter's refinement
         (``LearnedStage.filter_refines`` False: the filter is of another ball, as the shipped white model's orange
-        filter, or of another look, as the real-camera orange model's filter of renders; fitting it to these labels takes minutes for a filter ``rt2`` does not use on this ball), else fits it
+        filter, or of another look, as the real-camera orange model's filter of renders; fitting it to these labels
+        takes minutes for a filter ``rt2`` does not use on this ball), else fits it
     allow_no_ball : keep a threshold choice that finds no held-out ball when none does (the model written finds
         nothing, its figures say so: ``rt2 train --force``); False = :class:`NoBallFoundError`
     """
