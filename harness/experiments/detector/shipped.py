@@ -62,10 +62,11 @@ def _drawn(sources, n_per_video: int, seed: int, colour: str, diameter_px, log):
     return out
 
 
-#: relative sampling weights of the sources per ball colour (white: the real frames count most, the drawn balls, whose
-#: look is ours, least; orange has no real frame of its ball: the drawn balls count as much as the rest)
-WEIGHTS = {"white": {"real": 4.0, "pasted": 1.0, "drawn": 0.3, "renders": 1.0, "semireal": 1.0},
-           "orange": {"real": 4.0, "pasted": 1.0, "drawn": 1.0, "renders": 1.0, "semireal": 1.0}}
+#: relative sampling weights of the sources (the real frames count most)
+WEIGHTS = {"real": 4.0, "pasted": 1.0, "renders": 1.0, "semireal": 1.0}
+#: the drawn balls' weight per ball colour: white, least (their look is ours, real frames exist); orange, as much as
+#: the rest (no real frame of an orange ball exists)
+DRAWN_WEIGHT = {"white": 0.3, "orange": 1.0}
 #: the semi-real source's cameras (the caliscope session's; 2 and 3 stay held out for evaluation)
 SEMIREAL_CAMERAS = (0, 1)
 #: an orange ball from a real white one: per-channel gains (sRGB levels) drawn between these (orange to yellow-orange)
@@ -85,7 +86,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     from tracker.detection.learned import LearnedStage
 
     base = BallSegmentationModel.load(base_path)
-    weight = WEIGHTS[colour]
+    weight = {**WEIGHTS, "drawn": DRAWN_WEIGHT[colour]}
     pairs, weights, sources, semi = [], [], [], []
     rally_train = take_range(read_labels(RALLY, "auto"), rally_range) if RALLY.is_file() else []
     if colour == "white":
