@@ -207,7 +207,8 @@ def run_auto(args) -> int:
         lock.close()
     per_cam = per_camera_counts(rig, kept)
     print(f"rt2 label --auto: {counts['kept']} of {counts['frame_sets']} frame sets kept ({counts['agreed']} with >= "
-          f"{options.min_support} agreeing cameras, {counts['second_look']} of them at the second look; flight window "
+          f"{options.min_support} agreeing cameras, {counts['second_look']} of them at the second look, "
+          f"{counts['recentred_agreement']} on re-centred centres; flight window "
           f"{options.flight_window}; {counts['smoothed']} positions smoothed along their flight); wrote {path}")
     for name, c in per_cam.items():
         print(f"  {name}: {c['labels']} labels ({c['hard_positives']} where its detector missed the ball), {c['hard_negatives']} hard negatives")

@@ -287,7 +287,9 @@ def format_report(scene: str, fig: dict, counts: dict) -> str:
     return "\n".join([
         f"rt2 eval autolabel --scene {scene}: {fig['frame_sets']} frame sets, {fig['eligible']} with the ball visible in >= 3 cameras "
         f"inside the rig's workspace ({fig['outside_workspace']} more outside it, where the consensus accepts no position); "
-        f"consensus: {counts['agreed']} agreed ({counts['second_look']} by the second look), {counts['kept']} kept after the flight test"
+        f"consensus: {counts['agreed']} agreed ({counts['second_look']} by the second look"
+        + (f", {counts['recentred_agreement']} on re-centred centres" if counts.get("recentred_agreement") else "")
+        + f"), {counts['kept']} kept after the flight test"
         + (f" ({counts['smoothed']} positions smoothed along their flight)" if "smoothed" in counts else ""),
         f"  kept {fig['kept_eligible']} of {fig['eligible']} ({pct(k)}; goal >= {100 * GOALS['kept']:.0f}%: {met(k is not None and k >= GOALS['kept'])}); "
         f"{fig['kept_not_eligible']} kept where fewer than 3 cameras see the ball",

@@ -425,8 +425,12 @@ def test_recentring_moves_the_position_to_the_drawn_balls_centres():
     centre = centring(load_model(None))
     start = X + np.array([0.008, -0.004, 0.003])
     assert np.linalg.norm(recentred(images, start, rig, centre, AutoOptions()) - X) < 1e-3
+    X1, uv = recentred(images, start, rig, centre, AutoOptions(), with_uv=True)  # the centres it was triangulated from
+    assert np.linalg.norm(X1 - X) < 1e-3 and np.isfinite(uv).all() and np.abs(uv - rig.project(X1)).max() < 0.5
     blank = [images[0], images[1]] + [np.full_like(images[2], 100)] * 2  # two cameras without the ball
     assert np.array_equal(recentred(blank, start, rig, centre, AutoOptions()), start)
+    held = recentred(blank, start, rig, centre, AutoOptions(), with_uv=True)
+    assert np.array_equal(held[0], start) and held[1] is None  # did not hold: no centres
     assert centring(load_model("data/models/ball_seg_white.npz")).__name__ == "silhouette_or_edge"  # the white ball: its grey silhouette, else its edge
 
 
@@ -453,3 +457,23 @@ def test_the_orange_models_centring_uses_the_filter_then_the_edge():
             assert np.allclose(got, own)
         else:
             assert own is None
+
+
+def test_a_camera_off_centre_beyond_the_tolerance_is_measured_again_not_lost(tmp_path):
+    """The orange model for real cameras (centres from the ball's edge, looser than a filter's): where a consistent set
+    fails the 3 px test, each camera is measured again where the ball projects and the frame set kept when >= 3 of
+    those centres agree within it; no label is wrong for it (400 frame sets: 92.9 -> 98.9 % kept)."""
+    from harness.sim.semireal import DEFAULT_SESSION
+
+    if not (DEFAULT_SESSION / "camera_array.toml").is_file():
+        pytest.skip(f"the caliscope session is not at {DEFAULT_SESSION}")
+    figures = {}
+    for flag in ("--recentre", "--no-recentre"):
+        out = tmp_path / f"{flag}.json"
+        assert main(["eval", "autolabel", "--scene", "caliscope", "--frames", "80", "--seed", "0", "--model",
+                     "data/models/ball_seg_orange.npz", flag, "--json", str(out)]) == 0
+        figures[flag] = json.loads(out.read_text())
+    on, off = figures["--recentre"], figures["--no-recentre"]
+    assert on["counts"]["recentred_agreement"] > 0 and off["counts"]["recentred_agreement"] == 0
+    assert on["figures"]["kept_eligible"] > off["figures"]["kept_eligible"]
+    assert on["figures"]["wrong_labels"] == 0 and on["figures"]["kept_share"] >= 0.95
