@@ -184,16 +184,81 @@ def ball_options(scene: str, ball: str | None, crops=None, crop_frames: str | No
     return semireal.ball_options(ball, crops, crop_frames)
 
 
+def _label_sets(rig, sets, kept, root, *, held_out: int | None = None) -> tuple[list, list]:
+    """``(training labels, held-out balls)`` as ``LabelledImage`` lists with their images saved under ``root``: the
+    ``kept`` auto labels of every camera but ``held_out``, and ``held_out``'s true balls (none without one)."""
+    import cv2
+
+    from harness.experiments.detector.coco import LabelledImage
+
+    by_index = {fs.index: fs for fs in kept}
+    train_set, test_set = [], []
+
+    def save(img, name):
+        path = root / f"{name}.png"
+        cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        return path
+
+    for rs, truth, _ in sets():  # the same frame sets again (they depend only on the seed)
+        if held_out is not None:
+            t = truth[held_out]
+            if t is not None and t.visible:
+                box = np.array([t.box_xywh], float)
+                test_set.append(LabelledImage(save(rs.images[held_out], f"test_{rs.index:06d}"), *rig[held_out].image_size, box, t.center_px[None, :]))
+        fs = by_index.get(rs.index)
+        for j, cam in enumerate(rig):
+            if fs is None or j == held_out or not np.isfinite(fs.diameter_px[j]):
+                continue
+            w, hh = cam.image_size
+            b = fs.box_xywh(j)
+            x0, y0 = max(0.0, b[0]), max(0.0, b[1])
+            box = np.array([[x0, y0, min(float(w), b[0] + b[2]) - x0, min(float(hh), b[1] + b[3]) - y0]])
+            train_set.append(LabelledImage(save(rs.images[j], f"f{rs.index:06d}_{cam.name}"), w, hh, box, fs.center_px[j][None, :]))
+    return train_set, test_set
+
+
+def _train_on(train_set, base, seed: int, epochs: int | None, what: str):
+    """``rt2 train``'s defaults on ``train_set`` from ``base`` (--learned auto: a model with a learned stage keeps
+    training it, not dropping it); ``(model, info)``; a training that finds no ball is one line naming ``what``."""
+    from harness.experiments.detector.train import NoBallFoundError, TrainOptions, train
+
+    opts = TrainOptions(seed=seed, ball_colour="any", augment_copies=3, learned="auto", **({} if epochs is None else {"epochs": epochs}))
+    try:
+        return train(train_set, opts, base=base, progress=False, log=lambda *a, **k: None)
+    except NoBallFoundError as exc:  # one line naming what failed, not a model that finds nothing
+        raise NoBallFoundError(f"{what}: {exc}") from exc
+
+
+def trained_on_all(scene: str, frames: int, seed: int, kept, out, *, rate_hz: float = 100.0, flight_frames: int = 20,
+                   model=None, epochs: int | None = None, ball: dict | None = None) -> dict:
+    """Train on the ``kept`` labels of every camera (``rt2 label --auto`` then ``rt2 train``) and write the model to
+    ``out``; what it was trained on."""
+    import tempfile
+    from pathlib import Path
+
+    from harness.common.outputs import atomic_path
+    from tracker.pipeline import load_model
+
+    base = load_model(model)
+    rig, sets = _scene(scene, frames, seed, rate_hz, flight_frames, ball)
+    with tempfile.TemporaryDirectory(prefix="rt2-autolabel-") as tmp:
+        train_set, _ = _label_sets(rig, sets, kept, Path(tmp))
+        if not train_set:
+            raise ValueError(f"--train-out {out}: no frame set was kept, no label to train on")
+        trained, info = _train_on(train_set, base, seed, epochs, f"--train-out {out}: the training on {len(train_set)} auto labels")
+        with atomic_path(Path(out), "--train-out") as tmp_out:
+            trained.save(tmp_out)
+    stage = info.get("learned")
+    return {"out": str(out), "train_images": len(train_set), "kept_base": bool(info.get("kept_base")),
+            "learned_stage": None if stage is None else stage["chosen"].name}
+
+
 def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *, rate_hz: float = 100.0, flight_frames: int = 20,
                       model=None, epochs: int | None = None, ball: dict | None = None) -> dict:
     """Train on the ``kept`` labels of every camera but ``held_out``; score base and trained on ``held_out``'s true balls."""
     import tempfile
     from pathlib import Path
 
-    import cv2
-
-    from harness.experiments.detector.coco import LabelledImage
-    from harness.experiments.detector.train import NoBallFoundError, TrainOptions, train
     from harness.experiments.studies.eval_detector import evaluate
     from tracker.pipeline import load_model
 
@@ -202,38 +267,11 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
     if held_out not in rig.names:
         raise ValueError(f"--train-held-out {held_out!r}: the {scene} rig's cameras are {list(rig.names)}")
     h = rig.names.index(held_out)
-    by_index = {fs.index: fs for fs in kept}
     with tempfile.TemporaryDirectory(prefix="rt2-autolabel-") as tmp:
-        root = Path(tmp)
-        train_set, test_set = [], []
-
-        def save(img, name):
-            path = root / f"{name}.png"
-            cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
-            return path
-
-        for rs, truth, _ in sets():  # the same frame sets again (they depend only on the seed)
-            t = truth[h]
-            if t is not None and t.visible:
-                box = np.array([t.box_xywh], float)
-                test_set.append(LabelledImage(save(rs.images[h], f"test_{rs.index:06d}"), *rig[h].image_size, box, t.center_px[None, :]))
-            fs = by_index.get(rs.index)
-            for j, cam in enumerate(rig):
-                if fs is None or j == h or not np.isfinite(fs.diameter_px[j]):
-                    continue
-                w, hh = cam.image_size
-                b = fs.box_xywh(j)
-                x0, y0 = max(0.0, b[0]), max(0.0, b[1])
-                box = np.array([[x0, y0, min(float(w), b[0] + b[2]) - x0, min(float(hh), b[1] + b[3]) - y0]])
-                train_set.append(LabelledImage(save(rs.images[j], f"f{rs.index:06d}_{cam.name}"), w, hh, box, fs.center_px[j][None, :]))
+        train_set, test_set = _label_sets(rig, sets, kept, Path(tmp), held_out=h)
         if not train_set or not test_set:
             raise ValueError(f"--train-held-out {held_out}: {len(train_set)} training labels, {len(test_set)} held-out balls: nothing to compare")
-        # rt2 train's defaults (--learned auto: a model with a learned stage keeps training it, not dropping it)
-        opts = TrainOptions(seed=seed, ball_colour="any", augment_copies=3, learned="auto", **({} if epochs is None else {"epochs": epochs}))
-        try:
-            trained, info = train(train_set, opts, base=base, progress=False, log=lambda *a, **k: None)
-        except NoBallFoundError as exc:  # one line naming what failed, not a model that finds nothing
-            raise NoBallFoundError(f"--train-held-out {held_out}: the training on {len(train_set)} auto labels of the other cameras: {exc}") from exc
+        trained, info = _train_on(train_set, base, seed, epochs, f"--train-held-out {held_out}: the training on {len(train_set)} auto labels of the other cameras")
         before = {s.method: s for s in evaluate(base, test_set, methods=("ours",), progress=False)}["ours"]
         after = {s.method: s for s in evaluate(trained, test_set, methods=("ours",), progress=False)}["ours"]
     stage = info.get("learned")  # the learned stage's cross-validated choice (rt2 train's log says the same)
@@ -338,7 +376,10 @@ def add_arguments(parser) -> None:
                         help="as rt2 label --auto: search the frame sets without an agreement again where the flight puts the ball (default on)")
     parser.add_argument("--train-held-out", default=None, metavar="CAM",
                         help="also train on the labels of the other cameras and score the base and the trained model on CAM's true balls")
-    parser.add_argument("--epochs", type=int, default=None, help="--train-held-out: rt2 train's epochs (default its own)")
+    parser.add_argument("--train-out", default=None, metavar="M.npz",
+                        help="also train on the labels of every camera as rt2 train does (from --model) and write the model here "
+                             "(then: rt2 eval framesets --scene ... --seed OTHER --model M.npz)")
+    parser.add_argument("--epochs", type=int, default=None, help="--train-held-out, --train-out: rt2 train's epochs (default its own)")
     parser.add_argument("--json", default=None, help="also write the figures as JSON to this path")
 
 
@@ -346,6 +387,10 @@ def run(args) -> int:
     from harness.common.outputs import atomic_write_json, check_output_file
 
     check_output_file(args.json, "--json")
+    if args.train_out is not None:
+        if not str(args.train_out).endswith(".npz"):
+            raise ValueError(f"--train-out must end in .npz, got {args.train_out!r}")
+        check_output_file(args.train_out, "--train-out")
     given = {"max_size_ratio": args.max_size_ratio, "trim_px": args.trim}
     options = AutoOptions(flight_window=args.flight_window, second_look=args.second_look, recentre=args.recentre,
                           smooth_window=args.smooth_window, **{k: v for k, v in given.items() if v is not None})
@@ -372,6 +417,13 @@ def run(args) -> int:
         if t["learned_stage"] is not None:
             print(f"  its learned stage: {t['learned_stage']['chosen']} by cross-validation ({'; '.join(t['learned_stage']['choices'])})")
         result["held_out_training"] = t
+    if args.train_out is not None:
+        t = trained_on_all(args.scene, args.frames, args.seed, kept, args.train_out, rate_hz=args.rate_hz,
+                           flight_frames=args.flight_frames, model=args.model, epochs=args.epochs, ball=ball)
+        print(f"  trained on {t['train_images']} auto labels of every camera"
+              + (" (the guard kept the base's filter)" if t["kept_base"] else "")
+              + (f", its learned stage: {t['learned_stage']}" if t["learned_stage"] else "") + f"; wrote {t['out']}")
+        result["train_out"] = t
     if args.json:
         atomic_write_json(args.json, result, "--json")
     return 0

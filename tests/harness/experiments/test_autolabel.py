@@ -5,6 +5,7 @@ written); rt2 eval autolabel's determinism."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import re
 
 import numpy as np
@@ -254,7 +255,33 @@ def test_eval_autolabel_held_out_training_reports_its_learned_stages_choice(monk
     assert stage["chosen"] == "shipped" and stage["threshold"] == 0.2 and len(stage["choices"]) == 2
 
 
+def test_eval_autolabel_train_out_writes_the_model_trained_on_every_cameras_labels(monkeypatch, capsys, tmp_path):
+    """``--train-out M.npz``: rt2 train's defaults on the kept labels of every camera (none held out), the model written
+    where asked and loadable, one line saying what it was trained on. (The trainer stands in for rt2 train here and
+    records what it was given; the real training is the README's command.)"""
+    import harness.experiments.detector.train as train_module
+    from tracker.pipeline import load_model
+
+    given = {}
+
+    def recording(labelled, opts, *, base, **kw):
+        given["cameras"] = {Path(li.path).stem.split("_", 1)[1] for li in labelled}
+        given["n"], given["learned"] = len(labelled), opts.learned
+        return base, {"kept_base": True}
+
+    monkeypatch.setattr(train_module, "train", recording)
+    out, js = tmp_path / "auto.npz", tmp_path / "a.json"
+    assert main(["eval", "autolabel", "--scene", "lab", "--frames", "24", "--seed", "3", "--train-out", str(out), "--json", str(js)]) == 0
+    assert "cam3" in given["cameras"] and len(given["cameras"]) >= 3 and given["learned"] == "auto"  # no camera held out
+    assert load_model(str(out)).description == load_model(None).description
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line == f"  trained on {given['n']} auto labels of every camera (the guard kept the base's filter); wrote {out}"
+    assert json.loads(js.read_text())["train_out"] == {"out": str(out), "train_images": given["n"], "kept_base": True, "learned_stage": None}
+
+
 @pytest.mark.parametrize("argv, message", [
+    (["--train-out", "model.txt"], "--train-out must end in .npz, got 'model.txt'"),
+    (["--train-out", "/dev/null/m.npz"], "--train-out"),
     (["--scene", "lab", "--ball", "white"], "--ball applies to --scene caliscope (the lab's ball is its renderer's), got --scene lab"),
     (["--scene", "lab", "--crop-frames", "58:"], "--crop-frames applies to --scene caliscope"),
     (["--scene", "caliscope", "--crop-frames", "58:"], "--crop-frames applies to --ball white only"),
