@@ -234,6 +234,27 @@ def test_cli_bad_inputs(synthetic_ball_coco, tmp_path, capsys):
     assert "bbox" in capsys.readouterr().err
 
 
+def test_a_training_that_cannot_fit_in_memory_is_refused_before_reading_an_image(synthetic_ball_coco, tmp_path, capsys, monkeypatch):
+    """The images and their augmented copies are held at once: more than the memory available is one line, exit 2,
+    nothing written, before the first image is read (not a machine out of memory that kills a tracker beside it)."""
+    import harness.experiments.detector.train as train_module
+
+    data = synthetic_ball_coco(30, 0)
+    per_copy = sum(li.width * li.height * 3 for li in read_coco(data))
+    monkeypatch.setattr(train_module, "available_memory_bytes", lambda: 4 * per_copy)  # room for two copies' training, not four
+    read = []
+    monkeypatch.setattr(train_module, "load_image", lambda li: read.append(li) or pytest.fail("an image was read"))
+    out = tmp_path / "m.npz"
+    assert main(["train", "--data", str(data), "--out", str(out), "--augment", "3"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "30 images" in err[0] and "3 augmented copies each need about" in err[0] and "--max-images" in err[0], err
+    assert not out.exists() and not read
+    train_module.check_memory(read_coco(data), 1, available=4 * per_copy)  # two copies fit: no error
+    train_module.check_memory(read_coco(data), 0, available=2 * per_copy)  # the filter kept: no copies held, the images fit
+    monkeypatch.setattr(train_module, "available_memory_bytes", lambda: None)
+    train_module.check_memory(read_coco(data), 9)  # unknown memory (not Linux): no check
+
+
 def test_image_size_mismatch_and_unreadable(tmp_path):
     path = tmp_path / "a.png"
     cv2.imwrite(str(path), np.zeros((10, 12, 3), np.uint8))
