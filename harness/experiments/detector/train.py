@@ -87,6 +87,9 @@ EXIT_WEAK_MODEL = 3
 MIN_WRITE_RECALL = 0.5
 
 
+#: a fine-tune's optimiser steps at most (the learned stage's; 3/8 of ``--learned-steps`` below that)
+FINETUNE_STEPS = 150
+
 @dataclass(frozen=True)
 class TrainOptions:
     """Options of :func:`train`.
@@ -120,7 +123,8 @@ class TrainOptions:
         cross-validation; ``rt2 train``'s default); "on" the same without "no stage" among the choices; "off" (the default of this function: the filter studies) writes the filter alone (and drops
         a base model's stage)
     learned_folds : time-contiguous folds of the learned stage's cross-validation
-    learned_steps : optimiser steps of a learned stage from scratch (fine-tuning takes 3/8 of them)
+    learned_steps : optimiser steps of a learned stage from scratch (fine-tuning takes 3/8 of them, at most
+        ``FINETUNE_STEPS``: a few labels pull a shipped network away from what it knew)
     filter : the 5x5 filter (Algorithm 1's model): "fit" trains it as above; "keep" writes the base model's filter
         unchanged (needs a base and ``learned`` "auto" or "on": something must be trained); "auto" (default) keeps it when the
         learned stage is trained too and the base's stage does not take the filter's refinement
@@ -154,7 +158,7 @@ class TrainOptions:
     keep_base: str = "auto"
     learned: str = "off"
     learned_folds: int = 3
-    learned_steps: int = 400
+    learned_steps: int = 1600
     filter: str = "auto"
     allow_no_ball: bool = False
 
@@ -707,7 +711,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
 
         stage, l_info = train_stage(labelled, [load_image(li) for li in labelled], cv_folds(labelled, opts.learned_folds),
                                     base=None if base is None else base.learned, seed=opts.seed,
-                                    scratch_steps=opts.learned_steps, finetune_steps=max(1, opts.learned_steps * 3 // 8),
+                                    scratch_steps=opts.learned_steps, finetune_steps=max(1, min(FINETUNE_STEPS, opts.learned_steps * 3 // 8)),
                                     extra=backgrounds, alone=finfo.get("alone") if opts.learned == "auto" else None, log=log, progress=progress)
         c = l_info["chosen"]
         if stage is None:
@@ -926,7 +930,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--learned-folds", type=int, default=TrainOptions.learned_folds,
                         help=f"folds of the learned stage's cross-validation (default {TrainOptions.learned_folds})")
     parser.add_argument("--learned-steps", type=int, default=TrainOptions.learned_steps,
-                        help=f"optimiser steps of a learned stage from scratch; fine-tuning takes 3/8 of them (default {TrainOptions.learned_steps})")
+                        help=f"optimiser steps of a learned stage from scratch; fine-tuning takes 3/8 of them, at most {FINETUNE_STEPS} "
+                             f"(default {TrainOptions.learned_steps})")
     parser.add_argument("--filter", choices=FILTER_CHOICES, default="auto",
                         help="the 5x5 filter: 'fit' trains it; 'keep' writes the base model's unchanged (with --learned auto); 'auto' "
                              "(default) keeps it when the base's learned stage does not take the filter's refinement (the shipped "

@@ -225,7 +225,7 @@ def test_label_by_keys_and_mouse_survive_a_kill_resume_and_train(browser, ball_f
         from selenium.webdriver.support.ui import Select
 
         Select(browser.find_element("id", "colour")).select_by_value("orange")
-        # rt2 train at its defaults (the learned stage included, ~70 % of this test's time) writing its model without
+        # rt2 train at its defaults (the learned stage included, ~90 % of this test's time) writing its model without
         # --force: make test's one such run (test_autolabel.py's training leaves the learned stage out for it)
         page.keys("t")
         from selenium.webdriver.support.ui import WebDriverWait
