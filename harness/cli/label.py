@@ -39,6 +39,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--min-train", type=int, default=8, help="labelled frames before the page offers training (default 8)")
     parser.add_argument("--train-epochs", type=int, default=None, help="epochs of the page's `rt2 train` run (default: rt2 train's)")
     parser.add_argument("--train-seed", type=int, default=0, help="seed of the page's `rt2 train` run (default 0)")
+    parser.add_argument("--train-learned-steps", type=int, default=None,
+                        help="optimiser steps of a learned stage from scratch in the page's `rt2 train` run (its --learned-steps; "
+                             "default: rt2 train's; fewer train faster and learn less)")
     parser.add_argument("--ball-colour", choices=("any", "orange", "white"), default=None,
                         help="the ball colour the page's training uses (rt2 train --ball-colour; default: the page asks)")
     parser.add_argument("--confirm-below", type=float, default=0.9,
@@ -93,9 +96,12 @@ def run(args) -> int:
 
     if args.train_epochs is not None and args.train_epochs < 1:
         raise ValueError(f"--train-epochs must be >= 1, got {args.train_epochs}")
+    if args.train_learned_steps is not None and args.train_learned_steps < 1:
+        raise ValueError(f"--train-learned-steps must be >= 1, got {args.train_learned_steps}")
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port must be in [0, 65535], got {args.port}")
-    train_args = ["--seed", str(args.train_seed)] + ([] if args.train_epochs is None else ["--epochs", str(args.train_epochs)])
+    train_args = (["--seed", str(args.train_seed)] + ([] if args.train_epochs is None else ["--epochs", str(args.train_epochs)])
+                  + ([] if args.train_learned_steps is None else ["--learned-steps", str(args.train_learned_steps)]))
     options = LabelOptions(n_suggestions=args.suggestions, min_train_labels=args.min_train, train_args=tuple(train_args),
                            confirm_below=args.confirm_below, ball_colour=args.ball_colour)
     model = BallSegmentationModel.load(args.model)

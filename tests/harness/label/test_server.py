@@ -295,6 +295,14 @@ HOSTILE = [
 ]
 
 
+@pytest.mark.parametrize("option, value", [("--train-epochs", "0"), ("--train-learned-steps", "0"), ("--port", "70000")])
+def test_hostile_options_are_one_line_exit_2(ball_folder, tmp_path, capsys, option, value):
+    assert rt2_main(["label", str(ball_folder), "--out", str(tmp_path / "o"), option, value]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{option} must be" in err[0], err
+    assert not (tmp_path / "o").exists()  # refused before the label folder is made
+
+
 @pytest.mark.parametrize("method, path, body, headers, status, message", HOSTILE, ids=[f"{c[0]} {c[1][:30]} {c[4]}" for c in HOSTILE])
 def test_hostile_request_gets_a_clear_error_and_changes_nothing(serve, ball_folder, method, path, body, headers, status, message):
     import re
