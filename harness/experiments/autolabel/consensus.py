@@ -310,15 +310,14 @@ def centring(model, min_peak: float = AutoOptions.t_low):
     return silhouette_or_edge
 
 
-def recentred(images, position_m, rig, centre, options: AutoOptions, *, with_uv: bool = False):
-    """The ball triangulated from each camera's re-measured centre (module docstring, re-centring), or
-    ``position_m`` when that does not hold. images : the frame set's, rig camera order; centre : :func:`centring`'s.
-    with_uv : return ``(position, uv)`` instead, ``uv`` (n_cams, 2) the re-measured centres the position was
-    triangulated from (NaN: a camera left out), None when re-centring did not hold."""
+def recentred_centres(images, position_m, rig, centre, options: AutoOptions):
+    """``(position, uv)``: the ball triangulated from each camera's re-measured centre (module docstring,
+    re-centring) and those centres ((n_cams, 2), NaN: a camera left out), or ``(position_m, None)`` when that does
+    not hold. images : the frame set's, rig camera order; centre : :func:`centring`'s."""
     from tracker.triangulation import reprojection_errors, triangulate
 
     X0 = X = np.asarray(position_m, float)
-    last = None
+    uv = None
     for _ in range(RECENTRE_ROUNDS):
         uv = np.full((len(rig), 2), np.nan)
         for j, cam in enumerate(rig):
@@ -332,17 +331,18 @@ def recentred(images, position_m, rig, centre, options: AutoOptions, *, with_uv:
             c = centre(images[j], p, d)
             if c is not None and np.all(np.isfinite(c)) and np.linalg.norm(c - p) <= max(RECENTRE_MAX_SHIFT_PX, d / 4):
                 uv[j] = c
-        use = np.isfinite(uv[:, 0])
-        if use.sum() < options.min_support:
-            return (X0, None) if with_uv else X0
+        if np.isfinite(uv[:, 0]).sum() < options.min_support:
+            return X0, None
         X2, _ = triangulate(rig, uv)
         if not np.isfinite(X2).all() or np.nanmax(reprojection_errors(X2, uv, rig)) > options.max_reprojection_px:
-            return (X0, None) if with_uv else X0
-        X, last = X2, uv
-    held = np.linalg.norm(X - X0) <= options.ball_radius_m
-    if with_uv:
-        return (X, last) if held else (X0, None)
-    return X if held else X0
+            return X0, None
+        X = X2
+    return (X, uv) if np.linalg.norm(X - X0) <= options.ball_radius_m else (X0, None)
+
+
+def recentred(images, position_m, rig, centre, options: AutoOptions) -> np.ndarray:
+    """The position of :func:`recentred_centres` alone (``position_m`` when re-centring does not hold)."""
+    return recentred_centres(images, position_m, rig, centre, options)[0]
 
 
 def max_ball_area_px(rig, options: AutoOptions) -> int:
@@ -504,7 +504,7 @@ def auto_label(framesets, rig, model, options: AutoOptions = AutoOptions(), *, p
                     X = recentred(rs.images, X, rig, centre, options)
                 return labels_of(rig, rs.index, rs.frame_id, rs.t_s, X, est, info.uv_candidates_px, info.areas_px, options)
             if centre is not None:  # a camera's centre off by more than the tolerance: each camera measured again
-                X2, uv2 = recentred(rs.images, X, rig, centre, options, with_uv=True)
+                X2, uv2 = recentred_centres(rs.images, X, rig, centre, options)
                 if uv2 is not None:  # at least min_support of them agree within it there (rule 1 on the new centres)
                     use = np.isfinite(uv2[:, 0])
                     est2 = replace(est, inliers=use, support=int(use.sum()), reproj_error_px=reprojection_errors(X2, uv2, rig))

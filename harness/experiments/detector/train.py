@@ -90,6 +90,7 @@ MIN_WRITE_RECALL = 0.5
 #: a fine-tune's optimiser steps at most (the learned stage's; 3/8 of ``--learned-steps`` below that)
 FINETUNE_STEPS = 150
 
+
 @dataclass(frozen=True)
 class TrainOptions:
     """Options of :func:`train`.
@@ -670,10 +671,10 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         opts = dataclasses.replace(opts, input_transform=base.input_transform, log_offset_dn=base.log_offset_dn)
     # before any image is read: the augmented copies are held where the 5x5 filter is fitted (or a verifier trained),
     # the images themselves always
-    fits = opts.verifier or not keeps_filter(opts, base)
-    check_memory(labelled, opts.augment_copies if fits else 0, backgrounds)
+    kept_filter = keeps_filter(opts, base)
+    check_memory(labelled, opts.augment_copies if opts.verifier or not kept_filter else 0, backgrounds)
     labelled = select_ball_colour(labelled, opts.ball_colour, progress=progress)
-    if keeps_filter(opts, base):
+    if kept_filter:
         if base is None:
             raise ValueError("--filter keep keeps the base model's filter: there is no base model (--from none)")
         if not any(li.n_balls for li in labelled):

@@ -434,7 +434,7 @@ def test_recentring_moves_the_position_to_the_drawn_balls_centres():
     """Orange disks drawn where a ball at X projects; from a consensus position 8 mm off, re-centring (the centroid of the
     filter's silhouette at each projection, triangulated, twice) lands within 1 mm; where fewer than min_support
     cameras can be measured, the consensus's position stays."""
-    from harness.experiments.autolabel.consensus import AutoOptions, centring, recentred
+    from harness.experiments.autolabel.consensus import AutoOptions, centring, recentred, recentred_centres
     from tracker.detection.synthetic import draw_disk
     from tracker.pipeline import load_model
     from tracker.rig_files import resolve_rig
@@ -452,11 +452,11 @@ def test_recentring_moves_the_position_to_the_drawn_balls_centres():
     centre = centring(load_model(None))
     start = X + np.array([0.008, -0.004, 0.003])
     assert np.linalg.norm(recentred(images, start, rig, centre, AutoOptions()) - X) < 1e-3
-    X1, uv = recentred(images, start, rig, centre, AutoOptions(), with_uv=True)  # the centres it was triangulated from
+    X1, uv = recentred_centres(images, start, rig, centre, AutoOptions())  # the centres it was triangulated from
     assert np.linalg.norm(X1 - X) < 1e-3 and np.isfinite(uv).all() and np.abs(uv - rig.project(X1)).max() < 0.5
     blank = [images[0], images[1]] + [np.full_like(images[2], 100)] * 2  # two cameras without the ball
     assert np.array_equal(recentred(blank, start, rig, centre, AutoOptions()), start)
-    held = recentred(blank, start, rig, centre, AutoOptions(), with_uv=True)
+    held = recentred_centres(blank, start, rig, centre, AutoOptions())
     assert np.array_equal(held[0], start) and held[1] is None  # did not hold: no centres
     assert centring(load_model("data/models/ball_seg_white.npz")).__name__ == "silhouette_or_edge"  # the white ball: its grey silhouette, else its edge
 
