@@ -23,7 +23,7 @@ __all__ = ["TrainingJob"]
 LOG_FILE = "train.log"
 TAIL_CHARS = 4000
 #: a line of rt2 train's held-out figures (not an epoch's progress line)
-_FIGURES = re.compile(r"^(?!epoch ).*\bours recall [0-9.]+%")
+_FIGURES = re.compile(r"^(?!epoch ).*\b(ours|top-[0-9]+) recall [0-9.]+%")
 
 
 class TrainingJob:

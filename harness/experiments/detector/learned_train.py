@@ -518,6 +518,15 @@ def _best_threshold(truth, cands, k: int, min_diameter_px: float):
     return best[1], best[2]
 
 
+def _single_image_scores(truth, cands, threshold: float, min_diameter_px: float):
+    """The scores of each image's best candidate at ``threshold`` (what ``rt2 eval detector``'s ``ours`` counts with a learned
+    stage) over ``cands`` (per image ``(uv, scores)``, best first)."""
+    from harness.experiments.detector.scores import score_detections
+
+    found = [uv[sc >= threshold][:1] for uv, sc in cands]
+    return score_detections("ours", truth[0], truth[1], found, min_diameter_px=min_diameter_px)
+
+
 def _alone_scores(alone, images, labelled, k: int, min_diameter_px: float):
     """Top-K scores of the 5x5 filter alone (no learned stage, no verifier) on the images each of ``alone``'s
     ``(model, indices)`` pairs holds out."""
@@ -672,6 +681,11 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     for c in choices:
         log(f"learned stage, {len(folds)}-fold cross-validation on {len(scored)} images: {c.line()}")
     best = max(choices, key=lambda c: (round(c.gain, 9), -names.index(c.name)))
+    single = None
+    if best.name != "none":  # what a single image gets: its best candidate at the chosen threshold, the same out-of-fold candidates
+        single = _single_image_scores(truth, [oof[best.name][i] for i in scored], best.threshold, min_diameter_px)
+        log(f"learned stage, single images ({best.name}: each image's best candidate at threshold {best.threshold:g}), "
+            f"{len(folds)}-fold cross-validation: recall {100 * np.nan_to_num(single.recall):.1f}%, outliers {100 * single.outlier_rate:.1f}%")
     if best.name == "none":
         stage = None
     elif best.name == "shipped":
@@ -698,5 +712,5 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
                              filter_refines=True if base is None else base.filter_refines, size_ratio=inherited,
                              description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed})"
                              + ("" if inherited is None else f"; size ratio {inherited:g}, the base's"))
-    info = dict(choices=choices, chosen=best, folds=len(folds), max_side_px=max_side)
+    info = dict(choices=choices, chosen=best, folds=len(folds), max_side_px=max_side, single=single, k=k)
     return stage, info

@@ -857,14 +857,29 @@ def cv_recall(info) -> tuple[float, str]:
 
 def written_scores(info):
     """The held-out :class:`~harness.experiments.detector.scores.DetectorScores` of what ``rt2 train`` writes and what
-    it is: the learned stage's cross-validated ones when one was trained, else the filter's (validation split or
-    cross-validation)."""
+    it is: the learned stage's cross-validated ones when one was trained (top-K: every candidate a tracker's camera
+    reports counts), else the filter's (validation split or cross-validation)."""
     if info.get("learned"):
         c = info["learned"]["chosen"]
         if c.name == "none":
             return c.scores, f"the filter alone, top-K (chosen over a learned stage by {info['learned']['folds']}-fold cross-validation)"
         return c.scores, f"the learned stage ({c.name}, {info['learned']['folds']}-fold cross-validation)"
     return info["val_ours"], f"the filter ({info['threshold_choice']})"
+
+
+def figures_line(info, scores, what: str) -> str:
+    """``rt2 train``'s last line of held-out figures: ``scores`` (:func:`written_scores`) named by what they count (``ours``:
+    an image's detection; ``top-K``: its first K candidates, each extra one an outlier), and with a learned stage its
+    single images' figures too (each image's best candidate at the written threshold, the same cross-validation)."""
+    learned = info.get("learned") or {}
+    name = f"top-{learned.get('k', 4)}" if learned and learned["chosen"].name != "none" or scores.method == "topk" else "ours"
+    line = (f"held-out figures of the model written ({what}): {name} recall {100 * float(np.nan_to_num(scores.recall)):.2f}%, "
+            f"outliers {100 * scores.outlier_rate:.2f}%, median {scores.median_center_error_px:.3f} px")
+    single = learned.get("single")
+    if single is not None:
+        line += (f"; single images (each image's best candidate at threshold {learned['chosen'].threshold:g}): recall "
+                 f"{100 * float(np.nan_to_num(single.recall)):.2f}%, outliers {100 * single.outlier_rate:.2f}%")
+    return line
 
 
 # -- command line ----------------------------------------------------------------------------------
@@ -923,6 +938,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--time-range", default=None,
                         help="use only images START:STOP in time order (file names sorted as frame numbers), e.g. 0:58; "
                              "keeps later frames out of training")
+    parser.add_argument("--camera", nargs="+", default=None, metavar="NAME",
+                        help="train only on the images of these rig cameras (the COCO image field 'camera', as rt2 sim dataset and "
+                             "rt2 label --auto write it), before --time-range: e.g. one camera's first frames, the others held out")
     parser.add_argument("--learned", choices=LEARNED_CHOICES, default="auto",
                         help="'auto' (default): also train the learned detector stage (a small heatmap network): no stage (the 5x5 "
                              "filter alone), the base model's stage as it is, fine-tuned, or from scratch, whichever cross-validation "
@@ -1001,7 +1019,7 @@ def run(args) -> int:
     import sys
 
     from harness.experiments.detector.labels import read_labels
-    from harness.experiments.detector.subsets import take_range
+    from harness.experiments.detector.subsets import select_cameras, take_range
 
     from harness.common.outputs import atomic_path, check_output_file
 
@@ -1011,6 +1029,8 @@ def run(args) -> int:
     check_output_file(out, "--out")  # before the training, not after
     base, origin = resolve_base(args.from_model, args.ball_colour)
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
+    if args.camera:  # before --time-range: the time order is one camera's (as rt2 eval detector --camera)
+        labelled = select_cameras(labelled, args.camera)
     labelled = take_range(labelled, args.time_range)
     if args.min_support is not None:  # rt2 label --auto's labels: only the surest
         from harness.experiments.autolabel.output import keep_supported
@@ -1033,7 +1053,8 @@ def run(args) -> int:
                             threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
                             keep_base=args.keep_base, learned=args.learned, learned_folds=args.learned_folds,
                             learned_steps=args.learned_steps, filter=args.filter, allow_no_ball=args.force)
-        sources = f"data {', '.join(map(str, args.data))}" + (f" (time range {args.time_range})" if args.time_range else "")
+        picked = ([f"cameras {' '.join(args.camera)}"] if args.camera else []) + ([f"time range {args.time_range}"] if args.time_range else [])
+        sources = f"data {', '.join(map(str, args.data))}" + (f" ({', '.join(picked)})" if picked else "")
         if backgrounds:
             sources += f"; backgrounds {', '.join(map(str, args.backgrounds))} ({len(backgrounds)} ball-free images)"
         try:
@@ -1059,8 +1080,7 @@ def run(args) -> int:
         model = dataclasses.replace(model, description=model.description + f"; kept seed {seed} of [{spread}]")
     scores, what = written_scores(info)
     recall = float(np.nan_to_num(scores.recall))
-    print(f"held-out figures of the model written ({what}): ours recall {100 * recall:.2f}%, outliers {100 * scores.outlier_rate:.2f}%, "
-          f"median {scores.median_center_error_px:.3f} px")
+    print(figures_line(info, scores, what))
     if recall < MIN_WRITE_RECALL:
         line = (f"rt2 train: {args.out} not written: the cross-validated recall of {what} is {100 * recall:.1f}% < "
                 f"{100 * MIN_WRITE_RECALL:.0f}%; label more frames (with balls) or check --ball-colour; --force writes it anyway")

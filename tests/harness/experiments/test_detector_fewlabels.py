@@ -170,7 +170,37 @@ def test_cli_from_model_seeds_and_time_range(synthetic_ball_coco, cv_trained, tm
     assert "kept seed" in model.description and str(base) in model.description and "(4 ball-free images)" in model.description
 
 
+def _two_cameras(synthetic_ball_coco, tmp_path):
+    """The 16-image synthetic set with a COCO ``camera`` field: images 0, 2, 4, ... 'left', the others 'right'."""
+    import json
+    import shutil
+
+    dst = tmp_path / "two"
+    shutil.copytree(synthetic_ball_coco(16, 0), dst)
+    coco = json.loads((dst / "annotations.json").read_text())
+    for k, im in enumerate(sorted(coco["images"], key=lambda im: im["file_name"])):
+        im["camera"] = "left" if k % 2 == 0 else "right"
+    (dst / "annotations.json").write_text(json.dumps(coco))
+    return dst
+
+
+def test_cli_camera_picks_one_cameras_images_before_the_time_range(synthetic_ball_coco, tmp_path, capsys):
+    data = _two_cameras(synthetic_ball_coco, tmp_path)
+    out = tmp_path / "left.npz"
+    code = main(["train", "--data", str(data), "--out", str(out), "--epochs", "1", "--learned", "off", "--from", "none",
+                 "--augment", "0", "--camera", "left", "--time-range", "0:6", "--thresholds", "split"])
+    assert code == 0
+    assert "on 6 images" in capsys.readouterr().out  # 8 of the left camera, the first 6 of them in its time order
+    assert "(cameras left, time range 0:6)" in BallSegmentationModel.load(out).description
+    code = main(["train", "--data", str(data), "--out", str(tmp_path / "m.npz"), "--epochs", "1", "--learned", "off", "--camera", "middle"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--camera middle: not in the labelled set; its cameras: left, right" in err
+    assert not (tmp_path / "m.npz").exists()
+
+
 @pytest.mark.parametrize("args, message", [
+    (["--camera", "cam1"], "--camera cam1: not in the labelled set; its cameras: cam0"),
     (["--from", "model.pt"], "--from must be a .npz weights file"),
     (["--from", "missing.npz"], "does not exist"),
     (["--time-range", "x"], "--time-range must be START:STOP"),

@@ -197,6 +197,10 @@ def test_a_base_whose_filter_does_not_see_its_ball_keeps_its_filter(synthetic_ba
     text = capsys.readouterr().out
     assert "the 5x5 filter: the base model's kept unchanged" in text and "epoch" not in text  # no filter fit
     assert "held-out figures of the model written (the learned stage" in text and "the base model's 5x5 filter kept" in text
+    line = next(ln for ln in text.splitlines() if ln.startswith("held-out figures of the model written"))
+    assert "): top-4 recall " in line and "; single images (each image's best candidate at threshold " in line  # named by what they count
+    top4, single = (float(part.split("recall ")[1].split("%")[0]) for part in line.split("; single images"))
+    assert single <= top4  # an image's best candidate finds no ball its first four miss
     m = BallSegmentationModel.load(out)
     np.testing.assert_array_equal(m.kernel, base.kernel)
     assert (m.t_high, m.t_low, m.bias) == (base.t_high, base.t_low, base.bias) and m.learned is not None
@@ -319,3 +323,17 @@ def test_contrast_crops_are_the_bases_false_candidates_next_to_a_ball():
     w_crops = sum(it.weight for it in mixed[2:])
     assert w_crops / sum(it.weight for it in mixed) == pytest.approx(L.CONTRAST_SHARE)
     assert L.with_contrast(rest, []) == rest
+
+
+def test_single_image_scores_count_each_image_s_best_candidate_only():
+    """``rt2 train``'s single-image figures (with a learned stage): the best candidate at the threshold, not the first K."""
+    from harness.experiments.detector.learned_train import _single_image_scores
+
+    truth = ([np.array([[10.0, 10.0]]), np.array([[50.0, 50.0]]), np.zeros((0, 2))], [np.array([8.0]), np.array([8.0]), np.zeros(0)])
+    cands = [(np.array([[30.0, 30.0], [10.0, 11.0]]), np.array([0.9, 0.8])),  # a false alarm above the ball: an outlier, the ball missed
+             (np.array([[50.0, 51.0], [90.0, 90.0]]), np.array([0.7, 0.6])),  # the ball first
+             (np.array([[5.0, 5.0]]), np.array([0.3]))]  # no ball, a candidate below the threshold
+    s = _single_image_scores(truth, cands, 0.5, 6.0)
+    assert (s.n_balls, s.n_detections) == (2, 2)
+    assert s.recall == pytest.approx(0.5) and s.outlier_rate == pytest.approx(0.5)
+    assert _single_image_scores(truth, cands, 0.95, 6.0).n_detections == 0
