@@ -28,7 +28,10 @@ def test_it_leaves_a_freeze_it_did_not_make_and_cleans_up_on_errors():
         frozen = gc.get_freeze_count()
         with pytest.raises(RuntimeError), frozen_gc(GcPauses()):
             raise RuntimeError("the loop failed")
-        assert gc.get_freeze_count() == frozen  # the caller's freeze stays
+        # the caller's freeze stays: not unfrozen (0), not frozen again (the objects made since would join it); a frozen
+        # object can still die (another thread's garbage, a test's leftovers), so the count may fall a little, never rise
+        assert 0 < gc.get_freeze_count() <= frozen
+        assert gc.get_freeze_count() > 0.9 * frozen
     finally:
         gc.unfreeze()
     with frozen_gc(GcPauses(), freeze=False):
