@@ -84,10 +84,11 @@ def check_output_dir(path, flag: str = "--out") -> Path:
     return path
 
 
-def check_output_file(path, flag: str = "--json", *, overwrite: bool = True):
+def check_output_file(path, flag: str = "--json", *, overwrite: bool = True, suffix: str | None = None):
     """Check that the file ``path`` can be written (its folder is created); returns it (None passes).
 
     overwrite : False refuses an existing file
+    suffix : the file's required ending (e.g. ``".npz"``: weights files), checked before anything is made
     """
     if path is None:
         return None
@@ -95,6 +96,8 @@ def check_output_file(path, flag: str = "--json", *, overwrite: bool = True):
     shown = repr(str(path))
     if str(path) in ("", "."):
         raise OutputError(f"{flag} must name a file, got {shown}")
+    if suffix is not None and path.suffix != suffix:
+        raise OutputError(f"{flag} must end in {suffix}, got {shown}")
     if path.is_dir():
         raise OutputError(f"{flag} {shown} is a folder; give a file name")
     if path.exists() and not overwrite:

@@ -388,9 +388,7 @@ def run(args) -> int:
 
     check_output_file(args.json, "--json")
     if args.train_out is not None:
-        if not str(args.train_out).endswith(".npz"):
-            raise ValueError(f"--train-out must end in .npz, got {args.train_out!r}")
-        check_output_file(args.train_out, "--train-out")
+        check_output_file(args.train_out, "--train-out", suffix=".npz")
     given = {"max_size_ratio": args.max_size_ratio, "trim_px": args.trim}
     options = AutoOptions(flight_window=args.flight_window, second_look=args.second_look, recentre=args.recentre,
                           smooth_window=args.smooth_window, **{k: v for k, v in given.items() if v is not None})

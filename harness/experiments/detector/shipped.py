@@ -313,9 +313,7 @@ def run(args) -> int:
     from harness.common.outputs import atomic_path, check_output_file
 
     out = Path(args.out)
-    if out.suffix != ".npz":
-        raise ValueError(f"--out must end in .npz, got {args.out!r}")
-    check_output_file(out, "--out")
+    check_output_file(out, "--out", suffix=".npz")
     if not (0.0 <= args.hard_pastes <= 1.0):
         raise ValueError(f"--hard-pastes must be a share between 0 and 1, got {args.hard_pastes!r}")
     model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,

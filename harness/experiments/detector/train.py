@@ -1025,9 +1025,7 @@ def run(args) -> int:
     from harness.common.outputs import atomic_path, check_output_file
 
     out = Path(args.out)
-    if out.suffix != ".npz":
-        raise ValueError(f"--out must end in .npz, got {args.out!r}")
-    check_output_file(out, "--out")  # before the training, not after
+    check_output_file(out, "--out", suffix=".npz")  # before the training, not after
     base, origin = resolve_base(args.from_model, args.ball_colour)
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if args.camera:  # before --time-range: the time order is one camera's (as rt2 eval detector --camera)

@@ -49,3 +49,16 @@ def test_robot_serve_names_the_bad_endpoint_option(flag, capsys):
     assert main(["robot", "serve", "--sim", flag, "garbage"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"rt2 robot serve: error: {flag} must be a ZeroMQ endpoint like tcp://127.0.0.1:7650, got 'garbage'"
+
+
+@pytest.mark.parametrize("name, ok", [("m.npz", True), ("m.npz.tmp", False), ("m.NPZ", False), ("m", False), ("npz", False)])
+def test_an_output_of_the_wrong_kind_is_refused_before_its_folder_is_made(tmp_path, name, ok):
+    from harness.common.outputs import OutputError, check_output_file
+
+    path = tmp_path / "new" / name
+    if ok:
+        assert check_output_file(path, "--out", suffix=".npz") == path and path.parent.is_dir()
+        return
+    with pytest.raises(OutputError, match=rf"^--out must end in \.npz, got '{path}'$"):
+        check_output_file(path, "--out", suffix=".npz")
+    assert not path.parent.exists()
