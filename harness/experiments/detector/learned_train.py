@@ -504,27 +504,25 @@ def max_side_for(labelled, base_max_side: int | None = None) -> int:
     return int(min(side, max(256, 32 * round(target / 32))))
 
 
-def _best_threshold(truth, cands, k: int, min_diameter_px: float):
-    """(threshold, scores) of the threshold of ``THRESHOLD_GRID`` with the best recall - outliers (ties: the higher threshold)."""
+def _scores_at(truth, cands, threshold: float, k: int, min_diameter_px: float):
+    """The scores of each image's first ``k`` candidates at ``threshold`` or above (``cands``: per image ``(uv, scores)``,
+    best first): ``k`` = 1 is a single image's detection (``rt2 eval detector``'s ``ours`` with a learned stage), more is
+    top-K (what a tracker's camera reports)."""
     from harness.experiments.detector.scores import score_detections
 
+    found = [uv[sc >= threshold][:k] for uv, sc in cands]
+    return score_detections("ours" if k == 1 else "topk", truth[0], truth[1], found, min_diameter_px=min_diameter_px)
+
+
+def _best_threshold(truth, cands, k: int, min_diameter_px: float):
+    """(threshold, scores) of the threshold of ``THRESHOLD_GRID`` with the best recall - outliers (ties: the higher threshold)."""
     best = None
     for th in THRESHOLD_GRID:
-        found = [uv[sc >= th][:k] for uv, sc in cands]
-        s = score_detections("topk", truth[0], truth[1], found, min_diameter_px=min_diameter_px)
+        s = _scores_at(truth, cands, th, k, min_diameter_px)
         g = float(np.nan_to_num(s.recall)) - s.outlier_rate
         if best is None or g >= best[0] - 1e-12:
             best = (g, th, s)
     return best[1], best[2]
-
-
-def _single_image_scores(truth, cands, threshold: float, min_diameter_px: float):
-    """The scores of each image's best candidate at ``threshold`` (what ``rt2 eval detector``'s ``ours`` counts with a learned
-    stage) over ``cands`` (per image ``(uv, scores)``, best first)."""
-    from harness.experiments.detector.scores import score_detections
-
-    found = [uv[sc >= threshold][:1] for uv, sc in cands]
-    return score_detections("ours", truth[0], truth[1], found, min_diameter_px=min_diameter_px)
 
 
 def _alone_scores(alone, images, labelled, k: int, min_diameter_px: float):
@@ -683,7 +681,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     best = max(choices, key=lambda c: (round(c.gain, 9), -names.index(c.name)))
     single = None
     if best.name != "none":  # what a single image gets: its best candidate at the chosen threshold, the same out-of-fold candidates
-        single = _single_image_scores(truth, [oof[best.name][i] for i in scored], best.threshold, min_diameter_px)
+        single = _scores_at(truth, [oof[best.name][i] for i in scored], best.threshold, 1, min_diameter_px)
         log(f"learned stage, single images ({best.name}: each image's best candidate at threshold {best.threshold:g}), "
             f"{len(folds)}-fold cross-validation: recall {100 * np.nan_to_num(single.recall):.1f}%, outliers {100 * single.outlier_rate:.1f}%")
     if best.name == "none":

@@ -872,8 +872,7 @@ def figures_line(info, scores, what: str) -> str:
     an image's detection; ``top-K``: its first K candidates, each extra one an outlier), and with a learned stage its
     single images' figures too (each image's best candidate at the written threshold, the same cross-validation)."""
     learned = info.get("learned") or {}
-    top_k = scores.method == "topk" or bool(learned and learned["chosen"].name != "none")  # the filter alone, chosen over a stage: top-K too
-    name = f"top-{learned.get('k', 4)}" if top_k else "ours"
+    name = f"top-{learned.get('k', 4)}" if scores.method == "topk" else "ours"  # a learned stage's choices are scored top-K
     line = (f"held-out figures of the model written ({what}): {name} recall {100 * float(np.nan_to_num(scores.recall)):.2f}%, "
             f"outliers {100 * scores.outlier_rate:.2f}%, median {scores.median_center_error_px:.3f} px")
     single = learned.get("single")

@@ -327,13 +327,13 @@ def test_contrast_crops_are_the_bases_false_candidates_next_to_a_ball():
 
 def test_single_image_scores_count_each_image_s_best_candidate_only():
     """``rt2 train``'s single-image figures (with a learned stage): the best candidate at the threshold, not the first K."""
-    from harness.experiments.detector.learned_train import _single_image_scores
+    from harness.experiments.detector.learned_train import _scores_at
 
     truth = ([np.array([[10.0, 10.0]]), np.array([[50.0, 50.0]]), np.zeros((0, 2))], [np.array([8.0]), np.array([8.0]), np.zeros(0)])
     cands = [(np.array([[30.0, 30.0], [10.0, 11.0]]), np.array([0.9, 0.8])),  # a false alarm above the ball: an outlier, the ball missed
              (np.array([[50.0, 51.0], [90.0, 90.0]]), np.array([0.7, 0.6])),  # the ball first
              (np.array([[5.0, 5.0]]), np.array([0.3]))]  # no ball, a candidate below the threshold
-    s = _single_image_scores(truth, cands, 0.5, 6.0)
+    s = _scores_at(truth, cands, 0.5, 1, 6.0)
     assert (s.n_balls, s.n_detections) == (2, 2)
     assert s.recall == pytest.approx(0.5) and s.outlier_rate == pytest.approx(0.5)
-    assert _single_image_scores(truth, cands, 0.95, 6.0).n_detections == 0
+    assert _scores_at(truth, cands, 0.95, 1, 6.0).n_detections == 0
