@@ -213,8 +213,14 @@ def _label_sets(rig, sets, kept, root, *, held_out: int | None = None) -> tuple[
             b = fs.box_xywh(j)
             x0, y0 = max(0.0, b[0]), max(0.0, b[1])
             box = np.array([[x0, y0, min(float(w), b[0] + b[2]) - x0, min(float(hh), b[1] + b[3]) - y0]])
-            train_set.append(LabelledImage(save(rs.images[j], f"f{rs.index:06d}_{cam.name}"), w, hh, box, fs.center_px[j][None, :]))
+            train_set.append(LabelledImage(save(rs.images[j], f"f{rs.index:06d}_{cam.name}"), w, hh, box, fs.center_px[j][None, :],
+                                           camera=cam.name))  # as rt2 label --auto writes it: rt2 train's folds go by camera
     return train_set, test_set
+
+
+def _finite_or_none(v):
+    """A float for JSON, None where there is none (NaN: the filter alone has no threshold of its own)."""
+    return None if v is None or not math.isfinite(float(v)) else float(v)
 
 
 def _train_on(train_set, base, seed: int, epochs: int | None, what: str):
@@ -280,6 +286,7 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
             "trained": {"recall": after.recall, "outlier_rate": after.outlier_rate},
             "learned_stage": None if stage is None else {"chosen": stage["chosen"].name,
                                                           "threshold": stage["chosen"].threshold if stage["chosen"].name != "none" else None,
+                                                          "single_threshold": _finite_or_none(stage.get("single_threshold")), "folds_by": stage.get("folds_by"),
                                                           "choices": [c.line() for c in stage["choices"]]}}
 
 
@@ -413,7 +420,11 @@ def run(args) -> int:
               f"{100 * a['outlier_rate']:.1f}%{' (the guard kept the base)' if t['kept_base'] else ''}: goal (recall up or already 100%, outliers not up) "
               f"{'met' if up else 'NOT met'}")
         if t["learned_stage"] is not None:
-            print(f"  its learned stage: {t['learned_stage']['chosen']} by cross-validation ({'; '.join(t['learned_stage']['choices'])})")
+            ls = t["learned_stage"]
+            single = ls.get("single_threshold")
+            folds = f", folds by {ls['folds_by']}" if ls.get("folds_by") else ""
+            print(f"  its learned stage: {ls['chosen']} by cross-validation{folds} ({'; '.join(ls['choices'])})"
+                  + ("" if single is None else f"; single images at threshold {single:g}"))
         result["held_out_training"] = t
     if args.train_out is not None:
         t = trained_on_all(args.scene, args.frames, args.seed, kept, args.train_out, rate_hz=args.rate_hz,

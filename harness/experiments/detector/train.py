@@ -39,6 +39,8 @@ from tracker import BallDetector, BallSegmentationModel, DetectorOptions
 from tracker.detection.blobs import find_blobs
 from tracker.detection.model import BALL_COLOURS, INPUT_TRANSFORMS, logit, transform_lut
 
+from harness.experiments.detector.subsets import image_camera
+
 __all__ = [
     "BALL_COLOURS",
     "EXIT_WEAK_MODEL",
@@ -81,6 +83,10 @@ KEEP_BASE_CHOICES = ("auto", "never")
 LEARNED_CHOICES = ("auto", "on", "off")
 #: ``TrainOptions.filter`` / ``rt2 train --filter``: fit the 5x5 filter, keep the base model's, or choose (see TrainOptions)
 FILTER_CHOICES = ("auto", "fit", "keep")
+#: how the learned stage's cross-validation folds images (:func:`learned_folds`)
+LEARNED_FOLDS_BY = ("auto", "time", "camera")
+#: ``learned_folds_by`` "auto" folds by camera when every image names one of at least this many cameras
+CAMERA_FOLDS_MIN_CAMERAS = 3
 #: rt2 train's exit status when the model it chose finds too few balls in cross-validation (not written without --force)
 EXIT_WEAK_MODEL = 3
 #: the cross-validated recall below which rt2 train does not write the model (without --force)
@@ -123,7 +129,11 @@ class TrainOptions:
         no stage (the filter alone), the base's stage as it is, fine-tuned, or from scratch, chosen by
         cross-validation; ``rt2 train``'s default); "on" the same without "no stage" among the choices; "off" (the default of this function: the filter studies) writes the filter alone (and drops
         a base model's stage)
-    learned_folds : time-contiguous folds of the learned stage's cross-validation
+    learned_folds : folds of the learned stage's cross-validation
+    learned_folds_by : "time" (time-contiguous folds of whole frame sets, :func:`cv_folds`), "camera" (each fold whole
+        cameras: every fit scored on cameras it never saw) or "auto" (default): by camera when every image names one of
+        at least ``CAMERA_FOLDS_MIN_CAMERAS`` cameras (a rig's labels, ``rt2 label --auto``), else by time
+        (:func:`learned_folds`)
     learned_steps : optimiser steps of a learned stage from scratch (fine-tuning takes 3/8 of them, at most
         ``FINETUNE_STEPS``: a few labels pull a shipped network away from what it knew)
     filter : the 5x5 filter (Algorithm 1's model): "fit" trains it as above; "keep" writes the base model's filter
@@ -159,6 +169,7 @@ class TrainOptions:
     keep_base: str = "auto"
     learned: str = "off"
     learned_folds: int = 3
+    learned_folds_by: str = "auto"
     learned_steps: int = 1600
     filter: str = "auto"
     allow_no_ball: bool = False
@@ -193,6 +204,8 @@ class TrainOptions:
             raise ValueError(f"TrainOptions.learned must be one of {LEARNED_CHOICES}, got {self.learned!r}")
         if isinstance(self.learned_folds, bool) or not isinstance(self.learned_folds, int) or self.learned_folds < 2:
             raise ValueError(f"TrainOptions.learned_folds must be an integer >= 2, got {self.learned_folds!r}")
+        if self.learned_folds_by not in LEARNED_FOLDS_BY:
+            raise ValueError(f"TrainOptions.learned_folds_by must be one of {LEARNED_FOLDS_BY}, got {self.learned_folds_by!r}")
         if isinstance(self.learned_steps, bool) or not isinstance(self.learned_steps, int) or self.learned_steps < 1:
             raise ValueError(f"TrainOptions.learned_steps must be a positive integer, got {self.learned_steps!r}")
         if self.filter not in FILTER_CHOICES:
@@ -525,6 +538,40 @@ def cv_folds(labelled, n_folds: int) -> list[list[int]]:
     return [[i for k in keys[bounds[f] : bounds[f + 1]] for i in groups[k]] for f in range(n)]
 
 
+def camera_folds(labelled, n_folds: int) -> list[list[int]]:
+    """Indices of ``labelled`` in up to ``n_folds`` folds of whole cameras (:func:`~harness.experiments.detector.subsets.
+    image_camera`; the cameras in name order dealt round the folds): a fold's figures are those of cameras its model
+    never saw. ValueError naming the files when an image names no camera, or when fewer than 2 cameras are named."""
+    cams = [image_camera(li) for li in labelled]
+    unnamed = [str(li.path) for li, c in zip(labelled, cams) if not c]
+    if unnamed:
+        raise ValueError(f"--learned-folds-by camera needs every image's camera (the COCO image field 'camera', or a name like "
+                         f"f000012_cam2.png); {len(unnamed)} images name none, e.g. {unnamed[0]!r}")
+    names = sorted(set(cams))
+    if len(names) < 2:
+        raise ValueError(f"--learned-folds-by camera needs images of at least 2 cameras, got {', '.join(names)}")
+    n = min(n_folds, len(names))
+    return [[i for i, c in enumerate(cams) if names.index(c) % n == f] for f in range(n)]
+
+
+def learned_folds(labelled, n_folds: int, by: str = "auto") -> tuple[list[list[int]], str]:
+    """The learned stage's cross-validation folds and what they are (``"time"`` or ``"camera"``): ``by`` "time" is
+    :func:`cv_folds`, "camera" :func:`camera_folds`, "auto" by camera when every image names one of at least
+    ``CAMERA_FOLDS_MIN_CAMERAS`` cameras, else by time.
+
+    Why by camera: a rig's labels (``rt2 label --auto``) hold every camera at every time, so a time fold's model has
+    seen each camera's view; scored on cameras it never saw, the choice between the shipped, fine-tuned and new
+    stage is of the one that carries to a view it did not learn (the auto labels of caliscope cameras 0-2 with the
+    orange model for real cameras: by time a stage from scratch won, which found fewer of camera 3's balls than the
+    shipped stage; by camera the fine-tune won, README "Labels for free")."""
+    if by not in LEARNED_FOLDS_BY:
+        raise ValueError(f"learned folds by must be one of {LEARNED_FOLDS_BY}, got {by!r}")
+    if by == "auto":
+        cams = [image_camera(li) for li in labelled]
+        by = "camera" if all(cams) and len(set(cams)) >= CAMERA_FOLDS_MIN_CAMERAS else "time"
+    return (camera_folds(labelled, n_folds) if by == "camera" else cv_folds(labelled, n_folds)), by
+
+
 class _Fitter:
     """One fit of the filter (sampling, hard negatives per epoch, L-BFGS) on in-memory ``(image, labelled)`` items."""
 
@@ -673,6 +720,8 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     # the images themselves always
     kept_filter = keeps_filter(opts, base)
     check_memory(labelled, opts.augment_copies if opts.verifier or not kept_filter else 0, backgrounds)
+    if opts.learned != "off" and labelled:  # the learned stage's folds can be made (--learned-folds-by camera)
+        learned_folds(labelled, opts.learned_folds, opts.learned_folds_by)
     labelled = select_ball_colour(labelled, opts.ball_colour, progress=progress)
     if kept_filter:
         if base is None:
@@ -710,15 +759,20 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     if opts.learned != "off":
         from harness.experiments.detector.learned_train import train_stage
 
-        stage, l_info = train_stage(labelled, [load_image(li) for li in labelled], cv_folds(labelled, opts.learned_folds),
+        folds, by = learned_folds(labelled, opts.learned_folds, opts.learned_folds_by)
+        log(f"learned stage: {len(folds)} cross-validation folds by {by}" + (
+            "" if by == "time" else " (" + "; ".join(", ".join(sorted({image_camera(labelled[i]) for i in f})) for f in folds) + ")"))
+        stage, l_info = train_stage(labelled, [load_image(li) for li in labelled], folds,
                                     base=None if base is None else base.learned, seed=opts.seed,
                                     scratch_steps=opts.learned_steps, finetune_steps=max(1, min(FINETUNE_STEPS, opts.learned_steps * 3 // 8)),
                                     extra=backgrounds, alone=finfo.get("alone") if opts.learned == "auto" else None, log=log, progress=progress)
+        l_info["folds_by"] = by
         c = l_info["chosen"]
         if stage is None:
             log("learned stage: none written (the 5x5 filter alone scored best in cross-validation)")
         model = dataclasses.replace(model, learned=stage, description=model.description + (
-            f"; learned stage: {c.name if stage is not None else 'none, the filter alone'} (of {', '.join(x.name for x in l_info['choices'])}) by {l_info['folds']}-fold cross-validation: "
+            f"; learned stage: {c.name if stage is not None else 'none, the filter alone'} (of {', '.join(x.name for x in l_info['choices'])}) by {l_info['folds']}-fold cross-validation"
+            + ("" if by == "time" else " (folds by camera)") + ": "
             + "; ".join(x.line() for x in l_info["choices"])))
     elif model.learned is not None:
         model = dataclasses.replace(model, learned=None)
@@ -877,7 +931,7 @@ def figures_line(info, scores, what: str) -> str:
             f"outliers {100 * scores.outlier_rate:.2f}%, median {scores.median_center_error_px:.3f} px")
     single = learned.get("single")
     if single is not None:
-        line += (f"; single images (each image's best candidate at threshold {learned['chosen'].threshold:g}): recall "
+        line += (f"; single images (each image's best candidate at threshold {learned.get('single_threshold', learned['chosen'].threshold):g}): recall "
                  f"{100 * float(np.nan_to_num(single.recall)):.2f}%, outliers {100 * single.outlier_rate:.2f}%")
     return line
 
@@ -948,6 +1002,10 @@ def add_arguments(parser) -> None:
                              "'off': the 5x5 filter alone")
     parser.add_argument("--learned-folds", type=int, default=TrainOptions.learned_folds,
                         help=f"folds of the learned stage's cross-validation (default {TrainOptions.learned_folds})")
+    parser.add_argument("--learned-folds-by", choices=LEARNED_FOLDS_BY, default=TrainOptions.learned_folds_by,
+                        help="how the learned stage's cross-validation folds the images: 'time' (time-contiguous frame sets), "
+                             "'camera' (whole cameras: each fit scored on cameras it never saw) or 'auto' (default): by camera when "
+                             f"every image names one of at least {CAMERA_FOLDS_MIN_CAMERAS} cameras (rt2 label --auto's labels), else by time")
     parser.add_argument("--learned-steps", type=int, default=TrainOptions.learned_steps,
                         help=f"optimiser steps of a learned stage from scratch; fine-tuning takes 3/8 of them, at most {FINETUNE_STEPS} "
                              f"(default {TrainOptions.learned_steps})")
@@ -1050,6 +1108,7 @@ def run(args) -> int:
                             ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
                             threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
                             keep_base=args.keep_base, learned=args.learned, learned_folds=args.learned_folds,
+                            learned_folds_by=args.learned_folds_by,
                             learned_steps=args.learned_steps, filter=args.filter, allow_no_ball=args.force)
         picked = ([f"cameras {' '.join(args.camera)}"] if args.camera else []) + ([f"time range {args.time_range}"] if args.time_range else [])
         sources = f"data {', '.join(map(str, args.data))}" + (f" ({', '.join(picked)})" if picked else "")

@@ -244,15 +244,19 @@ def test_eval_autolabel_held_out_training_reports_its_learned_stages_choice(monk
 
     def made_up(labelled, opts, *, base, **kw):
         assert opts.learned == "auto"  # as rt2 train at its defaults
-        return base, {"kept_base": True, "learned": {"chosen": choices[0], "choices": choices}}
+        cams = {li.camera for li in labelled}  # each label names its camera, as rt2 label --auto's do: folds by camera
+        assert None not in cams and cams <= {"cam0", "cam1", "cam2"} and len(cams) >= 2
+        return base, {"kept_base": True, "learned": {"chosen": choices[0], "choices": choices, "folds_by": "camera", "single_threshold": 0.15}}
 
     monkeypatch.setattr(train_module, "train", made_up)
     out = tmp_path / "ho.json"
     assert main(["eval", "autolabel", "--scene", "lab", "--frames", "6", "--seed", "3", "--train-held-out", "cam3", "--json", str(out)]) == 0
-    assert ("  its learned stage: shipped by cross-validation (shipped: recall 87.3%, outliers 72.4%, median 4.53 px at threshold "
-            "0.2; scratch: recall 4.7%, outliers 0.0%, median 2.15 px at threshold 0.8)") in capsys.readouterr().out
+    assert ("  its learned stage: shipped by cross-validation, folds by camera (shipped: recall 87.3%, outliers 72.4%, median 4.53 px "
+            "at threshold 0.2; scratch: recall 4.7%, outliers 0.0%, median 2.15 px at threshold 0.8); single images at threshold 0.15"
+            ) in capsys.readouterr().out
     stage = json.loads(out.read_text())["held_out_training"]["learned_stage"]
     assert stage["chosen"] == "shipped" and stage["threshold"] == 0.2 and len(stage["choices"]) == 2
+    assert stage["folds_by"] == "camera" and stage["single_threshold"] == 0.15
 
 
 def test_eval_autolabel_train_out_writes_the_model_trained_on_every_cameras_labels(monkeypatch, capsys, tmp_path):

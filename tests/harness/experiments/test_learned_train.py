@@ -54,6 +54,29 @@ def test_the_same_seed_gives_the_same_network_bytes(synthetic_ball_coco):
     assert a == b and a != c
 
 
+def test_the_patches_sampled_ahead_are_those_sampled_in_turn(synthetic_ball_coco, monkeypatch):
+    """fit_learned samples the next batch on a second thread while it trains: every batch is the one a plain loop
+    drawing from the same generator would give, in the same order (so a seed gives the same network as before)."""
+    import harness.experiments.detector.learned_train as L
+
+    labelled = read_coco(synthetic_ball_coco(10, 0))
+    items = items_at_scale([(load_image(li), li) for li in labelled], 640)
+    opts = LearnedTrainOptions(iterations=5, batch=4, patch_px=64)
+    real, seen = L.sample_patches, []
+
+    def recorded(*args, **kwargs):
+        seen.append(real(*args, **kwargs))
+        return seen[-1]
+
+    monkeypatch.setattr(L, "sample_patches", recorded)
+    fit_learned(items, opts, 3, log=lambda m: None)
+    assert len(seen) == 5  # one per step, none sampled past the last
+    rng = np.random.default_rng([3, 35])  # fit_learned's generator for seed 3
+    for got in seen:
+        for a, b in zip(got, real(items, 4, rng, opts)):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_the_exported_graph_computes_the_torch_network():
     """The deployed ONNX graph (normalisation folded, head split) gives the torch module's output, both layouts,
     frames with odd and even cell counts; its initializers are the state dict as it was."""
@@ -199,9 +222,10 @@ def test_a_base_whose_filter_does_not_see_its_ball_keeps_its_filter(synthetic_ba
     assert "held-out figures of the model written (the learned stage" in text and "the base model's 5x5 filter kept" in text
     line = next(ln for ln in text.splitlines() if ln.startswith("held-out figures of the model written"))
     assert "): top-4 recall " in line and "; single images (each image's best candidate at threshold " in line  # named by what they count
-    top4, single = (float(part.split("recall ")[1].split("%")[0]) for part in line.split("; single images"))
-    assert single <= top4  # an image's best candidate finds no ball its first four miss
     m = BallSegmentationModel.load(out)
+    single_th = float(line.split("best candidate at threshold ")[1].split(")")[0])
+    assert m.learned.threshold == pytest.approx(single_th)  # the file's single-image threshold is the one its figures are at
+    assert m.learned.track_threshold <= 0.2  # the tracker's own, chosen top-K (at most TRACK_THRESHOLD)
     np.testing.assert_array_equal(m.kernel, base.kernel)
     assert (m.t_high, m.t_low, m.bias) == (base.t_high, base.t_low, base.bias) and m.learned is not None
     assert not m.learned.filter_refines  # the stage still says so
@@ -337,3 +361,106 @@ def test_single_image_scores_count_each_image_s_best_candidate_only():
     assert (s.n_balls, s.n_detections) == (2, 2)
     assert s.recall == pytest.approx(0.5) and s.outlier_rate == pytest.approx(0.5)
     assert _scores_at(truth, cands, 0.95, 1, 6.0).n_detections == 0
+
+
+def test_single_images_get_a_threshold_of_their_own():
+    """The written stage's single-image threshold is the best for each image's first candidate up to the top-K one (the
+    tracker's, which chooses the stage): lower where the false candidates rank after the ball, never higher (a lamp that
+    outranks the ball in the labelled cameras would take every other camera's balls with it), and the top-K one where
+    no threshold finds more balls than false ones."""
+    from harness.experiments.detector.learned_train import _best_threshold, single_image_threshold
+
+    ball = lambda u: np.array([[u, u]])  # noqa: E731
+    truth = ([ball(10.0), ball(50.0), ball(90.0), np.zeros((0, 2))], [np.array([8.0])] * 3 + [np.zeros(0)])
+    weak = [(np.array([[10.0, 10.0], [300.0, 300.0]]), np.array([0.25, 0.22])),  # a weak ball, a weaker alarm after it
+            (np.array([[50.0, 50.0]]), np.array([0.45])),
+            (np.array([[90.0, 90.0], [200.0, 200.0]]), np.array([0.45, 0.21])),
+            (np.zeros((0, 2)), np.zeros(0))]
+    top4_th, top4 = _best_threshold(truth, weak, 4, 6.0)
+    assert top4_th == 0.4 and top4.recall == pytest.approx(2 / 3)  # the alarms after the balls cost the weak ball
+    th, single, kept = single_image_threshold(truth, weak, top4_th, 6.0)
+    assert th == 0.2 and single.recall == 1.0 and single.outlier_rate == 0 and not kept  # a first candidate has no alarm
+    above = [(np.array([[10.0, 10.0]]), np.array([0.45])),
+             (np.array([[50.0, 50.0]]), np.array([0.45])),
+             (np.array([[300.0, 300.0], [90.0, 90.0]]), np.array([0.35, 0.25])),  # an alarm above a weak ball
+             (np.array([[200.0, 200.0]]), np.array([0.12]))]  # a weak alarm in a ball-free image
+    top4_th, _ = _best_threshold(truth, above, 4, 6.0)
+    assert top4_th == 0.2 and _best_threshold(truth, above, 1, 6.0)[0] == 0.4  # alone, the single image's would be higher
+    th, single, kept = single_image_threshold(truth, above, top4_th, 6.0)
+    assert th == 0.2 and single.recall == pytest.approx(2 / 3) and not kept  # capped at the top-K one
+    # a lamp above the ball in every image: no threshold up to the top-K one finds more balls than alarms
+    lamp = [(np.array([[400.0, 400.0], *c[0]]), np.array([0.8, *c[1]])) for c in above]
+    assert _best_threshold(truth, lamp, 1, 6.0)[0] == 0.9  # (finding nothing scores best)
+    th, s, kept = single_image_threshold(truth, lamp, 0.2, 6.0)
+    assert (th, kept, s.recall) == (0.2, True, 0.0) and s.n_detections == 4
+
+
+def _named(n_cams: int, per_cam: int = 4, camera_field: bool = True):
+    from harness.experiments.detector.coco import LabelledImage
+
+    return [LabelledImage(f"/data/f{t:06d}_{'cameras.' if camera_field else 'cam'}{c}.png", 64, 48, np.array([[10.0, 10.0, 8.0, 8.0]]),
+                          np.array([[13.5, 13.5]]), camera=f"cameras.{c}" if camera_field else None)
+            for t in range(per_cam) for c in range(n_cams)]
+
+
+def test_a_rigs_labels_fold_by_camera_and_one_cameras_by_time():
+    """``--learned-folds-by auto``: the labels of three or more named cameras (rt2 label --auto's) fold by whole cameras,
+    each fit scored on cameras it never saw; fewer cameras, or images without one, fold by time."""
+    from harness.experiments.detector.train import camera_folds, cv_folds, learned_folds
+
+    three = _named(3)
+    folds, by = learned_folds(three, 3)
+    assert by == "camera" and len(folds) == 3
+    for f in folds:
+        assert len({three[i].camera for i in f}) == 1 and len(f) == 4
+    assert sorted(i for f in folds for i in f) == list(range(12))
+    folds, by = learned_folds(_named(4), 3)  # four cameras in three folds: one fold holds two
+    assert by == "camera" and sorted(len(f) for f in folds) == [4, 4, 8]
+    assert learned_folds(_named(3, camera_field=False), 3)[1] == "camera"  # the camera from the file name (f000001_cam2.png)
+    two = _named(2)
+    folds, by = learned_folds(two, 3)
+    assert by == "time" and folds == cv_folds(two, 3)
+    assert learned_folds(three, 3, "time") == (cv_folds(three, 3), "time")
+    assert learned_folds(two, 3, "camera")[1] == "camera" and len(camera_folds(two, 3)) == 2
+
+
+@pytest.mark.parametrize("labelled, by, message", [
+    (_named(1), "camera", "--learned-folds-by camera needs images of at least 2 cameras, got cameras.0"),
+    ([*_named(2), *[li.__class__(f"/data/other_{i}.png", 64, 48, li.boxes_xywh, li.centers_px) for i, li in enumerate(_named(1))]],
+     "camera", "--learned-folds-by camera needs every image's camera"),
+    (_named(3), "sideways", "learned folds by must be one of"),
+])
+def test_folds_by_camera_refuse_what_they_cannot_fold(labelled, by, message):
+    from harness.experiments.detector.train import learned_folds
+
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
+        learned_folds(labelled, 3, by)
+
+
+def test_rt2_train_folds_a_rigs_labels_by_camera(synthetic_ball_coco, tmp_path, capsys):
+    """rt2 train on labels of three named cameras: its learned stage's cross-validation folds by camera (the line says
+    which cameras each fold holds, the model's description says so); ``--learned-folds-by camera`` on one camera's
+    labels is one line, exit 2, before any training."""
+    from harness.experiments.detector.coco import write_coco
+
+    src = read_coco(synthetic_ball_coco(12, 3))
+    rig = tmp_path / "rig"
+    rig.mkdir()
+    named = []
+    for i, li in enumerate(src):
+        path = rig / f"f{i // 3:06d}_cam{i % 3}.png"
+        path.write_bytes(li.path.read_bytes())
+        named.append(li.__class__(path, li.width, li.height, li.boxes_xywh, li.centers_px, camera=f"cameras.{i % 3}"))
+    write_coco(rig, named, image_extra=[{"camera": li.camera} for li in named])  # the field rt2 label --auto writes
+    out = tmp_path / "m.npz"
+    common = ["train", "--data", str(rig), "--epochs", "1", "--from", "none", "--learned", "on", "--learned-steps", "2",
+              "--thresholds", "cv", "--cv-folds", "2", "--force", "--seed", "0"]
+    assert main([*common, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "learned stage: 3 cross-validation folds by camera (cameras.0; cameras.1; cameras.2)" in text
+    assert "(folds by camera)" in BallSegmentationModel.load(out).description
+    one = str(synthetic_ball_coco(12, 3))
+    assert main([*common, "--data", one, "--learned-folds-by", "camera", "--out", str(tmp_path / "one.npz")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--learned-folds-by camera needs images of at least 2 cameras, got cam0" in err[0]
+    assert not (tmp_path / "one.npz").exists()
