@@ -425,7 +425,7 @@ def fit_learned(items: list[LearnedItem], opts: LearnedTrainOptions, seed: int, 
             bar = progress_bar(total=opts.iterations, desc="learned stage", unit="step", leave=False)
         avg = None
         # the next batch's patches are sampled on a second thread while the network trains on one (torch runs on a
-        # single thread, for repeatable sums): the sampling took ~60 % of rt2 train's time. One batch at a time, each
+        # single thread, for repeatable sums): the sampling took most of rt2 train's time. One batch at a time, each
         # begun when the one before is taken: the generator draws in the same order, so the same patches
         with ThreadPoolExecutor(1, thread_name_prefix="rt2-patches") as pool:
             ahead = pool.submit(sample_patches, items, opts.batch, rng, opts)
@@ -710,6 +710,8 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
         why = "; at no threshold do they find more balls than false ones, so the top-K one is kept" if kept else ""
         log(f"learned stage, single images ({best.name}: each image's best candidate at threshold {single_threshold:g}), "
             f"{len(folds)}-fold cross-validation: recall {100 * np.nan_to_num(single.recall):.1f}%, outliers {100 * single.outlier_rate:.1f}%{why}")
+    thresholds = (f"thresholds {single_threshold:g} (single images) and {best.threshold:g} (top-K; tracking "
+                  f"{min(best.threshold, TRACK_THRESHOLD):g}) by cross-validation")
     if best.name == "none":
         stage = None
     elif best.name == "shipped":
@@ -718,8 +720,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
                                **kept_passes(best.name, base), filter_refines=base.filter_refines,
                                track_threshold=min(best.threshold, TRACK_THRESHOLD),
                                size_ratio=base.size_ratio,  # the same network: its diameters' record holds
-                               description=base.description + f"; thresholds {single_threshold:g} (single images) and "
-                               f"{best.threshold:g} (top-K; tracking {min(best.threshold, TRACK_THRESHOLD):g}) by cross-validation on {len(labelled)} images")
+                               description=base.description + f"; {thresholds} on {len(labelled)} images")
     else:
         steps, state = (finetune_steps, base_state) if best.name == "fine-tuned" else (scratch_steps, None)
         opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
@@ -735,8 +736,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
                              context_px=WINDOW_CONTEXT_PX if base is None else base.context_px, track_threshold=min(best.threshold, TRACK_THRESHOLD),
                              **kept_passes(best.name, base),
                              filter_refines=True if base is None else base.filter_refines, size_ratio=inherited,
-                             description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed}; thresholds {single_threshold:g} "
-                             f"(single images) and {best.threshold:g} (top-K; tracking {min(best.threshold, TRACK_THRESHOLD):g}) by cross-validation)"
+                             description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed}; {thresholds})"
                              + ("" if inherited is None else f"; size ratio {inherited:g}, the base's"))
     info = dict(choices=choices, chosen=best, folds=len(folds), max_side_px=max_side, single=single, single_threshold=single_threshold, k=k)
     return stage, info

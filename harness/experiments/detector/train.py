@@ -551,7 +551,11 @@ def camera_folds(labelled, n_folds: int) -> list[list[int]]:
     if len(names) < 2:
         raise ValueError(f"--learned-folds-by camera needs images of at least 2 cameras, got {', '.join(names)}")
     n = min(n_folds, len(names))
-    return [[i for i, c in enumerate(cams) if names.index(c) % n == f] for f in range(n)]
+    fold_of = {name: k % n for k, name in enumerate(names)}
+    folds: list[list[int]] = [[] for _ in range(n)]
+    for i, c in enumerate(cams):
+        folds[fold_of[c]].append(i)
+    return folds
 
 
 def learned_folds(labelled, n_folds: int, by: str = "auto") -> tuple[list[list[int]], str]:
@@ -720,8 +724,9 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     # the images themselves always
     kept_filter = keeps_filter(opts, base)
     check_memory(labelled, opts.augment_copies if opts.verifier or not kept_filter else 0, backgrounds)
-    if opts.learned != "off" and labelled:  # the learned stage's folds can be made (--learned-folds-by camera)
-        learned_folds(labelled, opts.learned_folds, opts.learned_folds_by)
+    # the learned stage's folds, before any image is read (--learned-folds-by camera on labels it cannot fold: one line);
+    # the colour's selection below keeps every image, in order
+    folds, by = learned_folds(labelled, opts.learned_folds, opts.learned_folds_by) if opts.learned != "off" else (None, None)
     labelled = select_ball_colour(labelled, opts.ball_colour, progress=progress)
     if kept_filter:
         if base is None:
@@ -759,7 +764,6 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     if opts.learned != "off":
         from harness.experiments.detector.learned_train import train_stage
 
-        folds, by = learned_folds(labelled, opts.learned_folds, opts.learned_folds_by)
         log(f"learned stage: {len(folds)} cross-validation folds by {by}" + (
             "" if by == "time" else " (" + "; ".join(", ".join(sorted({image_camera(labelled[i]) for i in f})) for f in folds) + ")"))
         stage, l_info = train_stage(labelled, [load_image(li) for li in labelled], folds,
@@ -924,14 +928,14 @@ def written_scores(info):
 def figures_line(info, scores, what: str) -> str:
     """``rt2 train``'s last line of held-out figures: ``scores`` (:func:`written_scores`) named by what they count (``ours``:
     an image's detection; ``top-K``: its first K candidates, each extra one an outlier), and with a learned stage its
-    single images' figures too (each image's best candidate at the written threshold, the same cross-validation)."""
+    single images' figures too (each image's best candidate at the written single-image threshold, the same cross-validation)."""
     learned = info.get("learned") or {}
     name = f"top-{learned.get('k', 4)}" if scores.method == "topk" else "ours"  # a learned stage's choices are scored top-K
     line = (f"held-out figures of the model written ({what}): {name} recall {100 * float(np.nan_to_num(scores.recall)):.2f}%, "
             f"outliers {100 * scores.outlier_rate:.2f}%, median {scores.median_center_error_px:.3f} px")
     single = learned.get("single")
     if single is not None:
-        line += (f"; single images (each image's best candidate at threshold {learned.get('single_threshold', learned['chosen'].threshold):g}): recall "
+        line += (f"; single images (each image's best candidate at threshold {learned['single_threshold']:g}): recall "
                  f"{100 * float(np.nan_to_num(single.recall)):.2f}%, outliers {100 * single.outlier_rate:.2f}%")
     return line
 
