@@ -483,7 +483,7 @@ def global_writes(tree: ast.AST, aliases: set[str]):
     for n in ast.walk(tree):
         targets = []
         if isinstance(n, (ast.Assign, ast.AugAssign, ast.AnnAssign, ast.Delete)):
-            targets = n.targets if isinstance(n, (ast.Assign, ast.Delete)) else [n.target]
+            targets = list(n.targets) if isinstance(n, (ast.Assign, ast.Delete)) else [n.target]  # a copy: the trees are shared
         while targets:
             t = targets.pop()
             if isinstance(t, (ast.Tuple, ast.List)):

@@ -13,7 +13,8 @@ a new frame, which cells of it differ from that background:
    flicker with the mains without moving);
 3. when more than ``max_share`` of the cells moved, the scene changed as a whole (the light went on, the
    camera was bumped, another recording begins): the frame gives no cue and becomes the background;
-   likewise the first frame, and the first after a gap of more than ``max_gap_s`` between frames;
+   likewise the first frame, the first after a gap of more than ``max_gap_s`` between frames, and one stamped
+   earlier than the frame before it (the clock went back: another recording, a replay started again);
 4. the background follows the frames it is computed for: ``bg += alpha (frame - bg)`` per cell (a ball
    passing through a cell leaves a trace of ``alpha`` of its contrast, under the threshold). It is computed
    for every ``learn_every``-th frame, and for every frame whose cue is asked for (a full-frame search); the
@@ -54,7 +55,7 @@ class MotionOptions:
     threshold : a cell moved when a channel differs from the background by more than this many grey levels ...
     relative : ... plus this share of the background's brightest channel there
     max_share : more cells moved than this share: the scene changed as a whole, no cue from that frame
-    max_gap_s : frames farther apart than this (seconds): the background starts again
+    max_gap_s : frames farther apart than this (seconds), or a frame earlier than the one before: the background starts again
     margin_cells : a candidate is on moving cells when one lies within its radius plus this many cells
     regions : a full-frame search looks only in the boxes around the moving cells (:meth:`MotionCue.regions`; faster:
         on the simulated lab a full-frame frame set took half the time) while there are at most ``max_regions`` of them
@@ -190,8 +191,8 @@ class MotionCue:
         o = self.options
         again = frame is not None and frame == self._frame
         if not again:
-            if self._last_t is not None and math.isfinite(t_s) and t_s - self._last_t > o.max_gap_s:
-                self._has_bg = False
+            if self._last_t is not None and math.isfinite(t_s) and not -1e-9 <= t_s - self._last_t <= o.max_gap_s:
+                self._has_bg = False  # a gap, or the clock went back (1 ns: frame stamps in floats)
             if math.isfinite(t_s):
                 self._last_t = t_s
             self._frame, self._seen = frame, False

@@ -93,6 +93,9 @@ def test_no_cue_when_the_whole_scene_changes_or_after_a_gap():
     assert cue.observe(_frame(3, [LAMP], level=200.0), 1.0, frame=3, need_mask=True) is None  # 1 s later: starts again
     cue.reset()
     assert cue.observe(_frame(4, [LAMP], level=200.0), 1.005, frame=4, need_mask=True) is None
+    assert cue.observe(_frame(5, [LAMP], level=200.0), 1.010, frame=5, need_mask=True) is not None
+    assert cue.observe(_frame(6, [LAMP], level=200.0), 0.0, frame=6, need_mask=True) is None  # the clock went back: starts again
+    assert cue.observe(_frame(7, [LAMP], level=200.0), 0.005, frame=7, need_mask=True) is not None
 
 
 def test_a_frame_is_counted_once_and_learnt_every_learn_every_frames():

@@ -56,6 +56,8 @@ class LabelledImage:
     centers_px : (n, 2) float ball centres, rt2 pixels ((0, 0) = centre of the top-left pixel)
     camera : the rig camera that took it (COCO image field ``camera``, as ``rt2 sim dataset`` and ``rt2 label
         --auto`` write it: a name, or an integer read as one; a field of another kind is not read), or None
+    time_s : when the camera took it, seconds (COCO image field ``time_s``, as ``rt2 sim dataset`` writes it), or None;
+        a fixed camera's images in time order are a sequence (``rt2 eval detector --motion-cue``)
     """
 
     path: Path
@@ -64,9 +66,15 @@ class LabelledImage:
     boxes_xywh: np.ndarray
     centers_px: np.ndarray
     camera: str | None = None
+    time_s: float | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "path", Path(self.path))
+        t = self.time_s
+        if t is not None:
+            if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not math.isfinite(t):
+                raise ValueError(f"LabelledImage {str(self.path)!r}: time_s must be None or a finite number of seconds, got {short(t)}")
+            object.__setattr__(self, "time_s", float(t))
         if self.camera is not None and (not isinstance(self.camera, str) or not self.camera):
             raise ValueError(f"LabelledImage {str(self.path)!r}: camera must be None or a non-empty name, got {short(self.camera)}")
         for name in ("width", "height"):
@@ -159,7 +167,10 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
             raise ValueError(f"{where}: field 'file_name' names {short(im['file_name'])}, which does not exist (looked for {str(file)!r})")
         camera = im.get("camera")  # rt2's field; another tool's camera of another kind (a make, an object) is not a name
         camera = str(camera) if (isinstance(camera, str) and camera) or (isinstance(camera, int) and not isinstance(camera, bool)) else None
-        images[im["id"]] = (file, w, h, [], [], camera)
+        t = im.get("time_s")
+        if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t)):
+            raise ValueError(f"{where}: field 'time_s' must be a finite number of seconds, got {short(t)}")
+        images[im["id"]] = (file, w, h, [], [], camera, t)
         order.append(im["id"])
 
     seen_ann = set()
@@ -177,7 +188,7 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
             raise ValueError(f"{where}: field 'image_id' refers to unknown image id {short(ann['image_id'])}")
         if ann["category_id"] not in ball_ids:
             continue
-        file, w, h, boxes, centers, _ = images[ann["image_id"]]
+        file, w, h, boxes, centers, _, _ = images[ann["image_id"]]
         box = _numbers(ann["bbox"], 4, "bbox", where)
         x, y, bw, bh = box
         if bw <= 0 or bh <= 0:
@@ -195,7 +206,7 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
 
     out = []
     for image_id in order:
-        file, w, h, boxes, centers, camera = images[image_id]
+        file, w, h, boxes, centers, camera, t = images[image_id]
         out.append(
             LabelledImage(
                 path=file,
@@ -204,6 +215,7 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
                 boxes_xywh=np.array(boxes, float).reshape(-1, 4),
                 centers_px=np.array(centers, float).reshape(-1, 2),
                 camera=camera,
+                time_s=t,
             )
         )
     return out

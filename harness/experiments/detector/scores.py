@@ -29,6 +29,8 @@ class DetectorScores:
     n_images_without_ball: int = 0
     n_false_alarm_images: int = 0  #: images without a labelled ball but with a detection
     per_camera: dict | None = None  #: {camera name: DetectorScores of its images} where the images name their camera
+    #: with ``rt2 eval detector --motion-cue``: {"sequences", "images_without_cue", "candidates_dropped"} (else None)
+    motion_cue: dict | None = None
 
     def as_json(self) -> dict:
         keys = ("method", "recall", "outlier_rate", "median_center_error_px", "p95_center_error_px")
@@ -36,6 +38,8 @@ class DetectorScores:
         if self.per_camera:
             out["per_camera"] = {name: {**s.as_json(), "n_balls": s.n_balls, "n_images": s.n_images, "n_detections": s.n_detections}
                                  for name, s in self.per_camera.items()}
+        if self.motion_cue is not None:
+            out["motion_cue"] = dict(self.motion_cue)
         return out
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from checks.time_order import parse_range, time_key
 
-__all__ = ["camera_of", "image_camera", "select_cameras", "take_range", "time_order"]
+__all__ = ["camera_of", "camera_sequences", "frames_before", "image_camera", "select_cameras", "sequence_key", "take_range", "time_order"]
 
 #: the camera in a file name: ``f000123_cam2`` (``rt2 sim dataset``) or ``cam2_s000017`` (``rt2 label`` on a session log)
 _CAMERA_SUFFIX = re.compile(r"_(cam\d+)$")
@@ -61,4 +61,32 @@ def take_range(labelled, text: str | None, option: str = "--time-range") -> list
     out = time_order(labelled)[start:stop]
     if not out:
         raise ValueError(f"{option} {text}: selects no image of the {len(labelled)} given")
+    return out
+
+
+def sequence_key(labelled) -> tuple:
+    """The fixed camera a ``LabelledImage`` is a frame of: its :func:`image_camera` ("" for none: a one-camera set), image
+    size and folder."""
+    return image_camera(labelled), labelled.width, labelled.height, str(Path(labelled.path).parent)
+
+
+def camera_sequences(labelled) -> list[list[int]]:
+    """The indices of ``labelled`` as fixed cameras' frame sequences: one list per :func:`sequence_key`, in time order
+    (:func:`time_order`'s key; stable), the cameras in the order they first appear."""
+    seqs: dict = {}
+    for i, li in enumerate(labelled):
+        seqs.setdefault(sequence_key(li), []).append(i)
+    return [sorted(idx, key=lambda i: time_key(labelled[i].path)) for idx in seqs.values()]
+
+
+def frames_before(labelled, selected, n: int = 1) -> list:
+    """Per camera of ``selected`` (a subset of ``labelled``, e.g. :func:`take_range`'s), the ``n`` images of ``labelled``
+    of that camera (:func:`sequence_key`) just before its first selected one in time order, oldest first: what a live
+    camera's stream showed before the selected frames."""
+    chosen = {id(li) for li in selected}
+    out = []
+    for seq in camera_sequences(labelled):
+        first = next((k for k, i in enumerate(seq) if id(labelled[i]) in chosen), None)
+        if first:
+            out.extend(labelled[i] for i in seq[max(first - n, 0):first])
     return out

@@ -15,6 +15,11 @@ Methods: ``paper`` = Algorithm 1 (argmax + flood fill, one detection); ``ours`` 
 candidate of the top-K detector (shape test applied); ``topk`` = all its K candidates, so a ball
 counts as recalled if any candidate hits it and *every* extra candidate that is not on the ball
 counts as an outlier (these are what the robust estimator has to reject).
+
+With a motion cue (``--motion-cue``, fixed cameras' sequences) the images of each camera are searched in their time
+order, as a live camera's frames are: per camera a background (``tracker.motion.MotionCue``) and only the candidates
+of ``ours`` and ``topk`` on cells that moved are kept (the tracker's ``rt2-motion-gate``), except where the frame gives no
+cue (a camera's first image, after a gap or a change of the whole scene) or its still-ball search is due.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.experiments.detector.scores import score_detections, truth_of
-from harness.experiments.detector.subsets import image_camera, select_cameras
+from harness.experiments.detector.subsets import camera_sequences, frames_before, image_camera, select_cameras, sequence_key
 
 __all__ = ["DEFAULT_MODEL", "EVAL_METHODS", "add_arguments", "evaluate", "format_cameras", "run"]
 
@@ -37,7 +42,8 @@ GOALS = {"recall": 0.99, "outlier_rate": 0.01, "median_center_error_px": 0.5}
 
 
 def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, min_diameter_px: float = 6.0, t_high=None, t_low=None, progress=True,
-             ball_free_margin_px: float | None = None, area_px=None, learned_threshold: float | None = None):
+             ball_free_margin_px: float | None = None, area_px=None, learned_threshold: float | None = None, motion_cue=None,
+             cue_warmup=()):
     """Run each method on every labelled image; returns a list of :class:`~harness.experiments.detector.scores.DetectorScores`.
 
     model : ``BallSegmentationModel``; labelled : list of ``harness.experiments.detector.coco.LabelledImage``
@@ -49,6 +55,12 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
         :func:`area_from_diameters` turns a ball diameter range into one)
     learned_threshold : the learned stage's heat threshold of ``ours`` and ``topk``, a probability (None = the stage's
         single-image one)
+    motion_cue : ``tracker.motion.MotionOptions`` for the fixed cameras' motion cue (module docstring; None: single images);
+        the images are searched per camera in time order (:func:`~harness.experiments.detector.subsets.camera_sequences`)
+        and ``ours`` and ``topk`` get a ``motion_cue`` entry: the sequences, the images searched without the cue and the
+        candidates it dropped
+    cue_warmup : ``LabelledImage`` s each camera's cue is shown, in order, before its first scored image (not scored: the
+        frames before a ``--time-range``, as a live camera's stream would have shown them)
     Images naming two or more cameras (:func:`~harness.experiments.detector.subsets.image_camera`) give each score
     its ``per_camera`` figures.
     """
@@ -62,10 +74,14 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
             raise ValueError(f"unknown method {m!r}; valid: {EVAL_METHODS}")
     paper = BallDetector(model, DetectorOptions(method="paper", t_high=t_high, t_low=t_low))
     ours = BallDetector(model, _ours_options(max_candidates, t_high, t_low, learned_threshold, area_px))
+    if motion_cue is not None:  # each camera's images in time order; the scores do not depend on the order
+        labelled = [labelled[i] for seq in camera_sequences(labelled) for i in seq]
+    cues = None if motion_cue is None else _CameraCues(motion_cue, cue_warmup, ball_free_margin_px)
     found = {m: [] for m in methods}
     centers, diameters = [], []
     for li in progress_bar(labelled, desc="eval detector", unit="img", disable=not progress, leave=False):
         image = _evaluated_image(li, ball_free_margin_px)
+        gate = None if cues is None else cues.observe(li, image)
         if ball_free_margin_px is not None:
             li = without_balls(li)
         c, d = truth_of(li)
@@ -74,12 +90,15 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
         if "paper" in methods:
             found["paper"].append(paper.detect(image).uv_px)
         if "ours" in methods or "topk" in methods:
-            uv = ours.detect(image).uv_px
+            det = ours.detect(image)
+            uv = det.uv_px if gate is None else cues.moving(gate, det)
             if "ours" in methods:
                 found["ours"].append(uv[:1])
             if "topk" in methods:
                 found["topk"].append(uv)
     scores = [score_detections(m, centers, diameters, found[m], min_diameter_px=min_diameter_px) for m in methods]
+    if cues is not None:
+        scores = [replace(s, motion_cue=cues.summary()) if s.method in ("ours", "topk") else s for s in scores]
     cameras = [image_camera(li) for li in labelled]
     if not all(cameras) or len(set(cameras)) < 2:
         return scores
@@ -89,6 +108,49 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
         split[name] = [score_detections(m, [centers[i] for i in idx], [diameters[i] for i in idx], [found[m][i] for i in idx],
                                         min_diameter_px=min_diameter_px) for m in methods]
     return [replace(s, per_camera={name: split[name][k] for name in split}) for k, s in enumerate(scores)]
+
+
+class _CameraCues:
+    """Per camera (and image size) of an evaluated sequence its motion cue (:func:`evaluate`'s ``motion_cue``)."""
+
+    def __init__(self, options, warmup, ball_free_margin_px):
+        self.options, self.ball_free_margin_px = options, ball_free_margin_px
+        self.warmup: dict = {}
+        for li in warmup:
+            self.warmup.setdefault(sequence_key(li), []).append(li)
+        self.cues: dict = {}
+        self.without_cue = self.dropped = 0
+
+    def observe(self, li, image):
+        """Show ``image`` (of ``li``) to its camera's cue; returns the cue where it gates this image's candidates, None
+        where the image is searched without it."""
+        from tracker.motion import MotionCue
+
+        key = sequence_key(li)
+        cue = self.cues.get(key)
+        if cue is None:
+            cue = self.cues[key] = MotionCue(li.width, li.height, self.options)
+            for w in self.warmup.get(key, ()):
+                cue.observe(_evaluated_image(w, self.ball_free_margin_px), _time_of(w), need_mask=True)
+        t = _time_of(li)
+        cue.observe(image, t, need_mask=True)
+        if cue.whole_frame_due(t):
+            self.without_cue += 1
+            return None
+        return cue
+
+    def moving(self, cue, det) -> np.ndarray:
+        """The centres of ``det``'s candidates on cells ``cue`` saw move (best first)."""
+        keep = cue.moved(det.uv_px, det.boxes_xywh[:, 2:].max(axis=1)) if len(det) else np.zeros(0, bool)
+        self.dropped += int((~keep).sum())
+        return det.uv_px[keep]
+
+    def summary(self) -> dict:
+        return {"sequences": len(self.cues), "images_without_cue": self.without_cue, "candidates_dropped": self.dropped}
+
+
+def _time_of(li) -> float:
+    return math.nan if li.time_s is None else li.time_s
 
 
 def area_from_diameters(model, diameter_px) -> tuple[int, int]:
@@ -106,7 +168,14 @@ def area_from_diameters(model, diameter_px) -> tuple[int, int]:
 
 def too_large(model, labelled, min_diameter_px: float, area_px=None) -> tuple[int, int, float]:
     """(labelled balls >= ``min_diameter_px`` whose disk is larger than the accepted blob area, such balls, that largest
-    area in pixels): a ball imaged larger than the model was trained for is rejected by the shape test whatever its colour."""
+    area in pixels): a ball imaged larger than the model was trained for is rejected by the shape test whatever its colour.
+    A model with a learned stage (whose candidates are the network's, not the filter's blobs): (balls wider than the
+    sizes the stage was trained on, at each image's scale, such balls, 0.0)."""
+    if model.learned is not None:
+        st = model.learned
+        big = [float(d) * st.scale_of(li.height, li.width) > st.diameter_range_px[1]
+               for li in labelled for d in np.minimum(li.boxes_xywh[:, 2], li.boxes_xywh[:, 3]) if d >= min_diameter_px]
+        return int(sum(big)), len(big), 0.0
     max_area = float(model.area_range_px[1] if area_px is None else area_px[1])
     d = np.concatenate([np.minimum(li.boxes_xywh[:, 2], li.boxes_xywh[:, 3]) for li in labelled] or [np.zeros(0)])
     d = d[d >= min_diameter_px]
@@ -315,6 +384,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--camera", nargs="+", default=None, metavar="NAME",
                         help="score only the images of these rig cameras (the COCO image field 'camera', as rt2 sim dataset and "
                              "rt2 label --auto write it); without it, images that name two or more cameras get a row per camera too")
+    parser.add_argument("--motion-cue", action="store_true",
+                        help="fixed cameras' sequences: search each camera's images in time order (their file names; the COCO "
+                             "image field 'time_s' for gaps) and drop the candidates of ours and topk where nothing moved against "
+                             "the camera's background, as rt2 track --motion-cue does on full frames; with --time-range the "
+                             "frame before the range starts each camera's background")
     parser.add_argument("--no-verifier", action="store_true",
                         help="run 'ours' and 'topk' with the model's 5x5 filter alone, without its candidate verifier (if it has one)")
     parser.add_argument("--ball-diameter-px", default=None, metavar="LO:HI",
@@ -345,6 +419,14 @@ def run(args) -> int:
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if getattr(args, "camera", None):  # before --time-range: the time order is one camera's
         labelled = select_cameras(labelled, args.camera)
+    every = labelled
+    motion_cue = None
+    if getattr(args, "motion_cue", False):
+        from tracker.motion import MotionOptions
+
+        if args.figure:
+            raise ValueError("--figure draws single images, without the motion cue: leave out --motion-cue or --figure")
+        motion_cue = MotionOptions(regions=False)  # the whole frame searched, the still candidates dropped
     if getattr(args, "time_range", None) is not None:
         from harness.experiments.detector.subsets import take_range
 
@@ -353,6 +435,7 @@ def run(args) -> int:
         labelled = labelled[: args.max_images]
     if not labelled:
         raise ValueError(f"--data {args.data}: no images")
+    warmup = frames_before(every, labelled) if motion_cue is not None else []
     colour = model.ball_colour if args.ball_colour == "model" else args.ball_colour
     labelled = select_ball_colour(labelled, colour, progress=True)
     for name in ("t_high", "t_low"):
@@ -374,7 +457,8 @@ def run(args) -> int:
         area_px = area_from_diameters(model, (lo, hi))
     learned_threshold = learned_threshold_of(model, getattr(args, "learned_threshold", None))
     scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low,
-                      ball_free_margin_px=ball_free_margin, area_px=area_px, learned_threshold=learned_threshold)
+                      ball_free_margin_px=ball_free_margin, area_px=area_px, learned_threshold=learned_threshold, motion_cue=motion_cue,
+                      cue_warmup=warmup)
     print(
         f"model {args.model}{' (with its candidate verifier)' if model.verifier is not None else ''}: T_h={t_high:g}, T_l={t_low:g}; {len(labelled)} images; "
         f"{colour} balls >= {args.min_diameter_px:g} px"
@@ -387,12 +471,21 @@ def run(args) -> int:
         print(f"accepted blob area {area_px[0]}-{area_px[1]} px (--ball-diameter-px {args.ball_diameter_px}; the model's own: "
               f"{model.area_range_px[0]:.0f}-{model.area_range_px[1]:.0f} px)")
     n_big, n_scored, max_area = too_large(model, labelled, args.min_diameter_px, area_px) if ball_free_margin is None else (0, 0, 0.0)
-    if n_big:
+    if n_big and model.learned is not None:
+        print(f"warning: {n_big} of {n_scored} labelled balls are wider than the learned stage was trained on "
+              f"({model.learned.diameter_range_px[1]:g} network pixels, frames shrunk to a longer side of {model.learned.max_side_px} px): "
+              "it may miss them")
+    elif n_big:
         print(f"warning: {n_big} of {n_scored} labelled balls are larger than the accepted blob area (max {max_area:.0f} px, a ball "
               f"~{2 * math.sqrt(max_area / math.pi) + model.edge_loss_px:.0f} px across): 'ours' rejects them whatever their colour; "
               "pass --ball-diameter-px LO:HI (the balls' sizes on these images)")
     if ball_free_margin is not None:
         print(f"ball-free: every labelled ball painted out (box + {ball_free_margin:g} px); every detection is a false alarm")
+    cue = next((sc.motion_cue for sc in scores if sc.motion_cue is not None), None)
+    if cue is not None:
+        print(f"motion cue: {cue['sequences']} camera sequence(s) searched in time order ({len(warmup)} earlier frame(s) shown first); "
+              f"{cue['candidates_dropped']} candidates of ours/topk dropped where nothing moved; {cue['images_without_cue']} "
+              "image(s) searched without the cue (a camera's first, after a gap or a change of the whole scene, a still ball's turn)")
     print(format_table(scores))
     if format_cameras(scores):
         print(format_cameras(scores))

@@ -274,3 +274,121 @@ def test_probability_figure_has_titles_a_legend_and_says_no_detection(synthetic_
     assert (title_band < 100).all(axis=2).sum() > 100 and (legend_band < 100).all(axis=2).sum() > 100  # dark text on white
     _, seen = yellow_text(probability_figure(model, labelled, tmp_path / "sees.png"))
     assert not seen.any()  # where the model finds the ball, no "no detection"
+
+
+# -- the motion cue: a fixed camera's sequence ---------------------------------------------------------
+ORANGE = (245, 120, 20)
+
+
+def _sequence(tmp_path, times, name="seq", camera="cam0"):
+    """A fixed camera's frames (96x128, noise) with a still ball-sized orange lamp and an orange ball moving 4 px a
+    frame; frame ``f`` at ``times[f]`` seconds (None: no ``time_s`` field)."""
+    import cv2
+
+    from harness.experiments.detector.coco import LabelledImage, write_coco
+    from tracker.detection.synthetic import draw_disk
+
+    out = tmp_path / name
+    out.mkdir()
+    labelled, extra = [], []
+    for f, t in enumerate(times):
+        img = np.clip(np.random.default_rng([5, f]).normal(100, 3, (96, 128, 3)), 0, 255).astype(np.uint8)
+        draw_disk(img, (30.0, 40.0), 12.0, ORANGE)
+        c = np.array([[60.0 + 4 * f, 60.0]])
+        draw_disk(img, c[0], 10.0, ORANGE)
+        path = out / f"frame_{f:04d}.png"
+        cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        labelled.append(LabelledImage(path, 128, 96, np.array([[c[0, 0] - 4.5, c[0, 1] - 4.5, 10.0, 10.0]]), c))
+        extra.append({"camera": camera} | ({} if t is None else {"time_s": t}))
+    write_coco(out, labelled, image_extra=extra)
+    return out
+
+
+def test_motion_cue_drops_the_still_lamp_of_a_fixed_cameras_sequence(tmp_path, capsys):
+    model = str(hand_made_model().save(tmp_path / "hand.npz"))
+    data = str(_sequence(tmp_path, [0.005 * f for f in range(12)]))
+    runs = {}
+    for cue in ([], ["--motion-cue"]):
+        out = tmp_path / f"cue{len(cue)}.json"
+        assert main(["eval", "detector", "--data", data, "--model", model, "--json", str(out), *cue]) == 0
+        runs[bool(cue)] = ({r["method"]: r for r in json.loads(out.read_text())}, capsys.readouterr().out)
+    (plain, _), (cued, printed) = runs[False], runs[True]
+    assert "motion_cue" not in plain["topk"] and "motion_cue" not in cued["paper"]  # added only where it was used
+    assert cued["topk"]["motion_cue"] == cued["ours"]["motion_cue"]
+    info = cued["topk"]["motion_cue"]
+    assert info["sequences"] == 1 and info["images_without_cue"] == 1  # the first frame starts the background
+    assert info["candidates_dropped"] >= 11  # the lamp, in every later frame
+    assert "motion cue: 1 camera sequence(s) searched in time order (0 earlier frame(s) shown first)" in printed
+    assert plain["topk"]["outlier_rate"] >= 0.4  # without the cue the lamp is a candidate in every frame
+    assert cued["topk"]["recall"] == plain["topk"]["recall"] == 1.0
+    assert cued["topk"]["outlier_rate"] <= 1 / 12 + 1e-9 < plain["topk"]["outlier_rate"]  # only the first frame's lamp
+    assert cued["ours"]["recall"] >= plain["ours"]["recall"]
+    # a time range: the frame before it starts the background, so every scored frame has a cue
+    out = tmp_path / "range.json"
+    assert main(["eval", "detector", "--data", data, "--model", model, "--json", str(out), "--motion-cue", "--time-range", "6:"]) == 0
+    assert "(1 earlier frame(s) shown first)" in capsys.readouterr().out
+    rows = {r["method"]: r for r in json.loads(out.read_text())}
+    assert rows["topk"]["motion_cue"]["images_without_cue"] == 0 and rows["topk"]["outlier_rate"] == 0.0
+
+
+@pytest.mark.parametrize("times, without_cue", [
+    ([0.005 * f for f in range(8)], 1),
+    ([0.005 * f for f in range(4)] * 2, 2),  # the clock went back: another recording, the background starts again
+    ([0.005 * f for f in range(4)] + [2.0 + 0.005 * f for f in range(4)], 2),  # a gap of more than max_gap_s
+    ([None] * 8, 1),  # no time stamps: the file names' order, no gaps known
+])
+def test_motion_cue_starts_again_where_the_sequence_breaks(tmp_path, times, without_cue):
+    from tracker.motion import MotionOptions
+
+    scores = evaluate(hand_made_model(), read_coco(_sequence(tmp_path, times)), progress=False, motion_cue=MotionOptions(regions=False))
+    assert {s.method: s for s in scores}["topk"].motion_cue["images_without_cue"] == without_cue
+
+
+def test_camera_sequences_are_per_camera_in_time_order():
+    from harness.experiments.detector.coco import LabelledImage
+    from harness.experiments.detector.subsets import camera_sequences, frames_before
+
+    names = ["f000002_cam1", "f000001_cam0", "f000010_cam1", "f000002_cam0", "f000001_cam1"]
+    images = [LabelledImage(f"{n}.png", 64, 48, np.zeros((0, 4)), np.zeros((0, 2))) for n in names]
+    assert camera_sequences(images) == [[4, 0, 2], [1, 3]]
+    assert [li.path.stem for li in frames_before(images, [images[2], images[3]])] == ["f000002_cam1", "f000001_cam0"]
+    assert frames_before(images, images) == []
+
+
+@pytest.mark.parametrize("value, error", [("0.5", "must be a finite number of seconds"), (True, "must be a finite number"),
+                                          (float("nan"), "must be a finite number"), ([0.1], "must be a finite number")])
+def test_coco_time_s_must_be_seconds(tmp_path, value, error):
+    data = _sequence(tmp_path, [0.0, 0.01])
+    coco = json.loads((data / "annotations.json").read_text())
+    coco["images"][1]["time_s"] = value
+    (data / "annotations.json").write_text(json.dumps(coco))
+    with pytest.raises(ValueError, match=rf"annotations.json: image id \d+: field 'time_s' {error}"):
+        read_coco(data)
+
+
+def test_coco_time_s_is_read(tmp_path):
+    assert [li.time_s for li in read_coco(_sequence(tmp_path, [0, 0.01, None]))] == [0.0, 0.01, None]
+
+
+def test_motion_cue_refuses_a_figure(tmp_path, capsys):
+    model = str(hand_made_model().save(tmp_path / "hand.npz"))
+    data = str(_sequence(tmp_path, [0.0, 0.01]))
+    assert main(["eval", "detector", "--data", data, "--model", model, "--motion-cue", "--figure", str(tmp_path / "f.png")]) == 2
+    assert "--figure draws single images, without the motion cue" in capsys.readouterr().err
+
+
+def test_a_learned_stage_is_warned_of_balls_wider_than_it_was_trained_on_not_of_the_filters_area():
+    from pathlib import Path
+
+    from harness.experiments.detector.coco import LabelledImage
+    from harness.experiments.studies.eval_detector import too_large
+    from tracker import BallSegmentationModel
+
+    white = BallSegmentationModel.load(Path(__file__).resolve().parents[3] / "data" / "models" / "ball_seg_white.npz")
+    rally = LabelledImage("r.jpg", 1920, 1080, [[100, 100, 41, 41]], [[120, 120]])  # 41 px, shrunk by 2 for the network: 20.5
+    near = LabelledImage("n.jpg", 640, 480, [[100, 100, 120, 120]], [[160, 160]])  # 120 px at full scale: wider than 48
+    assert too_large(white, [rally], 6.0) == (0, 1, 0.0)  # the filter's 156 px area would have rejected it
+    assert too_large(white, [rally, near], 6.0) == (1, 2, 0.0)
+    import dataclasses
+
+    assert too_large(dataclasses.replace(white, learned=None), [rally], 6.0)[0] == 1  # the same filter alone: its area
