@@ -57,6 +57,8 @@ class LearnedTrainOptions:
     arch : the network's layout (one of ``ARCHS``; fine-tuning keeps the layout of the state it starts from)
     max_side_px : frames are shrunk to this longer side first (the stage's; :func:`tracker.detection.learned.learned_scale`)
     augment : photometric augmentation of the patches (:mod:`harness.experiments.detector.augment`)
+    p_light : share of patches with a light source drawn in, away from their balls (:func:`draw_light`: a lamp's
+        saturated core and glow, what a white ball's detector mistakes for one; 0 = none, no random draw)
     """
 
     iterations: int = 1500
@@ -70,6 +72,7 @@ class LearnedTrainOptions:
     max_side_px: int = 640
     augment: bool = True
     arch: str = DEFAULT_ARCH
+    p_light: float = 0.0
 
     def __post_init__(self):
         for name in ("iterations", "batch", "patch_px", "max_side_px"):
@@ -80,6 +83,9 @@ class LearnedTrainOptions:
             raise ValueError(f"LearnedTrainOptions.patch_px must be a multiple of {2 * STRIDE}, got {self.patch_px}")
         if self.arch not in ARCHS:
             raise ValueError(f"LearnedTrainOptions.arch must be one of {list(ARCHS)}, got {self.arch!r}")
+        v = self.p_light
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+            raise ValueError(f"LearnedTrainOptions.p_light must be a share between 0 and 1, got {v!r}")
         if not (0 < self.scale_range[0] <= self.scale_range[1]):
             raise ValueError(f"LearnedTrainOptions.scale_range must be (lo, hi) with 0 < lo <= hi, got {self.scale_range!r}")
 
@@ -182,9 +188,47 @@ def sample_patches(items: list[LearnedItem], n: int, rng: np.random.Generator, o
             c[:, 0] = p - 1 - c[:, 0]
         if opts.augment:
             patch = photometric(patch, rng, aug or _PATCH_AUGMENT)
+        if opts.p_light and rng.random() < opts.p_light:  # after the exposure: a lamp's core stays saturated
+            patch = draw_light(patch, rng, c, dd)
         imgs[k] = patch
         heat[k], off[k], logd[k], mask[k] = targets(c, dd, p)
     return imgs, heat, off, logd, mask
+
+
+#: a drawn light's core radius, pixels of the patch (log-uniform), and how far its glow reaches, in core radii
+LIGHT_RADIUS_PX = (4.0, 40.0)
+LIGHT_GLOW = (0.15, 1.5)
+
+
+def draw_light(patch: np.ndarray, rng: np.random.Generator, centers, diameters, tries: int = 5) -> np.ndarray:
+    """``patch`` (P, P, 3) uint8 with a light source drawn in where it covers none of the balls at ``centers`` (n, 2) of
+    ``diameters`` (n,) (a copy; the patch itself where no place is found in ``tries``): an ellipse (axes ratio 1-1.8) of a
+    saturated, near-white core (a camera clips a lamp; a white ball's own highlight is a small part of it), its glow
+    falling off outside it, often cut by the patch's edge, as a ceiling lamp or a window's reflection is. A white
+    ball's detector mistakes them for balls (the caliscope session's ceiling lamp, README Results)."""
+    p = patch.shape[0]
+    r = math.exp(rng.uniform(*np.log(LIGHT_RADIUS_PX)))
+    b = r / rng.uniform(1.0, 1.8)
+    ang = rng.uniform(0.0, math.pi)
+    glow = rng.uniform(*LIGHT_GLOW)
+    reach = r * (1.0 + 2.5 * glow)
+    for _ in range(tries):
+        cx, cy = rng.uniform(-0.5 * r, p - 1 + 0.5 * r, 2)
+        far = [math.hypot(cx - u, cy - v) > reach + 0.5 * d + 2.0 for (u, v), d in zip(np.asarray(centers).reshape(-1, 2), np.asarray(diameters).reshape(-1))]
+        if all(far):
+            break
+    else:
+        return patch
+    y, x = np.mgrid[0:p, 0:p].astype(np.float32)
+    ca, sa = math.cos(ang), math.sin(ang)
+    xr, yr = (x - cx) * ca + (y - cy) * sa, -(x - cx) * sa + (y - cy) * ca
+    rho = np.sqrt((xr / r) ** 2 + (yr / b) ** 2)
+    alpha = np.where(rho <= 1.0, 1.0, rng.uniform(0.3, 1.0) * np.exp(-(((rho - 1.0) / glow) ** 2))).astype(np.float32)
+    colour = np.full(3, 255.0, np.float32)
+    if rng.random() < 0.3:  # a warm or cool lamp: one channel under the clip
+        colour[int(rng.integers(3))] = rng.uniform(215.0, 250.0)
+    out = patch.astype(np.float32) * (1.0 - alpha[..., None]) + colour * alpha[..., None]
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
 #: the patches' photometric changes (the sampler chooses scale and flip)

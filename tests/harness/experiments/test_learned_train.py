@@ -464,3 +464,36 @@ def test_rt2_train_folds_a_rigs_labels_by_camera(synthetic_ball_coco, tmp_path, 
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--learned-folds-by camera needs images of at least 2 cameras, got cam0" in err[0]
     assert not (tmp_path / "one.npz").exists()
+
+
+def test_a_drawn_light_is_saturated_and_covers_no_ball():
+    from harness.experiments.detector.learned_train import draw_light
+
+    rng = np.random.default_rng(3)
+    base = np.random.default_rng(1).integers(40, 140, (96, 96, 3), dtype=np.uint8)
+    ball_c, ball_d = np.array([[48.0, 48.0]]), np.array([12.0])
+    yy, xx = np.mgrid[0:96, 0:96]
+    on_ball = np.hypot(xx - 48, yy - 48) <= 6
+    drawn = 0
+    for _ in range(40):
+        out = draw_light(base, rng, ball_c, ball_d)
+        assert out.dtype == np.uint8 and out.shape == base.shape
+        assert (out[on_ball] == base[on_ball]).all()  # never over a ball
+        if (out != base).any():
+            drawn += 1
+            assert (out >= 215).all(axis=2).sum() >= 4  # a clipped core (one channel may sit under the clip)
+    assert drawn >= 20
+    assert draw_light(base, rng, np.array([[48.0, 48.0]]), np.array([400.0])) is base  # nowhere to put it
+
+
+def test_p_light_draws_lights_only_when_asked(synthetic_ball_coco):
+    labelled = read_coco(synthetic_ball_coco(10, 0))
+    items = items_at_scale([(load_image(li), li) for li in labelled], 640)
+    plain = sample_patches(items, 8, np.random.default_rng(0), LearnedTrainOptions(patch_px=64))
+    zero = sample_patches(items, 8, np.random.default_rng(0), LearnedTrainOptions(patch_px=64, p_light=0.0))
+    lit = sample_patches(items, 8, np.random.default_rng(0), LearnedTrainOptions(patch_px=64, p_light=1.0))
+    assert all((a == b).all() for a, b in zip(plain, zero))  # no light, no random draw: the same patches as before
+    assert (lit[0] != plain[0]).any() and ((lit[0] == 255).all(axis=3).sum() > (plain[0] == 255).all(axis=3).sum())
+    for bad in (-0.1, 1.5, True, "0.3"):
+        with pytest.raises(ValueError, match="p_light must be a share between 0 and 1"):
+            LearnedTrainOptions(p_light=bad)

@@ -219,12 +219,14 @@ def test_hard_pastes_hide_part_of_the_ball_or_smear_it_long():
     assert any(not np.array_equal(a[0], b[0]) for a, b in zip(hard, plain))
 
 
-@pytest.mark.parametrize("value, colour, message", [
-    ("1.5", "white", "--hard-pastes must be a share between 0 and 1, got 1.5"),
-    ("-0.1", "white", "--hard-pastes must be a share between 0 and 1, got -0.1"),
-    ("nan", "orange", "--hard-pastes must be a share between 0 and 1, got nan"),
+@pytest.mark.parametrize("option, value, colour, message", [
+    ("--hard-pastes", "1.5", "white", "--hard-pastes must be a share between 0 and 1, got 1.5"),
+    ("--hard-pastes", "-0.1", "white", "--hard-pastes must be a share between 0 and 1, got -0.1"),
+    ("--hard-pastes", "nan", "orange", "--hard-pastes must be a share between 0 and 1, got nan"),
+    ("--lights", "2", "white", "--lights must be a share between 0 and 1, got 2.0"),
+    ("--lights", "nan", "white", "--lights must be a share between 0 and 1, got nan"),
 ])
-def test_train_shipped_hard_pastes_bad_values_are_one_line(tmp_path, capsys, value, colour, message):
-    assert main(["train-shipped", "--colour", colour, "--hard-pastes", value, "--out", str(tmp_path / "m.npz")]) == 2
+def test_train_shipped_shares_bad_values_are_one_line(tmp_path, capsys, option, value, colour, message):
+    assert main(["train-shipped", "--colour", colour, option, value, "--out", str(tmp_path / "m.npz")]) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and not (tmp_path / "m.npz").exists()
