@@ -67,7 +67,7 @@ def _kernel_versions() -> dict:
 
 
 # -- smoke -------------------------------------------------------------------------------------------
-def test_open_service_from_python_tracks_the_simulated_lab():
+def test_open_service_from_python_tracks_the_simulated_lab(first_serve_only):
     config = TrackConfig(publish=None, prerender_s=0.1, status_period_s=0, duration_s=1.0)
     assert config == _config("--publish", "none", "--prerender", "0.1", "--status-period", "0", "--duration", "1")
     with open_service(config, status=None) as live:
@@ -78,7 +78,7 @@ def test_open_service_from_python_tracks_the_simulated_lab():
 
 
 @pytest.mark.parametrize("rig", ["lab4_vga", "lab8_vga"])
-def test_the_warm_up_leaves_no_kernel_to_compile_while_tracking(rig):
+def test_the_warm_up_leaves_no_kernel_to_compile_while_tracking(rig, first_serve_only):
     """open_service warms the tracker up on a made-up ball it confirms and then predicts, so that no compiled
     kernel is built (or loaded from numba's cache) while the clock runs: on a fresh clone's first run that took
     seconds, and the first frame sets waited for it."""
@@ -116,7 +116,7 @@ def test_the_warm_up_runs_the_windows_at_the_ball_its_deferred_search_found(monk
     assert sum("searched after this frame set was reported" in n for n in notes) >= 2  # the ball's, the blank sets' fallback
 
 
-def test_bench_live_from_python_gives_one_row_per_mode():
+def test_bench_live_from_python_gives_one_row_per_mode(first_serve_only):
     args = _parse(bench_arguments, "--prerender", "0.1", "--duration", "2", "--warmup", "0.5", "--modes", "roi")
     lines = []
     doc = bench_live(args, check_options(args), track_config(args), progress=lines.append)
@@ -191,7 +191,7 @@ def test_acquisition_counts_frame_sets_from_a_new_ball_to_its_first_right_ok_pos
     assert acquisition(truth_at, {"frame_id": [], "status": [], "position_m": []}, 0)["new_balls"] == 0
 
 
-def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
+def test_rt2_bench_live_writes_its_figures(tmp_path, capsys, first_serve_only):
     out = tmp_path / "bench.json"
     assert rt2(["bench", "live", "--duration", "2", "--warmup", "0.5", "--modes", "full", "--json", str(out)]) == 0
     printed = capsys.readouterr().out
@@ -209,7 +209,7 @@ def test_rt2_bench_live_writes_its_figures(tmp_path, capsys):
     assert doc["modes"][0]["defer_full_frame"] is False  # every frame set in full: nothing to defer
 
 
-def test_rt2_bench_live_rigs_gives_a_row_per_rig_on_the_same_scene(tmp_path, capsys):
+def test_rt2_bench_live_rigs_gives_a_row_per_rig_on_the_same_scene(tmp_path, capsys, first_serve_only):
     out = tmp_path / "rigs.json"
     assert rt2(["bench", "live", "--rigs", "lab4_vga", "lab4_vga_v1", "--duration", "2", "--warmup", "0.5", "--modes", "roi",
                 "--prerender", "0.1", "--json", str(out)]) == 0

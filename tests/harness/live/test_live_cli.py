@@ -307,7 +307,7 @@ def _run_track_until(argv: list[str], done, cap_s: float = 120.0) -> dict:
             watcher.join()
 
 
-def test_model_option_is_the_model_the_service_runs(tmp_path):
+def test_model_option_is_the_model_the_service_runs(tmp_path, first_serve_only):
     """The same sim run with the shipped model and with a copy whose bias is far below every pixel's logit (a
     model that finds nothing): positions with one, none with the other, so the file passed is the one tracking.
     The shipped run lasts until it has 5 positions; the blind one twice as many frame sets as that took, at least 100
@@ -358,7 +358,7 @@ def test_motion_cue_flag_reaches_the_config_and_bad_values_name_the_field():
     assert track_config(parser.parse_args(["--motion-cue"])).motion_cue is True
 
 
-def test_defer_full_frame_is_auto_by_the_model_live_and_bad_values_name_the_field():
+def test_defer_full_frame_is_auto_by_the_model_live_and_bad_values_name_the_field(first_serve_only):
     import argparse
 
     from harness.cli.track import add_arguments, track_config

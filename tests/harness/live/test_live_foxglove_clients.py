@@ -23,6 +23,7 @@ ROOT = Path(__file__).resolve().parents[3]
 # where `make setup` installs Foxglove's node clients (build/ is not tracked); RT2_WS_PROTOCOL_EXAMPLES overrides
 EXAMPLES = Path(os.environ.get("RT2_WS_PROTOCOL_EXAMPLES", ROOT / "build" / "node" / "node_modules" / ".bin" / "ws-protocol-examples"))
 KEY = "dGhlIHNhbXBsZSBub25jZQ=="  # RFC 6455's sample key
+RECORD_S = 5.0  # the classic client's recording after it subscribed to every channel (the slowest of them comes every 1 s)
 
 
 def _upgrade(protocols: str | None, path: str = "/") -> bytes:
@@ -130,27 +131,59 @@ def test_foxglove_classic_client_records_every_channel_of_rt2_track(tmp_path):
     """Foxglove's own ws-protocol client (it offers only ``foxglove.websocket.v1``) subscribes to every channel
     ``rt2 track --source sim --foxglove`` advertises and records an MCAP; ``rt2 log info`` reads it and every
     advertised topic has messages with its schema."""
+    import threading
+
     out = tmp_path / "classic.mcap"
+    names = ("cam0", "cam1", "cam2", "cam3")
+    expected = {f"/camera/{c}/{k}" for c in names for k in ("image", "annotations", "calibration")}
+    expected |= {"/scene/balls", "/scene/static", "/tf_static", "/tracker/rt2/ball"}
+    lines: list[str] = []
+    all_subscribed = threading.Event()
+
+    def subscribed() -> set:
+        return {ln.split("subscribing to ")[1].split(" (channel")[0] for ln in list(lines) if "subscribing to " in ln}
+
+    def read(stream):
+        for line in stream:
+            lines.append(line.rstrip("\n"))
+            if subscribed() >= expected:
+                all_subscribed.set()
+        all_subscribed.set()  # the client ended (its output says why)
+
     # pre-rendered (a looped 0.1 s clip): the images come from this process, not from a renderer process that
-    # otherwise takes a second core for the whole run
-    track = TrackProcess("--source", "sim", "--prerender", "0.1", "--foxglove", "0", "--publish-rt2", "none", "--duration", "15",
+    # otherwise takes a second core for the whole run. Not a fixed --duration (a client that was slow to start missed
+    # its end): the service runs until the client has subscribed to every channel and recorded RECORD_S more (the
+    # calibration, /tf_static and /scene/static are sent every second), then stops on SIGTERM, which closes the
+    # connection as the end of a --duration does; --duration only caps a hung run
+    track = TrackProcess("--source", "sim", "--prerender", "0.1", "--foxglove", "0", "--publish-rt2", "none", "--duration", "300",
                          "--status-period", "0", timeout_s=300)
+    rec = None
     try:
-        url = track.ready["live_view"]
-        rec = subprocess.run([str(EXAMPLES), "mcap-record", url, "-o", str(out)], capture_output=True, text=True, timeout=120)
-        printed = rec.stdout + rec.stderr
+        rec = subprocess.Popen([str(EXAMPLES), "mcap-record", track.ready["live_view"], "-o", str(out)], stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+        reader = threading.Thread(target=read, args=(rec.stdout,), daemon=True)
+        reader.start()
+        all_subscribed.wait(timeout=120)
+        if rec.poll() is None and subscribed() >= expected:
+            time.sleep(RECORD_S)
     finally:
         track.stop()
+        if rec is not None:
+            try:
+                rec.wait(timeout=120)  # it ends when the service closes the connection
+            finally:
+                if rec.poll() is None:
+                    rec.kill()
+                    rec.wait()
+            reader.join(timeout=10)
+    printed = "\n".join(lines)
     assert "Unexpected server response" not in printed and "connection failed" not in printed, printed[-2000:]
-    subscribed = {line.split("subscribing to ")[1].split(" (channel")[0] for line in printed.splitlines() if "subscribing to " in line}
+    assert "server disconnected" in printed, printed[-2000:]  # the recording ended as the service closed, not cut
     info = subprocess.run([sys.executable, "-m", "harness.cli", "log", "info", "--json", str(out)], capture_output=True,
                           text=True, timeout=120, cwd=ROOT)
     assert info.returncode == 0, info.stderr
     topics = json.loads(info.stdout)["topics"]
-    names = ("cam0", "cam1", "cam2", "cam3")
-    expected = {f"/camera/{c}/{k}" for c in names for k in ("image", "annotations", "calibration")}
-    expected |= {"/scene/balls", "/scene/static", "/tf_static", "/tracker/rt2/ball"}
-    assert subscribed == expected, printed[-2000:]
+    assert subscribed() == expected, printed[-2000:]
     assert set(topics) == expected and all(t["count"] > 0 for t in topics.values()), topics
     assert topics["/camera/cam0/image"]["schema"] == "foxglove.CompressedImage"
     assert topics["/scene/balls"]["schema"] == "foxglove.SceneUpdate"
