@@ -46,6 +46,10 @@ def add_arguments(parser) -> None:
                         help="the ball colour the page's training uses (rt2 train --ball-colour; default: the page asks)")
     parser.add_argument("--confirm-below", type=float, default=0.9,
                         help="accepting a proposal scored below this takes a second key press (default 0.9; 0 = never)")
+    parser.add_argument("--motion-cue", action="store_true",
+                        help="the frames are a fixed camera's recording (a video, a session log, one camera's frames in name "
+                             "order): each frame's candidates that moved against the camera's background are proposed first, "
+                             "the still ones (a lamp, a shelf) after them")
     parser.add_argument("--verbose", action="store_true", help="print every HTTP request on stderr")
     auto = parser.add_argument_group("self-labelling (--auto): the cameras label each other")
     auto.add_argument("--auto", action="store_true",
@@ -103,7 +107,7 @@ def run(args) -> int:
     train_args = (["--seed", str(args.train_seed)] + ([] if args.train_epochs is None else ["--epochs", str(args.train_epochs)])
                   + ([] if args.train_learned_steps is None else ["--learned-steps", str(args.train_learned_steps)]))
     options = LabelOptions(n_suggestions=args.suggestions, min_train_labels=args.min_train, train_args=tuple(train_args),
-                           confirm_below=args.confirm_below, ball_colour=args.ball_colour)
+                           confirm_below=args.confirm_below, ball_colour=args.ball_colour, motion_cue=args.motion_cue)
     model = BallSegmentationModel.load(args.model)
     out = check_output_dir(args.out, "--out")
     lock = lock_folder(out)  # one writer per folder, before a frame is extracted into it

@@ -9,6 +9,12 @@ Labels that ``rt2 label --auto`` wrote into the folder are proposals here: the f
 suggested first, the ones the cameras' consensus is least sure of (lowest ``confidence``) first, and a
 person accepts or corrects each. Accepting a proposal whose confidence is below
 ``LabelOptions.confirm_below`` takes a second key press on the page (it says why).
+
+A fixed camera's recording (``rt2 label --motion-cue``: a video, a session log, a folder of one camera's frames in
+name order) carries a cue a single image does not: what moved. With ``LabelOptions.motion_cue`` each camera's frames
+(:func:`harness.experiments.detector.subsets.camera_of` their keys) pass in order through a ``tracker.motion.MotionCue``
+and a frame's candidates on cells that moved are proposed first, the still ones after them (never dropped: a ball
+lying still is still proposed). A lamp the detector scores above the ball no longer comes first in every frame.
 """
 
 from __future__ import annotations
@@ -44,6 +50,7 @@ class LabelOptions:
     jpeg_quality : quality of the JPEG the page is sent (the saved images are the originals)
     confirm_below : a proposal scored below this takes a second key press to accept (0: never)
     ball_colour : the ball colour training uses (``rt2 train --ball-colour``); None: the page asks
+    motion_cue : the frames are fixed cameras' sequences: candidates that moved are proposed first (module docstring)
     """
 
     n_suggestions: int = 10
@@ -53,6 +60,7 @@ class LabelOptions:
     jpeg_quality: int = 90
     confirm_below: float = 0.9
     ball_colour: str | None = None
+    motion_cue: bool = False
 
     def __post_init__(self):
         if self.n_suggestions < 1 or self.min_train_labels < 3:
@@ -66,15 +74,29 @@ class LabelOptions:
             raise ValueError(f"--ball-colour must be one of {BALL_COLOURS}, got {self.ball_colour!r}")
 
 
-def detect_and_describe(frames: FrameSet, model: BallSegmentationModel, progress=None):
-    """Per frame: descriptor ``(n, d)``, candidates (list of (boxes (k, 4), scores (k,))) and uncertainty ``(n,)``."""
+def detect_and_describe(frames: FrameSet, model: BallSegmentationModel, progress=None, motion_cue: bool = False):
+    """Per frame: descriptor ``(n, d)``, candidates (list of (boxes (k, 4), scores (k,))) and uncertainty ``(n,)``;
+    with ``motion_cue`` each frame's candidates that moved first (module docstring)."""
+    from harness.experiments.detector.subsets import camera_of
+    from tracker.motion import MotionCue, MotionOptions
+
     detector = BallDetector(model, DetectorOptions(method="ours"))
     desc, cands, unc = [], [], []
+    cues: dict = {}
     for i in range(len(frames)):
         image = frames.image(i)
         d = detector.detect(image)
         desc.append(describe_image(image))
-        cands.append((d.boxes_xywh.copy(), d.scores.copy()))
+        boxes, scores = d.boxes_xywh.copy(), d.scores.copy()
+        if motion_cue:
+            f = frames.frames[i]
+            key = (camera_of(f.key), f.width, f.height)
+            cue = cues[key] if key in cues else cues.setdefault(key, MotionCue(f.width, f.height, MotionOptions(regions=False)))
+            cue.observe(image, need_mask=True)
+            if len(d) and cue.mask is not None:  # (the camera's first frame has no cue: the detector's order)
+                order = np.argsort(~cue.moved(d.uv_px, boxes[:, 2:].max(axis=1)), kind="stable")
+                boxes, scores = boxes[order], scores[order]
+        cands.append((boxes, scores))
         unc.append(uncertainty(d.scores))
         if progress is not None:
             progress(i + 1, len(frames))
@@ -92,7 +114,7 @@ class LabelSession:
         self.model_path = str(model_path)
         self.store = LabelStore(frames, out_dir, lock)
         try:
-            self.descriptors, self.candidates, self.uncertainty = detect_and_describe(frames, model, progress)
+            self.descriptors, self.candidates, self.uncertainty = detect_and_describe(frames, model, progress, options.motion_cue)
         except BaseException:
             self.store.close()
             raise
@@ -143,6 +165,7 @@ class LabelSession:
             "suggestions": self.suggestions(),
             "min_train_labels": self.options.min_train_labels,
             "confirm_below": self.options.confirm_below,
+            "motion_cue": self.options.motion_cue,
             "ball_colour": self.ball_colour(),
             "ball_colours": list(BALL_COLOURS),
             "backup": None if self.store.backup is None else str(self.store.backup),

@@ -388,3 +388,77 @@ def test_a_port_in_use_is_refused(ball_folder, tmp_path, capsys):
         port = s.getsockname()[1]
         assert rt2_main(["label", str(ball_folder), "--out", str(tmp_path / "o"), "--port", str(port)]) == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
+
+
+# -- a fixed camera's recording: what moved is proposed first ---------------------------------------------------
+def _fixed_camera_folder(folder, n=8):
+    """A fixed camera's frames in name order: a still ball-sized orange lamp (larger than the ball) and an orange ball
+    moving 5 px a frame, on a still background with a camera's noise; returns the ball's centres."""
+    import cv2
+
+    from tracker.detection.synthetic import draw_disk
+
+    folder.mkdir()
+    back = np.random.default_rng(0).integers(60, 140, (120, 160, 3)).astype(np.float64)
+    balls = []
+    for f in range(n):
+        img = np.clip(back + np.random.default_rng([1, f]).normal(0, 2, back.shape), 0, 255).astype(np.uint8)
+        draw_disk(img, (40.0, 40.0), 14.0, (245, 120, 20))
+        ball = (70.0 + 5 * f, 80.0)
+        draw_disk(img, ball, 10.0, (245, 120, 20))
+        cv2.imwrite(str(folder / f"frame_{f:04d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        balls.append(ball)
+    return balls
+
+
+def _first_and_all(session, i):
+    props = session.frame(i)["proposals"]
+    centres = [(p["box"][0] + p["box"][2] / 2 - 0.5, p["box"][1] + p["box"][3] / 2 - 0.5) for p in props]
+    return centres[0] if centres else None, centres
+
+
+@pytest.mark.parametrize("cue", [False, True])
+def test_motion_cue_proposes_what_moved_first_and_keeps_the_still_lamp(tmp_path, cue):
+    from tracker.detection.synthetic import hand_made_model
+
+    balls = _fixed_camera_folder(tmp_path / "cam")
+    model = hand_made_model().save(tmp_path / "hand.npz")
+    out = tmp_path / "labels"
+    session = LabelSession(open_frames(tmp_path / "cam", out), out, BallSegmentationModel.load(model), model,
+                           LabelOptions(min_train_labels=4, motion_cue=cue))
+    try:
+        assert session.state()["motion_cue"] is cue
+        firsts = []
+        for i, ball in enumerate(balls):
+            first, every = _first_and_all(session, i)
+            assert any(np.hypot(u - 40, v - 40) < 3 for u, v in every)  # the lamp is proposed in every frame, never dropped
+            assert any(np.hypot(u - ball[0], v - ball[1]) < 3 for u, v in every)
+            firsts.append(np.hypot(first[0] - ball[0], first[1] - ball[1]) < 3)
+        if cue:
+            assert all(firsts[1:])  # after the first frame (the background), the ball that moved comes first
+        else:
+            assert not any(firsts)  # the detector alone ranks the larger lamp first
+    finally:
+        session.close()
+
+
+def test_rt2_label_motion_cue_serves_what_moved_first(tmp_path):
+    """The command as a user runs it, a separate process on a real socket: ``rt2 label DIR --motion-cue``."""
+    import urllib.request
+
+    from harness.common.spawn import ReadyProcess
+    from tracker.detection.synthetic import hand_made_model
+
+    balls = _fixed_camera_folder(tmp_path / "cam", n=5)
+    model = hand_made_model().save(tmp_path / "hand.npz")
+    proc = ReadyProcess(["label", str(tmp_path / "cam"), "--out", str(tmp_path / "labels"), "--port", "0", "--model", str(model),
+                         "--motion-cue"], what="rt2 label", timeout_s=180)
+    try:
+        url = proc.ready["url"].rstrip("/")
+        state = json.loads(urllib.request.urlopen(f"{url}/api/state", timeout=10).read())
+        assert state["motion_cue"] is True
+        frame = json.loads(urllib.request.urlopen(f"{url}/api/frame/3", timeout=10).read())
+        x, y, w, h = frame["proposals"][0]["box"]
+        assert np.hypot(x + w / 2 - 0.5 - balls[3][0], y + h / 2 - 0.5 - balls[3][1]) < 3
+    finally:
+        proc.stop()
