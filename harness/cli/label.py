@@ -47,8 +47,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--confirm-below", type=float, default=0.9,
                         help="accepting a proposal scored below this takes a second key press (default 0.9; 0 = never)")
     parser.add_argument("--motion-cue", action="store_true",
-                        help="the frames are a fixed camera's recording (a video, a session log, one camera's frames in name "
-                             "order): each frame's candidates that moved against the camera's background are proposed first, "
+                        help="the frames are a fixed camera's recording (a video, a session log, a folder of one camera's frames, "
+                             "in time order): each frame's candidates that moved against the camera's background are proposed first, "
                              "the still ones (a lamp, a shelf) after them")
     parser.add_argument("--verbose", action="store_true", help="print every HTTP request on stderr")
     auto = parser.add_argument_group("self-labelling (--auto): the cameras label each other")

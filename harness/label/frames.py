@@ -3,7 +3,9 @@
 Every frame gets a stable key (the same key on every start, so labels resume) and the image file the
 COCO data set will name, inside the output folder ``OUT``:
 
-* folder ``DIR``: the images directly in ``DIR`` (``IMAGE_SUFFIXES``, name order); key = file name;
+* folder ``DIR``: the images directly in ``DIR`` (``IMAGE_SUFFIXES``) in time order (their names as time stamps:
+  :func:`checks.time_order.time_key`, digits compared as numbers, labelling tools' split prefixes and hashes removed;
+  ties by name); key = file name;
   a labelled image is copied to ``OUT/images/<file name>`` when its label is saved. An image that cannot
   be read (damaged, not an image, a truncated JPEG or PNG) is skipped and listed in ``FrameSet.skipped``.
 * video ``FILE`` (anything ``cv2.VideoCapture`` opens): every ``every``-th frame, at most ``max_frames``;
@@ -25,6 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from checks.time_order import time_key
 from harness.common.outputs import atomic_path
 
 __all__ = ["IMAGE_SUFFIXES", "Frame", "FrameSet", "check_complete", "open_frames"]
@@ -57,7 +60,7 @@ class FrameSet:
     kind: str  # "folder", "video" or "log"
     spec: str  # the source as the user named it
     frames: tuple
-    skipped: tuple = ()  # (file name, why) of the images that could not be read (folders), in name order
+    skipped: tuple = ()  # (file name, why) of the images that could not be read (folders), in the folder's time order
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -110,7 +113,7 @@ def open_frames(source, out_dir, *, camera: str | None = None, every: int = 1, m
 
 
 def _folder(src: Path, out_dir: Path) -> FrameSet:
-    files = sorted(p for p in src.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    files = sorted((p for p in src.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES), key=lambda p: (time_key(p), p.name))
     if not files:
         raise ValueError(f"{str(src)!r}: no images ({', '.join(IMAGE_SUFFIXES)}) directly in this folder")
     frames, skipped = [], []

@@ -11,7 +11,7 @@ person accepts or corrects each. Accepting a proposal whose confidence is below
 ``LabelOptions.confirm_below`` takes a second key press on the page (it says why).
 
 A fixed camera's recording (``rt2 label --motion-cue``: a video, a session log, a folder of one camera's frames in
-name order) carries a cue a single image does not: what moved. With ``LabelOptions.motion_cue`` each camera's frames
+time order) carries a cue a single image does not: what moved. With ``LabelOptions.motion_cue`` each camera's frames
 (:func:`harness.experiments.detector.subsets.camera_of` their keys) pass in order through a ``tracker.motion.MotionCue``
 and a frame's candidates on cells that moved are proposed first, the still ones after them (never dropped: a ball
 lying still is still proposed). A lamp the detector scores above the ball no longer comes first in every frame.

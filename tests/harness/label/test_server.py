@@ -462,3 +462,23 @@ def test_rt2_label_motion_cue_serves_what_moved_first(tmp_path):
         assert np.hypot(x + w / 2 - 0.5 - balls[3][0], y + h / 2 - 0.5 - balls[3][1]) < 3
     finally:
         proc.stop()
+
+
+def test_a_folder_is_shown_in_time_order_not_name_order(tmp_path):
+    """A Roboflow export's split prefixes and hashes (the real rally frames' names) and unpadded numbers: the frames come
+    in the order of their numbers, as ``--time-range`` takes them, so a fixed camera's frames are in time order."""
+    import cv2
+
+    src = tmp_path / "export"
+    src.mkdir()
+    names = ["valid_IMG_MOV-0012_jpg.rf.aa.jpg", "train_IMG_MOV-0002_jpg.rf.bb.jpg", "test_IMG_MOV-0010_jpg.rf.cc.jpg",
+             "train_IMG_MOV-0001_jpg.rf.dd.jpg"]
+    for n in names:
+        cv2.imwrite(str(src / n), np.full((8, 8, 3), 100, np.uint8))
+    frames = open_frames(src, tmp_path / "labels")
+    assert [f.key for f in frames.frames] == [names[3], names[1], names[2], names[0]]
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    for n in ("frame_10.png", "frame_2.png", "frame_1.png"):
+        cv2.imwrite(str(plain / n), np.full((8, 8, 3), 100, np.uint8))
+    assert [f.key for f in open_frames(plain, tmp_path / "l2").frames] == ["frame_1.png", "frame_2.png", "frame_10.png"]
