@@ -42,7 +42,7 @@ import numpy as np
 
 from checks.numba_cache import key_cache_on_callees
 
-__all__ = ["MotionCue", "MotionOptions", "observe_cells", "observe_reference", "reduced_size", "sample_points"]
+__all__ = ["CameraCues", "MotionCue", "MotionOptions", "observe_cells", "observe_reference", "reduced_size", "sample_points"]
 
 
 @dataclass(frozen=True)
@@ -278,6 +278,40 @@ class MotionCue:
             r0, r1 = max(int(math.floor(cv - rv)), 0), min(int(math.floor(cv + rv)) + 1, rows)
             out[i] = c0 < c1 and r0 < r1 and bool(self.mask[r0:r1, c0:c1].any())
         return out
+
+
+class CameraCues:
+    """The motion cues of several fixed cameras' frame sequences, one :class:`MotionCue` per key (a camera's name and
+    image size, say), made on the key's first frame: what a sequence of labelled or recorded frames searched offline
+    needs (``rt2 eval detector --motion-cue``, ``rt2 label --motion-cue``)."""
+
+    def __init__(self, options: MotionOptions | None = None):
+        self.options = options
+        self.cues: dict = {}
+
+    def __contains__(self, key) -> bool:
+        return key in self.cues
+
+    def __len__(self) -> int:
+        return len(self.cues)
+
+    def _cue(self, key, image: np.ndarray) -> MotionCue:
+        cue = self.cues.get(key)
+        if cue is None:
+            cue = self.cues[key] = MotionCue(image.shape[1], image.shape[0], self.options)
+        return cue
+
+    def warm(self, key, image: np.ndarray, t_s: float = math.nan) -> None:
+        """Show ``key``'s camera a frame before the ones searched (its background; nothing is asked of it)."""
+        self._cue(key, image).observe(image, t_s, need_mask=True)
+
+    def observe(self, key, image: np.ndarray, t_s: float = math.nan) -> MotionCue | None:
+        """Show ``key``'s camera its next frame; returns its cue where that gates this frame's candidates
+        (:meth:`MotionCue.moved`), None where the frame is searched without it (no cue, or a still ball's turn:
+        :meth:`MotionCue.whole_frame_due`)."""
+        cue = self._cue(key, image)
+        cue.observe(image, t_s, need_mask=True)
+        return None if cue.whole_frame_due(t_s) else cue
 
 
 key_cache_on_callees(globals())  # an edit of a helper or a constant recompiles the kernels

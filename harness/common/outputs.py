@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import errno
 import json
+import math
 import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = ["MIN_FREE_BYTES", "OutputError", "atomic_path", "atomic_write_bytes", "atomic_write_json",
-           "atomic_write_text", "check_output_dir", "check_output_file"]
+           "atomic_write_text", "check_output_dir", "check_output_file", "finite_or_none"]
 
 #: an output device with less free space than this is refused before the work starts
 MIN_FREE_BYTES = 1 << 20
@@ -169,3 +170,8 @@ def atomic_write_text(path, text: str, flag: str = "output") -> Path:
 def atomic_write_json(path, obj, flag: str = "--json", *, indent=1, **kwargs) -> Path:
     """``json.dumps(obj)`` plus a newline to ``path``, whole or not at all; returns ``path``."""
     return atomic_write_text(path, json.dumps(obj, indent=indent, **kwargs) + "\n", flag)
+
+
+def finite_or_none(x):
+    """``x`` as a float for JSON, or None where it is None or not finite (JSON has no NaN)."""
+    return None if x is None or not math.isfinite(float(x)) else float(x)

@@ -78,11 +78,11 @@ def detect_and_describe(frames: FrameSet, model: BallSegmentationModel, progress
     """Per frame: descriptor ``(n, d)``, candidates (list of (boxes (k, 4), scores (k,))) and uncertainty ``(n,)``;
     with ``motion_cue`` each frame's candidates that moved first (module docstring)."""
     from harness.experiments.detector.subsets import camera_of
-    from tracker.motion import MotionCue, MotionOptions
+    from tracker.motion import CameraCues, MotionOptions
 
     detector = BallDetector(model, DetectorOptions(method="ours"))
     desc, cands, unc = [], [], []
-    cues: dict = {}
+    cues = CameraCues(MotionOptions(regions=False))
     for i in range(len(frames)):
         image = frames.image(i)
         d = detector.detect(image)
@@ -90,10 +90,8 @@ def detect_and_describe(frames: FrameSet, model: BallSegmentationModel, progress
         boxes, scores = d.boxes_xywh.copy(), d.scores.copy()
         if motion_cue:
             f = frames.frames[i]
-            key = (camera_of(f.key), f.width, f.height)
-            cue = cues[key] if key in cues else cues.setdefault(key, MotionCue(f.width, f.height, MotionOptions(regions=False)))
-            cue.observe(image, need_mask=True)
-            if len(d) and cue.mask is not None:  # (the camera's first frame has no cue: the detector's order)
+            cue = cues.observe((camera_of(f.key), f.width, f.height), image)
+            if len(d) and cue is not None:  # (the camera's first frame has no cue: the detector's order)
                 order = np.argsort(~cue.moved(d.uv_px, boxes[:, 2:].max(axis=1)), kind="stable")
                 boxes, scores = boxes[order], scores[order]
         cands.append((boxes, scores))

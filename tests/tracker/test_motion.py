@@ -223,3 +223,17 @@ def test_a_still_ball_never_followed_is_found_every_still_search_s(rig, model, s
 def test_still_search_s_must_be_positive_seconds(value):
     with pytest.raises(ValueError, match="MotionOptions.still_search_s must be a number of seconds > 0"):
         MotionOptions(still_search_s=value)
+
+
+def test_camera_cues_keep_one_background_per_camera_and_warm_frames_start_it():
+    from tracker.motion import CameraCues
+
+    cues = CameraCues(MotionOptions(learn_every=1))
+    ball = lambda f: ((40.0 + 6 * f, 60.0), 10.0)  # noqa: E731
+    assert cues.observe("a", _frame(0, [LAMP, ball(0)])) is None  # a camera's first frame: no cue
+    assert cues.observe("b", _frame(10, [LAMP, ball(0)])) is None  # another camera: its own background
+    cue = cues.observe("a", _frame(1, [LAMP, ball(1)]))
+    assert cue is not None and cue.moved([ball(1)[0], LAMP[0]], [10.0, 10.0]).tolist() == [True, False]
+    assert len(cues) == 2 and "a" in cues and "c" not in cues
+    cues.warm("c", _frame(20, [LAMP, ball(0)]))  # a frame before those searched starts the background
+    assert cues.observe("c", _frame(21, [LAMP, ball(1)])) is not None

@@ -30,6 +30,7 @@ import math
 
 import numpy as np
 
+from harness.common.outputs import finite_or_none
 from harness.experiments.autolabel.consensus import AutoOptions, auto_label
 from harness.experiments.autolabel.framesets import RecordedSet
 
@@ -218,11 +219,6 @@ def _label_sets(rig, sets, kept, root, *, held_out: int | None = None) -> tuple[
     return train_set, test_set
 
 
-def _finite_or_none(v):
-    """A float for JSON, None where there is none (NaN: the filter alone has no threshold of its own)."""
-    return None if v is None or not math.isfinite(float(v)) else float(v)
-
-
 def _train_on(train_set, base, seed: int, epochs: int | None, what: str):
     """``rt2 train``'s defaults on ``train_set`` from ``base`` (--learned auto: a model with a learned stage keeps
     training it, not dropping it); ``(model, info)``; a training that finds no ball is one line naming ``what``."""
@@ -286,7 +282,7 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
             "trained": {"recall": after.recall, "outlier_rate": after.outlier_rate},
             "learned_stage": None if stage is None else {"chosen": stage["chosen"].name,
                                                           "threshold": stage["chosen"].threshold if stage["chosen"].name != "none" else None,
-                                                          "single_threshold": _finite_or_none(stage.get("single_threshold")), "folds_by": stage.get("folds_by"),
+                                                          "single_threshold": finite_or_none(stage.get("single_threshold")), "folds_by": stage.get("folds_by"),
                                                           "choices": [c.line() for c in stage["choices"]]}}
 
 

@@ -212,10 +212,10 @@ def draw_light(patch: np.ndarray, rng: np.random.Generator, centers, diameters, 
     ang = rng.uniform(0.0, math.pi)
     glow = rng.uniform(*LIGHT_GLOW)
     reach = r * (1.0 + 2.5 * glow)
+    c, d = np.asarray(centers, np.float64).reshape(-1, 2), np.asarray(diameters, np.float64).reshape(-1)
     for _ in range(tries):
         cx, cy = rng.uniform(-0.5 * r, p - 1 + 0.5 * r, 2)
-        far = [math.hypot(cx - u, cy - v) > reach + 0.5 * d + 2.0 for (u, v), d in zip(np.asarray(centers).reshape(-1, 2), np.asarray(diameters).reshape(-1))]
-        if all(far):
+        if (np.hypot(c[:, 0] - cx, c[:, 1] - cy) > reach + 0.5 * d + 2.0).all():
             break
     else:
         return patch

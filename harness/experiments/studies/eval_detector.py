@@ -111,32 +111,26 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
 
 
 class _CameraCues:
-    """Per camera (and image size) of an evaluated sequence its motion cue (:func:`evaluate`'s ``motion_cue``)."""
+    """The cues of an evaluated set's cameras (:func:`evaluate`'s ``motion_cue``: ``tracker.motion.CameraCues`` keyed by
+    :func:`~harness.experiments.detector.subsets.sequence_key`), each shown its warm-up frames first, and their counts."""
 
     def __init__(self, options, warmup, ball_free_margin_px):
-        self.options, self.ball_free_margin_px = options, ball_free_margin_px
+        from tracker.motion import CameraCues
+
+        self.cues, self.ball_free_margin_px = CameraCues(options), ball_free_margin_px
         self.warmup: dict = {}
         for li in warmup:
             self.warmup.setdefault(sequence_key(li), []).append(li)
-        self.cues: dict = {}
         self.without_cue = self.dropped = 0
 
     def observe(self, li, image):
-        """Show ``image`` (of ``li``) to its camera's cue; returns the cue where it gates this image's candidates, None
-        where the image is searched without it."""
-        from tracker.motion import MotionCue
-
+        """Show ``image`` (of ``li``) to its camera's cue; the cue where it gates this image's candidates, else None."""
         key = sequence_key(li)
-        cue = self.cues.get(key)
-        if cue is None:
-            cue = self.cues[key] = MotionCue(li.width, li.height, self.options)
+        if key not in self.cues:
             for w in self.warmup.get(key, ()):
-                cue.observe(_evaluated_image(w, self.ball_free_margin_px), _time_of(w), need_mask=True)
-        t = _time_of(li)
-        cue.observe(image, t, need_mask=True)
-        if cue.whole_frame_due(t):
-            self.without_cue += 1
-            return None
+                self.cues.warm(key, _evaluated_image(w, self.ball_free_margin_px), _time_of(w))
+        cue = self.cues.observe(key, image, _time_of(li))
+        self.without_cue += cue is None
         return cue
 
     def moving(self, cue, det) -> np.ndarray:

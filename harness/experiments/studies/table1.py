@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from harness.common.outputs import finite_or_none
 from harness.common.progress import progress_bar
 
 from harness.common.executor import SweepOptions, add_sweep_arguments, options_from_args, run_sweep
@@ -73,10 +74,6 @@ def _tasks(cameras, rates, trials: int, seed: int, eps_px: float) -> list[tuple]
     return tasks
 
 
-def _nan_to_none(x: float):
-    return None if x is None or not np.isfinite(x) else float(x)
-
-
 def run_table1(cameras=CAMERAS, rates=OUTLIER_RATES, *, trials: int = 10_000, seed: int = 0, workers: int = 1,
                eps_px: float | None = None, progress: bool = True, sweep: SweepOptions | None = None,
                stopped: list | None = None) -> list[dict]:  # fmt: skip
@@ -124,8 +121,8 @@ def run_table1(cameras=CAMERAS, rates=OUTLIER_RATES, *, trials: int = 10_000, se
                     "cameras": c,
                     "outlier_rate": p,
                     "method": method,
-                    "mean_error_cm": _nan_to_none(err[ok].mean() * 100 if ok.any() else None),
-                    "median_error_cm": _nan_to_none(np.median(err[ok]) * 100 if ok.any() else None),
+                    "mean_error_cm": finite_or_none(err[ok].mean() * 100 if ok.any() else None),
+                    "median_error_cm": finite_or_none(np.median(err[ok]) * 100 if ok.any() else None),
                     "gross_error_rate": float((err[ok] > GROSS_ERROR_M).sum() / len(err)),
                     "failure_rate": float((~ok).mean()),
                     "failure_floor": failure_floor(c, p),

@@ -486,13 +486,18 @@ def test_a_drawn_light_is_saturated_and_covers_no_ball():
     assert draw_light(base, rng, np.array([[48.0, 48.0]]), np.array([400.0])) is base  # nowhere to put it
 
 
-def test_p_light_draws_lights_only_when_asked(synthetic_ball_coco):
+def test_p_light_draws_lights_only_when_asked(synthetic_ball_coco, monkeypatch):
+    import harness.experiments.detector.learned_train as L
+
     labelled = read_coco(synthetic_ball_coco(10, 0))
     items = items_at_scale([(load_image(li), li) for li in labelled], 640)
-    plain = sample_patches(items, 8, np.random.default_rng(0), LearnedTrainOptions(patch_px=64))
-    zero = sample_patches(items, 8, np.random.default_rng(0), LearnedTrainOptions(patch_px=64, p_light=0.0))
     lit = sample_patches(items, 8, np.random.default_rng(0), LearnedTrainOptions(patch_px=64, p_light=1.0))
-    assert all((a == b).all() for a, b in zip(plain, zero))  # no light, no random draw: the same patches as before
+
+    def never(*args, **kwargs):
+        raise AssertionError("a light drawn with p_light 0")
+
+    monkeypatch.setattr(L, "draw_light", never)
+    plain = sample_patches(items, 8, np.random.default_rng(0), LearnedTrainOptions(patch_px=64))  # p_light 0: no light
     assert (lit[0] != plain[0]).any() and ((lit[0] == 255).all(axis=3).sum() > (plain[0] == 255).all(axis=3).sum())
     for bad in (-0.1, 1.5, True, "0.3"):
         with pytest.raises(ValueError, match="p_light must be a share between 0 and 1"):
