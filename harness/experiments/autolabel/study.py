@@ -283,7 +283,7 @@ def held_out_training(scene: str, frames: int, seed: int, held_out: str, kept, *
             "learned_stage": None if stage is None else {"chosen": stage["chosen"].name,
                                                           "threshold": stage["chosen"].threshold if stage["chosen"].name != "none" else None,
                                                           "single_threshold": finite_or_none(stage.get("single_threshold")), "folds_by": stage.get("folds_by"),
-                                                          "choices": [c.line() for c in stage["choices"]]}}
+                                                          "choices": [c.line() for c in stage["choices"]], "mining": stage.get("mining")}}
 
 
 def study(scene: str, frames: int, seed: int, *, rate_hz: float = 100.0, flight_frames: int = 20, model=None,
@@ -421,6 +421,10 @@ def run(args) -> int:
             folds = f", folds by {ls['folds_by']}" if ls.get("folds_by") else ""
             print(f"  its learned stage: {ls['chosen']} by cross-validation{folds} ({'; '.join(ls['choices'])})"
                   + ("" if single is None else f"; single images at threshold {single:g}"))
+            if ls.get("mining"):
+                m = ls["mining"]
+                print(f"  trained again with its false alarms mined (its single images were mostly off the ball): {m['with']}; the "
+                      f"one {'with' if m['kept'] else 'without'} them kept")
         result["held_out_training"] = t
     if args.train_out is not None:
         t = trained_on_all(args.scene, args.frames, args.seed, kept, args.train_out, rate_hz=args.rate_hz,

@@ -30,7 +30,7 @@ import numpy as np
 from harness.experiments.detector.augment import AugmentOptions, jpeg, optics
 from tracker.detection.learned import LearnedStage, learned_scale
 
-__all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "contrast_crops", "items_at_scale", "kept_passes", "sample_patches", "with_contrast",
+__all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "contrast_crops", "items_at_scale", "kept_passes", "mine_false_peaks", "sample_patches", "with_contrast",
            "stage_candidates", "targets"]
 
 STRIDE = 4
@@ -59,6 +59,10 @@ class LearnedTrainOptions:
     augment : photometric augmentation of the patches (:mod:`harness.experiments.detector.augment`)
     p_light : share of patches with a light source drawn in, away from their balls (:func:`draw_light`: a lamp's
         saturated core and glow, what a white ball's detector mistakes for one; 0 = none, no random draw)
+    p_mined : share of patches centred on the network's own false alarms in its training images (:func:`mine_false_peaks`,
+        bootstrapping: what it mistakes for a ball, shown again as a negative), mined every ``mine_every`` steps from
+        then on; 0 = none, no random draw
+    mine_every : steps between two minings (the first after this many steps; none at the last step)
     """
 
     iterations: int = 1500
@@ -73,9 +77,11 @@ class LearnedTrainOptions:
     augment: bool = True
     arch: str = DEFAULT_ARCH
     p_light: float = 0.0
+    p_mined: float = 0.0
+    mine_every: int = 1000
 
     def __post_init__(self):
-        for name in ("iterations", "batch", "patch_px", "max_side_px"):
+        for name in ("iterations", "batch", "patch_px", "max_side_px", "mine_every"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"LearnedTrainOptions.{name} must be a positive integer, got {v!r}")
@@ -83,9 +89,10 @@ class LearnedTrainOptions:
             raise ValueError(f"LearnedTrainOptions.patch_px must be a multiple of {2 * STRIDE}, got {self.patch_px}")
         if self.arch not in ARCHS:
             raise ValueError(f"LearnedTrainOptions.arch must be one of {list(ARCHS)}, got {self.arch!r}")
-        v = self.p_light
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
-            raise ValueError(f"LearnedTrainOptions.p_light must be a share between 0 and 1, got {v!r}")
+        for name in ("p_light", "p_mined"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+                raise ValueError(f"LearnedTrainOptions.{name} must be a share between 0 and 1, got {v!r}")
         if not (0 < self.scale_range[0] <= self.scale_range[1]):
             raise ValueError(f"LearnedTrainOptions.scale_range must be (lo, hi) with 0 < lo <= hi, got {self.scale_range!r}")
 
@@ -143,8 +150,12 @@ def targets(centers, diameters, size: int, stride: int = STRIDE):
     return heat, off, logd, mask
 
 
-def sample_patches(items: list[LearnedItem], n: int, rng: np.random.Generator, opts: LearnedTrainOptions, aug: AugmentOptions | None = None):
-    """n training patches: (images (n, P, P, 3) uint8, heat (n, g, g), offsets (n, 2, g, g), log diameters (n, g, g), masks (n, g, g))."""
+def sample_patches(items: list[LearnedItem], n: int, rng: np.random.Generator, opts: LearnedTrainOptions, aug: AugmentOptions | None = None,
+                   mined=()):
+    """n training patches: (images (n, P, P, 3) uint8, heat (n, g, g), offsets (n, 2, g, g), log diameters (n, g, g), masks (n, g, g)).
+
+    mined : ``(item index, u, v)`` false alarms of the network (:func:`mine_false_peaks`); a share ``opts.p_mined`` of
+        the patches is centred near one of them (no random draw while there are none)"""
     p = opts.patch_px
     weights = np.array([it.weight for it in items], np.float64)
     weights /= weights.sum()
@@ -158,8 +169,13 @@ def sample_patches(items: list[LearnedItem], n: int, rng: np.random.Generator, o
     mask = np.empty((n, g, g), np.float32)
     lo, hi = np.log(opts.scale_range)
     for k in range(n):
-        on_ball = with_ball and rng.random() < opts.p_ball
-        if on_ball:
+        if len(mined) and rng.random() < opts.p_mined:  # near a false alarm: the balls it holds keep their targets
+            i, u, v = mined[int(rng.integers(len(mined)))]
+            it = items[int(i)]
+            s = math.exp(rng.uniform(lo, hi))
+            side = p / s
+            cu, cv_ = np.array([u, v]) + rng.uniform(-0.3, 0.3, 2) * side
+        elif with_ball and rng.random() < opts.p_ball:
             it = items[with_ball[int(rng.choice(len(with_ball), p=w_b))]]
             j = int(rng.integers(len(it.centers)))
             s = math.exp(rng.uniform(lo, hi))
@@ -229,6 +245,53 @@ def draw_light(patch: np.ndarray, rng: np.random.Generator, centers, diameters, 
         colour[int(rng.integers(3))] = rng.uniform(215.0, 250.0)
     out = patch.astype(np.float32) * (1.0 - alpha[..., None]) + colour * alpha[..., None]
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+#: mining false alarms (:func:`mine_false_peaks`): a peak counts from this heat, at most this many per image (best
+#: first), and none within this many diameters of a labelled ball (at least ``MINE_MIN_AWAY_PX``)
+MINE_HEAT = 0.2
+MINE_PER_IMAGE = 4
+MINE_AWAY_DIAMETERS = 1.0
+MINE_MIN_AWAY_PX = 8.0
+
+
+def mine_false_peaks(torch, net, items: list[LearnedItem]) -> tuple:
+    """The network's false alarms in its training images: ``((item index, u, v), ...)`` of the heat's local maxima
+    (3x3) of at least ``MINE_HEAT`` away from every labelled ball (farther than ``MINE_AWAY_DIAMETERS`` of its diameter,
+    and ``MINE_MIN_AWAY_PX``), the ``MINE_PER_IMAGE`` best of each image, at the items' own scale (the network's).
+    Bootstrapping (Sung and Poggio's hard negatives): patches drawn near them teach the network what it mistakes for
+    a ball in these images: arms, lamps, shelves, a shoe."""
+    F = torch.nn.functional
+    out = []
+    was_training = net.training
+    net.eval()
+    try:
+        with torch.no_grad():
+            for idx, it in enumerate(items):
+                im = it.image
+                h, w = im.shape[:2]
+                ph, pw = -h % (2 * STRIDE), -w % (2 * STRIDE)
+                if ph or pw:
+                    im = np.pad(im, ((0, ph), (0, pw), (0, 0)), mode="edge")
+                o = net(torch.from_numpy(np.ascontiguousarray(im))[None])[0]
+                heat = torch.sigmoid(o[0])
+                peak = (heat == F.max_pool2d(heat[None, None], 3, stride=1, padding=1)[0, 0]) & (heat >= MINE_HEAT)
+                ys, xs = torch.nonzero(peak, as_tuple=True)
+                if not len(ys):
+                    continue
+                hv = heat[ys, xs].numpy()
+                u = (xs.numpy() + o[1, ys, xs].numpy() + 0.5) * STRIDE - 0.5
+                v = (ys.numpy() + o[2, ys, xs].numpy() + 0.5) * STRIDE - 0.5
+                inside = (u < w) & (v < h)
+                if len(it.centers):
+                    away = np.maximum(MINE_AWAY_DIAMETERS * it.diameters, MINE_MIN_AWAY_PX)
+                    dist = np.hypot(u[:, None] - it.centers[None, :, 0], v[:, None] - it.centers[None, :, 1])
+                    inside &= (dist > away[None, :]).all(axis=1)
+                for j in np.argsort(-hv[inside], kind="stable")[:MINE_PER_IMAGE]:
+                    out.append((idx, float(u[inside][j]), float(v[inside][j])))
+    finally:
+        net.train(was_training)
+    return tuple(out)
 
 
 #: the patches' photometric changes (the sampler chooses scale and flip)
@@ -471,12 +534,18 @@ def fit_learned(items: list[LearnedItem], opts: LearnedTrainOptions, seed: int, 
         # the next batch's patches are sampled on a second thread while the network trains on one (torch runs on a
         # single thread, for repeatable sums): the sampling took most of rt2 train's time. One batch at a time, each
         # begun when the one before is taken: the generator draws in the same order, so the same patches
+        # Mining (opts.p_mined) takes place between two steps, after the next batch was sampled: the batches after it
+        # draw near its false alarms (handed to each as an argument: the sampling thread never sees them change)
+        mined = ()
         with ThreadPoolExecutor(1, thread_name_prefix="rt2-patches") as pool:
-            ahead = pool.submit(sample_patches, items, opts.batch, rng, opts)
+            ahead = pool.submit(sample_patches, items, opts.batch, rng, opts, None, mined)
             for i in range(opts.iterations):
                 imgs, heat, off, logd, mask = ahead.result()
+                if opts.p_mined and i and i % opts.mine_every == 0 and i + 1 < opts.iterations:
+                    mined = mine_false_peaks(torch, net, items)
+                    log(f"learned stage: step {i}, {len(mined)} false alarms mined in {len(items)} training images")
                 if i + 1 < opts.iterations:
-                    ahead = pool.submit(sample_patches, items, opts.batch, rng, opts)
+                    ahead = pool.submit(sample_patches, items, opts.batch, rng, opts, None, mined)
                 out = net(torch.from_numpy(imgs))
                 loss = _loss(torch, out, torch.from_numpy(heat), torch.from_numpy(off), torch.from_numpy(logd), torch.from_numpy(mask))
                 opt.zero_grad()
@@ -682,7 +751,7 @@ def kept_passes(name: str, base: LearnedStage | None) -> dict:
 
 def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int, k: int = 4, min_diameter_px: float = 6.0,
                 finetune_steps: int = 150, scratch_steps: int = 400, batch: int = 16, patch_px: int = 96, extra=(),
-                alone=None, log=print, progress: bool = False):
+                alone=None, mined: float = 0.0, log=print, progress: bool = False):
     """The learned stage ``rt2 train`` writes, chosen by cross-validation; returns ``(stage, info)``.
 
     labelled : ``LabelledImage`` list (the user's labels); images : their (H, W, 3) uint8 RGB images
@@ -696,6 +765,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     alone : ``(BallSegmentationModel, indices of labelled)`` pairs, the 5x5 filter as ``rt2 train`` writes it, fitted
     without those images (a kept base model, a cross-validation fold's model or the validation split's): the choice
     "none", the filter alone scored top-K on those images, which wins ties (returned stage None)
+    mined : ``LearnedTrainOptions.p_mined`` of every fit (fine-tuned, from scratch), mined at a third and two thirds of its steps
     """
     from harness.experiments.detector.scores import truth_of
 
@@ -734,7 +804,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
         for name in names[1 if base is not None else 0:]:
             steps, state = (finetune_steps, base_state) if name == "fine-tuned" else (scratch_steps, None)
             opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
-                                       lr=1e-3 if state is not None else 3e-3)
+                                       lr=1e-3 if state is not None else 3e-3, p_mined=mined, mine_every=max(1, -(-steps // 3)))
             _, onnx_f = fit_learned(fit_items(name, fitted)[0], opts, seed + 101 * f, state=state, log=lambda m: None, progress=False)
             for i, c in candidates(stage_of(onnx_f, name), fold):
                 oof[name][i] = c
@@ -768,7 +838,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     else:
         steps, state = (finetune_steps, base_state) if best.name == "fine-tuned" else (scratch_steps, None)
         opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
-                                   lr=1e-3 if state is not None else 3e-3)
+                                   lr=1e-3 if state is not None else 3e-3, p_mined=mined, mine_every=max(1, -(-steps // 3)))
         train_items, n_crops = fit_items(best.name, range(len(items)))
         if best.name == "fine-tuned":
             log(f"learned stage: fine-tuned with {n_crops} contrast crops (the base's own false candidates next to a ball)")
@@ -781,6 +851,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
                              **kept_passes(best.name, base),
                              filter_refines=True if base is None else base.filter_refines, size_ratio=inherited,
                              description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed}; {thresholds})"
+                             + (f"; {100 * mined:g} % of its patches near its own false alarms, mined at a third and two thirds of its steps" if mined else "")
                              + ("" if inherited is None else f"; size ratio {inherited:g}, the base's"))
     info = dict(choices=choices, chosen=best, folds=len(folds), max_side_px=max_side, single=single, single_threshold=single_threshold, k=k)
     return stage, info

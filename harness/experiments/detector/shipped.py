@@ -74,7 +74,7 @@ ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 
 
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
-          diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, log=print,
+          diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, log=print,
           progress: bool = True):
     """The model (base filter + trained learned stage) and a dict of what it was trained on and its validation figures."""
     from harness.experiments.detector.labels import read_labels
@@ -120,10 +120,12 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     items = []
     for (im, li), w in zip(pairs, weights):
         items += items_at_scale([(im, li)], max_side, weight=w)
-    opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0), p_light=lights,
+    opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0), p_light=lights, p_mined=mined,
                                **({} if arch is None else {"arch": arch}))
     if lights:
         sources.append(f"light sources drawn into {100 * lights:g} % of the patches")
+    if mined:
+        sources.append(f"{100 * mined:g} % of the patches near its own false alarms in these frames, mined every {opts.mine_every} steps")
     _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
     # the file keeps the base's filter (of orange balls, trained on renders): it never refines the stage's centres, the
     # ball's edge does (for orange too: docs/detector.md, "The shipped models")
@@ -310,6 +312,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--lights", type=float, default=0.0,
                         help="the share of training patches with a light source drawn in away from their balls: a lamp's "
                              "saturated core and glow, a white ball's detector's false alarm (default 0)")
+    parser.add_argument("--mined", type=float, default=0.0,
+                        help="the share of training patches centred on the network's own false alarms in its training frames, "
+                             "mined every 1000 steps (bootstrapping; default 0)")
     parser.add_argument("--max-side-px", type=int, default=960,
                         help="frames with a longer side are shrunk to it before the network (default 960: VGA frames as they are)")
 
@@ -319,13 +324,13 @@ def run(args) -> int:
 
     out = Path(args.out)
     check_output_file(out, "--out", suffix=".npz")
-    for name in ("hard_pastes", "lights"):
+    for name in ("hard_pastes", "lights", "mined"):
         v = getattr(args, name)
         if not (0.0 <= v <= 1.0):
             raise ValueError(f"--{name.replace('_', '-')} must be a share between 0 and 1, got {v!r}")
     model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
-                        semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights)
+                        semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights, mined=args.mined)
     with atomic_path(out, "--out") as tmp:
         model.save(tmp)
     print(f"wrote {out}: learned stage threshold {info['threshold']:g}")

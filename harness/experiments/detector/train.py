@@ -95,6 +95,12 @@ MIN_WRITE_RECALL = 0.5
 
 #: a fine-tune's optimiser steps at most (the learned stage's; 3/8 of ``--learned-steps`` below that)
 FINETUNE_STEPS = 150
+#: ``--learned-mined auto``: when the chosen stage's single images are off the ball in more than this share of the
+#: cross-validation's images (a fixed false alarm of the camera, a lamp, outranks the ball), the stage is trained again
+#: with ``MINED_SHARE`` of its patches near its own false alarms, and the better of the two by the cross-validation kept
+#: (the first on a tie)
+MINE_WHEN_OUTLIERS = 0.2
+MINED_SHARE = 0.3
 
 
 @dataclass(frozen=True)
@@ -136,6 +142,11 @@ class TrainOptions:
         (:func:`learned_folds`)
     learned_steps : optimiser steps of a learned stage from scratch (fine-tuning takes 3/8 of them, at most
         ``FINETUNE_STEPS``: a few labels pull a shipped network away from what it knew)
+    learned_mined : the share of a learned stage's training patches (fine-tuned or from scratch) centred on its own
+        false alarms in the labelled images, mined at a third and two thirds of its steps (0 = none;
+        :func:`harness.experiments.detector.learned_train.mine_false_peaks`), or "auto" (default): none, and where the
+        chosen stage's single images are off the ball in more than ``MINE_WHEN_OUTLIERS`` of the cross-validation's
+        images, trained again with ``MINED_SHARE``, the better of the two by the cross-validation kept
     filter : the 5x5 filter (Algorithm 1's model): "fit" trains it as above; "keep" writes the base model's filter
         unchanged (needs a base and ``learned`` "auto" or "on": something must be trained); "auto" (default) keeps it when the
         learned stage is trained too and the base's stage does not take the filter's refinement
@@ -171,6 +182,7 @@ class TrainOptions:
     learned_folds: int = 3
     learned_folds_by: str = "auto"
     learned_steps: int = 1600
+    learned_mined: float | str = "auto"
     filter: str = "auto"
     allow_no_ball: bool = False
 
@@ -208,6 +220,9 @@ class TrainOptions:
             raise ValueError(f"TrainOptions.learned_folds_by must be one of {LEARNED_FOLDS_BY}, got {self.learned_folds_by!r}")
         if isinstance(self.learned_steps, bool) or not isinstance(self.learned_steps, int) or self.learned_steps < 1:
             raise ValueError(f"TrainOptions.learned_steps must be a positive integer, got {self.learned_steps!r}")
+        v = self.learned_mined
+        if v != "auto" and (isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0):
+            raise ValueError(f"TrainOptions.learned_mined must be 'auto' or a share between 0 and 1, got {v!r}")
         if self.filter not in FILTER_CHOICES:
             raise ValueError(f"TrainOptions.filter must be one of {FILTER_CHOICES}, got {self.filter!r}")
         if self.filter == "keep" and self.learned == "off":
@@ -766,10 +781,30 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
 
         log(f"learned stage: {len(folds)} cross-validation folds by {by}" + (
             "" if by == "time" else " (" + "; ".join(", ".join(sorted({image_camera(labelled[i]) for i in f})) for f in folds) + ")"))
-        stage, l_info = train_stage(labelled, [load_image(li) for li in labelled], folds,
-                                    base=None if base is None else base.learned, seed=opts.seed,
-                                    scratch_steps=opts.learned_steps, finetune_steps=max(1, min(FINETUNE_STEPS, opts.learned_steps * 3 // 8)),
-                                    extra=backgrounds, alone=finfo.get("alone") if opts.learned == "auto" else None, log=log, progress=progress)
+        images = [load_image(li) for li in labelled]
+
+        def stage_of(mined: float):
+            return train_stage(labelled, images, folds, base=None if base is None else base.learned, seed=opts.seed,
+                               scratch_steps=opts.learned_steps, finetune_steps=max(1, min(FINETUNE_STEPS, opts.learned_steps * 3 // 8)),
+                               extra=backgrounds, alone=finfo.get("alone") if opts.learned == "auto" else None, mined=mined,
+                               log=log, progress=progress)
+
+        auto = opts.learned_mined == "auto"
+        stage, l_info = stage_of(0.0 if auto else float(opts.learned_mined))
+        l_info["mined"] = 0.0 if auto else float(opts.learned_mined)
+        single = l_info.get("single")
+        if auto and single is not None and single.outlier_rate > MINE_WHEN_OUTLIERS:
+            log(f"learned stage: its single images are off the ball in {100 * single.outlier_rate:.1f}% of the cross-validation's "
+                f"images (over {100 * MINE_WHEN_OUTLIERS:g}%: something of this camera outranks the ball), so it is trained again "
+                f"with {100 * MINED_SHARE:g}% of its patches near its own false alarms (--learned-mined {MINED_SHARE:g})")
+            stage2, info2 = stage_of(MINED_SHARE)
+            better = round(info2["chosen"].gain, 9) > round(l_info["chosen"].gain, 9)  # a tie (the shipped stage in both) keeps the first
+            log(f"learned stage: with its false alarms mined, {info2['chosen'].line()}; without, {l_info['chosen'].line()}: "
+                f"the one {'with' if better else 'without'} them kept")
+            trial = {"kept": better, "with": info2["chosen"].line(), "without": l_info["chosen"].line()}
+            if better:
+                stage, l_info = stage2, dict(info2, mined=MINED_SHARE)
+            l_info["mining"] = trial
         l_info["folds_by"] = by
         c = l_info["chosen"]
         if stage is None:
@@ -948,6 +983,18 @@ SHIPPED_MODELS = {
 }
 
 
+def _mined_share(text: str):
+    """``--learned-mined``: 'auto' or a number (its range checked by :class:`TrainOptions`)."""
+    import argparse
+
+    if text == "auto":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be 'auto' or a share between 0 and 1, got {text!r}") from None
+
+
 def add_arguments(parser) -> None:
     from harness.experiments.detector.labels import LABEL_FORMATS
 
@@ -1013,6 +1060,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--learned-steps", type=int, default=TrainOptions.learned_steps,
                         help=f"optimiser steps of a learned stage from scratch; fine-tuning takes 3/8 of them, at most {FINETUNE_STEPS} "
                              f"(default {TrainOptions.learned_steps})")
+    parser.add_argument("--learned-mined", type=_mined_share, default=TrainOptions.learned_mined,
+                        help="the share of the learned stage's training patches centred on its own false alarms in the labelled "
+                             "images, mined at a third and two thirds of its steps (0: none), or 'auto' (default): none, and where "
+                             f"its single images are off the ball in over {100 * MINE_WHEN_OUTLIERS:g}%% of the cross-validation's "
+                             f"images, trained again with {MINED_SHARE:g} and the better kept")
     parser.add_argument("--filter", choices=FILTER_CHOICES, default="auto",
                         help="the 5x5 filter: 'fit' trains it; 'keep' writes the base model's unchanged (with --learned auto); 'auto' "
                              "(default) keeps it when the base's learned stage does not take the filter's refinement (the shipped "
@@ -1113,7 +1165,7 @@ def run(args) -> int:
                             threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
                             keep_base=args.keep_base, learned=args.learned, learned_folds=args.learned_folds,
                             learned_folds_by=args.learned_folds_by,
-                            learned_steps=args.learned_steps, filter=args.filter, allow_no_ball=args.force)
+                            learned_steps=args.learned_steps, learned_mined=args.learned_mined, filter=args.filter, allow_no_ball=args.force)
         picked = ([f"cameras {' '.join(args.camera)}"] if args.camera else []) + ([f"time range {args.time_range}"] if args.time_range else [])
         sources = f"data {', '.join(map(str, args.data))}" + (f" ({', '.join(picked)})" if picked else "")
         if backgrounds:

@@ -268,7 +268,11 @@ def test_learned_options_hostile(synthetic_ball_coco, tmp_path, capsys):
     for extra, message in ((["--learned", "maybe"], "invalid choice"), (["--learned-steps", "0"], "learned_steps"),
                            (["--learned-folds", "1"], "learned_folds"), (["--filter", "maybe"], "invalid choice"),
                            (["--filter", "keep", "--learned", "off"], "trains nothing"),
-                           (["--filter", "keep", "--from", "none"], "there is no base model")):
+                           (["--filter", "keep", "--from", "none"], "there is no base model"),
+                           (["--learned-mined", "1.5"], "learned_mined must be 'auto' or a share between 0 and 1"),
+                           (["--learned-mined", "-0.1"], "learned_mined must be 'auto' or a share between 0 and 1"),
+                           (["--learned-mined", "nan"], "learned_mined must be 'auto' or a share between 0 and 1"),
+                           (["--learned-mined", "maybe"], "must be 'auto' or a share between 0 and 1, got 'maybe'")):
         with pytest.raises(SystemExit) if extra[-1] == "maybe" else _no_raise():
             code = main(["train", "--data", data, "--out", str(tmp_path / "m.npz"), *extra])
             assert code == 2
@@ -502,3 +506,137 @@ def test_p_light_draws_lights_only_when_asked(synthetic_ball_coco, monkeypatch):
     for bad in (-0.1, 1.5, True, "0.3"):
         with pytest.raises(ValueError, match="p_light must be a share between 0 and 1"):
             LearnedTrainOptions(p_light=bad)
+
+
+class _BrightnessNet(torch.nn.Module):
+    """A stand-in network with a known heat: each 4x4 cell's mean brightness (255 -> logit +6, 0 -> -6), offsets 0."""
+
+    training = True
+
+    def forward(self, image):
+        x = image.permute(0, 3, 1, 2).float().mean(1, keepdim=True) / 255.0
+        heat = torch.nn.functional.avg_pool2d(x, 4) * 12.0 - 6.0
+        return torch.cat([heat, torch.zeros_like(heat).repeat(1, 3, 1, 1)], 1)
+
+
+def test_mined_false_peaks_are_the_networks_alarms_away_from_the_balls():
+    from harness.experiments.detector.learned_train import MINE_PER_IMAGE, mine_false_peaks
+
+    img = np.zeros((64, 96, 3), np.uint8)
+    img[20:24, 40:44] = 255  # a bright cell: the labelled ball
+    img[40:44, 8:12] = 255  # another: a false alarm at (9.5, 41.5)
+    img[8:12, 80:84] = 120  # dimmer, still over MINE_HEAT (sigmoid(120/255*12-6) ~ 0.43): a second alarm
+    items = [LearnedItem(img, np.array([[41.5, 21.5]]), np.array([4.0])), LearnedItem(np.zeros((30, 50, 3), np.uint8), np.zeros((0, 2)), np.zeros(0))]
+    net = _BrightnessNet()
+    mined = mine_false_peaks(torch, net, items)
+    # the second image (odd size, padded to whole cells) has no alarm; the first's are in order of heat, never the ball
+    assert [m[0] for m in mined] == [0, 0]
+    np.testing.assert_allclose([m[1:] for m in mined], [[9.5, 41.5], [81.5, 9.5]])
+    assert net.training  # left as it was found
+    many = np.zeros((64, 96, 3), np.uint8)
+    for k in range(MINE_PER_IMAGE + 3):
+        many[4:8, 8 * k + 4:8 * k + 8] = 200 + 5 * k
+    mined = mine_false_peaks(torch, net, [LearnedItem(many, np.zeros((0, 2)), np.zeros(0))])
+    assert len(mined) == MINE_PER_IMAGE and mined[0][1] == pytest.approx(8 * (MINE_PER_IMAGE + 2) + 5.5)  # the brightest first
+
+
+def test_patches_near_mined_alarms_only_when_asked(synthetic_ball_coco):
+    """With ``p_mined`` 1 every patch is centred near a mined alarm; with none mined yet the patches are those of a
+    sampler without mining, bit for bit (no random draw)."""
+    labelled = read_coco(synthetic_ball_coco(10, 0))
+    items = items_at_scale([(load_image(li), li) for li in labelled], 640)
+    base = sample_patches(items, 8, np.random.default_rng(0), LearnedTrainOptions(patch_px=64))
+    none_yet = sample_patches(items, 8, np.random.default_rng(0), LearnedTrainOptions(patch_px=64, p_mined=0.5), mined=())
+    for a, b in zip(base, none_yet):
+        np.testing.assert_array_equal(a, b)
+    img = np.zeros((240, 320, 3), np.uint8)
+    img[100:108, 200:208] = (0, 255, 0)  # the alarm: a green square, the only green in the image
+    marked = [LearnedItem(img, np.zeros((0, 2)), np.zeros(0))] + items
+    opts = LearnedTrainOptions(patch_px=64, p_mined=1.0, augment=False, scale_range=(1.0, 1.0))
+    imgs = sample_patches(marked, 6, np.random.default_rng(1), opts, mined=((0, 203.5, 103.5),))[0]
+    for im in imgs:
+        ys, xs = np.nonzero((im[..., 1] > 200) & (im[..., 0] < 50))
+        assert len(ys), "a patch drawn near the mined alarm does not hold it"
+        assert abs(xs.mean() - 31.5) <= 0.3 * 64 + 1 and abs(ys.mean() - 31.5) <= 0.3 * 64 + 1
+    for bad in (-0.1, 1.5, True, "0.3"):
+        with pytest.raises(ValueError, match="p_mined must be a share between 0 and 1"):
+            LearnedTrainOptions(p_mined=bad)
+    with pytest.raises(ValueError, match="mine_every must be a positive integer"):
+        LearnedTrainOptions(mine_every=0)
+
+
+def test_mining_during_training_is_logged_and_repeatable(synthetic_ball_coco):
+    labelled = read_coco(synthetic_ball_coco(10, 0))
+    items = items_at_scale([(load_image(li), li) for li in labelled], 640)
+    opts = LearnedTrainOptions(iterations=24, batch=4, patch_px=64, p_mined=0.5, mine_every=8)
+    lines = []
+    _, a = fit_learned(items, opts, 3, log=lines.append)
+    _, b = fit_learned(items, opts, 3, log=lambda m: None)
+    assert a == b
+    assert [ln.split(",")[0] for ln in lines if "mined" in ln] == ["learned stage: step 8", "learned stage: step 16"]
+
+
+def test_rt2_train_mines_the_stages_false_alarms_only_when_asked(synthetic_ball_coco, tmp_path, monkeypatch):
+    """``--learned-mined F``: every fit of the learned stage (the cross-validation's and the file's, fine-tuned and
+    from scratch) draws F of its patches near its own false alarms, mined at a third and two thirds of its steps;
+    without it none does."""
+    import harness.experiments.detector.learned_train as L
+
+    seen = []
+    real_fit = L.fit_learned
+
+    def recording_fit(items, opts, seed, **kw):
+        seen.append((opts.iterations, opts.p_mined, opts.mine_every))
+        return real_fit(items, opts, seed, **kw)
+
+    monkeypatch.setattr(L, "fit_learned", recording_fit)
+    data = str(synthetic_ball_coco(12, 3))
+    common = ["train", "--data", data, "--learned", "on", "--learned-steps", "9", "--filter", "keep", "--force"]
+    assert main([*common, "--learned-mined", "0", "--out", str(tmp_path / "plain.npz")]) in (0, 3)
+    assert seen and all(p == 0.0 for _, p, _ in seen)
+    seen.clear()
+    assert main([*common, "--learned-mined", "0.3", "--out", str(tmp_path / "mined.npz")]) in (0, 3)
+    assert len(seen) >= 3 and all(p == 0.3 and every == -(-steps // 3) for steps, p, every in seen)
+    written = BallSegmentationModel.load(tmp_path / "mined.npz")
+    assert "30 % of its patches near its own false alarms" in written.learned.description
+
+
+@pytest.mark.parametrize("first_outliers, mined_gain, expect_calls, expect_kept", [
+    (0.5, 0.6, [0.0, 0.3], 0.3),  # single images mostly off the ball: trained again, the mined stage scores better
+    (0.5, 0.1, [0.0, 0.3], 0.0),  # trained again, the mined one scores worse: the first kept
+    (0.5, 0.4, [0.0, 0.3], 0.0),  # a tie (the shipped stage chosen in both): the first kept
+    (0.1, 0.9, [0.0], 0.0),  # single images mostly right: nothing to mine
+])
+def test_learned_mined_auto_trains_again_where_single_images_miss(synthetic_ball_coco, tmp_path, monkeypatch, capsys,
+                                                                  first_outliers, mined_gain, expect_calls, expect_kept):
+    """``--learned-mined auto`` (the default): where the chosen stage's single images are off the ball in more than
+    ``MINE_WHEN_OUTLIERS`` of the cross-validation's images, the stage is trained again with its false alarms mined and
+    the one the cross-validation scores better is written."""
+    from types import SimpleNamespace
+
+    import harness.experiments.detector.learned_train as L
+    from harness.experiments.detector.train import MINE_WHEN_OUTLIERS, MINED_SHARE
+
+    assert MINE_WHEN_OUTLIERS == 0.2 and MINED_SHARE == 0.3  # the figures this table is written for
+    calls = []
+
+    def fake_stage(labelled, images, folds, *, mined, **kw):
+        calls.append(mined)
+        gain = 0.4 if mined == 0 else mined_gain
+        chosen = SimpleNamespace(name="scratch", gain=gain, line=lambda: f"scratch: gain {gain}")
+        single = SimpleNamespace(recall=0.5, outlier_rate=first_outliers if mined == 0 else 0.0)
+        return None, dict(choices=[chosen], chosen=chosen, folds=len(folds), single=single, single_threshold=0.4, k=4)
+
+    monkeypatch.setattr(L, "train_stage", fake_stage)
+    from harness.experiments.detector.train import TrainOptions, train
+
+    labelled = read_coco(synthetic_ball_coco(12, 3))
+    from harness.experiments.detector.train import SHIPPED_MODELS
+
+    base = BallSegmentationModel.load(SHIPPED_MODELS["orange"])  # its filter kept: only the stage's choice runs
+    _, info = train(labelled, TrainOptions(learned="on", filter="keep", allow_no_ball=True), progress=False, log=lambda m: None, base=base)
+    assert calls == expect_calls
+    assert info["learned"]["mined"] == expect_kept
+    trial = info["learned"].get("mining")
+    assert (trial is None) == (len(expect_calls) == 1)
+    assert trial is None or (trial["kept"] == (expect_kept > 0) and trial["with"].startswith("scratch: gain"))
