@@ -421,10 +421,12 @@ def run(args) -> int:
             folds = f", folds by {ls['folds_by']}" if ls.get("folds_by") else ""
             print(f"  its learned stage: {ls['chosen']} by cross-validation{folds} ({'; '.join(ls['choices'])})"
                   + ("" if single is None else f"; single images at threshold {single:g}"))
-            if ls.get("mining"):
-                m = ls["mining"]
-                print(f"  trained again with its false alarms mined (its single images were mostly off the ball): {m['with']}; the "
-                      f"one {'with' if m['kept'] else 'without'} them kept")
+            m = ls.get("mining")
+            if m and m["with"] is None:
+                print("  its single images were often off the ball, but its network had no false alarm in the labelled frames to mine")
+            elif m:
+                print(f"  trained again with its {m['false_alarms']} false alarms mined (its single images were often off the ball): "
+                      f"{m['with']}; the one {'with' if m['kept'] else 'without'} them kept")
         result["held_out_training"] = t
     if args.train_out is not None:
         t = trained_on_all(args.scene, args.frames, args.seed, kept, args.train_out, rate_hz=args.rate_hz,

@@ -30,7 +30,7 @@ import numpy as np
 from harness.experiments.detector.augment import AugmentOptions, jpeg, optics
 from tracker.detection.learned import LearnedStage, learned_scale
 
-__all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "contrast_crops", "items_at_scale", "kept_passes", "mine_false_peaks", "sample_patches", "with_contrast",
+__all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "contrast_crops", "items_at_scale", "false_alarms", "kept_passes", "mine_false_peaks", "sample_patches", "with_contrast",
            "stage_candidates", "targets"]
 
 STRIDE = 4
@@ -292,6 +292,27 @@ def mine_false_peaks(torch, net, items: list[LearnedItem]) -> tuple:
     finally:
         net.train(was_training)
     return tuple(out)
+
+
+def false_alarms(stage: LearnedStage, images, labelled) -> int:
+    """How many false alarms a fit would mine from ``stage``'s network in ``images`` (their ``LabelledImage`` s
+    ``labelled``): candidates of heat at least ``MINE_HEAT``, the ``MINE_PER_IMAGE`` best of each image, off every
+    labelled ball by :func:`mine_false_peaks`'s rule (at the network's scale). None: mining would find nothing there."""
+    from harness.experiments.detector.scores import truth_of
+
+    n = 0
+    for image, li in zip(images, labelled):
+        uv, _, _ = stage.candidates(image, None, k=MINE_PER_IMAGE, threshold=MINE_HEAT)
+        if not len(uv):
+            continue
+        c, d = truth_of(li)
+        if len(c):
+            away = np.maximum(MINE_AWAY_DIAMETERS * np.asarray(d, np.float64), MINE_MIN_AWAY_PX / stage.scale_of(*image.shape[:2]))
+            dist = np.hypot(uv[:, None, 0] - c[None, :, 0], uv[:, None, 1] - c[None, :, 1])
+            n += int((dist > away[None, :]).all(axis=1).sum())
+        else:
+            n += len(uv)
+    return n
 
 
 #: the patches' photometric changes (the sampler chooses scale and flip)

@@ -777,7 +777,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             f"median {s_v.median_center_error_px:.3f} px; candidates reach {100 * v_info['candidate_recall']:.1f}% of the balls"))
     l_info = None
     if opts.learned != "off":
-        from harness.experiments.detector.learned_train import train_stage
+        from harness.experiments.detector.learned_train import MINE_HEAT, false_alarms, train_stage
 
         log(f"learned stage: {len(folds)} cross-validation folds by {by}" + (
             "" if by == "time" else " (" + "; ".join(", ".join(sorted({image_camera(labelled[i]) for i in f})) for f in folds) + ")"))
@@ -793,17 +793,23 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         stage, l_info = stage_of(0.0 if auto else float(opts.learned_mined))
         l_info["mined"] = 0.0 if auto else float(opts.learned_mined)
         single = l_info.get("single")
-        if auto and single is not None and single.outlier_rate > MINE_WHEN_OUTLIERS:
-            log(f"learned stage: its single images are off the ball in {100 * single.outlier_rate:.1f}% of the cross-validation's "
-                f"images (over {100 * MINE_WHEN_OUTLIERS:g}%: something of this camera outranks the ball), so it is trained again "
-                f"with {100 * MINED_SHARE:g}% of its patches near its own false alarms (--learned-mined {MINED_SHARE:g})")
-            stage2, info2 = stage_of(MINED_SHARE)
-            better = round(info2["chosen"].gain, 9) > round(l_info["chosen"].gain, 9)  # a tie (the shipped stage in both) keeps the first
-            log(f"learned stage: with its false alarms mined, {info2['chosen'].line()}; without, {l_info['chosen'].line()}: "
-                f"the one {'with' if better else 'without'} them kept")
-            trial = {"kept": better, "with": info2["chosen"].line(), "without": l_info["chosen"].line()}
-            if better:
-                stage, l_info = stage2, dict(info2, mined=MINED_SHARE)
+        if auto and stage is not None and single is not None and single.outlier_rate > MINE_WHEN_OUTLIERS:
+            missed = (f"learned stage: its single images are off the ball in {100 * single.outlier_rate:.1f}% of the cross-validation's "
+                      f"images (over {100 * MINE_WHEN_OUTLIERS:g}%: something of this camera may outrank the ball)")
+            n_false = false_alarms(stage, images, labelled)
+            trial = {"kept": False, "with": None, "without": l_info["chosen"].line(), "false_alarms": n_false}
+            if not n_false:  # its fits would mine nothing and train the same networks again
+                log(f"{missed}, but its network has no false alarm of heat >= {MINE_HEAT:g} in the labelled frames to mine: not trained again")
+            else:
+                log(f"{missed}; its network has {n_false} false alarms of heat >= {MINE_HEAT:g} there, so it is trained again with "
+                    f"{100 * MINED_SHARE:g}% of its patches near its own false alarms (--learned-mined {MINED_SHARE:g})")
+                stage2, info2 = stage_of(MINED_SHARE)
+                trial["with"] = info2["chosen"].line()
+                trial["kept"] = round(info2["chosen"].gain, 9) > round(l_info["chosen"].gain, 9)  # a tie keeps the first
+                log(f"learned stage: with its false alarms mined, {trial['with']}; without, {trial['without']}: "
+                    f"the one {'with' if trial['kept'] else 'without'} them kept")
+                if trial["kept"]:
+                    stage, l_info = stage2, dict(info2, mined=MINED_SHARE)
             l_info["mining"] = trial
         l_info["folds_by"] = by
         c = l_info["chosen"]

@@ -601,23 +601,28 @@ def test_rt2_train_mines_the_stages_false_alarms_only_when_asked(synthetic_ball_
     assert "30 % of its patches near its own false alarms" in written.learned.description
 
 
-@pytest.mark.parametrize("first_outliers, mined_gain, expect_calls, expect_kept", [
-    (0.5, 0.6, [0.0, 0.3], 0.3),  # single images mostly off the ball: trained again, the mined stage scores better
-    (0.5, 0.1, [0.0, 0.3], 0.0),  # trained again, the mined one scores worse: the first kept
-    (0.5, 0.4, [0.0, 0.3], 0.0),  # a tie (the shipped stage chosen in both): the first kept
-    (0.1, 0.9, [0.0], 0.0),  # single images mostly right: nothing to mine
+@pytest.mark.parametrize("first_outliers, alarms, mined_gain, expect_calls, expect_kept", [
+    (0.5, 7, 0.6, [0.0, 0.3], 0.3),  # single images mostly off the ball: trained again, the mined stage scores better
+    (0.5, 7, 0.1, [0.0, 0.3], 0.0),  # trained again, the mined one scores worse: the first kept
+    (0.5, 7, 0.4, [0.0, 0.3], 0.0),  # a tie (the shipped stage chosen in both): the first kept
+    (0.5, 0, 0.9, [0.0], 0.0),  # off the ball, but its network has no false alarm to mine: not trained again
+    (0.1, 7, 0.9, [0.0], 0.0),  # single images mostly right: nothing to mine
 ])
-def test_learned_mined_auto_trains_again_where_single_images_miss(synthetic_ball_coco, tmp_path, monkeypatch, capsys,
-                                                                  first_outliers, mined_gain, expect_calls, expect_kept):
+def test_learned_mined_auto_trains_again_where_single_images_miss(synthetic_ball_coco, monkeypatch, first_outliers, alarms,
+                                                                  mined_gain, expect_calls, expect_kept):
     """``--learned-mined auto`` (the default): where the chosen stage's single images are off the ball in more than
-    ``MINE_WHEN_OUTLIERS`` of the cross-validation's images, the stage is trained again with its false alarms mined and
-    the one the cross-validation scores better is written."""
+    ``MINE_WHEN_OUTLIERS`` of the cross-validation's images and its network has false alarms in the labelled frames,
+    the stage is trained again with them mined and the one the cross-validation scores better is written."""
     from types import SimpleNamespace
 
     import harness.experiments.detector.learned_train as L
-    from harness.experiments.detector.train import MINE_WHEN_OUTLIERS, MINED_SHARE
+    from harness.experiments.detector.train import MINE_WHEN_OUTLIERS, MINED_SHARE, SHIPPED_MODELS, TrainOptions, train
 
     assert MINE_WHEN_OUTLIERS == 0.2 and MINED_SHARE == 0.3  # the figures this table is written for
+    import dataclasses
+
+    white = BallSegmentationModel.load(SHIPPED_MODELS["white"]).learned  # a real stage stands for each training's
+    stages = {0.0: white, MINED_SHARE: dataclasses.replace(white, description="mined")}
     calls = []
 
     def fake_stage(labelled, images, folds, *, mined, **kw):
@@ -625,18 +630,44 @@ def test_learned_mined_auto_trains_again_where_single_images_miss(synthetic_ball
         gain = 0.4 if mined == 0 else mined_gain
         chosen = SimpleNamespace(name="scratch", gain=gain, line=lambda: f"scratch: gain {gain}")
         single = SimpleNamespace(recall=0.5, outlier_rate=first_outliers if mined == 0 else 0.0)
-        return None, dict(choices=[chosen], chosen=chosen, folds=len(folds), single=single, single_threshold=0.4, k=4)
+        return stages[mined], dict(choices=[chosen], chosen=chosen, folds=len(folds), single=single, single_threshold=0.4, k=4)
 
     monkeypatch.setattr(L, "train_stage", fake_stage)
-    from harness.experiments.detector.train import TrainOptions, train
+    monkeypatch.setattr(L, "false_alarms", lambda stage, images, labelled: alarms if stage is white else 0)
 
     labelled = read_coco(synthetic_ball_coco(12, 3))
-    from harness.experiments.detector.train import SHIPPED_MODELS
-
     base = BallSegmentationModel.load(SHIPPED_MODELS["orange"])  # its filter kept: only the stage's choice runs
-    _, info = train(labelled, TrainOptions(learned="on", filter="keep", allow_no_ball=True), progress=False, log=lambda m: None, base=base)
+    model, info = train(labelled, TrainOptions(learned="on", filter="keep", allow_no_ball=True), progress=False, log=lambda m: None, base=base)
     assert calls == expect_calls
     assert info["learned"]["mined"] == expect_kept
+    assert model.learned is stages[expect_kept]  # the stage written is the one kept
     trial = info["learned"].get("mining")
-    assert (trial is None) == (len(expect_calls) == 1)
-    assert trial is None or (trial["kept"] == (expect_kept > 0) and trial["with"].startswith("scratch: gain"))
+    assert (trial is None) == (first_outliers <= MINE_WHEN_OUTLIERS)
+    if trial is not None:
+        assert trial["false_alarms"] == alarms and trial["kept"] == (expect_kept > 0)
+        assert (trial["with"] is None) == (alarms == 0) and trial["without"] == "scratch: gain 0.4"
+
+
+def test_false_alarms_count_candidates_off_the_labelled_balls():
+    """What a fit would mine: candidates of heat >= MINE_HEAT off every ball (farther than its diameter, and 8
+    network pixels), the best MINE_PER_IMAGE of each image (asked of the stage)."""
+    from harness.experiments.detector.coco import LabelledImage
+    from harness.experiments.detector.learned_train import MINE_HEAT, MINE_PER_IMAGE, false_alarms
+
+    asked = []
+
+    class Stage:
+        def scale_of(self, h, w):
+            return 0.5  # 8 network pixels = 16 image pixels
+
+        def candidates(self, image, window, k, threshold):
+            asked.append((k, threshold))
+            uv = np.array([[50.0, 50.0], [65.0, 50.0], [50.0, 70.0], [200.0, 10.0]])
+            return uv, np.ones(len(uv)), np.full(len(uv), 10.0)
+
+    image = np.zeros((120, 240, 3), np.uint8)
+    ball = LabelledImage("a.png", 240, 120, np.array([[45.0, 45.0, 10.0, 10.0]]), np.array([[50.0, 50.0]]))
+    empty = LabelledImage("b.png", 240, 120, np.zeros((0, 4)), np.zeros((0, 2)))
+    # on the ball; 15 px away (< 16: the 8 network pixels); 20 px away; far: two false alarms, and four in the empty image
+    assert false_alarms(Stage(), [image, image], [ball, empty]) == 2 + 4
+    assert asked == [(MINE_PER_IMAGE, MINE_HEAT)] * 2
