@@ -255,13 +255,26 @@ MINE_AWAY_DIAMETERS = 1.0
 MINE_MIN_AWAY_PX = 8.0
 
 
+def _off_the_balls(uv: np.ndarray, centers, diameters, min_away_px: float) -> np.ndarray:
+    """Which of the points ``uv`` (n, 2) lie off every ball (``centers`` (m, 2), ``diameters`` (m,)): farther than
+    ``MINE_AWAY_DIAMETERS`` of its diameter, and ``min_away_px``."""
+    if not len(centers):
+        return np.ones(len(uv), bool)
+    c = np.asarray(centers, np.float64).reshape(-1, 2)
+    away = np.maximum(MINE_AWAY_DIAMETERS * np.asarray(diameters, np.float64), min_away_px)
+    return (np.hypot(uv[:, None, 0] - c[None, :, 0], uv[:, None, 1] - c[None, :, 1]) > away[None, :]).all(axis=1)
+
+
 def mine_false_peaks(torch, net, items: list[LearnedItem]) -> tuple:
-    """The network's false alarms in its training images: ``((item index, u, v), ...)`` of the heat's local maxima
-    (3x3) of at least ``MINE_HEAT`` away from every labelled ball (farther than ``MINE_AWAY_DIAMETERS`` of its diameter,
-    and ``MINE_MIN_AWAY_PX``), the ``MINE_PER_IMAGE`` best of each image, at the items' own scale (the network's).
+    """The network's false alarms in its training images: ``((item index, u, v), ...)`` of the heat's peaks
+    (:func:`tracker.detection.learned.decode_heatmap`: local maxima, best first) of at least ``MINE_HEAT`` off every
+    labelled ball (farther than ``MINE_AWAY_DIAMETERS`` of its diameter, and ``MINE_MIN_AWAY_PX``), the
+    ``MINE_PER_IMAGE`` best of each image, at the items' own scale (the network's).
     Bootstrapping (Sung and Poggio's hard negatives): patches drawn near them teach the network what it mistakes for
     a ball in these images: arms, lamps, shelves, a shoe."""
-    F = torch.nn.functional
+    from tracker.detection.learned import decode_heatmap
+
+    threshold_logit = math.log(MINE_HEAT / (1.0 - MINE_HEAT))
     out = []
     was_training = net.training
     net.eval()
@@ -273,22 +286,10 @@ def mine_false_peaks(torch, net, items: list[LearnedItem]) -> tuple:
                 ph, pw = -h % (2 * STRIDE), -w % (2 * STRIDE)
                 if ph or pw:
                     im = np.pad(im, ((0, ph), (0, pw), (0, 0)), mode="edge")
-                o = net(torch.from_numpy(np.ascontiguousarray(im))[None])[0]
-                heat = torch.sigmoid(o[0])
-                peak = (heat == F.max_pool2d(heat[None, None], 3, stride=1, padding=1)[0, 0]) & (heat >= MINE_HEAT)
-                ys, xs = torch.nonzero(peak, as_tuple=True)
-                if not len(ys):
-                    continue
-                hv = heat[ys, xs].numpy()
-                u = (xs.numpy() + o[1, ys, xs].numpy() + 0.5) * STRIDE - 0.5
-                v = (ys.numpy() + o[2, ys, xs].numpy() + 0.5) * STRIDE - 0.5
-                inside = (u < w) & (v < h)
-                if len(it.centers):
-                    away = np.maximum(MINE_AWAY_DIAMETERS * it.diameters, MINE_MIN_AWAY_PX)
-                    dist = np.hypot(u[:, None] - it.centers[None, :, 0], v[:, None] - it.centers[None, :, 1])
-                    inside &= (dist > away[None, :]).all(axis=1)
-                for j in np.argsort(-hv[inside], kind="stable")[:MINE_PER_IMAGE]:
-                    out.append((idx, float(u[inside][j]), float(v[inside][j])))
+                o = net(torch.from_numpy(np.ascontiguousarray(im))[None])[0].numpy()
+                uv, _, _ = decode_heatmap(o, threshold_logit, o.shape[1] * o.shape[2], STRIDE)
+                keep = (uv[:, 0] < w) & (uv[:, 1] < h) & _off_the_balls(uv, it.centers, it.diameters, MINE_MIN_AWAY_PX)
+                out += [(idx, float(u), float(v)) for u, v in uv[keep][:MINE_PER_IMAGE]]
     finally:
         net.train(was_training)
     return tuple(out)
@@ -303,15 +304,8 @@ def false_alarms(stage: LearnedStage, images, labelled) -> int:
     n = 0
     for image, li in zip(images, labelled):
         uv, _, _ = stage.candidates(image, None, k=MINE_PER_IMAGE, threshold=MINE_HEAT)
-        if not len(uv):
-            continue
         c, d = truth_of(li)
-        if len(c):
-            away = np.maximum(MINE_AWAY_DIAMETERS * np.asarray(d, np.float64), MINE_MIN_AWAY_PX / stage.scale_of(*image.shape[:2]))
-            dist = np.hypot(uv[:, None, 0] - c[None, :, 0], uv[:, None, 1] - c[None, :, 1])
-            n += int((dist > away[None, :]).all(axis=1).sum())
-        else:
-            n += len(uv)
+        n += int(_off_the_balls(uv, c, d, MINE_MIN_AWAY_PX / stage.scale_of(*image.shape[:2])).sum())
     return n
 
 
