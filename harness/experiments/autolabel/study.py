@@ -425,7 +425,7 @@ def run(args) -> int:
             if m and m["with"] is None:
                 print("  its single images were often off the ball, but its network had no false alarm in the labelled frames to mine")
             elif m:
-                print(f"  trained again with its {m['false_alarms']} false alarms mined (its single images were often off the ball): "
+                print(f"  its fits continued with its {m['false_alarms']} false alarms mined (its single images were often off the ball): "
                       f"{m['with']}; the one {'with' if m['kept'] else 'without'} them kept")
         result["held_out_training"] = t
     if args.train_out is not None:

@@ -63,6 +63,8 @@ class LearnedTrainOptions:
         bootstrapping: what it mistakes for a ball, shown again as a negative), mined every ``mine_every`` steps from
         then on; 0 = none, no random draw
     mine_every : steps between two minings (the first after this many steps; none at the last step)
+    mine_first : mine once more before the first step too (a network continued from one already trained: its false
+        alarms are there from the start)
     """
 
     iterations: int = 1500
@@ -79,6 +81,7 @@ class LearnedTrainOptions:
     p_light: float = 0.0
     p_mined: float = 0.0
     mine_every: int = 1000
+    mine_first: bool = False
 
     def __post_init__(self):
         for name in ("iterations", "batch", "patch_px", "max_side_px", "mine_every"):
@@ -552,6 +555,9 @@ def fit_learned(items: list[LearnedItem], opts: LearnedTrainOptions, seed: int, 
         # Mining (opts.p_mined) takes place between two steps, after the next batch was sampled: the batches after it
         # draw near its false alarms (handed to each as an argument: the sampling thread never sees them change)
         mined = ()
+        if opts.p_mined and opts.mine_first:
+            mined = mine_false_peaks(torch, net, items)
+            log(f"learned stage: before its first step, {len(mined)} false alarms mined in {len(items)} training images")
         with ThreadPoolExecutor(1, thread_name_prefix="rt2-patches") as pool:
             ahead = pool.submit(sample_patches, items, opts.batch, rng, opts, None, mined)
             for i in range(opts.iterations):
@@ -764,9 +770,16 @@ def kept_passes(name: str, base: LearnedStage | None) -> dict:
     return dict(coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold, coarse_candidates=base.coarse_candidates)
 
 
+def continue_steps(finetune_steps: int, scratch_steps: int) -> int:
+    """Steps of a fit continued with its false alarms mined (:func:`train_stage`'s ``resume``): a quarter of a stage
+    from scratch's, at least a fine-tune's."""
+    return max(1, finetune_steps, scratch_steps // 4)
+
+
 def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int, k: int = 4, min_diameter_px: float = 6.0,
                 finetune_steps: int = 150, scratch_steps: int = 400, batch: int = 16, patch_px: int = 96, extra=(),
-                alone=None, mined: float = 0.0, log=print, progress: bool = False):
+                alone=None, mined: float = 0.0, resume: dict | None = None, states: dict | None = None, log=print,
+                progress: bool = False):
     """The learned stage ``rt2 train`` writes, chosen by cross-validation; returns ``(stage, info)``.
 
     labelled : ``LabelledImage`` list (the user's labels); images : their (H, W, 3) uint8 RGB images
@@ -781,6 +794,12 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     without those images (a kept base model, a cross-validation fold's model or the validation split's): the choice
     "none", the filter alone scored top-K on those images, which wins ties (returned stage None)
     mined : ``LearnedTrainOptions.p_mined`` of every fit (fine-tuned, from scratch), mined at a third and two thirds of its steps
+    states : a dict this call fills with its fits' networks (torch state dicts): ``{"folds": {(name, fold): state},
+        "final": (name, state) or None}``
+    resume : the ``states`` of a first call on the same images and folds: then every fit continues the first call's
+        network of its choice and fold for ``continue_steps(finetune_steps, scratch_steps)`` steps with ``mined`` of its
+        patches near its own false alarms (mined before its first step and half way), instead of training anew
+        (hard-negative bootstrapping at a fraction of a second training's cost)
     """
     from harness.experiments.detector.scores import truth_of
 
@@ -811,16 +830,38 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     if base is not None:
         for i, c in candidates(base, range(len(labelled))):
             oof["shipped"][i] = c
+    if states is not None:
+        states.update(folds={}, final=None)
+    n_continue = continue_steps(finetune_steps, scratch_steps)
+
+    def fit(name, train_items, fit_seed, start=None, quiet=True):
+        """One fit of ``name``: ``(state, onnx)``; ``start`` (with ``resume``): the first call's network, continued."""
+        say = (lambda m: None) if quiet else log
+        if start is not None:
+            opts = LearnedTrainOptions(iterations=n_continue, batch=batch, patch_px=patch_px, max_side_px=max_side, lr=1e-3,
+                                       p_mined=mined, mine_every=max(1, -(-n_continue // 2)), mine_first=True)
+            return fit_learned(train_items, opts, fit_seed + 7, state=start, log=say, progress=progress and not quiet)
+        steps, state = (finetune_steps, base_state) if name == "fine-tuned" else (scratch_steps, None)
+        opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
+                                   lr=1e-3 if state is not None else 3e-3, p_mined=0.0 if resume is not None else mined,
+                                   mine_every=max(1, -(-steps // 3)))
+        return fit_learned(train_items, opts, fit_seed, state=state, log=say, progress=progress and not quiet)
+
     for f, fold in enumerate(folds):
         inside = set(fold)
         fitted = [i for i in range(len(items)) if i not in inside]
         if not any(len(it.centers) for it in [items[i] for i in fitted] + extra_items):
             continue
         for name in names[1 if base is not None else 0:]:
-            steps, state = (finetune_steps, base_state) if name == "fine-tuned" else (scratch_steps, None)
-            opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
-                                       lr=1e-3 if state is not None else 3e-3, p_mined=mined, mine_every=max(1, -(-steps // 3)))
-            _, onnx_f = fit_learned(fit_items(name, fitted)[0], opts, seed + 101 * f, state=state, log=lambda m: None, progress=False)
+            train_items = fit_items(name, fitted)[0]
+            start = None
+            if resume is not None:
+                start = resume["folds"].get((name, f))
+                if start is None:  # (not fitted in the first call: its fold then had no ball either)
+                    start = fit(name, train_items, seed + 101 * f)[0]
+            state_f, onnx_f = fit(name, train_items, seed + 101 * f, start)
+            if states is not None:
+                states["folds"][(name, f)] = state_f
             for i, c in candidates(stage_of(onnx_f, name), fold):
                 oof[name][i] = c
         log(f"learned stage: fold {f + 1}/{len(folds)} done")
@@ -851,22 +892,32 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
                                size_ratio=base.size_ratio,  # the same network: its diameters' record holds
                                description=base.description + f"; {thresholds} on {len(labelled)} images")
     else:
-        steps, state = (finetune_steps, base_state) if best.name == "fine-tuned" else (scratch_steps, None)
-        opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
-                                   lr=1e-3 if state is not None else 3e-3, p_mined=mined, mine_every=max(1, -(-steps // 3)))
+        steps = finetune_steps if best.name == "fine-tuned" else scratch_steps
         train_items, n_crops = fit_items(best.name, range(len(items)))
         if best.name == "fine-tuned":
             log(f"learned stage: fine-tuned with {n_crops} contrast crops (the base's own false candidates next to a ball)")
-        _, onnx_all = fit_learned(train_items, opts, seed, log=log, progress=progress, state=state)
+        start = None
+        if resume is not None:
+            first = resume.get("final")
+            if first is not None and first[0] == best.name:
+                start = first[1]
+            else:  # the first call wrote another choice: this one's network first, as the first call would have fitted it
+                log(f"learned stage: {best.name} on every image first, then continued with its false alarms mined")
+                start = fit(best.name, train_items, seed, quiet=False)[0]
+        state_all, onnx_all = fit(best.name, train_items, seed, start, quiet=False)
+        if states is not None:
+            states["final"] = (best.name, state_all)
         # a fine-tune starts from the base's network and keeps its size record (not measured again: the labels' boxes
         # are hand-drawn); a network trained from scratch has none (the tracker's own size test)
         inherited = base.size_ratio if best.name == "fine-tuned" and base is not None else None
-        stage = LearnedStage(onnx_all, max_side_px=max_side, threshold=single_threshold, diameter_range_px=opts.diameter_range_px,
+        stage = LearnedStage(onnx_all, max_side_px=max_side, threshold=single_threshold, diameter_range_px=LearnedTrainOptions().diameter_range_px,
                              context_px=WINDOW_CONTEXT_PX if base is None else base.context_px, track_threshold=min(best.threshold, TRACK_THRESHOLD),
                              **kept_passes(best.name, base),
                              filter_refines=True if base is None else base.filter_refines, size_ratio=inherited,
                              description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed}; {thresholds})"
-                             + (f"; {100 * mined:g} % of its patches near its own false alarms, mined at a third and two thirds of its steps" if mined else "")
+                             + ("" if not mined else f"; continued {n_continue} steps with {100 * mined:g} % of its patches near its own false alarms, "
+                                "mined before its first step and half way" if resume is not None else
+                                f"; {100 * mined:g} % of its patches near its own false alarms, mined at a third and two thirds of its steps")
                              + ("" if inherited is None else f"; size ratio {inherited:g}, the base's"))
     info = dict(choices=choices, chosen=best, folds=len(folds), max_side_px=max_side, single=single, single_threshold=single_threshold, k=k)
     return stage, info

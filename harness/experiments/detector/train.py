@@ -96,9 +96,9 @@ MIN_WRITE_RECALL = 0.5
 #: a fine-tune's optimiser steps at most (the learned stage's; 3/8 of ``--learned-steps`` below that)
 FINETUNE_STEPS = 150
 #: ``--learned-mined auto``: when the chosen stage's single images are off the ball in more than this share of the
-#: cross-validation's images (a fixed false alarm of the camera, a lamp, outranks the ball), the stage is trained again
-#: with ``MINED_SHARE`` of its patches near its own false alarms, and the better of the two by the cross-validation kept
-#: (the first on a tie)
+#: cross-validation's images (a fixed false alarm of the camera, a lamp, outranks the ball), each of the stage's fits
+#: is continued with ``MINED_SHARE`` of its patches near its own false alarms (``learned_train.continue_steps``), and
+#: the better of the two by the cross-validation kept (the first on a tie)
 MINE_WHEN_OUTLIERS = 0.2
 MINED_SHARE = 0.3
 
@@ -146,7 +146,8 @@ class TrainOptions:
         false alarms in the labelled images, mined at a third and two thirds of its steps (0 = none;
         :func:`harness.experiments.detector.learned_train.mine_false_peaks`), or "auto" (default): none, and where the
         chosen stage's single images are off the ball in more than ``MINE_WHEN_OUTLIERS`` of the cross-validation's
-        images, trained again with ``MINED_SHARE``, the better of the two by the cross-validation kept
+        images, each of its fits continued with ``MINED_SHARE`` (mined before its first step and half way), the better
+        of the two by the cross-validation kept
     filter : the 5x5 filter (Algorithm 1's model): "fit" trains it as above; "keep" writes the base model's filter
         unchanged (needs a base and ``learned`` "auto" or "on": something must be trained); "auto" (default) keeps it when the
         learned stage is trained too and the base's stage does not take the filter's refinement
@@ -777,20 +778,23 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             f"median {s_v.median_center_error_px:.3f} px; candidates reach {100 * v_info['candidate_recall']:.1f}% of the balls"))
     l_info = None
     if opts.learned != "off":
-        from harness.experiments.detector.learned_train import MINE_HEAT, false_alarms, train_stage
+        from harness.experiments.detector.learned_train import MINE_HEAT, continue_steps, false_alarms, train_stage
 
         log(f"learned stage: {len(folds)} cross-validation folds by {by}" + (
             "" if by == "time" else " (" + "; ".join(", ".join(sorted({image_camera(labelled[i]) for i in f})) for f in folds) + ")"))
         images = [load_image(li) for li in labelled]
 
-        def stage_of(mined: float):
+        l_finetune = max(1, min(FINETUNE_STEPS, opts.learned_steps * 3 // 8))
+
+        def stage_of(mined: float, **kw):
             return train_stage(labelled, images, folds, base=None if base is None else base.learned, seed=opts.seed,
-                               scratch_steps=opts.learned_steps, finetune_steps=max(1, min(FINETUNE_STEPS, opts.learned_steps * 3 // 8)),
+                               scratch_steps=opts.learned_steps, finetune_steps=l_finetune,
                                extra=backgrounds, alone=finfo.get("alone") if opts.learned == "auto" else None, mined=mined,
-                               log=log, progress=progress)
+                               log=log, progress=progress, **kw)
 
         auto = opts.learned_mined == "auto"
-        stage, l_info = stage_of(0.0 if auto else float(opts.learned_mined))
+        first_states: dict = {}
+        stage, l_info = stage_of(0.0 if auto else float(opts.learned_mined), states=first_states if auto else None)
         l_info["mined"] = 0.0 if auto else float(opts.learned_mined)
         single = l_info.get("single")
         if auto and stage is not None and single is not None and single.outlier_rate > MINE_WHEN_OUTLIERS:
@@ -799,11 +803,12 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             n_false = false_alarms(stage, images, labelled)
             trial = {"kept": False, "with": None, "without": l_info["chosen"].line(), "false_alarms": n_false}
             if not n_false:  # its fits would mine nothing and train the same networks again
-                log(f"{missed}, but its network has no false alarm of heat >= {MINE_HEAT:g} in the labelled frames to mine: not trained again")
+                log(f"{missed}, but its network has no false alarm of heat >= {MINE_HEAT:g} in the labelled frames to mine: not continued")
             else:
-                log(f"{missed}; its network has {n_false} false alarms of heat >= {MINE_HEAT:g} there, so it is trained again with "
-                    f"{100 * MINED_SHARE:g}% of its patches near its own false alarms (--learned-mined {MINED_SHARE:g})")
-                stage2, info2 = stage_of(MINED_SHARE)
+                log(f"{missed}; its network has {n_false} false alarms of heat >= {MINE_HEAT:g} there, so each of its fits is "
+                    f"continued for {continue_steps(l_finetune, opts.learned_steps)} steps with {100 * MINED_SHARE:g}% of its patches near "
+                    f"its own false alarms")
+                stage2, info2 = stage_of(MINED_SHARE, resume=first_states)
                 trial["with"] = info2["chosen"].line()
                 trial["kept"] = round(info2["chosen"].gain, 9) > round(l_info["chosen"].gain, 9)  # a tie keeps the first
                 log(f"learned stage: with its false alarms mined, {trial['with']}; without, {trial['without']}: "
@@ -1070,7 +1075,7 @@ def add_arguments(parser) -> None:
                         help="the share of the learned stage's training patches centred on its own false alarms in the labelled "
                              "images, mined at a third and two thirds of its steps (0: none), or 'auto' (default): none, and where "
                              f"its single images are off the ball in over {100 * MINE_WHEN_OUTLIERS:g}%% of the cross-validation's "
-                             f"images, trained again with {MINED_SHARE:g} and the better kept")
+                             f"images, each fit continued with {MINED_SHARE:g} and the better kept")
     parser.add_argument("--filter", choices=FILTER_CHOICES, default="auto",
                         help="the 5x5 filter: 'fit' trains it; 'keep' writes the base model's unchanged (with --learned auto); 'auto' "
                              "(default) keeps it when the base's learned stage does not take the filter's refinement (the shipped "

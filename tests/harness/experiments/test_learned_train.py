@@ -602,17 +602,18 @@ def test_rt2_train_mines_the_stages_false_alarms_only_when_asked(synthetic_ball_
 
 
 @pytest.mark.parametrize("first_outliers, alarms, mined_gain, expect_calls, expect_kept", [
-    (0.5, 7, 0.6, [0.0, 0.3], 0.3),  # single images mostly off the ball: trained again, the mined stage scores better
-    (0.5, 7, 0.1, [0.0, 0.3], 0.0),  # trained again, the mined one scores worse: the first kept
+    (0.5, 7, 0.6, [0.0, 0.3], 0.3),  # single images mostly off the ball: its fits continued, mined; they score better
+    (0.5, 7, 0.1, [0.0, 0.3], 0.0),  # continued, mined: they score worse; the first kept
     (0.5, 7, 0.4, [0.0, 0.3], 0.0),  # a tie (the shipped stage chosen in both): the first kept
-    (0.5, 0, 0.9, [0.0], 0.0),  # off the ball, but its network has no false alarm to mine: not trained again
+    (0.5, 0, 0.9, [0.0], 0.0),  # off the ball, but its network has no false alarm to mine: not continued
     (0.1, 7, 0.9, [0.0], 0.0),  # single images mostly right: nothing to mine
 ])
 def test_learned_mined_auto_trains_again_where_single_images_miss(synthetic_ball_coco, monkeypatch, first_outliers, alarms,
                                                                   mined_gain, expect_calls, expect_kept):
     """``--learned-mined auto`` (the default): where the chosen stage's single images are off the ball in more than
     ``MINE_WHEN_OUTLIERS`` of the cross-validation's images and its network has false alarms in the labelled frames,
-    the stage is trained again with them mined and the one the cross-validation scores better is written."""
+    each fit of the stage is continued (the first call's networks, ``resume``) with them mined and the one the
+    cross-validation scores better is written."""
     from types import SimpleNamespace
 
     import harness.experiments.detector.learned_train as L
@@ -623,10 +624,14 @@ def test_learned_mined_auto_trains_again_where_single_images_miss(synthetic_ball
 
     white = BallSegmentationModel.load(SHIPPED_MODELS["white"]).learned  # a real stage stands for each training's
     stages = {0.0: white, MINED_SHARE: dataclasses.replace(white, description="mined")}
-    calls = []
+    calls, first_kw = [], []
 
     def fake_stage(labelled, images, folds, *, mined, **kw):
         calls.append(mined)
+        if mined:  # the second call continues the first's networks, which the first was asked to keep
+            assert kw["resume"] is first_kw[0]["states"] and isinstance(kw["resume"], dict)
+        else:
+            first_kw.append(kw)
         gain = 0.4 if mined == 0 else mined_gain
         chosen = SimpleNamespace(name="scratch", gain=gain, line=lambda: f"scratch: gain {gain}")
         single = SimpleNamespace(recall=0.5, outlier_rate=first_outliers if mined == 0 else 0.0)
@@ -671,3 +676,43 @@ def test_false_alarms_count_candidates_off_the_labelled_balls():
     # on the ball; 15 px away (< 16: the 8 network pixels); 20 px away; far: two false alarms, and four in the empty image
     assert false_alarms(Stage(), [image, image], [ball, empty]) == 2 + 4
     assert asked == [(MINE_PER_IMAGE, MINE_HEAT)] * 2
+
+
+def test_a_second_call_continues_the_first_calls_networks_with_their_false_alarms_mined(synthetic_ball_coco, monkeypatch):
+    """``train_stage(..., resume=states)``: every fit of the second call (each fold's and the file's) starts from the
+    first call's network of the same choice and fold, runs ``continue_steps`` steps with the mined share, mining before
+    its first step; the first call's own fits mine nothing. Where the second call writes another choice than the
+    first, that choice's network is fitted on every image first, as the first call would have, then continued."""
+    import harness.experiments.detector.learned_train as L
+    from harness.experiments.detector.train import cv_folds
+
+    labelled = read_coco(synthetic_ball_coco(9, 5))
+    images = [load_image(li) for li in labelled]
+    folds = cv_folds(labelled, 3)
+    fits = []
+    real_fit = L.fit_learned
+
+    def recording_fit(items, opts, seed, *, state=None, **kw):
+        out = real_fit(items, opts, seed, state=state, **kw)
+        fits.append(dict(steps=opts.iterations, mined=opts.p_mined, first=opts.mine_first, start=state, out=out[0]))
+        return out
+
+    monkeypatch.setattr(L, "fit_learned", recording_fit)
+    states: dict = {}
+    kw = dict(base=None, seed=0, scratch_steps=8, finetune_steps=3, log=lambda m: None)
+    L.train_stage(labelled, images, folds, states=states, **kw)
+    first = list(fits)
+    assert all(f["mined"] == 0 and f["start"] is None for f in first)  # from scratch, nothing mined
+    assert sorted(states["folds"]) == [("scratch", f) for f in range(len(folds))]
+    fits.clear()
+    n = L.continue_steps(3, 8)
+    _, info = L.train_stage(labelled, images, folds, mined=0.3, resume=states, **kw)
+    for f, fit in enumerate(fits[:len(folds)]):  # the folds' fits: continued from the first call's network of that fold
+        assert fit["steps"] == n and fit["mined"] == 0.3 and fit["first"]
+        assert fit["start"] is states["folds"][("scratch", f)]
+    final = fits[len(folds):]
+    if states["final"] is not None and info["chosen"].name == states["final"][0]:
+        assert len(final) == 1 and final[0]["start"] is states["final"][1] and final[0]["steps"] == n
+    elif info["chosen"].name == "scratch":  # the first call wrote no network of this choice: fitted anew, then continued
+        assert [f["steps"] for f in final] == [8, n] and final[1]["start"] is final[0]["out"]
+    assert info["chosen"].name in ("scratch", "none")
