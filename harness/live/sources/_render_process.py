@@ -46,7 +46,8 @@ def _views(buf, shapes, slots: int) -> list[list[np.ndarray]]:
 
 
 def _serve(inp, out) -> None:
-    """The child: read the set-up, then requests ``(k, slot, t_s, drop_after_s)`` until None or end of input.
+    """The child: read the set-up (the rig and its options, then the scene provider: the lab is ray-cast while the
+    parent makes the scene), then requests ``(k, slot, t_s, drop_after_s)`` until None or end of input.
 
     ``drop_after_s``: host monotonic time after which starting frame set k is pointless (it could not be
     delivered in time), NaN = always render. Such a request is answered ``("skipped", k, slot)`` without
@@ -58,7 +59,7 @@ def _serve(inp, out) -> None:
         out.flush()
 
     try:
-        rig_dict, render_options, seed, provider, shm_name, shapes, slots, nice = pickle.load(inp)
+        rig_dict, render_options, seed, shm_name, shapes, slots, nice = pickle.load(inp)
         from harness.sim.render import Renderer, Scene
         from tracker import Rig
 
@@ -69,8 +70,9 @@ def _serve(inp, out) -> None:
             resource_tracker.unregister(shm._name, "shared_memory")
         except Exception:  # noqa: BLE001 - Python versions differ; at worst a warning at exit
             pass
-        renderer = Renderer(Rig.from_dict(rig_dict), render_options, seed=seed)
+        renderer = Renderer(Rig.from_dict(rig_dict), render_options, seed=seed)  # while the parent makes the scene
         views = _views(shm.buf, shapes, slots)
+        provider = pickle.load(inp)
         warm = provider(0.0)  # the first render compiles and allocates: paid before "ready", not by frame set 0
         if isinstance(warm, Scene):
             renderer.render(dataclasses.replace(warm, frame_index=0))  # noise is a function of (seed, frame index)
@@ -104,18 +106,26 @@ def _serve(inp, out) -> None:
             shm.close()
 
 
+def _check_picklable(provider) -> None:
+    try:
+        pickle.dumps(provider)
+    except Exception as exc:  # noqa: BLE001 - any pickling failure means the same thing here
+        raise ValueError(f"the sim renderer process needs a picklable scene_provider (a module-level function "
+                         f"or an object such as LauncherFlights), got {provider!r}: {exc}") from None
+
+
 class RenderProcess:
     """A child process rendering frame sets of ``rig`` (see the module docstring)."""
 
-    def __init__(self, rig, render_options, seed: int, provider, *, slots: int = 16, start_timeout_s: float = 300.0,
+    def __init__(self, rig, render_options, seed: int, provider=None, *, slots: int = 16, start_timeout_s: float = 300.0,
                  nice: int = 10):
+        """Starts the child and sends it the rig; with ``provider`` also :meth:`start` s it. Without, the child
+        ray-casts the lab while the caller makes the scene provider, then calls :meth:`start`."""
         if isinstance(nice, bool) or not isinstance(nice, int) or not 0 <= nice <= 19:
             raise ValueError(f"the sim renderer's nice must be a whole number in [0, 19], got {nice!r}")
-        try:
-            pickle.dumps(provider)
-        except Exception as exc:  # noqa: BLE001 - any pickling failure means the same thing here
-            raise ValueError(f"the sim renderer process needs a picklable scene_provider (a module-level function "
-                             f"or an object such as LauncherFlights), got {provider!r}: {exc}") from None
+        if provider is not None:
+            _check_picklable(provider)
+        self.proc = None
         self.shapes = [(c.image_size[1], c.image_size[0], 3) for c in rig.cameras]
         self.slots = int(slots)
         per_set = sum(int(np.prod(s)) for s in self.shapes)
@@ -128,7 +138,23 @@ class RenderProcess:
         self._reader = threading.Thread(target=self._read_results, name="sim renderer results", daemon=True)
         self._reader.start()
         try:
-            self._send((rig.to_dict(), render_options, seed, provider, self.shm.name, self.shapes, self.slots, nice))
+            self._send((rig.to_dict(), render_options, seed, self.shm.name, self.shapes, self.slots, nice))
+        except (BrokenPipeError, OSError):
+            pass  # the child is gone already: start() reports what it said
+        except BaseException:
+            self.close()
+            raise
+        if provider is not None:
+            self.start(provider, start_timeout_s)
+
+    def start(self, provider, start_timeout_s: float = 300.0) -> None:
+        """Send the scene provider and wait until the child has rendered its first frame set ("ready")."""
+        try:
+            _check_picklable(provider)
+            try:
+                self._send(provider)
+            except (BrokenPipeError, OSError):
+                pass  # the child is gone: its last words (or its exit) are read below
             deadline = time.monotonic() + start_timeout_s
             msg = None
             while msg is None and time.monotonic() < deadline:
@@ -139,6 +165,8 @@ class RenderProcess:
                         msg = ("error", f"it exited during start-up (exit code {self.proc.returncode})")
             if msg is None:
                 raise ValueError(f"the sim renderer process did not start within {start_timeout_s:.0f} s")
+            if msg[0] == "exit":
+                msg = ("error", f"it exited during start-up (exit code {self.proc.wait(timeout=5.0)})")
             if msg[0] != "ready":
                 raise ValueError(f"the sim renderer process failed to start: {msg[1]}")
         except BaseException:

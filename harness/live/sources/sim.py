@@ -178,23 +178,31 @@ def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callabl
     """One :class:`~._feed.FeedCamera` per rig camera, rendering ``scene_provider`` (default:
     :class:`LauncherFlights` with ``options.seed``). Returns ``(sources, feed)``; ``feed.stats()``
     counts late frame sets and drops."""
-    provider = scene_provider
-    if provider is None:
-        provider = LauncherFlights(options.seed, exposure=options.exposure, colour=options.ball_colour)
-        if options.clock == "host":
-            flights, period_s = provider, 1.0 / options.rate_hz
-            provider = lambda t_host_s, k: flights(k * period_s)  # noqa: E731 - scene time of frame set k
-    if not callable(provider):
-        raise ValueError(f"scene_provider must be a callable t_s -> Scene, got {type(provider).__name__}")
-    n = len(rig.cameras)
-    period = 1.0 / options.rate_hz
-    n_total = None if options.duration_s is None else int(round(options.duration_s * options.rate_hz))
+    if scene_provider is not None and not callable(scene_provider):
+        raise ValueError(f"scene_provider must be a callable t_s -> Scene, got {type(scene_provider).__name__}")
     process = None
     if options.render_process and options.prerender_s is None:
         from harness.live.sources._render_process import RenderProcess
 
-        process = RenderProcess(rig, render_options, options.seed, provider, slots=options.render_ahead,
-                                nice=options.render_nice)
+        # started first: the child ray-casts the lab while this process draws the flights
+        process = RenderProcess(rig, render_options, options.seed, slots=options.render_ahead, nice=options.render_nice)
+    provider = scene_provider
+    try:
+        if provider is None:
+            provider = LauncherFlights(options.seed, exposure=options.exposure, colour=options.ball_colour)
+            if options.clock == "host":
+                flights, period_s = provider, 1.0 / options.rate_hz
+                provider = lambda t_host_s, k: flights(k * period_s)  # noqa: E731 - scene time of frame set k
+        if process is not None:
+            process.start(provider)
+    except BaseException:
+        if process is not None:
+            process.close()
+        raise
+    n = len(rig.cameras)
+    period = 1.0 / options.rate_hz
+    n_total = None if options.duration_s is None else int(round(options.duration_s * options.rate_hz))
+    if process is not None:
         renderer = None
     else:
         renderer = Renderer(rig, render_options, seed=options.seed)  # ray-casts the static lab (~1 s per VGA camera)

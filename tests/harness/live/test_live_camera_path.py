@@ -91,6 +91,61 @@ def test_the_renderer_process_runs_below_the_tracker_s_priority(rig):
             s.close()
 
 
+class RecordingFlights(LauncherFlights):
+    """The default scene, noting which sim renderer children of this process run while it is drawn."""
+
+    seen: list = []
+
+    def __init__(self, *a, **kw):
+        RecordingFlights.seen.append(_renderer_processes())
+        super().__init__(*a, **kw)
+
+
+class BrokenScene:
+    """A picklable scene provider that fails in the child (its first frame set, before "ready")."""
+
+    def __call__(self, t_s: float):
+        raise RuntimeError("no scene here")
+
+
+def test_the_renderer_child_ray_casts_the_lab_while_the_flights_are_drawn(rig, monkeypatch):
+    """The sim source starts its renderer process before it draws the default scene's flights (each start takes
+    seconds: the two overlap), and the child renders them as before."""
+    import harness.live.sources.sim as sim
+
+    monkeypatch.setattr(sim, "LauncherFlights", RecordingFlights)
+    RecordingFlights.seen.clear()
+    before = set(_renderer_processes())
+    sources = open_sources(["sim"], rig, rate_hz=100.0, seed=5, speed=None, duration_s=0.05, render_process=True)
+    try:
+        (during,) = RecordingFlights.seen
+        assert len(set(during) - before) == 1  # the child was already running while the flights were drawn
+        with FrameSetAssembler(sources, AssemblyOptions(rate_hz=100.0, output_len=64, lossless=True)) as asm:
+            sets = drain(asm, 5, 20.0)
+        assert [s.frame_id for s in sets] == list(range(5))
+    finally:
+        for s in sources:
+            s.close()
+
+
+def test_a_scene_that_fails_in_the_renderer_child_is_one_error_and_no_child_left(rig):
+    from harness.live.sources._render_process import RenderProcess
+    from harness.sim.render import RenderOptions
+
+    before = set(_renderer_processes())
+    proc = RenderProcess(rig, RenderOptions(), 0, slots=2, nice=0)  # started: ray-casts the lab, waits for the scene
+    with pytest.raises(ValueError, match="failed to start: RuntimeError: no scene here"):
+        proc.start(BrokenScene(), start_timeout_s=60.0)
+    assert proc.proc is None and set(_renderer_processes()) == before
+    proc = RenderProcess(rig, RenderOptions(), 0, slots=2, nice=0)
+    with pytest.raises(ValueError, match="picklable scene_provider"):
+        proc.start(lambda t: None)
+    assert proc.proc is None and set(_renderer_processes()) == before
+    with pytest.raises(ValueError, match="failed to start: RuntimeError: no scene here"):  # given at once: the same
+        RenderProcess(rig, RenderOptions(), 0, BrokenScene(), slots=2, nice=0)
+    assert set(_renderer_processes()) == before
+
+
 def _renderer_processes() -> list[int]:
     """This process's children that run the sim renderer (harness.live.sources._render_process), from /proc."""
     from pathlib import Path
