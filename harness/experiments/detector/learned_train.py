@@ -854,11 +854,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
             continue
         for name in names[1 if base is not None else 0:]:
             train_items = fit_items(name, fitted)[0]
-            start = None
-            if resume is not None:
-                start = resume["folds"].get((name, f))
-                if start is None:  # (not fitted in the first call: its fold then had no ball either)
-                    start = fit(name, train_items, seed + 101 * f)[0]
+            start = None if resume is None else resume["folds"][(name, f)]  # the same folds: the first call fitted it
             state_f, onnx_f = fit(name, train_items, seed + 101 * f, start)
             if states is not None:
                 states["folds"][(name, f)] = state_f

@@ -106,9 +106,10 @@ def _serve(inp, out) -> None:
             shm.close()
 
 
-def _check_picklable(provider) -> None:
+def _pickled(provider) -> bytes:
+    """The scene provider as the child reads it; a clear error where it cannot be pickled."""
     try:
-        pickle.dumps(provider)
+        return pickle.dumps(provider)
     except Exception as exc:  # noqa: BLE001 - any pickling failure means the same thing here
         raise ValueError(f"the sim renderer process needs a picklable scene_provider (a module-level function "
                          f"or an object such as LauncherFlights), got {provider!r}: {exc}") from None
@@ -123,8 +124,7 @@ class RenderProcess:
         ray-casts the lab while the caller makes the scene provider, then calls :meth:`start`."""
         if isinstance(nice, bool) or not isinstance(nice, int) or not 0 <= nice <= 19:
             raise ValueError(f"the sim renderer's nice must be a whole number in [0, 19], got {nice!r}")
-        if provider is not None:
-            _check_picklable(provider)
+        scene = None if provider is None else _pickled(provider)  # refused before any child is started
         self.proc = None
         self.shapes = [(c.image_size[1], c.image_size[0], 3) for c in rig.cameras]
         self.slots = int(slots)
@@ -144,15 +144,24 @@ class RenderProcess:
         except BaseException:
             self.close()
             raise
-        if provider is not None:
-            self.start(provider, start_timeout_s)
+        if scene is not None:
+            self._start(scene, start_timeout_s)
 
     def start(self, provider, start_timeout_s: float = 300.0) -> None:
         """Send the scene provider and wait until the child has rendered its first frame set ("ready")."""
         try:
-            _check_picklable(provider)
+            scene = _pickled(provider)
+        except BaseException:
+            self.close()
+            raise
+        self._start(scene, start_timeout_s)
+
+    def _start(self, scene: bytes, start_timeout_s: float) -> None:
+        try:
             try:
-                self._send(provider)
+                with self._lock:
+                    self.proc.stdin.write(scene)
+                    self.proc.stdin.flush()
             except (BrokenPipeError, OSError):
                 pass  # the child is gone: its last words (or its exit) are read below
             deadline = time.monotonic() + start_timeout_s

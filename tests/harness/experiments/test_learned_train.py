@@ -710,9 +710,6 @@ def test_a_second_call_continues_the_first_calls_networks_with_their_false_alarm
     for f, fit in enumerate(fits[:len(folds)]):  # the folds' fits: continued from the first call's network of that fold
         assert fit["steps"] == n and fit["mined"] == 0.3 and fit["first"]
         assert fit["start"] is states["folds"][("scratch", f)]
-    final = fits[len(folds):]
-    if states["final"] is not None and info["chosen"].name == states["final"][0]:
-        assert len(final) == 1 and final[0]["start"] is states["final"][1] and final[0]["steps"] == n
-    elif info["chosen"].name == "scratch":  # the first call wrote no network of this choice: fitted anew, then continued
-        assert [f["steps"] for f in final] == [8, n] and final[1]["start"] is final[0]["out"]
-    assert info["chosen"].name in ("scratch", "none")
+    (final,) = fits[len(folds):]  # the file's: the first call's network of the same choice (the only one: scratch), continued
+    assert info["chosen"].name == states["final"][0] == "scratch"
+    assert final["start"] is states["final"][1] and final["steps"] == n and final["mined"] == 0.3
