@@ -13,7 +13,7 @@ RUNS   ?= 5
 # TESTS: pytest arguments that narrow `make test` (files, -k EXPR); JUNIT: a folder for JUnit XML reports
 JUNIT_OPT = $(if $(JUNIT),--junitxml=$(JUNIT)/$(1).xml)
 
-.PHONY: setup demo test test-all bench clean clean-numba flaky slowest stop-times
+.PHONY: setup demo test test-all bench clean clean-numba clean-cache flaky slowest stop-times
 
 setup: $(STAMP) $(NODE_CLIENTS)
 
@@ -35,18 +35,22 @@ $(NODE_CLIENTS):
 demo: $(STAMP)
 	$(VENV)/bin/rt2 demo
 
+# The tests' disk cache of slow simulated-lab results (harness/common/disk_cache.py: the static lab's ray-cast, the
+# launcher's flights), shared by the workers and the processes they start; empty in a fresh clone.
+TEST_CACHE ?= $(CURDIR)/build/cache
 # Tests marked `realtime` time live processes against the in-process run: they run alone, after the rest,
 # so that the parallel suite does not take the cores they measure.
 # A narrowed run (TESTS=...) may select no realtime test: pytest's "no tests ran" (exit 5) is no failure there.
 # The parallel part names its 15 slowest tests at the end (the suite's time is kept well under 15 minutes on CI's 2 cores).
 test: $(STAMP) $(NODE_CLIENTS)
-	$(PY) -m pytest -q -n $(JOBS) --dist worksteal -m "not slow and not realtime" --durations=15 $(call JUNIT_OPT,parallel) $(TESTS)
-	$(PY) -m pytest -q -m "realtime and not slow" $(call JUNIT_OPT,realtime) $(TESTS); \
+	RT2_CACHE_DIR=$(TEST_CACHE) $(PY) -m pytest -q -n $(JOBS) --dist worksteal -m "not slow and not realtime" --durations=15 $(call JUNIT_OPT,parallel) $(TESTS)
+	RT2_CACHE_DIR=$(TEST_CACHE) $(PY) -m pytest -q -m "realtime and not slow" $(call JUNIT_OPT,realtime) $(TESTS); \
 	  code=$$?; if [ -n "$(TESTS)" ] && [ $$code -eq 5 ]; then code=0; fi; exit $$code
 
 # `make test` RUNS times in a row (default 5); lists every test that failed at least once, and the slowest 20.
 # e.g. `make flaky RUNS=2 TESTS=tests/harness/common/test_progress.py` to try it on a subset.
-# COLD=1 empties numba's kernel cache before each run (`make clean-numba`): every run starts as a fresh clone's first.
+# COLD=1 empties numba's kernel cache and the tests' disk cache before each run (`make clean-cache`): every run starts
+# as a fresh clone's first.
 COLD   ?=
 flaky: $(STAMP)
 	$(PY) tests/flaky_runs.py --runs $(RUNS) --tests "$(TESTS)" $(if $(COLD),--cold)
@@ -81,3 +85,7 @@ clean:
 # of every jitted helper it compiles in (checks/numba_cache.py); this only frees the disk or times a cold start.
 clean-numba:
 	find tracker harness policies robot_models -name '*.nbi' -delete -o -name '*.nbc' -delete
+
+# Drop every cache a fresh clone's first `make test` lacks: numba's kernels and the tests' disk cache (TEST_CACHE).
+clean-cache: clean-numba
+	rm -rf $(TEST_CACHE)

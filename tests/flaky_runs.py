@@ -2,12 +2,12 @@
 
     python tests/flaky_runs.py --runs 5                       # what `make flaky` does
     python tests/flaky_runs.py --runs 2 --tests tests/harness/common/test_progress.py   # a subset
-    python tests/flaky_runs.py --runs 5 --cold                # `make flaky COLD=1`: numba's kernel cache emptied before each run
+    python tests/flaky_runs.py --runs 5 --cold                # `make flaky COLD=1`: every cache emptied before each run
 
 Each run is ``make -i test JUNIT=DIR/run-K TESTS=...``: both of ``make test``'s pytest invocations (the
 parallel suite, then the ``realtime`` tests alone) write a JUnit XML report, and ``-i`` lets the second run
-even when the first had a failure; ``--cold`` runs ``make clean-numba`` before each run, so that every run
-starts as a fresh clone's first ``make test`` does, with no compiled kernel on disk. The reports are read back: a test that failed or errored in any run is
+even when the first had a failure; ``--cold`` runs ``make clean-cache`` before each run, so that every run
+starts as a fresh clone's first ``make test`` does, with no compiled kernel and no disk cache. The reports are read back: a test that failed or errored in any run is
 listed with the runs it failed in and its first failure message; a run whose reports are missing (pytest
 crashed, the setup failed) counts as failed. The slowest tests (median time over the runs) are listed too.
 Exit code: 0 when every run passed every test, 1 otherwise, 2 for bad arguments. Not a pytest test module
@@ -91,7 +91,7 @@ def main(argv=None) -> int:
     parser.add_argument("--tests", default="", help="pytest arguments narrowing the suite (default: all of it)")
     parser.add_argument("--out", type=Path, default=ROOT / ".flaky", help="folder of the JUnit reports (default .flaky)")
     parser.add_argument("--make", default="make", help="the make program (default make)")
-    parser.add_argument("--cold", action="store_true", help="empty numba's kernel cache (make clean-numba) before each run")
+    parser.add_argument("--cold", action="store_true", help="empty numba's kernel cache and the tests' disk cache (make clean-cache) before each run")
     args = parser.parse_args(argv)
     if args.runs < 1:
         parser.error(f"--runs must be >= 1, got {args.runs}")
@@ -102,9 +102,9 @@ def main(argv=None) -> int:
         for name in REPORTS:
             (run_dir / name).unlink(missing_ok=True)
         if args.cold:
-            print(f"flaky: run {k}/{args.runs}: {args.make} clean-numba (a cold kernel cache)", flush=True)
-            if subprocess.call([args.make, "clean-numba"], cwd=ROOT) != 0:
-                print(f"flaky: {args.make} clean-numba failed", file=sys.stderr)
+            print(f"flaky: run {k}/{args.runs}: {args.make} clean-cache (cold caches)", flush=True)
+            if subprocess.call([args.make, "clean-cache"], cwd=ROOT) != 0:
+                print(f"flaky: {args.make} clean-cache failed", file=sys.stderr)
                 return 1
         cmd = [args.make, "-i", "test", f"JUNIT={run_dir}", f"TESTS={args.tests}"]
         print(f"flaky: run {k}/{args.runs}: {shlex.join(cmd)}", flush=True)

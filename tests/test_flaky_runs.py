@@ -63,13 +63,13 @@ def test_bad_runs_argument_is_exit_2():
 
 
 def test_cold_runs_empty_the_kernel_cache_before_each_run(tmp_path):
-    """--cold: `make clean-numba` before every `make test` (a fake make records what it was asked)."""
+    """--cold: `make clean-cache` before every `make test` (a fake make records what it was asked)."""
     log = tmp_path / "make.log"
     fake = tmp_path / "make"
     fake.write_text(f"#!/bin/sh\necho \"$*\" >> {log}\n")
     fake.chmod(0o755)
     proc = subprocess.run([sys.executable, str(Path(flaky_runs.__file__)), "--runs", "2", "--cold", "--make", str(fake),
                            "--out", str(tmp_path / "out")], capture_output=True, text=True)
-    calls = [line.split()[0] if line.split()[0] == "clean-numba" else line.split()[1] for line in log.read_text().splitlines()]
-    assert calls == ["clean-numba", "test", "clean-numba", "test"]
+    calls = [line.split()[0] if line.split()[0] == "clean-cache" else line.split()[1] for line in log.read_text().splitlines()]
+    assert calls == ["clean-cache", "test", "clean-cache", "test"]
     assert proc.returncode == 1 and "no report parallel.xml" in proc.stdout  # the fake make wrote no report

@@ -122,38 +122,23 @@ class LauncherFlights:
     Each serve (:class:`harness.sim.launcher.BallLauncher`) flies until it reaches the floor or
     ``max_flight_s``; then the lab is empty for ``gap_s`` before the next serve. ``n_serves`` serves
     (~0.3 s each to draw) are drawn up front and repeat in a cycle, so nothing slow happens while
-    the clock runs; the scene at a time depends only on the seed.
+    the clock runs; the scene at a time depends only on the seed. Drawn flights are kept on disk
+    (harness/common/disk_cache.py): the next process with the same seed reads them back.
     """
 
     def __init__(self, seed: int, *, n_serves: int = 8, gap_s: float = 0.3, max_flight_s: float = 1.5,
                  exposure: Exposure = SimOptions.exposure, colour: str = "orange"):
-        from harness.sim.launcher import BallLauncher  # heavy (scipy): only when the default scene is used
-        from harness.sim.physics import BallWorld
-
-        self._launcher = BallLauncher(seed=seed)
-        self._world_cls = BallWorld
         self.gap_s = float(gap_s)
         self.max_flight_s = float(max_flight_s)
         self.exposure = exposure
         if colour not in BALL_COLOURS:
             raise ValueError(f"LauncherFlights.colour must be one of {BALL_COLOURS}, got {colour!r}")
         self.colour = colour
-        self._starts: list[float] = []  # scene time at which flight i starts
-        self._flights: list[tuple[np.ndarray, np.ndarray]] = []  # (times (K,), states (K, 9))
-        if int(n_serves) < 1:
+        if isinstance(n_serves, bool) or int(n_serves) < 1:
             raise ValueError(f"LauncherFlights.n_serves must be >= 1, got {n_serves!r}")
-        for _ in range(int(n_serves)):
-            self._extend()
+        # scene time at which flight i starts; flight i's (times (K,), states (K, 9))
+        self._starts, self._flights = _cached_flights()(int(seed), int(n_serves), self.gap_s, self.max_flight_s)
         self.cycle_s = self._starts[-1] + self._flights[-1][0][-1] + self.gap_s
-
-    def _extend(self) -> None:
-        serve = self._launcher.serve()
-        world = self._world_cls(self._launcher.params, self._launcher.world)
-        world.reset(serve.state)
-        times, states = world.run(self.max_flight_s)
-        start = self._starts[-1] + self._flights[-1][0][-1] + self.gap_s if self._flights else 0.0
-        self._starts.append(start)
-        self._flights.append((times, states))
 
     def ball_state(self, t_s: float) -> np.ndarray | None:
         """(9,) [p, v, w] of the ball at scene time ``t_s``, or None between flights."""
@@ -171,6 +156,58 @@ class LauncherFlights:
         s = self.ball_state(t_s)
         balls = () if s is None else (Ball(s[:3], velocity_mps=s[3:6], colour=self.colour),)
         return Scene(balls=balls, exposure=self.exposure)
+
+
+def _draw_flights(seed: int, n_serves: int, gap_s: float, max_flight_s: float) -> tuple[list, list]:
+    """``n_serves`` seeded serves flown until the floor or ``max_flight_s``: (start times, [(times, states)])."""
+    from harness.sim.launcher import BallLauncher  # heavy (scipy): only when flights are drawn, not read back
+    from harness.sim.physics import BallWorld
+
+    launcher = BallLauncher(seed=seed)
+    starts: list[float] = []
+    flights: list[tuple[np.ndarray, np.ndarray]] = []
+    for _ in range(n_serves):
+        serve = launcher.serve()
+        world = BallWorld(launcher.params, launcher.world)
+        world.reset(serve.state)
+        times, states = world.run(max_flight_s)
+        starts.append(starts[-1] + flights[-1][0][-1] + gap_s if flights else 0.0)
+        flights.append((times, states))
+    return starts, flights
+
+
+def _flights_key(seed: int, n_serves: int, gap_s: float, max_flight_s: float) -> bytes:
+    """What the drawn flights depend on besides the code: the arguments, the fitted ball parameters the launcher
+    loads (data/ball_params.yaml) and scipy's version (the launcher aims with its least-squares solver)."""
+    import pickle
+
+    import scipy
+
+    from policies.ball_model import BallParams
+
+    params = BallParams.load()
+    return pickle.dumps((seed, n_serves, gap_s, max_flight_s, scipy.__version__, dataclasses.astuple(params)), protocol=4)
+
+
+def _cached_flights():
+    """:func:`_draw_flights` kept on disk (harness/common/disk_cache.py): ~1-2 s per seed, once per machine."""
+    global _FLIGHTS_ON_DISK
+    if _FLIGHTS_ON_DISK is None:
+        import importlib
+        import sys
+
+        import policies.ball_model
+        from harness.common import seeding
+        from harness.common.disk_cache import cached
+        from harness.sim import launcher, physics
+
+        _FLIGHTS_ON_DISK = cached("sim-launcher-flights", _draw_flights, key_of=_flights_key,
+                                  code_of=(sys.modules[__name__], launcher, physics, seeding, policies.ball_model,
+                                           importlib.import_module("policies._ball_integrate")))
+    return _FLIGHTS_ON_DISK
+
+
+_FLIGHTS_ON_DISK = None
 
 
 def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callable[[float], Scene] | None = None,

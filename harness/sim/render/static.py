@@ -6,12 +6,16 @@ ray, intersect it with the room, the boxes of :func:`lab_geometry` and the net, 
 table and floor, the "specular highlights" that fool a white-ball detector). The result, a
 :class:`Background`, also keeps what the per-frame kernels need: the rays, the depth of the first
 opaque surface, the net's see-through veil, pixels per radian and the vignetting. It is cached per
-camera, so building a second :class:`~harness.sim.render.Renderer` on the same rig is free.
+camera in the process, so building a second :class:`~harness.sim.render.Renderer` on the same rig is free, and on
+disk (``harness.common.disk_cache``: keyed by the camera, the options and this code), so the next process reads
+it back in milliseconds instead of ray-casting the lab again (~1 s per VGA camera).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+import pickle
+
 import numpy as np
 
 from harness.sim.render.lab_scene import MAT, MATERIALS, floor_texture, lab_geometry, table_line_mask
@@ -187,7 +191,8 @@ def _veil(O, D, t_opaque, geo):
     return alpha, np.where(hit, t, np.inf)
 
 
-def _render(camera: Camera, supersample: int, vignette_strength: float) -> Background:
+def _render(camera: Camera, supersample: int, vignette_strength: float) -> dict:
+    """The :class:`Background`'s arrays by name, computed."""
     geo = lab_geometry()
     centres, intensity = _light_setup(geo)
     w, h = camera.image_size
@@ -245,7 +250,7 @@ def _render(camera: Camera, supersample: int, vignette_strength: float) -> Backg
     r2 = ((uv[:, 0] - cx) ** 2 + (uv[:, 1] - cy) ** 2) / (cx**2 + cy**2)
     vig = 1 - vignette_strength * r2
     rad *= vig[:, None]
-    out = dict(
+    return dict(
         radiance_u16=np.clip(np.round(rad * RADIANCE_SCALE), 0, 65535).astype(np.uint16).reshape(h, w, 3),
         depth_m=t0.astype(np.float32).reshape(h, w),
         veil_alpha=veil_a.astype(np.float32).reshape(h, w),
@@ -255,9 +260,29 @@ def _render(camera: Camera, supersample: int, vignette_strength: float) -> Backg
         px_per_rad=ppr.astype(np.float32).reshape(h, w),
         vignette=vig.astype(np.float32).reshape(h, w),
     )
-    for arr in out.values():
-        arr.setflags(write=False)
-    return Background(**out)
+
+
+def _render_key(camera: Camera, supersample: int, vignette_strength: float) -> bytes:
+    return pickle.dumps((_camera_key(camera), supersample, vignette_strength), protocol=4)
+
+
+def _cached_render():
+    """:func:`_render` kept on disk (harness/common/disk_cache.py): once per machine for a camera, not per process."""
+    global _RENDER_ON_DISK
+    if _RENDER_ON_DISK is None:
+        import sys
+
+        from harness.common.disk_cache import cached
+        from harness.sim import lab
+        from harness.sim.render import lab_scene
+        from tracker import camera as camera_module, distortion
+
+        _RENDER_ON_DISK = cached("sim-static-background", _render, key_of=_render_key,
+                                 code_of=(sys.modules[__name__], lab_scene, lab, camera_module, distortion))
+    return _RENDER_ON_DISK
+
+
+_RENDER_ON_DISK = None
 
 
 def _camera_key(camera: Camera) -> tuple:
@@ -281,7 +306,10 @@ def background(camera: Camera, *, supersample: int = 2, vignette_strength: float
     if bg is None:
         if len(_CACHE) >= _CACHE_SIZE:
             _CACHE.pop(next(iter(_CACHE)))  # drop the oldest
-        bg = _render(camera, int(supersample), float(vignette_strength))
+        arrays = _cached_render()(camera, int(supersample), float(vignette_strength))
+        for arr in arrays.values():
+            arr.setflags(write=False)
+        bg = Background(**arrays)
         _CACHE[full] = bg
     return bg
 

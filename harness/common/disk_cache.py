@@ -1,0 +1,135 @@
+"""Results of slow, deterministic computations kept on disk, shared by processes and runs (``diskcache``).
+
+The simulated lab ray-casts its static room once per camera (~1 s per VGA camera); every process that renders
+the lab (``rt2 track --source sim``, its render child, each study, each test worker) did so again. Through
+:func:`cached` the result is computed once per machine and read back in milliseconds afterwards.
+
+A result is found again only for the same arguments **and the same code**: the key is a sha256 of the
+computation's name, its arguments (``key_of(*args)``: bytes that name everything the result depends on), the
+source of every module the computation reads (``code_of``) and numpy's version. An edited module, another numpy or
+another camera is a new entry, never a stale one.
+
+Where: ``$RT2_CACHE_DIR`` if set (``off`` or an empty value: no cache, every call computes), else
+``$XDG_CACHE_HOME/rt2`` or ``~/.cache/rt2``. ``make test`` uses ``build/cache`` of the checkout, so a fresh clone's
+first run starts cold. The folder is kept under ``$RT2_CACHE_MAX_MB`` megabytes (default 2048; the entries stored
+first go first) and can be deleted at any time. A folder that cannot be created or written, or an entry that
+cannot be read back (a truncated file), costs only the computation: the result is computed and returned as
+without a cache, with one warning naming the folder.
+
+``diskcache`` keeps the index in SQLite and each large value in a file of its own, written whole before it is
+indexed, so processes that compute the same entry at once (two test workers) each get a whole result.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import warnings
+from pathlib import Path
+from types import ModuleType
+from typing import Any, Callable
+
+__all__ = ["CACHE_DIR_ENV", "CACHE_MAX_MB_ENV", "cache_location", "cached", "code_digest"]
+
+CACHE_DIR_ENV = "RT2_CACHE_DIR"
+CACHE_MAX_MB_ENV = "RT2_CACHE_MAX_MB"
+_DEFAULT_MAX_MB = 2048
+_OFF = ("", "off", "0", "none")
+
+
+def cache_location() -> Path | None:
+    """The cache folder (see the module docstring), or None when it is turned off."""
+    value = os.environ.get(CACHE_DIR_ENV)
+    if value is not None:
+        return None if value.strip().lower() in _OFF else Path(value).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "rt2"
+
+
+def _max_bytes() -> int:
+    value = os.environ.get(CACHE_MAX_MB_ENV, "")
+    try:
+        mb = float(value) if value.strip() else float(_DEFAULT_MAX_MB)
+    except ValueError:
+        mb = float("nan")
+    if not 0 < mb < float("inf"):
+        warnings.warn(f"{CACHE_MAX_MB_ENV}={value!r} is not a positive number of megabytes; using {_DEFAULT_MAX_MB}",
+                      stacklevel=4)
+        mb = float(_DEFAULT_MAX_MB)
+    return int(mb * 1e6)
+
+
+def code_digest(*modules: ModuleType) -> str:
+    """sha256 of the source files of ``modules`` and of numpy's version: what a cached result was computed by."""
+    import numpy
+
+    h = hashlib.sha256(numpy.__version__.encode())
+    for module in modules:
+        path = getattr(module, "__file__", None)
+        if not path:
+            raise ValueError(f"code_digest: module {module.__name__!r} has no source file")
+        h.update(module.__name__.encode() + b"\0")
+        h.update(Path(path).read_bytes())
+    return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=8)
+def _open(location: str, max_bytes: int):
+    """The ``diskcache.Cache`` at ``location``, or None (with one warning) where it cannot be opened or written."""
+    import diskcache
+
+    try:
+        Path(location).mkdir(parents=True, exist_ok=True)
+        probe = Path(location) / f".probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+        return diskcache.Cache(location, size_limit=max_bytes, eviction_policy="least-recently-stored")
+    except Exception as exc:  # noqa: BLE001 - an unusable cache costs the computation, never the command
+        warnings.warn(f"the disk cache {location!r} cannot be used ({type(exc).__name__}: {exc}); computing without it",
+                      stacklevel=4)
+        return None
+
+
+def cached(name: str, func: Callable[..., Any], *, key_of: Callable[..., bytes],
+           code_of: tuple[ModuleType, ...]) -> Callable[..., Any]:
+    """``func`` memoised on disk: the returned function gives ``func(*args)``, computed at most once per machine for
+    the same ``key_of(*args)`` and the same source of ``code_of`` (every module ``func`` reads). ``name`` keeps
+    computations apart and names them in warnings. The result must pickle (arrays, dicts, tuples of them)."""
+    digest: str | None = None
+
+    @functools.wraps(func)
+    def call(*args):
+        nonlocal digest
+        location = cache_location()
+        cache = None if location is None else _open(str(location), _max_bytes())
+        if cache is None:
+            return func(*args)
+        if digest is None:
+            digest = code_digest(*code_of)
+        key = f"{name}-" + hashlib.sha256(digest.encode() + b"\0" + key_of(*args)).hexdigest()
+        try:
+            result = cache.get(key, default=None)
+        except Exception as exc:  # noqa: BLE001 - a truncated or foreign file: drop it, compute again
+            warnings.warn(f"the disk cache {str(location)!r}: its {name} entry could not be read back "
+                          f"({type(exc).__name__}: {exc}); computed again", stacklevel=2)
+            _forget(cache, key)
+            result = None
+        if result is not None:
+            return result
+        result = func(*args)
+        try:
+            cache.set(key, result)
+        except Exception as exc:  # noqa: BLE001 - a full disk: the result stands, uncached
+            warnings.warn(f"the disk cache {str(location)!r}: could not store a {name} entry "
+                          f"({type(exc).__name__}: {exc})", stacklevel=2)
+        return result
+
+    return call
+
+
+def _forget(cache, key: str) -> None:
+    try:
+        cache.delete(key)
+    except Exception:  # noqa: BLE001 - best effort; the next store replaces it anyway
+        pass
