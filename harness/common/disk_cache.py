@@ -12,7 +12,8 @@ another camera is a new entry, never a stale one.
 Where: ``$RT2_CACHE_DIR`` if set (``off`` or an empty value: no cache, every call computes), else
 ``$XDG_CACHE_HOME/rt2`` or ``~/.cache/rt2``. ``make test`` uses ``build/cache`` of the checkout, so a fresh clone's
 first run starts cold. The folder is kept under ``$RT2_CACHE_MAX_MB`` megabytes (default 2048; the entries stored
-first go first) and can be deleted at any time. A folder that cannot be created or written, or an entry that
+first go first) and can be deleted at any time; an entry that would leave less than 2 GiB free on its disk is not
+stored (a session log on the same disk matters more). A folder that cannot be created or written, or an entry that
 cannot be read back (a truncated file), costs only the computation: the result is computed and returned as
 without a cache, with one warning naming the folder.
 
@@ -25,6 +26,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
+import shutil
 import warnings
 from pathlib import Path
 from types import ModuleType
@@ -36,6 +38,9 @@ CACHE_DIR_ENV = "RT2_CACHE_DIR"
 CACHE_MAX_MB_ENV = "RT2_CACHE_MAX_MB"
 _DEFAULT_MAX_MB = 2048
 _OFF = ("", "off", "0", "none")
+#: an entry is not stored where it would leave less free space than this on the cache's disk (a session log or a
+#: recording on the same disk needs it more than a cache does)
+MIN_FREE_AFTER_BYTES = 2 * 1024**3
 
 
 def cache_location() -> Path | None:
@@ -119,6 +124,11 @@ def cached(name: str, func: Callable[..., Any], *, key_of: Callable[..., bytes],
             return result
         result = func(*args)
         try:
+            free = shutil.disk_usage(location).free
+            if free - _nbytes(result) < MIN_FREE_AFTER_BYTES:
+                warnings.warn(f"the disk cache {str(location)!r}: a {name} entry not stored, {free / 1e6:.0f} MB free on its "
+                              f"disk (it keeps {MIN_FREE_AFTER_BYTES / 1024**3:g} GiB free for what matters more)", stacklevel=2)
+                return result
             cache.set(key, result)
         except Exception as exc:  # noqa: BLE001 - a full disk: the result stands, uncached
             warnings.warn(f"the disk cache {str(location)!r}: could not store a {name} entry "
@@ -126,6 +136,15 @@ def cached(name: str, func: Callable[..., Any], *, key_of: Callable[..., bytes],
         return result
 
     return call
+
+
+def _nbytes(value) -> int:
+    """The bytes of the arrays in ``value`` (nested dicts, lists and tuples): about what storing it takes."""
+    if isinstance(value, dict):
+        return sum(_nbytes(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return sum(_nbytes(v) for v in value)
+    return int(getattr(value, "nbytes", 0))
 
 
 def _forget(cache, key: str) -> None:

@@ -215,3 +215,20 @@ def test_launcher_flights_read_back_are_the_drawn_ones(cache_dir):
         for (t0, s0), (t1, s1) in zip(flights, got._flights):
             assert t0.tobytes() == t1.tobytes() and s0.tobytes() == s1.tobytes()
     assert LauncherFlights(3, n_serves=1, gap_s=0.5).cycle_s == pytest.approx(got.cycle_s + 0.2)
+
+
+def test_an_entry_that_would_fill_the_disk_is_not_stored(cache_dir, tmp_path, monkeypatch):
+    """A session log or a recording on the same disk matters more than a cache: below the free-space margin the
+    result is returned, not stored, with a warning."""
+    import shutil
+
+    f, calls, _ = _counting(tmp_path, name="full_disk")
+    real = shutil.disk_usage
+    monkeypatch.setattr(disk_cache.shutil, "disk_usage",
+                        lambda p: real(p)._replace(free=disk_cache.MIN_FREE_AFTER_BYTES + 1000))
+    with pytest.warns(UserWarning, match="not stored, .* MB free"):
+        out = f(50_000)  # 200 kB of arrays: over the 1000 bytes left above the margin
+    assert out["x"].shape == (50_000,) and not _value_files(cache_dir)
+    with pytest.warns(UserWarning, match="keeps 2 GiB free"):
+        f(50_000)
+    assert calls == [50_000, 50_000]

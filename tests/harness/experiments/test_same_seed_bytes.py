@@ -1,5 +1,6 @@
 """Same seed, same bytes: each study's output files, written by the CLI in a fresh process with a cold numba
-cache (every kernel compiled there, none loaded) and one worker, are byte-identical to those written in this
+cache (every kernel compiled there, none loaded), an empty disk cache (the simulated lab ray-cast there, not read
+back: harness/common/disk_cache.py) and one worker, are byte-identical to those written in this
 (warm) process with two worker processes that load the cached kernels. One comparison covers four axes at
 once: 1 vs 2 workers, cold vs warm numba cache, a fresh vs a warm interpreter, a separate CLI process vs the
 in-process call. Local vs Ray: tests/harness/common/test_executor.py.
@@ -43,11 +44,11 @@ def _argv(study: str, out: Path) -> list[str]:
 
 
 def _cold_run(study: str, base: Path) -> Path:
-    """The study's outputs from a fresh process with an empty numba cache and --workers 1."""
+    """The study's outputs from a fresh process with an empty numba cache, an empty disk cache and --workers 1."""
     out = base / "cold"
     argv = [*_argv(study, out), "--workers", "1"]
     code = f"import sys; from harness.cli import main; sys.exit(main({argv!r}))"
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(base / "numba-cache"))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(base / "numba-cache"), RT2_CACHE_DIR=str(base / "disk-cache"))
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert any((base / "numba-cache").rglob("*.nbi")), "the cold run should have compiled into its own cache"
