@@ -58,6 +58,8 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("robot", "serve"): ("harness.cli.robot_serve", "serve the simulated WAM in real time behind the robot link (ZeroMQ; docs/robot_link.md)"),
     ("robot", "check"): ("harness.cli.robot_check", "measure a robot link: state rate, gaps, delivery delay, clock offset, round trips, command to motion"),
     ("robot", "record"): ("harness.cli.robot_record", "record a robot's joint states over the link to a session log, in segments across link losses"),
+    ("cache", "info"): ("harness.cli.cache_info", "what the disk cache of the simulated lab's slow parts holds (static room ray-casts, launcher flights), where, how large"),
+    ("cache", "clear"): ("harness.cli.cache_clear", "empty the disk cache of the simulated lab's slow parts (computed again when next needed)"),
     ("robot", "check-config"): ("harness.cli.robot_check_config", "check an arm's robot config (data/robot/NAME.yaml or PATH.yaml): links, limits, reach of the hitting region"),
 }
 
@@ -69,6 +71,7 @@ GROUP_HELP = {
     "labels": "labelled image sets: convert between labelling tools' formats",
     "learn": "learn movement primitives from demonstrations",
     "calib": "calibrate cameras (intrinsics, extrinsics) and the robot's base into the camera frame",
+    "cache": "the disk cache of the simulated lab's slow, deterministic parts (README, \"The disk cache\")",
     "robot": "the robot: its link over the network (docs/robot_link.md) and its config (docs/robots.md)",
 }
 

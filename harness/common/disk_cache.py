@@ -32,7 +32,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any, Callable
 
-__all__ = ["CACHE_DIR_ENV", "CACHE_MAX_MB_ENV", "cache_location", "cached", "code_digest"]
+__all__ = ["CACHE_DIR_ENV", "CACHE_MAX_MB_ENV", "cache_location", "cached", "clear", "code_digest", "summary"]
 
 CACHE_DIR_ENV = "RT2_CACHE_DIR"
 CACHE_MAX_MB_ENV = "RT2_CACHE_MAX_MB"
@@ -47,7 +47,7 @@ def cache_location() -> Path | None:
     """The cache folder (see the module docstring), or None when it is turned off."""
     value = os.environ.get(CACHE_DIR_ENV)
     if value is not None:
-        return None if value.strip().lower() in _OFF else Path(value).expanduser()
+        return None if value.strip().lower() in _OFF else Path(value).expanduser().absolute()
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "rt2"
 
@@ -136,6 +136,44 @@ def cached(name: str, func: Callable[..., Any], *, key_of: Callable[..., bytes],
         return result
 
     return call
+
+
+def summary() -> dict:
+    """What the cache holds (``rt2 cache info``): its folder, entries by computation, bytes on disk, the limit.
+    ``{"location": None}`` when it is off; raises ``ValueError`` (naming the folder) where it cannot be opened."""
+    location = cache_location()
+    if location is None:
+        return {"location": None, "off_by": f"{CACHE_DIR_ENV}={os.environ.get(CACHE_DIR_ENV)!r}"}
+    limit = _max_bytes()
+    if not location.exists():
+        return {"location": str(location), "entries": {}, "bytes": 0, "limit_bytes": limit}
+    cache = _opened(location, limit)
+    entries: dict[str, int] = {}
+    for key in cache.iterkeys():
+        kind = str(key).rsplit("-", 1)[0]
+        entries[kind] = entries.get(kind, 0) + 1
+    return {"location": str(location), "entries": dict(sorted(entries.items())), "bytes": int(cache.volume()),
+            "limit_bytes": limit}
+
+
+def clear() -> dict:
+    """Empty the cache (``rt2 cache clear``); what it held before (:func:`summary`)."""
+    before = summary()
+    if before["location"] is not None and Path(before["location"]).exists():
+        _opened(Path(before["location"]), _max_bytes()).clear()
+    return before
+
+
+def _opened(location: Path, limit: int):
+    if not location.is_dir():
+        raise ValueError(f"the disk cache {str(location)!r} is not a folder (set {CACHE_DIR_ENV} to a folder, or to off)")
+    import diskcache
+
+    try:
+        return diskcache.Cache(str(location), size_limit=limit, eviction_policy="least-recently-stored")
+    except Exception as exc:  # noqa: BLE001 - one line naming the folder, not sqlite's traceback
+        raise ValueError(f"the disk cache {str(location)!r} cannot be opened ({type(exc).__name__}: {exc}); "
+                         f"delete the folder to start it afresh") from None
 
 
 def _nbytes(value) -> int:

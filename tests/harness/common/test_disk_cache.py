@@ -4,6 +4,7 @@ processes, bounded, and an unusable folder or entry costs the computation, never
 from __future__ import annotations
 
 import importlib.util
+import json
 import os
 import subprocess
 import sys
@@ -232,3 +233,58 @@ def test_an_entry_that_would_fill_the_disk_is_not_stored(cache_dir, tmp_path, mo
     with pytest.warns(UserWarning, match="keeps 2 GiB free"):
         f(50_000)
     assert calls == [50_000, 50_000]
+
+
+def test_rt2_cache_info_and_clear(cache_dir, tmp_path, capsys):
+    from harness.cli import main
+
+    f, _, _ = _counting(tmp_path, name="shown")
+    f(40000)
+    assert main(["cache", "info"]) == 0
+    assert f"the disk cache at {cache_dir}: 1 shown;" in capsys.readouterr().out
+    assert main(["cache", "info", "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["location"] == str(cache_dir) and s["entries"] == {"shown": 1} and s["bytes"] > 160_000
+    assert main(["cache", "clear"]) == 0
+    assert "1 entries" in capsys.readouterr().out
+    assert not _value_files(cache_dir)
+    main(["cache", "info", "--json"])
+    assert json.loads(capsys.readouterr().out)["entries"] == {}
+
+
+def test_a_relative_folder_is_made_absolute(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv(disk_cache.CACHE_DIR_ENV, "rel/cache")
+    assert disk_cache.cache_location() == tmp_path / "rel" / "cache"
+
+
+# Hostile cache folders for `rt2 cache`: one line naming the folder, exit 2; off is no error.
+@pytest.mark.parametrize("make, code, says", [
+    (lambda p: p.write_text("a file, not a folder"), 2, "is not a folder"),
+    (lambda p: (p.mkdir(), (p / "cache.db").write_bytes(b"not sqlite" * 100)), 2, "cannot be opened"),
+    (lambda p: None, 0, "nothing; 0.0 MB"),  # not made yet: empty, nothing created
+], ids=["file", "corrupt-index", "missing"])
+@pytest.mark.parametrize("command", ["info", "clear"])
+def test_rt2_cache_on_hostile_folders(tmp_path, monkeypatch, capsys, make, code, says, command):
+    from harness.cli import main
+
+    where = tmp_path / "cache"
+    make(where)
+    monkeypatch.setenv(disk_cache.CACHE_DIR_ENV, str(where))
+    assert main(["cache", command]) == code
+    out, err = capsys.readouterr()
+    if code:
+        assert says in err and str(where) in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    elif command == "info":
+        assert says in out and not where.exists()
+    else:
+        assert "0 entries" in out and not where.exists()
+
+
+def test_rt2_cache_when_off(monkeypatch, capsys):
+    from harness.cli import main
+
+    monkeypatch.setenv(disk_cache.CACHE_DIR_ENV, "off")
+    for command in ("info", "clear"):
+        assert main(["cache", command]) == 0
+        assert "the disk cache is off (RT2_CACHE_DIR='off')" in capsys.readouterr().out
