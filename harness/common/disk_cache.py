@@ -65,16 +65,24 @@ def _max_bytes() -> int:
     return int(mb * 1e6)
 
 
-def code_digest(*modules: ModuleType) -> str:
-    """sha256 of the source files of ``modules`` and of numpy's version: what a cached result was computed by."""
+def code_digest(*modules: ModuleType | str) -> str:
+    """sha256 of the source files of ``modules`` (module objects, or dotted names: found, not imported) and of numpy's
+    version: what a cached result was computed by."""
+    import importlib.util
+
     import numpy
 
     h = hashlib.sha256(numpy.__version__.encode())
     for module in modules:
-        path = getattr(module, "__file__", None)
-        if not path:
-            raise ValueError(f"code_digest: module {module.__name__!r} has no source file")
-        h.update(module.__name__.encode() + b"\0")
+        name = module if isinstance(module, str) else module.__name__
+        try:
+            spec = importlib.util.find_spec(name) if isinstance(module, str) else None
+        except (ImportError, ValueError):  # a parent package that does not exist
+            spec = None
+        path = spec.origin if spec is not None else getattr(module, "__file__", None)
+        if not path or not Path(path).is_file():
+            raise ValueError(f"code_digest: module {name!r} has no source file")
+        h.update(name.encode() + b"\0")
         h.update(Path(path).read_bytes())
     return h.hexdigest()
 
@@ -97,9 +105,10 @@ def _open(location: str, max_bytes: int):
 
 
 def cached(name: str, func: Callable[..., Any], *, key_of: Callable[..., bytes],
-           code_of: tuple[ModuleType, ...]) -> Callable[..., Any]:
+           code_of: tuple[ModuleType | str, ...]) -> Callable[..., Any]:
     """``func`` memoised on disk: the returned function gives ``func(*args)``, computed at most once per machine for
-    the same ``key_of(*args)`` and the same source of ``code_of`` (every module ``func`` reads). ``name`` keeps
+    the same ``key_of(*args)`` and the same source of ``code_of`` (every module ``func`` reads: modules or dotted
+    names, the names not imported until ``func`` runs). ``name`` keeps
     computations apart and names them in warnings. The result must pickle (arrays, dicts, tuples of them)."""
     digest: str | None = None
 

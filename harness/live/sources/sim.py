@@ -160,7 +160,7 @@ class LauncherFlights:
 
 def _draw_flights(seed: int, n_serves: int, gap_s: float, max_flight_s: float) -> tuple[list, list]:
     """``n_serves`` seeded serves flown until the floor or ``max_flight_s``: (start times, [(times, states)])."""
-    from harness.sim.launcher import BallLauncher  # heavy (scipy): only when flights are drawn, not read back
+    from harness.sim.launcher import BallLauncher  # only when flights are drawn, not read back
     from harness.sim.physics import BallWorld
 
     launcher = BallLauncher(seed=seed)
@@ -181,29 +181,24 @@ def _flights_key(seed: int, n_serves: int, gap_s: float, max_flight_s: float) ->
     loads (data/ball_params.yaml) and scipy's version (the launcher aims with its least-squares solver)."""
     import pickle
 
-    import scipy
+    from importlib.metadata import version
 
     from policies.ball_model import BallParams
 
     params = BallParams.load()
-    return pickle.dumps((seed, n_serves, gap_s, max_flight_s, scipy.__version__, dataclasses.astuple(params)), protocol=4)
+    return pickle.dumps((seed, n_serves, gap_s, max_flight_s, version("scipy"), dataclasses.astuple(params)), protocol=4)
 
 
 def _cached_flights():
     """:func:`_draw_flights` kept on disk (harness/common/disk_cache.py): ~1-2 s per seed, once per machine."""
     global _FLIGHTS_ON_DISK
     if _FLIGHTS_ON_DISK is None:
-        import importlib
-        import sys
-
-        import policies.ball_model
-        from harness.common import seeding
         from harness.common.disk_cache import cached
-        from harness.sim import launcher, physics
 
+        # by name: the launcher is imported only where flights are drawn, not where they are read back
         _FLIGHTS_ON_DISK = cached("sim-launcher-flights", _draw_flights, key_of=_flights_key,
-                                  code_of=(sys.modules[__name__], launcher, physics, seeding, policies.ball_model,
-                                           importlib.import_module("policies._ball_integrate")))
+                                  code_of=(__name__, "harness.sim.launcher", "harness.sim.physics", "harness.common.seeding",
+                                           "policies.ball_model", "policies._ball_integrate"))
     return _FLIGHTS_ON_DISK
 
 

@@ -3,6 +3,7 @@ processes, bounded, and an unusable folder or entry costs the computation, never
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import json
 import os
@@ -288,3 +289,29 @@ def test_rt2_cache_when_off(monkeypatch, capsys):
     for command in ("info", "clear"):
         assert main(["cache", command]) == 0
         assert "the disk cache is off (RT2_CACHE_DIR='off')" in capsys.readouterr().out
+
+
+def test_code_by_name_is_found_not_imported(tmp_path, monkeypatch):
+    """A module named by its dotted name is read from its file, not imported (the launcher's scipy stays unloaded
+    where flights are read back), and gives the digest its module object gives."""
+    monkeypatch.syspath_prepend(str(tmp_path))
+    (tmp_path / "rt2_digest_probe.py").write_text("raise RuntimeError('imported')\n")
+    by_name = code_digest("rt2_digest_probe")  # would raise if imported
+    assert "rt2_digest_probe" not in sys.modules
+    assert code_digest("harness.common.seeding") == code_digest(importlib.import_module("harness.common.seeding"))
+    assert by_name != code_digest("harness.common.seeding")
+    with pytest.raises(ValueError, match="'no.such.module' has no source file"):
+        code_digest("no.such.module")
+
+
+def test_reading_flights_back_does_not_import_the_launcher(cache_dir):
+    """rt2 track's start: the flights read back from the cache need no launcher (its aiming, its solver)."""
+    from harness.live.sources.sim import LauncherFlights
+
+    LauncherFlights(4, n_serves=1)  # drawn (the launcher imported here), stored
+    code = ("import sys; from harness.live.sources.sim import LauncherFlights; LauncherFlights(4, n_serves=1); "
+            "print('harness.sim.launcher' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["False"]
