@@ -18,13 +18,16 @@ cannot be read back (a truncated file), costs only the computation: the result i
 without a cache, with one warning naming the folder.
 
 ``diskcache`` keeps the index in SQLite and each large value in a file of its own, written whole before it is
-indexed, so processes that compute the same entry at once (two test workers) each get a whole result.
+indexed, so processes that compute the same entry at once (two test workers) each get a whole result. A result is a
+dict of arrays, stored as the bytes of an ``.npz`` archive and read back with ``allow_pickle=False``: as with model
+files, rt2 never unpickles what it reads from disk, so a cache folder others can write to cannot run their code.
 """
 
 from __future__ import annotations
 
 import functools
 import hashlib
+import io
 import os
 import shutil
 import warnings
@@ -108,8 +111,9 @@ def cached(name: str, func: Callable[..., Any], *, key_of: Callable[..., bytes],
            code_of: tuple[ModuleType | str, ...]) -> Callable[..., Any]:
     """``func`` memoised on disk: the returned function gives ``func(*args)``, computed at most once per machine for
     the same ``key_of(*args)`` and the same source of ``code_of`` (every module ``func`` reads: modules or dotted
-    names, the names not imported until ``func`` runs). ``name`` keeps
-    computations apart and names them in warnings. The result must pickle (arrays, dicts, tuples of them)."""
+    names, the names not imported until ``func`` runs). ``name`` keeps computations apart and names them in
+    warnings. ``func`` returns a dict of numpy arrays (numbers, not objects); read back, each has the same dtype,
+    shape and bytes."""
     digest: str | None = None
 
     @functools.wraps(func)
@@ -123,7 +127,8 @@ def cached(name: str, func: Callable[..., Any], *, key_of: Callable[..., bytes],
             digest = code_digest(*code_of)
         key = f"{name}-" + hashlib.sha256(digest.encode() + b"\0" + key_of(*args)).hexdigest()
         try:
-            result = cache.get(key, default=None)
+            data = cache.get(key, default=None)
+            result = None if data is None else _from_bytes(data)
         except Exception as exc:  # noqa: BLE001 - a truncated or foreign file: drop it, compute again
             warnings.warn(f"the disk cache {str(location)!r}: its {name} entry could not be read back "
                           f"({type(exc).__name__}: {exc}); computed again", stacklevel=2)
@@ -132,13 +137,14 @@ def cached(name: str, func: Callable[..., Any], *, key_of: Callable[..., bytes],
         if result is not None:
             return result
         result = func(*args)
+        data = _to_bytes(result, name)
         try:
             free = shutil.disk_usage(location).free
-            if free - _nbytes(result) < MIN_FREE_AFTER_BYTES:
+            if free - len(data) < MIN_FREE_AFTER_BYTES:
                 warnings.warn(f"the disk cache {str(location)!r}: a {name} entry not stored, {free / 1e6:.0f} MB free on its "
                               f"disk (it keeps {MIN_FREE_AFTER_BYTES / 1024**3:g} GiB free for what matters more)", stacklevel=2)
                 return result
-            cache.set(key, result)
+            cache.set(key, data)
         except Exception as exc:  # noqa: BLE001 - a full disk: the result stands, uncached
             warnings.warn(f"the disk cache {str(location)!r}: could not store a {name} entry "
                           f"({type(exc).__name__}: {exc})", stacklevel=2)
@@ -185,13 +191,24 @@ def _opened(location: Path, limit: int):
                          f"delete the folder to start it afresh") from None
 
 
-def _nbytes(value) -> int:
-    """The bytes of the arrays in ``value`` (nested dicts, lists and tuples): about what storing it takes."""
-    if isinstance(value, dict):
-        return sum(_nbytes(v) for v in value.values())
-    if isinstance(value, (list, tuple)):
-        return sum(_nbytes(v) for v in value)
-    return int(getattr(value, "nbytes", 0))
+def _to_bytes(result, name: str) -> bytes:
+    """``result`` (a dict of arrays) as the bytes of an uncompressed ``.npz`` archive."""
+    import numpy as np
+
+    if not isinstance(result, dict) or not all(isinstance(k, str) and isinstance(v, np.ndarray) and v.dtype != object
+                                               for k, v in result.items()):
+        raise TypeError(f"disk cache {name!r}: a result is a dict of numeric arrays, got {type(result).__name__}")
+    buf = io.BytesIO()
+    np.savez(buf, **result)
+    return buf.getvalue()
+
+
+def _from_bytes(data: bytes) -> dict:
+    """The dict of arrays :func:`_to_bytes` stored (no pickle: objects are refused)."""
+    import numpy as np
+
+    with np.load(io.BytesIO(bytes(data)), allow_pickle=False) as npz:
+        return {k: npz[k] for k in npz.files}
 
 
 def _forget(cache, key: str) -> None:

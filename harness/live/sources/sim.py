@@ -136,8 +136,9 @@ class LauncherFlights:
         self.colour = colour
         if isinstance(n_serves, bool) or int(n_serves) < 1:
             raise ValueError(f"LauncherFlights.n_serves must be >= 1, got {n_serves!r}")
-        # scene time at which flight i starts; flight i's (times (K,), states (K, 9))
-        self._starts, self._flights = _cached_flights()(int(seed), int(n_serves), self.gap_s, self.max_flight_s)
+        drawn = _cached_flights()(int(seed), int(n_serves), self.gap_s, self.max_flight_s)
+        self._starts = [float(t) for t in drawn["starts"]]  # scene time at which flight i starts
+        self._flights = [(drawn[f"times_{i}"], drawn[f"states_{i}"]) for i in range(len(self._starts))]  # (K,), (K, 9)
         self.cycle_s = self._starts[-1] + self._flights[-1][0][-1] + self.gap_s
 
     def ball_state(self, t_s: float) -> np.ndarray | None:
@@ -158,8 +159,9 @@ class LauncherFlights:
         return Scene(balls=balls, exposure=self.exposure)
 
 
-def _draw_flights(seed: int, n_serves: int, gap_s: float, max_flight_s: float) -> tuple[list, list]:
-    """``n_serves`` seeded serves flown until the floor or ``max_flight_s``: (start times, [(times, states)])."""
+def _draw_flights(seed: int, n_serves: int, gap_s: float, max_flight_s: float) -> dict:
+    """``n_serves`` seeded serves flown until the floor or ``max_flight_s``: ``starts`` (n,) and flight i's
+    ``times_i`` (K,) and ``states_i`` (K, 9)."""
     from harness.sim.launcher import BallLauncher  # only when flights are drawn, not read back
     from harness.sim.physics import BallWorld
 
@@ -173,7 +175,10 @@ def _draw_flights(seed: int, n_serves: int, gap_s: float, max_flight_s: float) -
         times, states = world.run(max_flight_s)
         starts.append(starts[-1] + flights[-1][0][-1] + gap_s if flights else 0.0)
         flights.append((times, states))
-    return starts, flights
+    drawn = {"starts": np.asarray(starts, np.float64)}
+    for i, (times, states) in enumerate(flights):
+        drawn[f"times_{i}"], drawn[f"states_{i}"] = np.asarray(times), np.asarray(states)
+    return drawn
 
 
 def _flights_key(seed: int, n_serves: int, gap_s: float, max_flight_s: float) -> bytes:

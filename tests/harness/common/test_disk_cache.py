@@ -49,6 +49,11 @@ def _counting(tmp_path, name="square"):
     return cached(name, square, key_of=lambda n: str(n).encode(), code_of=(code,)), calls, code
 
 
+def test_a_result_that_is_not_a_dict_of_arrays_is_refused(cache_dir):
+    with pytest.raises(TypeError, match="a dict of numeric arrays"):
+        cached("objects", lambda n: {"x": np.array([object()] * n)}, key_of=lambda n: b"o", code_of=())(2)
+
+
 def test_computed_once_for_the_same_arguments_and_again_for_others(cache_dir, tmp_path):
     f, calls, _ = _counting(tmp_path)
     a = f(5)
@@ -122,7 +127,19 @@ def _truncate(where):
 
 def _garbage(where):
     for p in _value_files(where):
-        p.write_bytes(b"\x80\x05not a pickle at all" * 10)
+        p.write_bytes(b"\x80\x05not an npz archive at all" * 10)
+
+
+def _pickled(where):
+    """A planted pickle that would run code when unpickled: never unpickled (np.load with allow_pickle=False)."""
+    import pickle
+
+    class Boom:
+        def __reduce__(self):
+            return (os.system, ("touch /tmp/rt2-disk-cache-pwned",))
+
+    for p in _value_files(where):
+        p.write_bytes(pickle.dumps(Boom()))
 
 
 def _delete(where):
@@ -137,9 +154,10 @@ def _corrupt_index(where):
 @pytest.mark.parametrize("damage, warns", [
     (_truncate, "could not be read back"),  # a value file cut short (a full disk, a killed copy)
     (_garbage, "could not be read back"),  # another program's bytes
+    (_pickled, "could not be read back"),  # a pickle planted to run code: refused, not run
     (_delete, None),  # the value file gone: diskcache reports a miss
     (_corrupt_index, "cannot be used"),  # the SQLite index overwritten
-], ids=["truncated", "garbage", "deleted", "index"])
+], ids=["truncated", "garbage", "pickle", "deleted", "index"])
 def test_a_damaged_entry_is_computed_again(cache_dir, tmp_path, damage, warns):
     f, calls, _ = _counting(tmp_path, name=f"dmg_{damage.__name__}")
     f(40000)  # large enough to be stored in a file of its own
@@ -153,6 +171,7 @@ def test_a_damaged_entry_is_computed_again(cache_dir, tmp_path, damage, warns):
         out = f(40000)
     assert calls == [40000, 40000]
     assert out["x"].tobytes() == (np.arange(40000, dtype=np.float32) ** 2).tobytes()
+    assert not Path("/tmp/rt2-disk-cache-pwned").exists()
 
 
 def test_a_folder_that_cannot_be_made_costs_a_warning_not_the_result(tmp_path, monkeypatch):
@@ -210,13 +229,13 @@ def test_the_static_lab_read_back_is_the_ray_cast_byte_for_byte(cache_dir):
 def test_launcher_flights_read_back_are_the_drawn_ones(cache_dir):
     from harness.live.sources.sim import LauncherFlights, _draw_flights
 
-    starts, flights = _draw_flights(3, 1, 0.3, 1.5)
+    drawn = _draw_flights(3, 2, 0.3, 1.5)
     for _ in range(2):  # cold, then warm
-        got = LauncherFlights(3, n_serves=1)
-        assert got._starts == starts
-        for (t0, s0), (t1, s1) in zip(flights, got._flights):
-            assert t0.tobytes() == t1.tobytes() and s0.tobytes() == s1.tobytes()
-    assert LauncherFlights(3, n_serves=1, gap_s=0.5).cycle_s == pytest.approx(got.cycle_s + 0.2)
+        got = LauncherFlights(3, n_serves=2)
+        assert got._starts == drawn["starts"].tolist() and len(got._flights) == 2
+        for i, (t1, s1) in enumerate(got._flights):
+            assert drawn[f"times_{i}"].tobytes() == t1.tobytes() and drawn[f"states_{i}"].tobytes() == s1.tobytes()
+    assert LauncherFlights(3, n_serves=2, gap_s=0.5).cycle_s == pytest.approx(got.cycle_s + 0.4)
 
 
 def test_an_entry_that_would_fill_the_disk_is_not_stored(cache_dir, tmp_path, monkeypatch):
