@@ -42,9 +42,10 @@ TEST_CACHE ?= $(CURDIR)/build/cache
 # so that the parallel suite does not take the cores they measure.
 # A narrowed run (TESTS=...) may select no realtime test: pytest's "no tests ran" (exit 5) is no failure there.
 # The parallel part names its 15 slowest tests at the end (the suite's time is kept well under 15 minutes on CI's 2 cores).
+test: export RT2_CACHE_DIR = $(TEST_CACHE)
 test: $(STAMP) $(NODE_CLIENTS)
-	RT2_CACHE_DIR=$(TEST_CACHE) $(PY) -m pytest -q -n $(JOBS) --dist worksteal -m "not slow and not realtime" --durations=15 $(call JUNIT_OPT,parallel) $(TESTS)
-	RT2_CACHE_DIR=$(TEST_CACHE) $(PY) -m pytest -q -m "realtime and not slow" $(call JUNIT_OPT,realtime) $(TESTS); \
+	$(PY) -m pytest -q -n $(JOBS) --dist worksteal -m "not slow and not realtime" --durations=15 $(call JUNIT_OPT,parallel) $(TESTS)
+	$(PY) -m pytest -q -m "realtime and not slow" $(call JUNIT_OPT,realtime) $(TESTS); \
 	  code=$$?; if [ -n "$(TESTS)" ] && [ $$code -eq 5 ]; then code=0; fi; exit $$code
 
 # `make test` RUNS times in a row (default 5); lists every test that failed at least once, and the slowest 20.

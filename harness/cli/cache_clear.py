@@ -3,7 +3,7 @@ next process that needs an entry computes it again."""
 
 from __future__ import annotations
 
-from harness.cli.cache_info import describe
+from harness.cli.cache_info import describe, megabytes
 from harness.common import disk_cache
 
 __all__ = ["add_arguments", "run"]
@@ -20,5 +20,5 @@ def run(args) -> int:
         print(describe(before))
         return 0
     n = sum(before.get("entries", {}).values())
-    print(f"the disk cache at {before['location']}: {n} entries ({before['bytes'] / 1e6:.1f} MB) removed")
+    print(f"the disk cache at {before['location']}: {n} entries ({megabytes(before['bytes'])}) removed")
     return 0

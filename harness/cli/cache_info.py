@@ -7,10 +7,10 @@ import json
 
 from harness.common import disk_cache
 
-__all__ = ["add_arguments", "describe", "run"]
+__all__ = ["add_arguments", "describe", "megabytes", "run"]
 
 
-def _mb(n: int) -> str:
+def megabytes(n: int) -> str:
     return f"{n / 1e6:.1f} MB"
 
 
@@ -20,7 +20,7 @@ def describe(s: dict) -> str:
         return (f"the disk cache is off ({s['off_by']}): every process ray-casts the simulated lab and draws the "
                 f"launcher's flights itself")
     kinds = ", ".join(f"{n} {kind}" for kind, n in s["entries"].items()) or "nothing"
-    return (f"the disk cache at {s['location']}: {kinds}; {_mb(s['bytes'])} of at most {_mb(s['limit_bytes'])} "
+    return (f"the disk cache at {s['location']}: {kinds}; {megabytes(s['bytes'])} of at most {megabytes(s['limit_bytes'])} "
             f"({disk_cache.CACHE_MAX_MB_ENV})")
 
 

@@ -41,6 +41,7 @@ CACHE_DIR_ENV = "RT2_CACHE_DIR"
 CACHE_MAX_MB_ENV = "RT2_CACHE_MAX_MB"
 _DEFAULT_MAX_MB = 2048
 _OFF = ("", "off", "0", "none")
+_FORMAT = b"npz-1"  #: in every key: entries of another storage format are misses, not unreadable
 #: an entry is not stored where it would leave less free space than this on the cache's disk (a session log or a
 #: recording on the same disk needs it more than a cache does)
 MIN_FREE_AFTER_BYTES = 2 * 1024**3
@@ -92,15 +93,14 @@ def code_digest(*modules: ModuleType | str) -> str:
 
 @functools.lru_cache(maxsize=8)
 def _open(location: str, max_bytes: int):
-    """The ``diskcache.Cache`` at ``location``, or None (with one warning) where it cannot be opened or written."""
-    import diskcache
-
+    """The ``diskcache.Cache`` at ``location`` (made if missing), or None (with one warning) where it cannot be opened
+    or written."""
     try:
         Path(location).mkdir(parents=True, exist_ok=True)
         probe = Path(location) / f".probe-{os.getpid()}"
         probe.write_bytes(b"")
         probe.unlink()
-        return diskcache.Cache(location, size_limit=max_bytes, eviction_policy="least-recently-stored")
+        return _opened(Path(location), max_bytes)
     except Exception as exc:  # noqa: BLE001 - an unusable cache costs the computation, never the command
         warnings.warn(f"the disk cache {location!r} cannot be used ({type(exc).__name__}: {exc}); computing without it",
                       stacklevel=4)
@@ -125,7 +125,7 @@ def cached(name: str, func: Callable[..., Any], *, key_of: Callable[..., bytes],
             return func(*args)
         if digest is None:
             digest = code_digest(*code_of)
-        key = f"{name}-" + hashlib.sha256(digest.encode() + b"\0" + key_of(*args)).hexdigest()
+        key = f"{name}-" + hashlib.sha256(_FORMAT + digest.encode() + b"\0" + key_of(*args)).hexdigest()
         try:
             data = cache.get(key, default=None)
             result = None if data is None else _from_bytes(data)
@@ -180,15 +180,38 @@ def clear() -> dict:
 
 
 def _opened(location: Path, limit: int):
+    """The ``diskcache.Cache`` of the existing folder ``location``; ``ValueError`` naming it where it cannot be opened."""
     if not location.is_dir():
         raise ValueError(f"the disk cache {str(location)!r} is not a folder (set {CACHE_DIR_ENV} to a folder, or to off)")
     import diskcache
 
     try:
-        return diskcache.Cache(str(location), size_limit=limit, eviction_policy="least-recently-stored")
+        return diskcache.Cache(str(location), size_limit=limit, eviction_policy="least-recently-stored",
+                               disk=_no_pickle_disk())
     except Exception as exc:  # noqa: BLE001 - one line naming the folder, not sqlite's traceback
         raise ValueError(f"the disk cache {str(location)!r} cannot be opened ({type(exc).__name__}: {exc}); "
                          f"delete the folder to start it afresh") from None
+
+
+@functools.lru_cache(maxsize=1)
+def _no_pickle_disk():
+    """diskcache's ``Disk`` refusing every pickled key or value: its index can say "pickle" for a row planted in a
+    shared folder, and diskcache would unpickle it; ours stores only str keys and bytes."""
+    import diskcache
+    from diskcache.core import MODE_PICKLE
+
+    class NoPickleDisk(diskcache.Disk):
+        def get(self, key, raw):
+            if not raw:
+                raise ValueError("a pickled key: rt2 never unpickles what it reads")
+            return super().get(key, raw)
+
+        def fetch(self, mode, filename, value, read):
+            if mode == MODE_PICKLE:
+                raise ValueError("a pickled value: rt2 never unpickles what it reads")
+            return super().fetch(mode, filename, value, read)
+
+    return NoPickleDisk
 
 
 def _to_bytes(result, name: str) -> bytes:

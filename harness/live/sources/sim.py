@@ -42,6 +42,7 @@ from typing import Callable
 
 import numpy as np
 
+from harness.common.disk_cache import cached
 from harness.live.sources._feed import FeedItem, PacedFeed
 from harness.sim.render import Ball, Exposure, Renderer, RenderOptions, Scene
 from harness.sim.render.scenes import BALL_COLOURS  # the default scene's ball colours (``SimOptions.ball_colour``)
@@ -136,7 +137,7 @@ class LauncherFlights:
         self.colour = colour
         if isinstance(n_serves, bool) or int(n_serves) < 1:
             raise ValueError(f"LauncherFlights.n_serves must be >= 1, got {n_serves!r}")
-        drawn = _cached_flights()(int(seed), int(n_serves), self.gap_s, self.max_flight_s)
+        drawn = _flights_on_disk(int(seed), int(n_serves), self.gap_s, self.max_flight_s)
         self._starts = [float(t) for t in drawn["starts"]]  # scene time at which flight i starts
         self._flights = [(drawn[f"times_{i}"], drawn[f"states_{i}"]) for i in range(len(self._starts))]  # (K,), (K, 9)
         self.cycle_s = self._starts[-1] + self._flights[-1][0][-1] + self.gap_s
@@ -194,20 +195,11 @@ def _flights_key(seed: int, n_serves: int, gap_s: float, max_flight_s: float) ->
     return pickle.dumps((seed, n_serves, gap_s, max_flight_s, version("scipy"), dataclasses.astuple(params)), protocol=4)
 
 
-def _cached_flights():
-    """:func:`_draw_flights` kept on disk (harness/common/disk_cache.py): ~1-2 s per seed, once per machine."""
-    global _FLIGHTS_ON_DISK
-    if _FLIGHTS_ON_DISK is None:
-        from harness.common.disk_cache import cached
-
-        # by name: the launcher is imported only where flights are drawn, not where they are read back
-        _FLIGHTS_ON_DISK = cached("sim-launcher-flights", _draw_flights, key_of=_flights_key,
-                                  code_of=(__name__, "harness.sim.launcher", "harness.sim.physics", "harness.common.seeding",
-                                           "policies.ball_model", "policies._ball_integrate"))
-    return _FLIGHTS_ON_DISK
-
-
-_FLIGHTS_ON_DISK = None
+#: :func:`_draw_flights` kept on disk (harness/common/disk_cache.py): ~1-2 s per seed, once per machine. The code by
+#: name: the launcher is imported only where flights are drawn, not where they are read back
+_flights_on_disk = cached("sim-launcher-flights", _draw_flights, key_of=_flights_key,
+                          code_of=(__name__, "harness.sim.launcher", "harness.sim.physics", "harness.common.seeding",
+                                   "policies.ball_model", "policies._ball_integrate"))
 
 
 def open_sim(rig, options: SimOptions = SimOptions(), *, scene_provider: Callable[[float], Scene] | None = None,

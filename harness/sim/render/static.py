@@ -18,6 +18,7 @@ import pickle
 
 import numpy as np
 
+from harness.common.disk_cache import cached
 from harness.sim.render.lab_scene import MAT, MATERIALS, floor_texture, lab_geometry, table_line_mask
 from tracker import Camera
 
@@ -266,23 +267,10 @@ def _render_key(camera: Camera, supersample: int, vignette_strength: float) -> b
     return pickle.dumps((_camera_key(camera), supersample, vignette_strength), protocol=4)
 
 
-def _cached_render():
-    """:func:`_render` kept on disk (harness/common/disk_cache.py): once per machine for a camera, not per process."""
-    global _RENDER_ON_DISK
-    if _RENDER_ON_DISK is None:
-        import sys
-
-        from harness.common.disk_cache import cached
-        from harness.sim import lab
-        from harness.sim.render import lab_scene
-        from tracker import camera as camera_module, distortion
-
-        _RENDER_ON_DISK = cached("sim-static-background", _render, key_of=_render_key,
-                                 code_of=(sys.modules[__name__], lab_scene, lab, camera_module, distortion))
-    return _RENDER_ON_DISK
-
-
-_RENDER_ON_DISK = None
+#: :func:`_render` kept on disk (harness/common/disk_cache.py): once per machine for a camera, not per process
+_render_on_disk = cached("sim-static-background", _render, key_of=_render_key,
+                         code_of=(__name__, "harness.sim.render.lab_scene", "harness.sim.lab", "tracker.camera",
+                                  "tracker.distortion"))
 
 
 def _camera_key(camera: Camera) -> tuple:
@@ -306,7 +294,7 @@ def background(camera: Camera, *, supersample: int = 2, vignette_strength: float
     if bg is None:
         if len(_CACHE) >= _CACHE_SIZE:
             _CACHE.pop(next(iter(_CACHE)))  # drop the oldest
-        arrays = _cached_render()(camera, int(supersample), float(vignette_strength))
+        arrays = _render_on_disk(camera, int(supersample), float(vignette_strength))
         for arr in arrays.values():
             arr.setflags(write=False)
         bg = Background(**arrays)

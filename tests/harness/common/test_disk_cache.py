@@ -116,7 +116,7 @@ def test_default_location_is_the_users_cache_folder(tmp_path, monkeypatch):
 
 
 def _value_files(where: Path) -> list[Path]:
-    return [p for p in where.rglob("*.val")]
+    return list(where.rglob("*.val"))
 
 
 # Hostile cache folders and entries: each costs a warning and the computation, never a wrong result or an error.
@@ -334,3 +334,26 @@ def test_reading_flights_back_does_not_import_the_launcher(cache_dir):
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["False"]
+
+
+def test_a_row_the_index_marks_as_pickled_is_refused_not_unpickled(cache_dir, tmp_path):
+    """diskcache unpickles a row whose index says "pickle": a row planted that way (another program, an old
+    format) is refused with a warning and computed again; the planted code never runs."""
+    import diskcache
+
+    f, calls, _ = _counting(tmp_path, name="planted")
+    f(40000)
+    marker = tmp_path / "pwned"
+
+    class Boom:
+        def __reduce__(self):
+            return (os.system, (f"touch {marker}",))
+
+    plain = diskcache.Cache(str(cache_dir))  # a writer that pickles, as another program would
+    for key in list(plain.iterkeys()):
+        plain.set(key, Boom())
+    plain.close()
+    disk_cache._open.cache_clear()
+    with pytest.warns(UserWarning, match="pickled value: rt2 never unpickles"):
+        out = f(40000)
+    assert calls == [40000, 40000] and out["x"].shape == (40000,) and not marker.exists()
