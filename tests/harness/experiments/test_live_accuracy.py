@@ -90,10 +90,25 @@ def _rows(res):
     return {k: res.rows[0][k] for k in TOL_MM}
 
 
+def _diagnosis(live) -> dict:
+    """What a failed comparison needs to be understood after its files are gone (pytest keeps three basetemps):
+    the clocks, the registration, the error against the true ball, the error over the run's course."""
+    m = live.motion_info
+    err = np.asarray(live.errors.get("rt2", []), float) * 1e3
+    quarters = [round(float(np.nanmedian(q)), 3) for q in np.array_split(err, 4)] if err.size >= 4 else []
+    reg = live.figures.get("registration", {})
+    return {"robot_clock_error_ms": m.get("robot_clock_error_ms"), "gt_vs_true_mm": m.get("gt_vs_true_mm"),
+            "first_frame_id": m.get("live", {}).get("first_frame_id"),
+            "camera_clock_offsets": m.get("live", {}).get("camera_clock_offsets"),
+            "registration": {k: reg.get(k) for k in ("pairs", "inliers", "rms_cm", "max_cm", "spread_cm", "vs_true_mount")},
+            "median_mm_by_quarter": quarters, "missing": int(np.isnan(err).sum()), "scene_events": live.scene_events,
+            "truth": live.truth}
+
+
 def _assert_close(live, ref):
     a, b = _rows(live), _rows(ref)
     for key, tol_mm in TOL_MM.items():
-        assert abs(a[key] - b[key]) * 10 <= tol_mm, (key, a, b)
+        assert abs(a[key] - b[key]) * 10 <= tol_mm, (key, a, b, _diagnosis(live))
 
 
 @pytest.mark.realtime
