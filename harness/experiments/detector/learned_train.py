@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -30,7 +31,7 @@ import numpy as np
 from harness.experiments.detector.augment import AugmentOptions, jpeg, optics
 from tracker.detection.learned import LearnedStage, learned_scale
 
-__all__ = ["LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "contrast_crops", "items_at_scale", "false_alarms", "kept_passes", "mine_false_peaks", "sample_patches", "with_contrast",
+__all__ = ["FitTask", "LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "contrast_crops", "items_at_scale", "false_alarms", "kept_passes", "mine_false_peaks", "auto_workers", "run_fit", "run_fits", "sample_patches", "with_contrast",
            "stage_candidates", "targets"]
 
 STRIDE = 4
@@ -540,7 +541,9 @@ def fit_learned(items: list[LearnedItem], opts: LearnedTrainOptions, seed: int, 
         net = build_net(torch, arch=opts.arch if state is None else arch_of_state(state))
         if state is not None:
             net.load_state_dict(state)
-        opt = torch.optim.Adam(net.parameters(), lr=opts.lr, weight_decay=opts.weight_decay)
+        # foreach: the multi-tensor update, the same arithmetic per element as the one-tensor loop (the same bytes; a
+        # test compares them), in three quarters of its time (1.1 against 1.45 ms a step alone)
+        opt = torch.optim.Adam(net.parameters(), lr=opts.lr, weight_decay=opts.weight_decay, foreach=True)
         sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda i: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(i, opts.iterations) / opts.iterations)))
         net.train()
         bar = None
@@ -590,6 +593,81 @@ def fit_learned(items: list[LearnedItem], opts: LearnedTrainOptions, seed: int, 
 def stage_candidates(stage: LearnedStage, images, k: int = 4, threshold: float | None = None):
     """Per image the stage's candidates ``(uv (n, 2), scores (n,), diameters (n,))`` (full frames)."""
     return [stage.candidates(im, None, k=k, threshold=threshold) for im in images]
+
+
+class FitTask(NamedTuple):
+    """One call of :func:`fit_learned`, picklable (a worker process runs it: :func:`run_fits`)."""
+
+    items: list
+    opts: LearnedTrainOptions
+    seed: int
+    state: dict | None
+
+
+#: ``workers=None`` runs the cross-validation's fits on worker processes only when they add up to at least this many
+#: optimiser steps: a worker's start (a fresh interpreter importing torch, ~4 s on the 2-core machine) costs shorter
+#: ones more than it saves (a step takes ~25 ms there)
+MIN_PARALLEL_STEPS = 1000
+#: and on at most this many processes (a 3-fold cross-validation of two candidates has six fits)
+MAX_AUTO_WORKERS = 6
+#: a worker's memory besides its task's images: the interpreter with torch, numpy and OpenCV, and a fit's network
+WORKER_BASE_BYTES = 500_000_000
+
+
+def auto_workers(tasks, available_bytes: int | None = -1) -> int:
+    """The processes ``workers=None`` runs ``tasks`` (:class:`FitTask` s) on: the CPUs this process may use, at most
+    :data:`MAX_AUTO_WORKERS` and the number of fits, and as many as the memory available holds (each
+    :data:`WORKER_BASE_BYTES` and twice its largest task's images: the pickled copy and the one it trains on);
+    1 when the fits add up to fewer than :data:`MIN_PARALLEL_STEPS`.
+    available_bytes : the memory available (default: Linux ``MemAvailable``; None: not known, no bound)"""
+    import os
+
+    if sum(t.opts.iterations for t in tasks) < MIN_PARALLEL_STEPS:
+        return 1
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    n = max(1, min(cpus, MAX_AUTO_WORKERS, len(tasks)))
+    if available_bytes == -1:
+        from harness.common.memory import available_memory_bytes
+
+        available_bytes = available_memory_bytes()
+    if available_bytes is not None:
+        per_worker = WORKER_BASE_BYTES + 2 * max(sum(int(it.image.nbytes) for it in t.items) for t in tasks)
+        n = min(n, int(available_bytes // per_worker))
+    return max(1, n)
+
+
+def run_fit(task: FitTask):
+    """``(state, onnx bytes)`` of one fit, silent (the cross-validation's fits log nothing of their own)."""
+    return fit_learned(task.items, task.opts, task.seed, state=task.state, log=_silent)
+
+
+def _silent(message: str) -> None:
+    pass
+
+
+def run_fits(tasks: list[FitTask], workers: int = 1, *, keys=None):
+    """Yield ``(key, (state, onnx bytes))`` for every fit as it finishes (``keys``: one per task, default its index).
+
+    ``workers`` > 1 runs them on that many fresh worker processes (:class:`harness.common.executor.Executor`: one
+    thread each for torch and the BLAS, as here; they die with this process; SIGINT / SIGTERM stop them and raise
+    :class:`harness.common.executor.SweepInterrupted`). A fit's network depends on its task alone (its seed, its
+    data; torch on one thread), so the results are the same bytes whichever process ran them. Two fits on the
+    2-core machine take ~1.4x one fit's time (each also samples its patches on a second thread)."""
+    from harness.common.executor import Executor, SweepOptions
+
+    keys = list(range(len(tasks))) if keys is None else list(keys)
+    if len(keys) != len(tasks):
+        raise ValueError(f"run_fits: {len(keys)} keys for {len(tasks)} tasks")
+    if workers <= 1 or len(tasks) <= 1:
+        for key, task in zip(keys, tasks):
+            yield key, run_fit(task)
+        return
+    with Executor(SweepOptions(workers=min(int(workers), len(tasks)))) as ex:
+        for j, result in ex.map(run_fit, tasks):
+            yield keys[j], result
 
 
 # -- the stage for rt2 train: shipped, fine-tuned or from scratch, chosen by cross-validation ---------------
@@ -778,8 +856,8 @@ def continue_steps(finetune_steps: int, scratch_steps: int) -> int:
 
 def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int, k: int = 4, min_diameter_px: float = 6.0,
                 finetune_steps: int = 150, scratch_steps: int = 400, batch: int = 16, patch_px: int = 96, extra=(),
-                alone=None, mined: float = 0.0, resume: dict | None = None, states: dict | None = None, log=print,
-                progress: bool = False):
+                alone=None, mined: float = 0.0, resume: dict | None = None, states: dict | None = None, workers: int | None = 1,
+                log=print, progress: bool = False):
     """The learned stage ``rt2 train`` writes, chosen by cross-validation; returns ``(stage, info)``.
 
     labelled : ``LabelledImage`` list (the user's labels); images : their (H, W, 3) uint8 RGB images
@@ -800,6 +878,8 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
         network of its choice and fold for ``continue_steps(finetune_steps, scratch_steps)`` steps with ``mined`` of its
         patches near its own false alarms (mined before its first step and half way), instead of training anew
         (hard-negative bootstrapping at a fraction of a second training's cost)
+    workers : processes the cross-validation's fits run on (:func:`run_fits`; 1 = this process; None =
+        :func:`auto_workers`); the networks, and so everything chosen and written, do not depend on it
     """
     from harness.experiments.detector.scores import truth_of
 
@@ -834,33 +914,46 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
         states.update(folds={}, final=None)
     n_continue = continue_steps(finetune_steps, scratch_steps)
 
-    def fit(name, train_items, fit_seed, start=None, quiet=True):
-        """One fit of ``name``: ``(state, onnx)``; ``start`` (with ``resume``): the first call's network, continued."""
-        say = (lambda m: None) if quiet else log
+    def fit_task(name, train_items, fit_seed, start=None) -> FitTask:
+        """One fit of ``name``, as :func:`run_fit` takes it; ``start`` (with ``resume``): the first call's network, continued."""
         if start is not None:
             opts = LearnedTrainOptions(iterations=n_continue, batch=batch, patch_px=patch_px, max_side_px=max_side, lr=1e-3,
                                        p_mined=mined, mine_every=max(1, -(-n_continue // 2)), mine_first=True)
-            return fit_learned(train_items, opts, fit_seed + 7, state=start, log=say, progress=progress and not quiet)
+            return FitTask(train_items, opts, fit_seed + 7, start)
         steps, state = (finetune_steps, base_state) if name == "fine-tuned" else (scratch_steps, None)
         opts = LearnedTrainOptions(iterations=steps, batch=batch, patch_px=patch_px, max_side_px=max_side,
                                    lr=1e-3 if state is not None else 3e-3, p_mined=0.0 if resume is not None else mined,
                                    mine_every=max(1, -(-steps // 3)))
-        return fit_learned(train_items, opts, fit_seed, state=state, log=say, progress=progress and not quiet)
+        return FitTask(train_items, opts, fit_seed, state)
 
+    def fit(name, train_items, fit_seed, start=None):
+        """The fit on every image, here, logged: ``(state, onnx)``."""
+        t = fit_task(name, train_items, fit_seed, start)
+        return fit_learned(t.items, t.opts, t.seed, state=t.state, log=log, progress=progress)
+
+    # the folds' fits are independent: run on `workers` processes (the same networks whichever ran them)
+    keys, tasks = [], []
     for f, fold in enumerate(folds):
         inside = set(fold)
         fitted = [i for i in range(len(items)) if i not in inside]
         if not any(len(it.centers) for it in [items[i] for i in fitted] + extra_items):
             continue
         for name in names[1 if base is not None else 0:]:
-            train_items = fit_items(name, fitted)[0]
             start = None if resume is None else resume["folds"][(name, f)]  # the same folds: the first call fitted it
-            state_f, onnx_f = fit(name, train_items, seed + 101 * f, start)
-            if states is not None:
-                states["folds"][(name, f)] = state_f
-            for i, c in candidates(stage_of(onnx_f, name), fold):
-                oof[name][i] = c
-        log(f"learned stage: fold {f + 1}/{len(folds)} done")
+            keys.append((name, f))
+            tasks.append(fit_task(name, fit_items(name, fitted)[0], seed + 101 * f, start))
+    left = {f: sum(1 for _, g in keys if g == f) for _, f in keys}
+    workers = auto_workers(tasks) if workers is None else int(workers)
+    order = list(range(len(tasks))) if workers <= 1 else sorted(range(len(tasks)), key=lambda j: -tasks[j].opts.iterations)  # longest first: the workers end together
+    for j, (state_f, onnx_f) in run_fits([tasks[j] for j in order], workers, keys=order):
+        name, f = keys[j]
+        if states is not None:
+            states["folds"][(name, f)] = state_f
+        for i, c in candidates(stage_of(onnx_f, name), folds[f]):
+            oof[name][i] = c
+        left[f] -= 1
+        if not left[f]:
+            log(f"learned stage: fold {f + 1}/{len(folds)} done")
     scored = [i for i in range(len(labelled)) if all(oof[n][i] is not None for n in names)]
     truth = ([truth_of(labelled[i])[0] for i in scored], [truth_of(labelled[i])[1] for i in scored])
     choices = [StageChoice(name, *_best_threshold(truth, [oof[name][i] for i in scored], k, min_diameter_px)) for name in names]
@@ -899,8 +992,8 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
                 start = first[1]
             else:  # the first call wrote another choice: this one's network first, as the first call would have fitted it
                 log(f"learned stage: {best.name} on every image first, then continued with its false alarms mined")
-                start = fit(best.name, train_items, seed, quiet=False)[0]
-        state_all, onnx_all = fit(best.name, train_items, seed, start, quiet=False)
+                start = fit(best.name, train_items, seed)[0]
+        state_all, onnx_all = fit(best.name, train_items, seed, start)
         if states is not None:
             states["final"] = (best.name, state_all)
         # a fine-tune starts from the base's network and keeps its size record (not measured again: the labels' boxes

@@ -39,6 +39,7 @@ from tracker import BallDetector, BallSegmentationModel, DetectorOptions
 from tracker.detection.blobs import find_blobs
 from tracker.detection.model import BALL_COLOURS, INPUT_TRANSFORMS, logit, transform_lut
 
+from harness.common.memory import available_memory_bytes
 from harness.experiments.detector.subsets import image_camera
 
 __all__ = [
@@ -156,6 +157,9 @@ class TrainOptions:
         takes minutes for a filter ``rt2`` does not use on this ball), else fits it
     allow_no_ball : keep a threshold choice that finds no held-out ball when none does (the model written finds
         nothing, its figures say so: ``rt2 train --force``); False = :class:`NoBallFoundError`
+    workers : processes the learned stage's cross-validation fits run on (1 = this process; None = by their length,
+        ``rt2 train``'s default: :func:`harness.experiments.detector.learned_train.auto_workers`); the model written
+        does not depend on it
     """
 
     epochs: int = 6
@@ -186,8 +190,11 @@ class TrainOptions:
     learned_mined: float | str = "auto"
     filter: str = "auto"
     allow_no_ball: bool = False
+    workers: int | None = 1
 
     def __post_init__(self):
+        if self.workers is not None and (isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1):
+            raise ValueError(f"--workers must be an integer >= 1, got {self.workers!r}")
         if not isinstance(self.allow_no_ball, bool):
             raise ValueError(f"TrainOptions.allow_no_ball must be True or False, got {self.allow_no_ball!r}")
         if not 0.0 < self.val_fraction < 1.0:
@@ -790,7 +797,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
             return train_stage(labelled, images, folds, base=None if base is None else base.learned, seed=opts.seed,
                                scratch_steps=opts.learned_steps, finetune_steps=l_finetune,
                                extra=backgrounds, alone=finfo.get("alone") if opts.learned == "auto" else None, mined=mined,
-                               log=log, progress=progress, **kw)
+                               workers=opts.workers, log=log, progress=progress, **kw)
 
         auto = opts.learned_mined == "auto"
         first_states: dict = {}
@@ -1083,6 +1090,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--force", action="store_true",
                         help=f"write the model even when its cross-validated recall is below {100 * MIN_WRITE_RECALL:.0f}%% "
                              f"(otherwise rt2 train exits {EXIT_WEAK_MODEL} without writing it)")
+    parser.add_argument("--workers", type=int, default=None, metavar="W",
+                        help="processes the learned stage's cross-validation fits run on (1 = this process; default: the "
+                             "CPUs, at most one per fit and as many as the memory holds, when the fits add up to 1000 steps "
+                             "or more, else 1); the model "
+                             "written does not depend on it")
 
 
 def resolve_base(from_model: str, colour: str) -> tuple[BallSegmentationModel | None, str]:
@@ -1098,19 +1110,6 @@ def resolve_base(from_model: str, colour: str) -> tuple[BallSegmentationModel | 
     if path.suffix != ".npz":
         raise ValueError(f"--from must be a .npz weights file, 'shipped' or 'none', got {from_model!r}")
     return BallSegmentationModel.load(path), str(path)
-
-
-def available_memory_bytes() -> int | None:
-    """The memory the system can give a new allocation without swapping (Linux ``MemAvailable``), or None where that
-    is not known."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
 
 
 #: the training's peak memory over its images and the copies it holds (measured: `rt2 train` fitting the filter on 58
@@ -1176,7 +1175,8 @@ def run(args) -> int:
                             threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
                             keep_base=args.keep_base, learned=args.learned, learned_folds=args.learned_folds,
                             learned_folds_by=args.learned_folds_by,
-                            learned_steps=args.learned_steps, learned_mined=args.learned_mined, filter=args.filter, allow_no_ball=args.force)
+                            learned_steps=args.learned_steps, learned_mined=args.learned_mined, filter=args.filter, allow_no_ball=args.force,
+                            workers=args.workers)
         picked = ([f"cameras {' '.join(args.camera)}"] if args.camera else []) + ([f"time range {args.time_range}"] if args.time_range else [])
         sources = f"data {', '.join(map(str, args.data))}" + (f" ({', '.join(picked)})" if picked else "")
         if backgrounds:

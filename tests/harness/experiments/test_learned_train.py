@@ -272,8 +272,11 @@ def test_learned_options_hostile(synthetic_ball_coco, tmp_path, capsys):
                            (["--learned-mined", "1.5"], "learned_mined must be 'auto' or a share between 0 and 1"),
                            (["--learned-mined", "-0.1"], "learned_mined must be 'auto' or a share between 0 and 1"),
                            (["--learned-mined", "nan"], "learned_mined must be 'auto' or a share between 0 and 1"),
-                           (["--learned-mined", "maybe"], "must be 'auto' or a share between 0 and 1, got 'maybe'")):
-        with pytest.raises(SystemExit) if extra[-1] == "maybe" else _no_raise():
+                           (["--learned-mined", "maybe"], "must be 'auto' or a share between 0 and 1, got 'maybe'"),
+                           (["--workers", "0"], "--workers must be an integer >= 1, got 0"),
+                           (["--workers", "-2"], "--workers must be an integer >= 1, got -2"),
+                           (["--workers", "two"], "argument --workers: invalid int value: 'two'")):
+        with pytest.raises(SystemExit) if extra[-1] in ("maybe", "two") else _no_raise():
             code = main(["train", "--data", data, "--out", str(tmp_path / "m.npz"), *extra])
             assert code == 2
         err = capsys.readouterr().err
@@ -713,3 +716,94 @@ def test_a_second_call_continues_the_first_calls_networks_with_their_false_alarm
     (final,) = fits[len(folds):]  # the file's: the first call's network of the same choice (the only one: scratch), continued
     assert info["chosen"].name == states["final"][0] == "scratch"
     assert final["start"] is states["final"][1] and final["steps"] == n and final["mined"] == 0.3
+
+
+# -- the cross-validation's fits on worker processes ---------------------------------------------------------------
+def test_fits_on_worker_processes_give_the_same_networks_as_here(synthetic_ball_coco):
+    """run_fits on two fresh worker processes: every fit's network is byte for byte the one this process trains
+    (torch on one thread, each fit seeded by its task), whichever worker ran it and in whatever order they finished."""
+    from harness.experiments.detector.learned_train import FitTask, run_fits
+
+    labelled = read_coco(synthetic_ball_coco(8, 0))
+    items = items_at_scale([(load_image(li), li) for li in labelled], 640)
+    tasks = [FitTask(items, LearnedTrainOptions(iterations=n, batch=4, patch_px=64), seed, None)
+             for n, seed in ((3, 1), (5, 2), (2, 3))]
+    here = dict(run_fits(tasks, 1, keys="abc"))
+    there = dict(run_fits(tasks, 2, keys="abc"))
+    assert sorted(there) == ["a", "b", "c"]
+    for key in "abc":
+        assert there[key][1] == here[key][1]  # the ONNX bytes
+        assert all(torch.equal(there[key][0][k], here[key][0][k]) for k in here[key][0])
+    with pytest.raises(ValueError, match="2 keys for 3 tasks"):
+        list(run_fits(tasks, 1, keys="ab"))
+
+
+def test_workers_are_used_only_for_fits_long_enough_to_pay_for_them():
+    from harness.experiments.detector.learned_train import MIN_PARALLEL_STEPS, FitTask, auto_workers
+
+    import os
+
+    from harness.experiments.detector.learned_train import WORKER_BASE_BYTES
+
+    image = np.zeros((540, 960, 3), np.uint8)  # 1.56 MB
+
+    def tasks(steps, n=6, images=10):
+        return [FitTask([LearnedItem(image, np.zeros((0, 2)), np.zeros(0), 1.0, "x")] * images, LearnedTrainOptions(iterations=steps), 0, None)
+                for _ in range(n)]
+
+    assert auto_workers(tasks(10), None) == 1  # the tests' short fits: a worker's start would cost more than they take
+    cpus = max(1, min(len(os.sched_getaffinity(0)), 6))
+    assert auto_workers(tasks(MIN_PARALLEL_STEPS), None) == cpus
+    assert auto_workers(tasks(MIN_PARALLEL_STEPS, n=1), None) == 1
+    per_worker = WORKER_BASE_BYTES + 2 * 10 * image.nbytes
+    assert auto_workers(tasks(MIN_PARALLEL_STEPS), 100 * per_worker) == cpus
+    assert auto_workers(tasks(MIN_PARALLEL_STEPS), per_worker + 1) == 1  # the memory holds one worker: one
+    assert auto_workers(tasks(MIN_PARALLEL_STEPS), 1000) == 1  # none: this process, never zero
+
+
+def test_rt2_train_writes_the_same_model_with_one_worker_or_two(synthetic_ball_coco, tmp_path, capsys):
+    """`rt2 train --workers 2` (the cross-validation's fits on two processes) and `--workers 1`: the same arrays."""
+    data = str(synthetic_ball_coco(12, 4))
+    files = {}
+    for w in (1, 2):
+        files[w] = tmp_path / f"m{w}.npz"
+        assert main(["train", "--data", data, "--out", str(files[w]), "--epochs", "1", "--from", "none", "--learned", "on",
+                     "--learned-steps", "12", "--learned-folds", "2", "--force", "--seed", "0", "--workers", str(w)]) == 0
+    capsys.readouterr()
+    a, b = np.load(files[1], allow_pickle=False), np.load(files[2], allow_pickle=False)
+    assert sorted(a.files) == sorted(b.files) and "learned_onnx" in a.files
+    for k in a.files:
+        if "description" not in k:  # the descriptions name the command, whose --out and --workers differ
+            np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
+def test_adams_multi_tensor_update_gives_the_one_tensor_loops_bytes():
+    """fit_learned's Adam runs `foreach` (faster); its arithmetic per element is the loop's: the same weights."""
+    import math
+
+    from harness.experiments.detector.learned_train import _loss, build_net
+
+    def run(foreach, steps=12):
+        torch.manual_seed(0)
+        net = build_net(torch)
+        opt = torch.optim.Adam(net.parameters(), lr=3e-3, weight_decay=1e-5, foreach=foreach)
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda i: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * i / steps)))
+        rng = np.random.default_rng(0)
+        for _ in range(steps):
+            out = net(torch.from_numpy(rng.integers(0, 255, (4, 64, 64, 3), dtype=np.uint8)))
+            g = out.shape[-1]
+            heat, off, logd = (torch.from_numpy(rng.random(s, dtype=np.float32)) for s in ((4, g, g), (4, 2, g, g), (4, g, g)))
+            mask = torch.from_numpy((rng.random((4, g, g)) < 0.02).astype(np.float32))
+            opt.zero_grad()
+            _loss(torch, out, heat, off, logd, mask).backward()
+            opt.step()
+            sched.step()
+        return net.state_dict()
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        a, b = run(False), run(True)
+    finally:
+        torch.set_num_threads(threads)
+    assert all(torch.equal(a[k], b[k]) for k in a)

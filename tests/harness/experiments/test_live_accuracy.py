@@ -102,7 +102,8 @@ def _diagnosis(live) -> dict:
             "camera_clock_offsets": m.get("live", {}).get("camera_clock_offsets"),
             "registration": {k: reg.get(k) for k in ("pairs", "inliers", "rms_cm", "max_cm", "spread_cm", "vs_true_mount")},
             "median_mm_by_quarter": quarters, "missing": int(np.isnan(err).sum()), "scene_events": live.scene_events,
-            "truth": live.truth}
+            "truth": live.truth, "ball_speed_mps": m.get("ball_speed_mps"),
+            "command_to_motion": m.get("live", {}).get("latency_budget", {}).get("command_to_motion")}
 
 
 def _assert_close(live, ref):
