@@ -807,3 +807,68 @@ def test_adams_multi_tensor_update_gives_the_one_tensor_loops_bytes():
     finally:
         torch.set_num_threads(threads)
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def _children(pid: int) -> set[int]:
+    import glob
+
+    kids = set()
+    for path in glob.glob(f"/proc/{pid}/task/*/children"):
+        try:
+            kids |= {int(p) for p in open(path).read().split()}
+        except OSError:
+            pass
+    return kids
+
+
+def _running(pid: int) -> bool:
+    try:
+        state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="reads the children from /proc")
+def test_ctrl_c_stops_rt2_train_and_its_worker_processes(synthetic_ball_coco, tmp_path):
+    """SIGINT while the fits run on two workers: exit 130 at once, no worker left, no model written."""
+    import os
+    import select
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "m.npz"
+    proc = subprocess.Popen([sys.executable, "-m", "harness.cli", "train", "--data", str(synthetic_ball_coco(12, 5)), "--out", str(out),
+                             "--epochs", "1", "--from", "none", "--learned", "on", "--learned-steps", "20000", "--learned-folds", "2",
+                             "--force", "--workers", "2"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        seen, t_end = "", time.monotonic() + 300
+        while "cross-validation folds" not in seen and time.monotonic() < t_end and proc.poll() is None:
+            if select.select([proc.stdout], [], [], 1.0)[0]:
+                seen += proc.stdout.readline()
+        assert "cross-validation folds" in seen, seen
+        kids = set()
+        while len(kids) < 2 and time.monotonic() < t_end:  # the two workers (and multiprocessing's helper, if any)
+            kids = _children(proc.pid)
+            time.sleep(0.2)
+        assert len(kids) >= 2, kids
+        time.sleep(2.0)  # the workers are training
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 130
+        assert time.monotonic() - t0 < 15  # not a fit's end
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    for pid in kids:
+        for _ in range(50):  # gone, or a zombie of a parent that is gone too
+            if not _running(pid):
+                break
+            time.sleep(0.1)
+        else:
+            pytest.fail(f"worker {pid} still runs after rt2 train stopped")
+    assert not out.exists()
