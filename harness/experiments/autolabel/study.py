@@ -224,7 +224,8 @@ def _train_on(train_set, base, seed: int, epochs: int | None, what: str):
     training it, not dropping it); ``(model, info)``; a training that finds no ball is one line naming ``what``."""
     from harness.experiments.detector.train import NoBallFoundError, TrainOptions, train
 
-    opts = TrainOptions(seed=seed, ball_colour="any", augment_copies=3, learned="auto", **({} if epochs is None else {"epochs": epochs}))
+    opts = TrainOptions(seed=seed, ball_colour="any", augment_copies=3, learned="auto", workers=None,  # as rt2 train: by the fits' length
+                        **({} if epochs is None else {"epochs": epochs}))
     try:
         return train(train_set, opts, base=base, progress=False, log=lambda *a, **k: None)
     except NoBallFoundError as exc:  # one line naming what failed, not a model that finds nothing
