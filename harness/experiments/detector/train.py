@@ -1093,8 +1093,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--workers", type=int, default=None, metavar="W",
                         help="processes the learned stage's cross-validation fits run on (1 = this process; default: the "
                              "CPUs, at most one per fit and as many as the memory holds, when the fits add up to 1000 steps "
-                             "or more, else 1); the model "
-                             "written does not depend on it")
+                             "or more, else 1); the model written does not depend on it")
 
 
 def resolve_base(from_model: str, colour: str) -> tuple[BallSegmentationModel | None, str]:
@@ -1149,6 +1148,8 @@ def run(args) -> int:
 
     out = Path(args.out)
     check_output_file(out, "--out", suffix=".npz")  # before the training, not after
+    if args.workers is not None and args.workers < 1:  # before the images are read
+        raise ValueError(f"--workers must be an integer >= 1, got {args.workers!r}")
     base, origin = resolve_base(args.from_model, args.ball_colour)
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if args.camera:  # before --time-range: the time order is one camera's (as rt2 eval detector --camera)
