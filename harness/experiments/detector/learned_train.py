@@ -21,6 +21,7 @@ on one thread, so the same data and seed give the same weights.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import NamedTuple
@@ -641,31 +642,23 @@ def auto_workers(tasks, available_bytes: int | None = -1) -> int:
 
 def run_fit(task: FitTask):
     """``(state, onnx bytes)`` of one fit, silent (the cross-validation's fits log nothing of their own)."""
-    return fit_learned(task.items, task.opts, task.seed, state=task.state, log=_silent)
-
-
-def _silent(message: str) -> None:
-    pass
+    return fit_learned(task.items, task.opts, task.seed, state=task.state, log=lambda message: None)
 
 
 def run_fits(tasks: list[FitTask], workers: int = 1, *, keys=None):
     """Yield ``(key, (state, onnx bytes))`` for every fit as it finishes (``keys``: one per task, default its index).
 
-    ``workers`` > 1 runs them on that many fresh worker processes (:class:`harness.common.executor.Executor`: one
-    thread each for torch and the BLAS, as here; they die with this process; SIGINT / SIGTERM stop them and raise
-    :class:`harness.common.executor.SweepInterrupted`). A fit's network depends on its task alone (its seed, its
-    data; torch on one thread), so the results are the same bytes whichever process ran them. Two fits on the
-    2-core machine take ~1.4x one fit's time (each also samples its patches on a second thread)."""
+    The studies' executor runs them (:class:`harness.common.executor.Executor`): ``workers`` 1 in this process, more
+    on that many fresh worker processes (one thread each for torch and the BLAS, as here; they die with this process);
+    SIGINT / SIGTERM stop them and raise :class:`harness.common.executor.SweepInterrupted`. A fit's network depends
+    on its task alone (its seed, its data; torch on one thread), so the results are the same bytes whichever process
+    ran them. Two fits on the 2-core machine take ~1.4x one fit's time (each also samples its patches on a second thread)."""
     from harness.common.executor import Executor, SweepOptions
 
     keys = list(range(len(tasks))) if keys is None else list(keys)
     if len(keys) != len(tasks):
         raise ValueError(f"run_fits: {len(keys)} keys for {len(tasks)} tasks")
-    if workers <= 1 or len(tasks) <= 1:
-        for key, task in zip(keys, tasks):
-            yield key, run_fit(task)
-        return
-    with Executor(SweepOptions(workers=min(int(workers), len(tasks)))) as ex:
+    with Executor(SweepOptions(workers=max(1, min(int(workers), len(tasks))))) as ex:
         for j, result in ex.map(run_fit, tasks):
             yield keys[j], result
 
@@ -942,7 +935,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
             start = None if resume is None else resume["folds"][(name, f)]  # the same folds: the first call fitted it
             keys.append((name, f))
             tasks.append(fit_task(name, fit_items(name, fitted)[0], seed + 101 * f, start))
-    left = {f: sum(1 for _, g in keys if g == f) for _, f in keys}
+    left = Counter(f for _, f in keys)  # fits of each fold still running
     workers = auto_workers(tasks) if workers is None else int(workers)
     order = list(range(len(tasks))) if workers <= 1 else sorted(range(len(tasks)), key=lambda j: -tasks[j].opts.iterations)  # longest first: the workers end together
     for j, (state_f, onnx_f) in run_fits([tasks[j] for j in order], workers, keys=order):

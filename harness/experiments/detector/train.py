@@ -104,6 +104,12 @@ MINE_WHEN_OUTLIERS = 0.2
 MINED_SHARE = 0.3
 
 
+def _check_workers(workers) -> None:
+    """``--workers`` (``TrainOptions.workers``): None (by the fits' length) or an integer >= 1; else ValueError."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"--workers must be an integer >= 1, got {workers!r}")
+
+
 @dataclass(frozen=True)
 class TrainOptions:
     """Options of :func:`train`.
@@ -193,8 +199,7 @@ class TrainOptions:
     workers: int | None = 1
 
     def __post_init__(self):
-        if self.workers is not None and (isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1):
-            raise ValueError(f"--workers must be an integer >= 1, got {self.workers!r}")
+        _check_workers(self.workers)
         if not isinstance(self.allow_no_ball, bool):
             raise ValueError(f"TrainOptions.allow_no_ball must be True or False, got {self.allow_no_ball!r}")
         if not 0.0 < self.val_fraction < 1.0:
@@ -1148,8 +1153,7 @@ def run(args) -> int:
 
     out = Path(args.out)
     check_output_file(out, "--out", suffix=".npz")  # before the training, not after
-    if args.workers is not None and args.workers < 1:  # before the images are read
-        raise ValueError(f"--workers must be an integer >= 1, got {args.workers!r}")
+    _check_workers(args.workers)  # before the images are read
     base, origin = resolve_base(args.from_model, args.ball_colour)
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if args.camera:  # before --time-range: the time order is one camera's (as rt2 eval detector --camera)

@@ -809,30 +809,12 @@ def test_adams_multi_tensor_update_gives_the_one_tensor_loops_bytes():
     assert all(torch.equal(a[k], b[k]) for k in a)
 
 
-def _children(pid: int) -> set[int]:
-    import glob
-
-    kids = set()
-    for path in glob.glob(f"/proc/{pid}/task/*/children"):
-        try:
-            kids |= {int(p) for p in open(path).read().split()}
-        except OSError:
-            pass
-    return kids
-
-
-def _running(pid: int) -> bool:
-    try:
-        state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):
-        return False
-    return state != "Z"
-
-
 @pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="reads the children from /proc")
 def test_ctrl_c_stops_rt2_train_and_its_worker_processes(synthetic_ball_coco, tmp_path):
     """SIGINT while the fits run on two workers: exit 130 at once, no worker left, no model written."""
     import os
+
+    from tests.stop_times import descendants, wait_gone
     import select
     import signal
     import subprocess
@@ -850,9 +832,9 @@ def test_ctrl_c_stops_rt2_train_and_its_worker_processes(synthetic_ball_coco, tm
             if select.select([proc.stdout], [], [], 1.0)[0]:
                 seen += proc.stdout.readline()
         assert "cross-validation folds" in seen, seen
-        kids = set()
+        kids = []
         while len(kids) < 2 and time.monotonic() < t_end:  # the two workers (and multiprocessing's helper, if any)
-            kids = _children(proc.pid)
+            kids = descendants(proc.pid)
             time.sleep(0.2)
         assert len(kids) >= 2, kids
         time.sleep(2.0)  # the workers are training
@@ -864,11 +846,5 @@ def test_ctrl_c_stops_rt2_train_and_its_worker_processes(synthetic_ball_coco, tm
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    for pid in kids:
-        for _ in range(50):  # gone, or a zombie of a parent that is gone too
-            if not _running(pid):
-                break
-            time.sleep(0.1)
-        else:
-            pytest.fail(f"worker {pid} still runs after rt2 train stopped")
+    assert not wait_gone(kids, 5.0), "worker processes still run after rt2 train stopped"
     assert not out.exists()

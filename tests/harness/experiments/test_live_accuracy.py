@@ -94,16 +94,17 @@ def _diagnosis(live) -> dict:
     """What a failed comparison needs to be understood after its files are gone (pytest keeps three basetemps):
     the clocks, the registration, the error against the true ball, the error over the run's course."""
     m = live.motion_info
+    info = m.get("live", {})
     err = np.asarray(live.errors.get("rt2", []), float) * 1e3
     quarters = [round(float(np.nanmedian(q)), 3) for q in np.array_split(err, 4)] if err.size >= 4 else []
     reg = live.figures.get("registration", {})
     return {"robot_clock_error_ms": m.get("robot_clock_error_ms"), "gt_vs_true_mm": m.get("gt_vs_true_mm"),
-            "first_frame_id": m.get("live", {}).get("first_frame_id"),
-            "camera_clock_offsets": m.get("live", {}).get("camera_clock_offsets"),
+            "first_frame_id": info.get("first_frame_id"),
+            "camera_clock_offsets": info.get("camera_clock_offsets"),
             "registration": {k: reg.get(k) for k in ("pairs", "inliers", "rms_cm", "max_cm", "spread_cm", "vs_true_mount")},
             "median_mm_by_quarter": quarters, "missing": int(np.isnan(err).sum()), "scene_events": live.scene_events,
             "truth": live.truth, "ball_speed_mps": m.get("ball_speed_mps"),
-            "command_to_motion": m.get("live", {}).get("latency_budget", {}).get("command_to_motion")}
+            "command_to_motion": info.get("latency_budget", {}).get("command_to_motion")}
 
 
 def _assert_close(live, ref):
