@@ -130,7 +130,7 @@ def test_the_detector_refines_by_the_edge_only_where_its_filter_does_not_see_the
     img, c = _ball_image(np.random.default_rng(10), diameter=16.0)
 
     class Off(LearnedStage):
-        def candidates(self, image, window=None, k=4, threshold=None, frame_shape=None):
+        def candidates(self, image, window=None, k=4, threshold=None, frame_shape=None, confirm=True):
             return (c + [2.0, -1.0])[None, :], np.array([0.9]), np.array([21.0])
 
     torch = pytest.importorskip("torch")  # (a network for the stage's file; its answer is replaced above)

@@ -22,21 +22,6 @@ def tiny_onnx():
     return export_onnx(torch, build_net(torch))
 
 
-@pytest.fixture(scope="module")
-def bright_spot_onnx():
-    """A network whose heat is the brightness of each 4x4 cell (a bright spot peaks where it is), offsets 0, diameter e^2."""
-    from harness.experiments.detector.learned_train import build_net, export_onnx
-
-    net = build_net(torch)
-    with torch.no_grad():
-        for p in net.parameters():
-            p.zero_()
-        net.a.weight[0] = 1.0 / 16  # channel 0 of the stride-4 features: the cell's mean of (x/255 - 0.5) over RGB
-        net.head.weight[0, 0, 0, 0] = 10.0  # heat = 10 * relu(mean)
-        net.head.bias[:] = torch.tensor([-1.0, 0.0, 0.0, 2.0])
-    return export_onnx(torch, net)
-
-
 def test_decode_heatmap_finds_the_peaks_best_first_with_subcell_centres():
     out = np.zeros((4, 10, 12), np.float32)
     out[0] = -5
@@ -174,7 +159,7 @@ def test_the_filter_refines_the_network_centre_where_it_sees_the_ball(bright_spo
     from tracker.detection.synthetic import hand_made_model, synthetic_scene
 
     class Off(LearnedStage):  # the network's answer, 1.5 px off each given centre
-        def candidates(self, image, window=None, k=4, threshold=None, frame_shape=None):
+        def candidates(self, image, window=None, k=4, threshold=None, frame_shape=None, confirm=True):
             return self.at.copy(), np.full(len(self.at), 0.9), np.full(len(self.at), self.d)
 
     base = hand_made_model()

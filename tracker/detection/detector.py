@@ -66,7 +66,10 @@ class DetectorOptions:
     verify : run the model's candidate verifier ("ours" only; ignored when the model has none)
     learned : find the candidates with the model's learned stage ("ours" only; ignored when the model has
         none): the heatmap network instead of the filter and Algorithm 1
-    learned_threshold : the learned stage's heat threshold, a probability; ``None`` = the stage's own
+    learned_threshold : the learned stage's threshold, a probability (of the confirmation network on a whole frame
+        where the stage has one, else of the heat); ``None`` = the stage's own
+    confirm : on a whole frame, the learned stage's confirmation network looks again at its best candidates
+        (:mod:`tracker.detection.confirm`; ignored when the stage has none); False: the heat alone ranks them
     refine_with_filter : the learned stage's centres refined by the model's filter where it sees the ball: in a box of
         the candidate's diameter (plus 3 px) around it, Algorithm 1's blob (the model's thresholds), when its
         weighted centroid lies within 0.3 diameters of the candidate and it covers a quarter of the ball's disk, gives the centre (sub-pixel to a few
@@ -98,6 +101,7 @@ class DetectorOptions:
     verify: bool = True
     learned: bool = True
     learned_threshold: float | None = None
+    confirm: bool = True
     refine_with_filter: bool = True
     refine_edges: bool = True
     coarse_full_frame: bool = True
@@ -125,7 +129,7 @@ class DetectorOptions:
             raise ValueError(f"DetectorOptions.min_fill_ratio must be in [0, 1], got {self.min_fill_ratio!r}")
         if not self.max_aspect >= 1.0:
             raise ValueError(f"DetectorOptions.max_aspect must be >= 1, got {self.max_aspect!r}")
-        for name in ("verify", "learned", "refine_with_filter", "refine_edges", "coarse_full_frame"):
+        for name in ("verify", "learned", "confirm", "refine_with_filter", "refine_edges", "coarse_full_frame"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"DetectorOptions.{name} must be True or False, got {getattr(self, name)!r}")
         v = self.learned_threshold
@@ -291,7 +295,7 @@ class BallDetector:
         sub-pixel centre, areas of the disk, the area range of the options applied."""
         o = self.options
         uv, scores, d = self.learned.candidates(image, window, k=o.max_seeds if o.min_area_px or o.max_area_px else o.max_candidates,
-                                                threshold=o.learned_threshold, frame_shape=frame_shape)
+                                                threshold=o.learned_threshold, frame_shape=frame_shape, confirm=o.confirm)
         if len(d) == 0:
             return Detections.empty(window is not None)
         areas = np.pi / 4 * d * d

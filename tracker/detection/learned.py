@@ -38,6 +38,8 @@ import numpy as np
 
 from checks.numba_cache import key_cache_on_callees
 from checks.per_thread import PerThread
+from tracker.detection.confirm import CONFIRM_FIELDS, ConfirmNet
+from tracker.detection.onnx_session import SessionFactory
 
 __all__ = ["LearnedStage", "LEARNED_FIELDS", "decode_heatmap", "decode_placed", "learned_scale"]
 
@@ -216,6 +218,10 @@ class LearnedStage:
         :class:`~tracker.detection.detector.DetectorOptions` ``refine_with_filter``); False where the file's
         filter is of another colour (the white model keeps the orange filter for ``rt2-paper``) or another look (the
         real-camera orange model keeps the filter trained on renders; the ball's edge centres its balls better)
+    confirm : optional :class:`~tracker.detection.confirm.ConfirmNet`: on a whole frame, the heat's best candidates
+        looked at again, each on its crop at the ball's scale; their score becomes ``sqrt(p * heat)``, and a
+        caller's threshold (a tracker's ``track_threshold``) applies to it there, or else the confirmation's own
+        single-image threshold (``ConfirmNet.threshold``); a window keeps the heat and ``threshold``
     """
 
     onnx: bytes
@@ -231,9 +237,12 @@ class LearnedStage:
     filter_refines: bool = True
     track_threshold: float | None = None
     size_ratio: float | None = None
+    confirm: ConfirmNet | None = None
 
     def __post_init__(self):
         where = "LearnedStage"
+        if self.confirm is not None and not isinstance(self.confirm, ConfirmNet):
+            raise ValueError(f"{where}: confirm must be a ConfirmNet or None, got {type(self.confirm).__name__}")
         if not isinstance(self.onnx, (bytes, bytearray)) or len(self.onnx) < 16:
             raise ValueError(f"{where}: onnx must be the network's ONNX bytes, got {type(self.onnx).__name__} of length "
                              f"{len(self.onnx) if hasattr(self.onnx, '__len__') else '?'}")
@@ -266,7 +275,7 @@ class LearnedStage:
             raise ValueError(f"{where}: diameter_range_px must be [min, max] with 0 < min <= max, got {self.diameter_range_px!r}")
         object.__setattr__(self, "diameter_range_px", (float(d[0]), float(d[1])))
         object.__setattr__(self, "onnx", bytes(self.onnx))
-        object.__setattr__(self, "_sessions", PerThread(_SessionFactory(self.onnx)))
+        object.__setattr__(self, "_sessions", PerThread(SessionFactory(self.onnx)))
         object.__setattr__(self, "_threshold_logit", math.log(self.threshold / (1.0 - self.threshold)))
 
     # -- inference -------------------------------------------------------------------------------
@@ -277,7 +286,7 @@ class LearnedStage:
     def scale_of(self, height: int, width: int) -> float:
         return learned_scale(height, width, self.max_side_px)
 
-    def candidates(self, image: np.ndarray, window=None, k: int = 4, threshold: float | None = None, frame_shape=None):
+    def candidates(self, image: np.ndarray, window=None, k: int = 4, threshold: float | None = None, frame_shape=None, confirm: bool = True):
         """Ball candidates of a trusted (H, W, 3) uint8 RGB image, or of one box of it.
 
         window : None or ``(x0, y0, x1, y1)``: only candidates whose centre lies in the box (the network also
@@ -285,13 +294,25 @@ class LearnedStage:
         threshold : heat probability at least (None: the stage's own)
         frame_shape : when ``image`` is a part of a camera frame (a tracker's neighbourhood view), that frame's
             shape: the part is searched at the frame's scale, in one pass
-        returns (uv (n, 2) image pixels, scores (n,) heat probabilities, diameters (n,) image pixels), best first
+        confirm : on a whole frame, the confirmation network's second look where the stage has one (False: the heat alone)
+        returns (uv (n, 2) image pixels, scores (n,) probabilities: the confirmation's on a whole frame where it ran,
+        else the heat's; diameters (n,) image pixels), best first
         """
         h, w = image.shape[:2] if frame_shape is None else frame_shape[:2]
         scale = learned_scale(h, w, self.max_side_px)
-        if window is None and frame_shape is None and self.coarse_side_px and max(h, w) * scale >= COARSE_MIN_RATIO * self.coarse_side_px:
-            return self._two_passes(image, k, threshold)
-        return self._one_pass(image, window, k, threshold, scale)
+        whole = window is None and frame_shape is None
+        look = self.confirm if whole and confirm else None
+        kk, th = (k, threshold) if look is None else (max(k, look.candidates), look.gate)
+        if whole and self.coarse_side_px and max(h, w) * scale >= COARSE_MIN_RATIO * self.coarse_side_px:
+            uv, sc, d = self._two_passes(image, kk, th)
+        else:
+            uv, sc, d = self._one_pass(image, window, kk, th, scale)
+        if look is None:
+            return uv, sc, d
+        p = look.rescore(image, uv, sc, d)
+        keep = np.flatnonzero(p >= (look.threshold if threshold is None else threshold))
+        keep = keep[np.argsort(-p[keep], kind="stable")][:k]
+        return uv[keep], p[keep], d[keep]
 
     def aligned_window(self, window, height: int, width: int) -> tuple:
         """A window holding ``window`` ``(x0, y0, x1, y1)`` (clipped to the frame) of a ``height x width`` frame whose search gives the network
@@ -394,13 +415,16 @@ class LearnedStage:
                     learned_coarse=np.array([self.coarse_side_px, self.coarse_threshold, self.coarse_candidates], np.float64),
                     learned_refine=np.array(self.filter_refines),
                     **({} if self.track_threshold is None else {"learned_track_threshold": np.array(self.track_threshold)}),
-                    **({} if self.size_ratio is None else {"learned_size_ratio": np.array(self.size_ratio)}))
+                    **({} if self.size_ratio is None else {"learned_size_ratio": np.array(self.size_ratio)}),
+                    **({} if self.confirm is None else self.confirm.to_fields()))
 
     @classmethod
     def from_fields(cls, data: dict, src: str) -> "LearnedStage | None":
         """The stage stored in a model file's fields, or None when the file has none."""
         present = [k for k in LEARNED_FIELDS if k in data]
         if not present:
+            if any(k in data for k in CONFIRM_FIELDS):
+                raise ValueError(f"{src}: a confirmation network ({', '.join(k for k in CONFIRM_FIELDS if k in data)}) without a learned stage")
             return None
         missing = [k for k in LEARNED_FIELDS if k not in data]
         if missing:
@@ -437,6 +461,9 @@ class LearnedStage:
             if r.dtype.kind not in "f" or r.shape != ():
                 raise ValueError(f"{src}: field 'learned_size_ratio' must be a ratio (a float), got dtype {r.dtype} shape {r.shape}")
             coarse["size_ratio"] = float(r)
+        confirm = ConfirmNet.from_fields(data, src)  # optional: the second look at a whole frame's candidates
+        if confirm is not None:
+            coarse["confirm"] = confirm
         try:
             stage = cls(onnx=onnx.tobytes(), stride=int(data["learned_stride"]), max_side_px=int(data["learned_max_side_px"]),
                         threshold=float(data["learned_threshold"]), diameter_range_px=tuple(np.asarray(data["learned_diameter_range_px"], float).reshape(-1)),
@@ -459,22 +486,6 @@ class LearnedStage:
         if not np.isfinite(out).all():
             return "the network's output is not finite"
         return None
-
-
-class _SessionFactory:
-    """Makes one ONNX Runtime session per thread (a module-level class: pickles as its bytes)."""
-
-    def __init__(self, onnx: bytes):
-        self.onnx = onnx
-
-    def __call__(self):
-        import onnxruntime as ort
-
-        so = ort.SessionOptions()
-        so.intra_op_num_threads = 1  # the pipeline parallelises over cameras
-        so.inter_op_num_threads = 1
-        so.log_severity_level = 3
-        return ort.InferenceSession(self.onnx, so, providers=["CPUExecutionProvider"])
 
 
 key_cache_on_callees(globals())  # an edit of a helper it compiles in (another file too) recompiles a kernel

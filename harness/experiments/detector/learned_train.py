@@ -523,6 +523,20 @@ def _loss(torch, out, heat, off, logd, mask):
     return focal + l_off + 0.2 * l_d
 
 
+def optimiser_step(opt, loss, avg: float | None, bar) -> float:
+    """One step of ``opt`` on ``loss``; returns the running loss ``avg`` (None before the first step) updated, shown on
+    the progress ``bar`` (or None)."""
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+    lv = float(loss.detach())
+    avg = lv if avg is None else 0.98 * avg + 0.02 * lv
+    if bar is not None:
+        bar.update(1)
+        bar.set_postfix(loss=f"{avg:.3f}")
+    return avg
+
+
 def fit_learned(items: list[LearnedItem], opts: LearnedTrainOptions, seed: int, *, init: bytes | None = None, state=None,
                 log=print, progress: bool = False):
     """Fit the heatmap network; returns ``(state_dict, onnx bytes)``.
@@ -573,15 +587,8 @@ def fit_learned(items: list[LearnedItem], opts: LearnedTrainOptions, seed: int, 
                     ahead = pool.submit(sample_patches, items, opts.batch, rng, opts, None, mined)
                 out = net(torch.from_numpy(imgs))
                 loss = _loss(torch, out, torch.from_numpy(heat), torch.from_numpy(off), torch.from_numpy(logd), torch.from_numpy(mask))
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
+                avg = optimiser_step(opt, loss, avg, bar)
                 sched.step()
-                lv = float(loss.detach())
-                avg = lv if avg is None else 0.98 * avg + 0.02 * lv
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(loss=f"{avg:.3f}")
         if bar is not None:
             bar.close()
         log(f"learned stage: {opts.iterations} steps of {opts.batch} patches, final loss {avg:.3f}")
@@ -727,19 +734,24 @@ def _scores_at(truth, cands, threshold: float, k: int, min_diameter_px: float):
     return score_detections("ours" if k == 1 else "topk", truth[0], truth[1], found, min_diameter_px=min_diameter_px)
 
 
-def _best_threshold(truth, cands, k: int, min_diameter_px: float, grid=THRESHOLD_GRID):
-    """(threshold, scores) of the threshold of ``grid`` with the best recall - outliers (ties: the higher threshold);
-    (None, None) for an empty grid."""
-    best = (None, None, None)
+def _best_threshold(truth, cands, k: int, min_diameter_px: float, grid=THRESHOLD_GRID, prefer: float | None = None):
+    """(threshold, scores) of the threshold of ``grid`` with the best recall - outliers (ties: ``prefer`` where it is
+    among the best, else the higher threshold); (None, None) for an empty grid."""
+    best, scored = (None, None, None), []
     for th in grid:
         s = _scores_at(truth, cands, th, k, min_diameter_px)
         g = float(np.nan_to_num(s.recall)) - s.outlier_rate
+        scored.append((g, th, s))
         if best[0] is None or g >= best[0] - 1e-12:
             best = (g, th, s)
+    if prefer is not None:
+        tie = [x for x in scored if abs(x[1] - prefer) < 1e-9 and x[0] >= best[0] - 1e-12]
+        if tie:
+            best = tie[0]
     return best[1], best[2]
 
 
-def single_image_threshold(truth, cands, top_k_threshold: float, min_diameter_px: float):
+def single_image_threshold(truth, cands, top_k_threshold: float, min_diameter_px: float, prefer: float | None = None):
     """``(threshold, scores, kept)``: the single image's operating point, each image's first candidate (``k`` = 1) at the
     threshold of ``THRESHOLD_GRID`` up to ``top_k_threshold`` with the best recall - outliers (ties: the higher), or
     ``top_k_threshold`` itself (``kept`` True) where none there finds more balls than false ones.
@@ -749,7 +761,7 @@ def single_image_threshold(truth, cands, top_k_threshold: float, min_diameter_px
     what outranks the ball in the labelled cameras (a lamp), and with it the balls of every camera that has no such
     lamp (auto labels of caliscope cameras 0-2, two of them with a lamp in view, scored on camera 3). A threshold that
     finds nothing is no operating point either: the top-K one at least proposes the ball where it outranks the rest."""
-    th, s = _best_threshold(truth, cands, 1, min_diameter_px, grid=[t for t in THRESHOLD_GRID if t <= top_k_threshold + 1e-12])
+    th, s = _best_threshold(truth, cands, 1, min_diameter_px, grid=[t for t in THRESHOLD_GRID if t <= top_k_threshold + 1e-12], prefer=prefer)
     if th is not None and float(np.nan_to_num(s.recall)) > s.outlier_rate:
         return th, s, False
     return top_k_threshold, _scores_at(truth, cands, top_k_threshold, 1, min_diameter_px), True
@@ -835,10 +847,22 @@ def with_contrast(rest: list[LearnedItem], crops: list[LearnedItem]) -> list[Lea
 def kept_passes(name: str, base: LearnedStage | None) -> dict:
     """The full-frame passes a trained stage keeps of ``base``: the base's network as it is ("shipped") or fine-tuned
     ("fine-tuned", a little changed, at the base's scale) searches full frames as the base does (its coarse pass: side,
-    threshold, candidates), in the cross-validation and in the file; a stage from scratch has one pass (no fields)."""
+    threshold, candidates; its confirmation network, which looks at crops, not at the heat network), in the
+    cross-validation and in the file; a stage from scratch has one pass and no confirmation (no fields)."""
     if name not in ("shipped", "fine-tuned") or base is None:
         return {}
-    return dict(coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold, coarse_candidates=base.coarse_candidates)
+    return dict(coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold, coarse_candidates=base.coarse_candidates,
+                confirm=base.confirm)
+
+
+def operating_points(name: str, base: LearnedStage | None, single_threshold: float) -> dict:
+    """The written stage's single-image threshold, ``single_threshold`` (chosen on the cross-validation's scores):
+    the confirmation network's where the stage keeps the base's (:func:`kept_passes`; its scores are the confirmed
+    ones), the heat keeping the base's own threshold; else the heat's."""
+    confirm = kept_passes(name, base).get("confirm")
+    if confirm is None:
+        return dict(threshold=single_threshold)
+    return dict(threshold=base.threshold, confirm=replace(confirm, threshold=single_threshold))
 
 
 def continue_steps(finetune_steps: int, scratch_steps: int) -> int:
@@ -949,7 +973,11 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
             log(f"learned stage: fold {f + 1}/{len(folds)} done")
     scored = [i for i in range(len(labelled)) if all(oof[n][i] is not None for n in names)]
     truth = ([truth_of(labelled[i])[0] for i in scored], [truth_of(labelled[i])[1] for i in scored])
-    choices = [StageChoice(name, *_best_threshold(truth, [oof[name][i] for i in scored], k, min_diameter_px)) for name in names]
+    # a tie keeps the base's own operating point (the shipped stage's, and a fine-tune's: the labels say nothing better)
+    own = None if base is None else (base.threshold if base.confirm is None else base.confirm.threshold)
+    prefer = {"shipped": own, "fine-tuned": own}
+    choices = [StageChoice(name, *_best_threshold(truth, [oof[name][i] for i in scored], k, min_diameter_px, prefer=prefer.get(name)))
+               for name in names]
     if alone:
         choices.insert(0, StageChoice("none", float("nan"), _alone_scores(alone, images, labelled, k, min_diameter_px)))
         names = ["none", *names]
@@ -958,7 +986,8 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     best = max(choices, key=lambda c: (round(c.gain, 9), -names.index(c.name)))
     single, single_threshold = None, float("nan")
     if best.name != "none":  # what a single image gets: its best candidate, at its own best threshold on the same out-of-fold candidates
-        single_threshold, single, kept = single_image_threshold(truth, [oof[best.name][i] for i in scored], best.threshold, min_diameter_px)
+        single_threshold, single, kept = single_image_threshold(truth, [oof[best.name][i] for i in scored], best.threshold, min_diameter_px,
+                                                                prefer=prefer.get(best.name))
         why = "; at no threshold do they find more balls than false ones, so the top-K one is kept" if kept else ""
         log(f"learned stage, single images ({best.name}: each image's best candidate at threshold {single_threshold:g}), "
             f"{len(folds)}-fold cross-validation: recall {100 * np.nan_to_num(single.recall):.1f}%, outliers {100 * single.outlier_rate:.1f}%{why}")
@@ -967,9 +996,9 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     if best.name == "none":
         stage = None
     elif best.name == "shipped":
-        stage = base.__class__(base.onnx, stride=base.stride, max_side_px=base.max_side_px, threshold=single_threshold,
+        stage = base.__class__(base.onnx, stride=base.stride, max_side_px=base.max_side_px,
                                diameter_range_px=base.diameter_range_px, context_px=base.context_px,
-                               **kept_passes(best.name, base), filter_refines=base.filter_refines,
+                               **{**kept_passes(best.name, base), **operating_points(best.name, base, single_threshold)}, filter_refines=base.filter_refines,
                                track_threshold=min(best.threshold, TRACK_THRESHOLD),
                                size_ratio=base.size_ratio,  # the same network: its diameters' record holds
                                description=base.description + f"; {thresholds} on {len(labelled)} images")
@@ -992,9 +1021,9 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
         # a fine-tune starts from the base's network and keeps its size record (not measured again: the labels' boxes
         # are hand-drawn); a network trained from scratch has none (the tracker's own size test)
         inherited = base.size_ratio if best.name == "fine-tuned" and base is not None else None
-        stage = LearnedStage(onnx_all, max_side_px=max_side, threshold=single_threshold, diameter_range_px=LearnedTrainOptions().diameter_range_px,
+        stage = LearnedStage(onnx_all, max_side_px=max_side, diameter_range_px=LearnedTrainOptions().diameter_range_px,
                              context_px=WINDOW_CONTEXT_PX if base is None else base.context_px, track_threshold=min(best.threshold, TRACK_THRESHOLD),
-                             **kept_passes(best.name, base),
+                             **{**kept_passes(best.name, base), **operating_points(best.name, base, single_threshold)},
                              filter_refines=True if base is None else base.filter_refines, size_ratio=inherited,
                              description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed}; {thresholds})"
                              + ("" if not mined else f"; continued {n_continue} steps with {100 * mined:g} % of its patches near its own false alarms, "

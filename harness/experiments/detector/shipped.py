@@ -62,6 +62,8 @@ def _drawn(sources, n_per_video: int, seed: int, colour: str, diameter_px, log):
     return out
 
 
+#: where the description of a stage kept by ``--stage-from`` ends and what was added to it begins
+STAGE_FROM_MARK = "; then `rt2 train-shipped --colour "
 #: relative sampling weights of the sources (the real frames count most)
 WEIGHTS = {"real": 4.0, "pasted": 1.0, "renders": 1.0, "semireal": 1.0}
 #: the drawn balls' weight per ball colour: white, least (their look is ours, real frames exist); orange, as much as
@@ -75,8 +77,10 @@ ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
           diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, log=print,
-          progress: bool = True):
-    """The model (base filter + trained learned stage) and a dict of what it was trained on and its validation figures."""
+          progress: bool = True, confirm_steps: int = 3000, stage_from=None, confirm_lights: float = 0.5):
+    """The model (base filter + trained learned stage and its confirmation network) and a dict of what it was trained
+    on and its validation figures. ``stage_from``: a model file whose learned stage is kept as it is (its heatmap
+    network, size ratio and description; not trained again): only its confirmation network is trained."""
     from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.learned_train import (LearnedTrainOptions, _best_threshold, fit_learned, items_at_scale)
     from harness.experiments.detector.scores import truth_of
@@ -126,11 +130,26 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         sources.append(f"light sources drawn into {100 * lights:g} % of the patches")
     if mined:
         sources.append(f"{100 * mined:g} % of the patches near its own false alarms in these frames, mined every {opts.mine_every} steps")
-    _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
-    # the file keeps the base's filter (of orange balls, trained on renders): it never refines the stage's centres, the
-    # ball's edge does (for orange too: docs/detector.md, "The shipped models")
-    stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px, coarse_side_px=max_side // 2,
-                         context_px=WINDOW_CONTEXT_PX, filter_refines=False)
+    if stage_from is None:
+        _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
+        # the file keeps the base's filter (of orange balls, trained on renders): it never refines the stage's centres, the
+        # ball's edge does (for orange too: docs/detector.md, "The shipped models")
+        stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px, coarse_side_px=max_side // 2,
+                             context_px=WINDOW_CONTEXT_PX, filter_refines=False)
+    else:
+        kept = BallSegmentationModel.load(stage_from).learned
+        if kept is None:
+            raise ValueError(f"--stage-from {stage_from}: the model has no learned stage to keep")
+        stage = dataclasses.replace(kept, confirm=None)
+        log(f"the learned stage of {stage_from} kept (not trained again)")
+    if confirm_steps:
+        from harness.experiments.detector.confirm_train import build_confirm_net
+
+        confirm = build_confirm_net(stage, pairs, steps=confirm_steps, seed=seed, log=log, progress=progress,
+                                    lit=confirm_lights,
+                                    description=f"the candidates of the stage on its training frames ({'; '.join(sources)})")
+        stage = dataclasses.replace(stage, confirm=confirm)
+        sources.append(f"a confirmation network ({confirm_steps} steps) on the stage's candidates in these frames")
     # the threshold: on the real training frames where there are any (white: the rally's training part, never its
     # held-out frames), else on a validation set made like the drawn training frames from other frames and seeds
     if colour == "white":
@@ -140,22 +159,36 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         val = _drawn([str(p) for p in CALISCOPE_VIDEOS if p.is_file()], 24, seed + 1000, colour, diameter_px, log)
         val_what = f"{len(val)} validation frames (drawn balls, other frames and seeds)"
     truth = ([truth_of(li)[0] for _, li in val], [truth_of(li)[1] for _, li in val])
-    cands = [stage.candidates(im, None, k=16, threshold=0.05)[:2] for im, _ in val]
-    th, s = _best_threshold(truth, cands, 4, 6.0)
-    stage = dataclasses.replace(stage, threshold=th, track_threshold=min(th, TRACK_THRESHOLD))
+    if stage_from is None:  # the heat's threshold (windows; whole frames without the second look)
+        cands = [stage.candidates(im, None, k=16, threshold=0.05, confirm=False)[:2] for im, _ in val]
+        th, s = _best_threshold(truth, cands, 4, 6.0)
+        stage = dataclasses.replace(stage, threshold=th, track_threshold=min(th, TRACK_THRESHOLD))
+    if stage.confirm is not None:  # the single image's threshold of the confirmed scores
+        cands = [stage.candidates(im, None, k=16, threshold=0.05)[:2] for im, _ in val]
+        th_c, s = _best_threshold(truth, cands, 4, 6.0)
+        stage = dataclasses.replace(stage, confirm=dataclasses.replace(stage.confirm, threshold=th_c))
+    th = stage.threshold if stage.confirm is None else stage.confirm.threshold
     size_note = ""
-    if semi:  # the 3D size test's threshold its diameters need, from its own semi-real frames
+    if semi and stage_from is None:  # the 3D size test's threshold its diameters need, from its own semi-real frames (a kept stage keeps its own)
         ratio, n, median = size_ratio_of(stage, semi)
         if ratio is not None:
             stage = dataclasses.replace(stage, size_ratio=ratio)
             size_note = f"; size ratio {ratio:g} (99th percentile of its diameter / the true one, {n} semi-real training balls)"
             log(f"size ratio {ratio:g}: the 99th percentile of the stage's diameter / the true diameter of {n} semi-real training balls "
                 f"(median {median:.2f})")
-    stage = dataclasses.replace(stage, description=(
-        f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps}` on " + "; ".join(sources)
-        + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to {max_side} px, coarse pass at {max_side // 2} px, windows with {WINDOW_CONTEXT_PX} px of context; "
-        f"tracking threshold {min(th, TRACK_THRESHOLD):g}; threshold {th:g} chosen on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%"
-        + size_note))
+    chosen = (f"tracking threshold {stage.track_threshold:g}; threshold {th:g} chosen on {val_what}"
+              + (f" with the confirmation network (the heat's alone: {stage.threshold:g})" if stage.confirm is not None else "")
+              + f": recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%")
+    if stage_from is None:
+        description = (f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps} --confirm-steps {confirm_steps}` on "
+                       + "; ".join(sources) + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to "
+                       f"{max_side} px, coarse pass at {max_side // 2} px, windows with {WINDOW_CONTEXT_PX} px of context; " + chosen + size_note)
+    else:
+        before = kept.description.split(STAGE_FROM_MARK)[0]  # a file made so before: its stage's own description
+        description = (f"{before}{STAGE_FROM_MARK}{colour} --seed {seed} --confirm-steps {confirm_steps} --stage-from "
+                       f"{Path(stage_from).name}` kept that stage and added " + (f"a confirmation network: {stage.confirm.description}" if confirm_steps else "nothing")
+                       + "; " + chosen)
+    stage = dataclasses.replace(stage, description=description)
     log(f"threshold {th:g} on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
         f"median {s.median_center_error_px:.2f} px")
     model = dataclasses.replace(base, learned=stage, ball_colour=colour if colour == "white" else base.ball_colour,
@@ -315,6 +348,15 @@ def add_arguments(parser) -> None:
     parser.add_argument("--mined", type=float, default=0.0,
                         help="the share of training patches centred on the network's own false alarms in its training frames, "
                              "mined every 1000 steps (bootstrapping; default 0)")
+    parser.add_argument("--confirm-steps", type=int, default=3000,
+                        help="optimiser steps of the confirmation network, the second look at a whole frame's best candidates "
+                             "(default 3000, as shipped; 0 = none)")
+    parser.add_argument("--confirm-lights", type=float, default=0.5,
+                        help="the share of the training frames the confirmation network's examples are also taken from with "
+                             "light sources drawn in (lamps: a white ball's detector's false alarms; default 0.5)")
+    parser.add_argument("--stage-from", default=None,
+                        help="a model file whose learned stage is kept as it is (not trained again): only the confirmation network "
+                             "is trained, on its candidates, and the thresholds chosen again")
     parser.add_argument("--max-side-px", type=int, default=960,
                         help="frames with a longer side are shrunk to it before the network (default 960: VGA frames as they are)")
 
@@ -324,13 +366,25 @@ def run(args) -> int:
 
     out = Path(args.out)
     check_output_file(out, "--out", suffix=".npz")
-    for name in ("hard_pastes", "lights", "mined"):
+    if args.confirm_steps < 0:
+        raise ValueError(f"--confirm-steps must be 0 (none) or more, got {args.confirm_steps}")
+    if args.stage_from is not None and not Path(args.stage_from).is_file():
+        raise ValueError(f"--stage-from {args.stage_from}: no such model file")
+    if args.stage_from is not None and not args.confirm_steps:
+        raise ValueError("--stage-from keeps a stage to add a confirmation network to it: it needs --confirm-steps 1 or more")
+    if args.stage_from is not None:  # before any frame is read
+        from tracker import BallSegmentationModel
+
+        if BallSegmentationModel.load(args.stage_from).learned is None:
+            raise ValueError(f"--stage-from {args.stage_from}: the model has no learned stage to keep")
+    for name in ("hard_pastes", "lights", "mined", "confirm_lights"):
         v = getattr(args, name)
         if not (0.0 <= v <= 1.0):
             raise ValueError(f"--{name.replace('_', '-')} must be a share between 0 and 1, got {v!r}")
     model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
-                        semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights, mined=args.mined)
+                        semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights, mined=args.mined,
+                        confirm_steps=args.confirm_steps, stage_from=args.stage_from, confirm_lights=args.confirm_lights)
     with atomic_path(out, "--out") as tmp:
         model.save(tmp)
     print(f"wrote {out}: learned stage threshold {info['threshold']:g}")

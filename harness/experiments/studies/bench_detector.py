@@ -14,7 +14,9 @@ Rows (all in one process, one thread each, same image, same weights):
 * ``full / learned``, ``roi / learned`` (models with a learned stage, :mod:`tracker.detection.learned`) — what
   ``rt2`` detects with: the heatmap network (ONNX Runtime, one thread) on the whole frame (in two passes when
   the stage has a coarse pass) and on the window with its context; the ``cv2`` rows are then the same model's
-  filter and Algorithm 1 (what ``rt2-paper`` runs), and a breakdown row times one full-scale pass over the frame.
+  filter and Algorithm 1 (what ``rt2-paper`` runs), and a breakdown row times one full-scale pass over the frame;
+  where the stage has a confirmation network (:mod:`tracker.detection.confirm`), a breakdown row times the whole
+  frame without it (its cost is the difference).
 * ``full / torch``, ``roi / torch`` — the same model as ``torch.nn.Conv2d`` (reflect padding) +
   sigmoid + argmax in torch (Algorithm 1 line 1 only, no flood fill), from the same uint8 image.
 
@@ -179,6 +181,9 @@ def bench(model, image, roi_center_px, *, repeats: int = 300, roi_half_size_px: 
             net_full, net_roi = (model.learned.network_input(image, win, 1.0)[0] for win in (None, window))
             extra_learned_full[("full", "learned: network alone (ONNX Runtime)")] = lambda: model.learned.run(net_full)
             extra_learned_roi[("roi", "learned: network alone (ONNX Runtime)")] = lambda: model.learned.run(net_roi)
+        if model.learned.confirm is not None:  # the second look at a whole frame's candidates: what it costs
+            no_confirm = BallDetector(model, dataclasses.replace(learned.options, confirm=False))
+            extra_learned_full[("full", "learned without the confirmation")] = lambda: no_confirm.detect(image)
         if not model.learned.filter_refines:  # the stage's centres from the ball's edge: what the edge fit costs
             no_edge = BallDetector(model, dataclasses.replace(learned.options, refine_edges=False))
             extra_learned_roi[("roi", "learned without the edge fit")] = lambda: no_edge.detect(image, window)

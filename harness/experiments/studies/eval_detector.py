@@ -383,6 +383,9 @@ def add_arguments(parser) -> None:
                              "image field 'time_s' for gaps) and drop the candidates of ours and topk where nothing moved against "
                              "the camera's background, as rt2 track --motion-cue does on full frames; with --time-range the "
                              "frame before the range starts each camera's background")
+    parser.add_argument("--no-confirm", action="store_true",
+                        help="rank a whole frame's candidates by the learned stage's heat alone, without its confirmation network "
+                             "(if it has one), at the heat's own threshold")
     parser.add_argument("--no-verifier", action="store_true",
                         help="run 'ours' and 'topk' with the model's 5x5 filter alone, without its candidate verifier (if it has one)")
     parser.add_argument("--ball-diameter-px", default=None, metavar="LO:HI",
@@ -410,6 +413,10 @@ def run(args) -> int:
         import dataclasses
 
         model = dataclasses.replace(model, verifier=None)
+    if getattr(args, "no_confirm", False) and model.learned is not None and model.learned.confirm is not None:
+        import dataclasses
+
+        model = dataclasses.replace(model, learned=dataclasses.replace(model.learned, confirm=None))
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if getattr(args, "camera", None):  # before --time-range: the time order is one camera's
         labelled = select_cameras(labelled, args.camera)
@@ -459,8 +466,12 @@ def run(args) -> int:
         + (f" (the model's own colour; --ball-colour any scores every ball)" if args.ball_colour == "model" and colour != "any" else "")
     )
     if model.learned is not None:
-        print(f"learned stage: heat threshold {model.learned.threshold if learned_threshold is None else learned_threshold:g}"
-              + (" (the single image's)" if learned_threshold is None else f" (--learned-threshold {args.learned_threshold})"))
+        confirm = model.learned.confirm
+        own = model.learned.threshold if confirm is None else confirm.threshold
+        print(f"learned stage: {'heat' if confirm is None else 'confirmed (sqrt(confirmation x heat))'} threshold "
+              f"{own if learned_threshold is None else learned_threshold:g}"
+              + (" (the single image's)" if learned_threshold is None else f" (--learned-threshold {args.learned_threshold})")
+              + ("" if confirm is None else f"; the confirmation network looks at the heat's best {confirm.candidates} of each image"))
     if area_px is not None:
         print(f"accepted blob area {area_px[0]}-{area_px[1]} px (--ball-diameter-px {args.ball_diameter_px}; the model's own: "
               f"{model.area_range_px[0]:.0f}-{model.area_range_px[1]:.0f} px)")

@@ -292,18 +292,20 @@ class _no_raise:
         return False
 
 
-def test_a_fine_tune_keeps_its_base_coarse_pass_in_cross_validation_and_in_the_file(synthetic_ball_coco, monkeypatch):
-    """A fine-tuned stage is the base's network a little changed: it searches full frames in the base's two passes
-    (scored so in the cross-validation, written so); a stage from scratch has one pass."""
-    from harness.experiments.detector import learned_train as L
-    from harness.experiments.detector.train import cv_folds
-    from tracker.detection.learned import LearnedStage
-
+def _twelve_images_and_a_network(synthetic_ball_coco):
+    """12 labelled synthetic images and a heatmap network fitted on them for 4 steps (a base stage's network)."""
     labelled = read_coco(synthetic_ball_coco(12, 1))
     images = [load_image(li) for li in labelled]
     _, onnx = fit_learned(items_at_scale(list(zip(images, labelled)), 128), LearnedTrainOptions(iterations=4, batch=4, patch_px=32, max_side_px=128), 0,
                           log=lambda m: None)
-    base = LearnedStage(onnx, max_side_px=128, threshold=0.5, coarse_side_px=64, coarse_threshold=0.15, coarse_candidates=5)
+    return labelled, images, onnx
+
+
+def _record_stages(monkeypatch) -> list:
+    """The learned stages :mod:`learned_train` makes from now on, in order (a list it fills)."""
+    from harness.experiments.detector import learned_train as L
+    from tracker.detection.learned import LearnedStage
+
     made = []
 
     class Recording(LearnedStage):
@@ -312,6 +314,19 @@ def test_a_fine_tune_keeps_its_base_coarse_pass_in_cross_validation_and_in_the_f
             made.append(self)
 
     monkeypatch.setattr(L, "LearnedStage", Recording)
+    return made
+
+
+def test_a_fine_tune_keeps_its_base_coarse_pass_in_cross_validation_and_in_the_file(synthetic_ball_coco, monkeypatch):
+    """A fine-tuned stage is the base's network a little changed: it searches full frames in the base's two passes
+    (scored so in the cross-validation, written so); a stage from scratch has one pass."""
+    from harness.experiments.detector import learned_train as L
+    from harness.experiments.detector.train import cv_folds
+    from tracker.detection.learned import LearnedStage
+
+    labelled, images, onnx = _twelve_images_and_a_network(synthetic_ball_coco)
+    base = LearnedStage(onnx, max_side_px=128, threshold=0.5, coarse_side_px=64, coarse_threshold=0.15, coarse_candidates=5)
+    made = _record_stages(monkeypatch)
     monkeypatch.setattr(L.StageChoice, "gain", property(lambda c: 1.0 if c.name == "fine-tuned" else 0.0))  # the fine-tune wins
     lines = []
     stage, info = L.train_stage(labelled, images, cv_folds(labelled, 2), base=base, seed=0, finetune_steps=3, scratch_steps=3, batch=4,
@@ -323,6 +338,36 @@ def test_a_fine_tune_keeps_its_base_coarse_pass_in_cross_validation_and_in_the_f
     # the cross-validation's stages: two folds x (fine-tuned with the coarse pass, scratch without), then the file's
     assert [s.coarse_side_px for s in made] == [64, 0, 64, 0, 64]
     assert L.kept_passes("scratch", base) == {} and L.kept_passes("fine-tuned", None) == {}
+
+
+@pytest.mark.parametrize("winner", ["shipped", "fine-tuned", "scratch"])
+def test_a_trained_stage_keeps_its_bases_confirmation_network_with_the_threshold_chosen_for_it(synthetic_ball_coco, monkeypatch, winner):
+    """The confirmation network looks at crops, not at the heat network: the base as it is and fine-tuned keep it, in the
+    cross-validation (whose scores are then the confirmed ones) and in the file, where the single image's threshold
+    chosen is the confirmation's and the heat keeps the base's; a stage from scratch has none."""
+    import torch
+
+    from harness.experiments.detector import learned_train as L
+    from harness.experiments.detector.confirm_train import CROP_PX, confirm_net, export_confirm
+    from harness.experiments.detector.train import cv_folds
+    from tracker.detection.confirm import ConfirmNet
+    from tracker.detection.learned import LearnedStage
+
+    labelled, images, onnx = _twelve_images_and_a_network(synthetic_ball_coco)
+    torch.manual_seed(0)
+    confirm = ConfirmNet(export_confirm(torch, confirm_net(torch).eval(), CROP_PX), threshold=0.45)
+    base = LearnedStage(onnx, max_side_px=128, threshold=0.35, confirm=confirm)
+    made = _record_stages(monkeypatch)
+    monkeypatch.setattr(L.StageChoice, "gain", property(lambda c: 1.0 if c.name == winner else 0.0))
+    stage, info = L.train_stage(labelled, images, cv_folds(labelled, 2), base=base, seed=0, finetune_steps=3, scratch_steps=3, batch=4,
+                                patch_px=32, log=lambda m: None)
+    assert info["chosen"].name == winner
+    assert [s.confirm is confirm for s in made[:4]] == [True, False, True, False]  # the folds' fine-tunes and stages from scratch
+    if winner == "scratch":
+        assert stage.confirm is None and stage.threshold == info["single_threshold"]
+    else:
+        assert stage.confirm.onnx == confirm.onnx and stage.confirm.threshold == info["single_threshold"] and stage.threshold == 0.35
+    assert L.operating_points("scratch", base, 0.2) == {"threshold": 0.2}
 
 
 def test_contrast_crops_are_the_bases_false_candidates_next_to_a_ball():
@@ -848,3 +893,16 @@ def test_ctrl_c_stops_rt2_train_and_its_worker_processes(synthetic_ball_coco, tm
             proc.wait()
     assert not wait_gone(kids, 5.0), "worker processes still run after rt2 train stopped"
     assert not out.exists()
+
+
+def test_a_tie_keeps_the_bases_own_threshold_where_it_is_among_the_best():
+    """Every threshold up to 0.6 finds the one ball and nothing else: the higher wins a tie, unless the base's own
+    operating point (``prefer``) is among the best; a preferred threshold that scores worse is not taken."""
+    from harness.experiments.detector.learned_train import _best_threshold, single_image_threshold
+
+    truth = ([np.array([[10.0, 10.0]])], [np.array([10.0])])
+    cands = [(np.array([[10.0, 10.0]]), np.array([0.65]))]
+    assert _best_threshold(truth, cands, 4, 6.0)[0] == 0.6
+    assert _best_threshold(truth, cands, 4, 6.0, prefer=0.5)[0] == 0.5
+    assert _best_threshold(truth, cands, 4, 6.0, prefer=0.8)[0] == 0.6
+    assert single_image_threshold(truth, cands, 0.6, 6.0, prefer=0.4)[0] == 0.4

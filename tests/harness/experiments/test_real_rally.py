@@ -97,12 +97,13 @@ def test_the_tracking_threshold_finds_more_held_out_rally_balls_and_the_motion_c
     single image's 0.4, but ~70 % of its candidates off the ball (0 % at 0.4): the consensus's work, not a single
     image's operating point. The rally's phone stands still: with ``--motion-cue`` (frame 57 starting the background)
     the candidates where nothing moved go, measured 2026-11-30: 45 of them, the outliers 69.7 -> 25.8 % at the same
-    recall (the players move: what is left)."""
+    recall (the players move: what is left). The heat alone (``--no-confirm``): the confirmation network of the file
+    (since 2026-12-01) drops most of those false candidates itself."""
     rows = {}
     for cue in ([], ["--motion-cue"]):
         out = tmp_path / f"track{len(cue)}.json"
         assert main(["eval", "detector", "--data", str(RALLY), "--time-range", LATE, "--model", "data/models/ball_seg_white.npz",
-                     "--learned-threshold", "track", "--json", str(out), *cue]) == 0
+                     "--learned-threshold", "track", "--no-confirm", "--json", str(out), *cue]) == 0
         rows[bool(cue)] = {r["method"]: r for r in json.loads(out.read_text())}["topk"]
     plain, cued = rows[False], rows[True]
     assert plain["recall"] >= 22 / 25 and plain["outlier_rate"] >= 0.3
@@ -117,7 +118,7 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     filter never refining it; the same seed gives the same file; a wrong --out is one line."""
     pytest.importorskip("torch", reason="training needs rt2[train]")
     args = ["train-shipped", "--colour", "white", "--steps", "2", "--frames-per-video", "2", "--semireal-sets", "2",
-            "--rally-range", "40:46", "--seed", "3"]
+            "--rally-range", "40:46", "--seed", "3", "--confirm-steps", "2"]
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
     assert main([*args, "--out", str(a)]) == 0
     assert main([*args, "--out", str(b)]) == 0
@@ -125,8 +126,23 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     model = BallSegmentationModel.load(a)
     stage = model.learned
     assert model.ball_colour == "white" and stage.track_threshold == min(stage.threshold, 0.2) and not stage.filter_refines
-    for source in ("6 real rally frames (40:46)", "drawn white balls", "real ball crops pasted", "semi-real frames", "network layout s8"):
+    for source in ("6 real rally frames (40:46)", "drawn white balls", "real ball crops pasted", "semi-real frames", "network layout s8",
+                   "a confirmation network (2 steps)", "--confirm-steps 2"):
         assert source in stage.description, source
+    assert stage.confirm is not None and stage.confirm.threshold in (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+    # --stage-from: that file's stage as it is (network, thresholds, size record), a confirmation network trained anew
+    c = tmp_path / "c.npz"
+    assert main(["train-shipped", "--colour", "white", "--frames-per-video", "2", "--semireal-sets", "2", "--rally-range", "40:46",
+                 "--seed", "4", "--confirm-steps", "3", "--stage-from", str(a), "--out", str(c)]) == 0
+    kept = BallSegmentationModel.load(c).learned
+    assert (kept.onnx, kept.threshold, kept.track_threshold, kept.size_ratio) == (stage.onnx, stage.threshold, stage.track_threshold, stage.size_ratio)
+    assert kept.confirm.onnx != stage.confirm.onnx and kept.description.startswith(stage.description)
+    assert "--stage-from a.npz` kept that stage and added a confirmation network: 3 steps" in kept.description
+    d = tmp_path / "d.npz"  # again from its own output: the same stage, the same network, the description not doubled
+    assert main(["train-shipped", "--colour", "white", "--frames-per-video", "2", "--semireal-sets", "2", "--rally-range", "40:46",
+                 "--seed", "4", "--confirm-steps", "3", "--stage-from", str(c), "--out", str(d)]) == 0
+    again = BallSegmentationModel.load(d).learned
+    assert again.confirm.onnx == kept.confirm.onnx and again.description == kept.description.replace("--stage-from a.npz", "--stage-from c.npz")
     capsys.readouterr()
     assert main([*args, "--out", str(tmp_path / "m.txt")]) == 2
     err = capsys.readouterr().err
@@ -139,7 +155,7 @@ def test_train_shipped_makes_an_orange_model_for_real_cameras(tmp_path):
     itself: its ball is white); the file's filter (of renders) never refines it; the same seed gives the same file."""
     pytest.importorskip("torch", reason="training needs rt2[train]")
     args = ["train-shipped", "--colour", "orange", "--steps", "2", "--frames-per-video", "2", "--semireal-sets", "2",
-            "--rally-range", "40:46", "--seed", "3"]
+            "--rally-range", "40:46", "--seed", "3", "--confirm-steps", "2"]
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
     assert main([*args, "--out", str(a)]) == 0 and main([*args, "--out", str(b)]) == 0
     assert a.read_bytes() == b.read_bytes()
@@ -238,3 +254,25 @@ def test_train_shipped_shares_bad_values_are_one_line(tmp_path, capsys, option, 
     assert main(["train-shipped", "--colour", colour, option, value, "--out", str(tmp_path / "m.npz")]) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--confirm-steps", "-1"], "--confirm-steps must be 0 (none) or more, got -1"),
+    (["--confirm-lights", "1.5"], "--confirm-lights must be a share between 0 and 1, got 1.5"),
+    (["--confirm-lights", "nan"], "--confirm-lights must be a share between 0 and 1, got nan"),
+    (["--stage-from", "no/such/model.npz"], "--stage-from no/such/model.npz: no such model file"),
+    (["--stage-from", "data/models/ball_seg_default.npz", "--confirm-steps", "0"], "--stage-from keeps a stage to add a confirmation network to it"),
+])
+def test_train_shipped_confirmation_options_bad_values_are_one_line(tmp_path, capsys, args, message):
+    assert main(["train-shipped", "--colour", "white", *args, "--out", str(tmp_path / "m.npz")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and not (tmp_path / "m.npz").exists()
+
+
+def test_train_shipped_refuses_a_stage_from_a_model_without_one(tmp_path, capsys):
+    pytest.importorskip("torch", reason="training needs rt2[train]")
+    assert main(["train-shipped", "--colour", "white", "--frames-per-video", "2", "--semireal-sets", "2", "--rally-range", "40:46",
+                 "--confirm-steps", "2", "--stage-from", "data/models/ball_seg_default.npz", "--out", str(tmp_path / "m.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "--stage-from data/models/ball_seg_default.npz: the model has no learned stage to keep" in err and "Traceback" not in err
+    assert not (tmp_path / "m.npz").exists()

@@ -1,0 +1,207 @@
+"""Training the learned stage's confirmation network (:mod:`tracker.detection.confirm`).
+
+Examples come from the stage's own candidates on its training frames: every candidate of a whole frame (its
+heat's best ``EXAMPLE_CANDIDATES`` at ``GATE`` or above: more than it looks at when it runs, for more of the
+stage's false alarms) is a crop at its predicted diameter, a ball when it lies within
+half the ball's diameter (and 3 px) of a labelled ball, not one beyond a diameter (and 6 px), left out between; and
+``JITTER`` more crops of every labelled ball, its centre moved up to a fifth of its diameter and its size up to
+25 % (the stage's centres and diameters are off by that much). The network sees the crop alone (the heat is the
+other look: the two are combined at run time, :mod:`tracker.detection.confirm`). A batch is half balls, half not, each crop flipped at random and changed as the stage's patches
+are (:func:`harness.experiments.detector.learned_train.photometric`: blur, white balance, exposure, gamma, lamp
+tint, noise, JPEG). Torch trains it (one thread; the same seed gives the same network); the exported graph takes
+uint8 crops and gives probabilities, and runs without torch.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tracker.detection.confirm import ConfirmNet, confirm_crop
+
+__all__ = ["CANDIDATES", "GATE", "JITTER", "build_confirm_net", "confirm_examples", "confirm_net", "export_confirm", "fit_confirm"]
+
+#: the heat's candidates of a frame looked at (at most), and the heat they need
+CANDIDATES = 6
+GATE = 0.05
+#: the heat's candidates of a training frame made examples
+EXAMPLE_CANDIDATES = 16
+#: the share of the training frames searched again with light sources drawn in (:func:`with_lights`): the stage's
+#: candidates on them are lamps, the white ball's detector's false alarms on held-out cameras (README Results)
+LIT = 0.5
+#: jittered crops of each labelled ball (more balls than the candidates alone give)
+JITTER = 3
+#: a crop: its side in candidate diameters (at least MIN_SIDE_PX), resampled to CROP_PX
+CONTEXT = 6.0
+CROP_PX = 48
+MIN_SIDE_PX = 48.0
+
+
+def with_lights(image: np.ndarray, centers, diameters, rng, n: int = 3) -> np.ndarray:
+    """``image`` with ``n`` light sources drawn in away from its balls
+    (:func:`harness.experiments.detector.learned_train.draw_light`, each in a random square of a third to a half of
+    the frame's shorter side)."""
+    from harness.experiments.detector.learned_train import draw_light
+
+    out = image.copy()
+    h, w = out.shape[:2]
+    c, d = np.asarray(centers, np.float64).reshape(-1, 2), np.asarray(diameters, np.float64).reshape(-1)
+    for _ in range(n):
+        side = int(min(h, w) * rng.uniform(1 / 3, 1 / 2))
+        x0, y0 = int(rng.integers(0, w - side + 1)), int(rng.integers(0, h - side + 1))
+        out[y0:y0 + side, x0:x0 + side] = draw_light(np.ascontiguousarray(out[y0:y0 + side, x0:x0 + side]), rng, c - [x0, y0], d)
+    return out
+
+
+def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: float = 0.0, log=print):
+    """``(crops (n, P, P, 3) uint8, labels (n,) float32: 1 a ball)`` of ``pairs`` ``(image, LabelledImage)`` (module
+    docstring); ``lit``: the share of the frames that are also searched with light sources drawn in (:func:`with_lights`)."""
+    from harness.experiments.detector.scores import truth_of
+
+    rng = np.random.default_rng([seed, 61])
+    crops, label = [], []
+    n_cand = 0
+    frames = []
+    for image, li in pairs:
+        frames.append((image, li, True))
+        if lit and rng.random() < lit:
+            c, d = truth_of(li)
+            frames.append((with_lights(image, c, d, rng), li, False))
+    for image, li, first in frames:
+        c, d = truth_of(li)
+        uv, _, dd = stage.candidates(image, None, k=EXAMPLE_CANDIDATES, threshold=GATE, confirm=False)
+        n_cand += len(uv)
+        for (u, v), di in zip(uv, dd):
+            y = 0.0
+            if len(c):
+                dist = np.hypot(c[:, 0] - u, c[:, 1] - v)
+                j = int(np.argmin(dist))
+                if dist[j] <= max(0.5 * d[j], 3.0):
+                    y = 1.0
+                elif dist[j] <= max(d[j], 6.0):
+                    continue
+            crops.append(confirm_crop(image, u, v, di, CONTEXT, CROP_PX, MIN_SIDE_PX))
+            label.append(y)
+        for _ in range(jitter if first else 0):
+            for (u, v), di in zip(c, d):
+                dj = di * math.exp(rng.uniform(-0.25, 0.25))
+                uj, vj = u + rng.uniform(-0.2, 0.2) * di, v + rng.uniform(-0.2, 0.2) * di
+                crops.append(confirm_crop(image, uj, vj, dj, CONTEXT, CROP_PX, MIN_SIDE_PX))
+                label.append(1.0)
+    # a stage with (almost) no false alarms in its training frames (one barely trained) leaves nothing to tell the balls
+    # from: random places of the frames, away from their balls, are the others then (as many as the balls)
+    n_random, tries = 0, 0
+    while pairs and label.count(0.0) < label.count(1.0) and tries < 20 * len(label):
+        image, li = pairs[tries % len(pairs)]
+        tries += 1
+        c, d = truth_of(li)
+        h, w = image.shape[:2]
+        u, v, di = rng.uniform(0, w - 1), rng.uniform(0, h - 1), math.exp(rng.uniform(math.log(6.0), math.log(48.0)))
+        if len(c) and (np.hypot(c[:, 0] - u, c[:, 1] - v) <= np.maximum(d, 6.0) + di).any():
+            continue
+        crops.append(confirm_crop(image, u, v, di, CONTEXT, CROP_PX, MIN_SIDE_PX))
+        label.append(0.0)
+        n_random += 1
+    y = np.array(label, np.float32)
+    log(f"confirmation network: {len(y)} crops of {len(pairs)} frames ({len(frames) - len(pairs)} of them again with lights drawn in; {n_cand} candidates of the stage; "
+        f"{int(y.sum())} balls, {int((y == 0).sum())} not" + (f", {n_random} of them random places" if n_random else "") + ")")
+    return np.array(crops, np.uint8).reshape(-1, CROP_PX, CROP_PX, 3), y
+
+
+def confirm_net(torch, c: int = 16):
+    class Confirm(torch.nn.Module):
+        """Four 3x3 convolutions (three with 2x2 max pooling) on the crop, its features' mean and max, one linear
+        layer: a logit."""
+
+        def __init__(self):
+            super().__init__()
+            nn = torch.nn
+            self.features = nn.Sequential(
+                nn.Conv2d(3, c, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2),
+                nn.Conv2d(c, 2 * c, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2),
+                nn.Conv2d(2 * c, 2 * c, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2),
+                nn.Conv2d(2 * c, 2 * c, 3, padding=1), nn.ReLU())
+            self.head = nn.Linear(4 * c, 1)
+
+        def forward(self, crops):  # crops (n, P, P, 3) float in [0, 255]
+            f = self.features(crops.permute(0, 3, 1, 2) / 255.0 - 0.5)
+            return self.head(torch.cat([f.mean((2, 3)), f.amax((2, 3))], 1))[:, 0]
+
+    return Confirm()
+
+
+def fit_confirm(crops, labels, *, steps: int, seed: int, batch: int = 64, lr: float = 2e-3, log=print, progress: bool = False) -> bytes:
+    """The confirmation network fitted on :func:`confirm_examples`' arrays; its ONNX bytes (input ``crops`` uint8,
+    output ``p``)."""
+    import torch
+
+    from harness.experiments.detector.learned_train import optimiser_step, photometric
+
+    pos, neg = np.flatnonzero(labels == 1), np.flatnonzero(labels == 0)
+    if len(pos) == 0 or len(neg) == 0:
+        raise ValueError(f"the confirmation network needs balls and other candidates: {len(pos)} balls, {len(neg)} others")
+    torch.manual_seed(seed)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # repeatable sums
+    try:
+        rng = np.random.default_rng([seed, 62])
+        net = confirm_net(torch)
+        opt = torch.optim.Adam(net.parameters(), lr=lr, foreach=True)
+        bar = None
+        if progress:
+            from harness.common.progress import progress_bar
+
+            bar = progress_bar(total=steps, desc="confirmation network", unit="step", leave=False)
+        avg = None
+        half = batch // 2
+        p = crops.shape[1]
+        for i in range(steps):
+            if i == int(0.7 * steps):
+                for g in opt.param_groups:
+                    g["lr"] = lr / 4
+            idx = np.concatenate([rng.choice(pos, half), rng.choice(neg, batch - half)])
+            xb = np.empty((batch, p, p, 3), np.uint8)
+            for k, j in enumerate(idx):
+                x = crops[j]
+                if rng.random() < 0.5:
+                    x = x[:, ::-1]
+                if rng.random() < 0.5:
+                    x = x[::-1]
+                xb[k] = photometric(np.ascontiguousarray(x), rng)
+            out = net(torch.from_numpy(xb).float())
+            loss = torch.nn.functional.binary_cross_entropy_with_logits(out, torch.from_numpy(labels[idx]))
+            avg = optimiser_step(opt, loss, avg, bar)
+        if bar is not None:
+            bar.close()
+        log(f"confirmation network: {steps} steps of {batch} crops, final loss {avg:.3f}")
+        return export_confirm(torch, net.eval(), p)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def export_confirm(torch, net, p: int) -> bytes:
+    import io
+
+    class Deployed(torch.nn.Module):
+        def __init__(self, inner):
+            super().__init__()
+            self.inner = inner
+
+        def forward(self, crops):
+            return torch.sigmoid(self.inner(crops.float()))
+
+    buf = io.BytesIO()
+    torch.onnx.export(Deployed(net), (torch.zeros(2, p, p, 3, dtype=torch.uint8),), buf, input_names=["crops"],
+                      output_names=["p"], dynamic_axes={"crops": {0: "n"}, "p": {0: "n"}}, opset_version=17, dynamo=False)
+    return buf.getvalue()
+
+
+def build_confirm_net(stage, pairs, *, steps: int, seed: int, description: str, lit: float = LIT, log=print, progress: bool = False) -> ConfirmNet:
+    """A :class:`ConfirmNet` for ``stage`` trained on its candidates in ``pairs`` (``lit``: the share of them searched
+    again with light sources drawn in)."""
+    crops, labels = confirm_examples(stage, pairs, seed, lit=lit, log=log)
+    onnx = fit_confirm(crops, labels, steps=steps, seed=seed, log=log, progress=progress)
+    return ConfirmNet(onnx, crop_px=CROP_PX, context=CONTEXT, min_side_px=MIN_SIDE_PX, candidates=CANDIDATES, gate=GATE,
+                      description=f"{steps} steps of 64 crops, seed {seed}, on {int(labels.sum())} ball and {int((labels == 0).sum())} other crops"
+                      + (f" ({100 * lit:g} % of the frames searched again with light sources drawn in)" if lit else "") + "; " + description)

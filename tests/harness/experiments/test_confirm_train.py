@@ -1,0 +1,71 @@
+"""The confirmation network's training examples: the stage's own candidates labelled by the balls, jittered balls,
+frames searched again with lamps drawn in; the fit's repeatability."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from harness.experiments.detector.coco import LabelledImage
+from harness.experiments.detector.confirm_train import CROP_PX, JITTER, confirm_examples, fit_confirm, with_lights
+
+
+class _Stage:
+    """Candidates as a learned stage gives them: on the ball, near it (neither ball nor not), far from it."""
+
+    def __init__(self):
+        self.calls = []
+
+    def candidates(self, image, window=None, k=4, threshold=None, frame_shape=None, confirm=True):
+        self.calls.append((image.copy(), k, threshold, confirm))
+        uv = np.array([[80.0, 60.0], [88.0, 60.0], [20.0, 20.0]])
+        return uv, np.array([0.9, 0.5, 0.3]), np.array([10.0, 10.0, 12.0])
+
+
+def _frame():
+    img = np.full((120, 160, 3), 60, np.uint8)
+    li = LabelledImage("f.png", 160, 120, np.array([[75.5, 55.5, 10.0, 10.0]]), np.array([[80.0, 60.0]]))
+    return img, li
+
+
+def test_examples_are_the_stages_candidates_labelled_by_the_balls_and_jittered_balls():
+    stage = _Stage()
+    lines = []
+    crops, labels = confirm_examples(stage, [_frame()], seed=0, log=lines.append)
+    # the candidate on the ball, JITTER jittered crops of it (positives); the one 8 px off a 10-px ball is left out; the
+    # far one; random places away from the ball until there are as many others as balls
+    assert crops.shape == (2 * (1 + JITTER), CROP_PX, CROP_PX, 3) and crops.dtype == np.uint8
+    assert labels.tolist() == [1.0, 0.0] + [1.0] * JITTER + [0.0] * JITTER
+    assert lines[-1].endswith(f"{1 + JITTER} balls, {1 + JITTER} not, {JITTER} of them random places)")
+    assert [c[1:] for c in stage.calls] == [(16, 0.05, False)]  # the heat alone, its best 16 at >= 0.05
+    again, labels_again = confirm_examples(_Stage(), [_frame()], seed=0, log=lambda m: None)
+    np.testing.assert_array_equal(again, crops)  # the same seed, the same examples
+
+
+def test_frames_searched_again_with_lamps_drawn_in_add_their_candidates_not_their_jitter():
+    stage = _Stage()
+    crops, labels = confirm_examples(stage, [_frame()] * 4, seed=0, lit=1.0, log=lambda m: None)
+    assert len(stage.calls) == 8 and sum(not np.array_equal(c[0], stage.calls[0][0]) for c in stage.calls) == 4
+    assert labels.sum() == 4 * (1 + JITTER) + 4 and (labels == 0).sum() == labels.sum()  # 8 candidates, the rest random places
+
+
+def test_lamps_are_drawn_away_from_the_balls():
+    img, li = _frame()
+    rng = np.random.default_rng(3)
+    out = with_lights(img, li.centers_px, [10.0], rng, n=3)
+    assert out.shape == img.shape and not np.array_equal(out, img) and np.array_equal(img, _frame()[0])  # a copy
+    yy, xx = np.mgrid[0:120, 0:160]
+    disc = np.hypot(xx - 80, yy - 60) <= 6
+    np.testing.assert_array_equal(out[disc], img[disc])
+    assert (out == 255).all(axis=-1).sum() >= 10  # saturated cores
+
+
+def test_the_fit_is_repeatable_and_refuses_one_sided_examples():
+    pytest.importorskip("torch", reason="training needs rt2[train]")
+    rng = np.random.default_rng(0)
+    crops = rng.integers(0, 256, (12, CROP_PX, CROP_PX, 3), dtype=np.uint8)
+    labels = np.array([1.0, 0.0] * 6, np.float32)
+    a = fit_confirm(crops, labels, steps=3, seed=5, batch=4, log=lambda m: None)
+    assert a == fit_confirm(crops, labels, steps=3, seed=5, batch=4, log=lambda m: None)
+    with pytest.raises(ValueError, match="needs balls and other candidates: 0 balls, 12 others"):
+        fit_confirm(crops, np.zeros(12, np.float32), steps=3, seed=5, log=lambda m: None)
