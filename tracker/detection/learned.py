@@ -291,7 +291,8 @@ class LearnedStage:
 
         window : None or ``(x0, y0, x1, y1)``: only candidates whose centre lies in the box (the network also
             sees ``context_px`` network pixels around it)
-        threshold : heat probability at least (None: the stage's own)
+        threshold : score at least, a probability (None: the stage's own, or on a whole frame with the second look the
+            confirmation's ``threshold``); with the second look it applies to the confirmed scores
         frame_shape : when ``image`` is a part of a camera frame (a tracker's neighbourhood view), that frame's
             shape: the part is searched at the frame's scale, in one pass
         confirm : on a whole frame, the confirmation network's second look where the stage has one (False: the heat alone)
