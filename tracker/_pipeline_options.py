@@ -343,8 +343,8 @@ def load_model(model=None) -> BallSegmentationModel:
 
 
 def detector_options_for(kind: str, method: str, given) -> DetectorOptions:
-    if given is None:
-        return DetectorOptions(method=method)
+    if given is None:  # a rig's cameras report the heat's candidates: the consensus is their second look
+        return DetectorOptions(method=method, confirm=False)
     if not isinstance(given, DetectorOptions):
         raise ValueError(f"detector_options must be a DetectorOptions, got {describe(given)}")
     if given.method != method:

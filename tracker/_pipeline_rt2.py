@@ -68,8 +68,6 @@ class SegmentationEngine:
         self._wh = np.array([tuple(c.image_size) for c in rig], np.int64)  # (n_cams, 2) width, height
         model = load_model(model)
         dopts = detector_options_for(kind, spec.detector_method, detector_options)
-        if detector_options is None:  # a rig's cameras report the heat's candidates: the consensus is their second look
-            dopts = replace(dopts, confirm=False)
         if dopts.learned and dopts.learned_threshold is None and model.learned is not None and model.learned.track_threshold is not None:
             dopts = replace(dopts, learned_threshold=model.learned.track_threshold)  # the stage's operating point in a rig
         self.detector = BallDetector(model, dopts)

@@ -91,8 +91,8 @@ def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: floa
                 label.append(1.0)
     # a stage with (almost) no false alarms in its training frames (one barely trained) leaves nothing to tell the balls
     # from: random places of the frames, away from their balls, are the others then (as many as the balls)
-    n_random, tries = 0, 0
-    while pairs and label.count(0.0) < label.count(1.0) and tries < 20 * len(label):
+    n_random, tries, n_before, missing = 0, 0, len(label), label.count(1.0) - label.count(0.0)
+    while pairs and n_random < missing and tries < 20 * (n_before + n_random):
         image, li = pairs[tries % len(pairs)]
         tries += 1
         c, d = truth_of(li)

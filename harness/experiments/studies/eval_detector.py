@@ -410,13 +410,9 @@ def run(args) -> int:
     check_output_file(sheet, "--figure")
     model = BallSegmentationModel.load(args.model)
     if getattr(args, "no_verifier", False) and model.verifier is not None:
-        import dataclasses
-
-        model = dataclasses.replace(model, verifier=None)
+        model = replace(model, verifier=None)
     if getattr(args, "no_confirm", False) and model.learned is not None and model.learned.confirm is not None:
-        import dataclasses
-
-        model = dataclasses.replace(model, learned=dataclasses.replace(model.learned, confirm=None))
+        model = replace(model, learned=replace(model.learned, confirm=None))
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if getattr(args, "camera", None):  # before --time-range: the time order is one camera's
         labelled = select_cameras(labelled, args.camera)
