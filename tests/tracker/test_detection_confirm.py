@@ -145,6 +145,11 @@ HOSTILE = [
     ("gate out of (0, 1)", lambda f: f.update(learned_confirm_geometry=_geometry(gate=1.0)), "gate"),
     ("threshold out of (0, 1)", lambda f: f.update(learned_confirm_geometry=_geometry(threshold=-0.1)), "threshold"),
     ("description not text", lambda f: f.update(learned_confirm_description=np.array(3.0)), "learned_confirm_description"),
+    ("geometry of eight numbers", lambda f: f.update(learned_confirm_geometry=np.append(_geometry(), [2.0, 2.0])), "learned_confirm_geometry"),
+    ("a second context below one diameter", lambda f: f.update(learned_confirm_geometry=np.append(_geometry(), 0.5)), "context2"),
+    ("a second context not finite", lambda f: f.update(learned_confirm_geometry=np.append(_geometry(), np.inf)), "learned_confirm_geometry"),
+    ("a second crop the three-channel network does not take", lambda f: f.update(learned_confirm_geometry=np.append(_geometry(), 2.0)),
+     "learned_confirm_onnx"),
     ("without a learned stage", lambda f: [f.pop(k) for k in list(f) if k.startswith("learned_") and not k.startswith("learned_confirm")],
      "without a learned stage"),
 ]
@@ -181,3 +186,56 @@ def test_a_tracker_reports_the_heats_candidates_unless_its_caller_asks_for_the_s
     assert Tracker(rig, "rt2", model=model).engine.detector.options.confirm is False
     asked = Tracker(rig, "rt2", model=model, detector_options=DetectorOptions()).engine.detector.options
     assert asked.confirm is True and asked.learned_threshold == 0.2
+
+
+@pytest.fixture(scope="module")
+def two_crop_onnx():
+    """The real layout for two crops (six channels: a network on each, their probabilities averaged), untrained."""
+    from harness.experiments.detector.confirm_train import CROP_PX, confirm_net, confirm_pair, export_confirm
+
+    torch.manual_seed(0)
+    return export_confirm(torch, confirm_pair(torch, confirm_net(torch).eval(), confirm_net(torch).eval()), CROP_PX, 6)
+
+
+def test_a_second_crop_is_stacked_after_the_first_and_kept_in_the_file(tmp_path, bright_spot_onnx, two_crop_onnx, trained_shape_onnx):
+    """``context2``: each candidate's crop at a second scale, its three channels after the first crop's; the file's
+    geometry gets a seventh number, a file of one crop keeps six (the files made before load as they were)."""
+    net = ConfirmNet(two_crop_onnx, context=6.0, context2=2.0)
+    assert net.channels == 6 and net.check() is None
+    img = _two_spots()
+    crops = net.crops(img, [[201.5, 101.5]], [4.0])
+    assert crops.shape == (1, 48, 48, 6)
+    np.testing.assert_array_equal(crops[0, ..., :3], confirm_crop(img, 201.5, 101.5, 4.0, 6.0, 48, 48.0))
+    np.testing.assert_array_equal(crops[0, ..., 3:], confirm_crop(img, 201.5, 101.5, 4.0, 2.0, 48, 48.0))
+    base = BallSegmentationModel.load("data/models/ball_seg_default.npz")
+    path = dataclasses.replace(base, learned=LearnedStage(bright_spot_onnx, confirm=net)).save(tmp_path / "two.npz")
+    assert np.load(path)["learned_confirm_geometry"].shape == (7,)
+    back = BallSegmentationModel.load(path).learned.confirm
+    assert (back.context, back.context2, back.channels) == (6.0, 2.0, 6)
+    np.testing.assert_array_equal(back.probabilities(crops), net.probabilities(crops))
+    one = dataclasses.replace(base, learned=LearnedStage(bright_spot_onnx, confirm=ConfirmNet(trained_shape_onnx))).save(tmp_path / "one.npz")
+    assert np.load(one)["learned_confirm_geometry"].shape == (6,) and BallSegmentationModel.load(one).learned.confirm.context2 is None
+    # a six-channel network without its second context (or the reverse) is refused where it is made
+    assert "not a confirmation network" in ConfirmNet(two_crop_onnx).check()
+    for bad in (0.5, float("nan"), True, "2"):
+        with pytest.raises(ValueError, match="context2"):
+            ConfirmNet(two_crop_onnx, context2=bad)
+
+
+def test_the_second_crop_is_what_a_two_crop_network_reads():
+    """A network that reads only the second crop (its share of red pixels): a white spot with a red one 20 px away
+    scores high when the second crop reaches that far (16 diameters: 64 px) and low when it does not (2: 8 px), whatever
+    the first crop."""
+    from harness.experiments.detector.confirm_train import export_confirm
+
+    class SecondRedness(torch.nn.Module):
+        def forward(self, crops):
+            red = (crops[..., 3].float() - crops[..., 4].float()).clamp(min=0.0).mean((1, 2))
+            return 4.0 * (red - 0.5)  # a 4x4 red spot in a 64-px crop: ~1 of 255 on average
+
+    img = np.zeros((120, 160, 3), np.uint8)
+    img[58:62, 58:62] = 255
+    img[58:62, 78:82] = (255, 0, 0)
+    onnx = export_confirm(torch, SecondRedness(), 48, 6)
+    far, near = (ConfirmNet(onnx, context=2.0, context2=c2, min_side_px=8.0) for c2 in (16.0, 2.0))
+    assert far.probabilities(far.crops(img, [[59.5, 59.5]], [4.0]))[0] > 0.5 > near.probabilities(near.crops(img, [[59.5, 59.5]], [4.0]))[0]

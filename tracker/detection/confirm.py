@@ -13,8 +13,13 @@ the candidates of whole frames only (single images, the label page's proposals, 
 window keeps the heat, and so does a live tracker, whose cameras report the heat's candidates (the consensus of the
 cameras rejects a camera's false alarms there; eight cameras' full frames confirmed cost ~1.4 ms each).
 
+With a second context (``ConfirmNet.context2``) each candidate is cut out twice, at two scales (the shipped files: 6
+and 2 diameters, the ball ~8 and ~24 px across: its surroundings, and the ball itself), and the graph takes both
+crops stacked as six channels; the shipped graphs are two networks, one on each crop, their probabilities averaged
+(on cameras the networks never saw, the two scales are wrong on different things: README Results).
+
 Inference: ONNX Runtime on the CPU, one thread, a session per thread (as the heatmap network); the graph takes
-``crops`` ``(n, P, P, 3)`` uint8 RGB and gives ``p`` ``(n,)``. The crop is
+``crops`` ``(n, P, P, 3)`` uint8 RGB (``(n, P, P, 6)`` with a second crop) and gives ``p`` ``(n,)``. The crop is
 :func:`confirm_crop`, the same function in training (``harness/experiments/detector/confirm_train.py``).
 """
 
@@ -63,12 +68,15 @@ class ConfirmNet:
     onnx : the network, ONNX bytes (input ``crops`` (n, P, P, 3) uint8; output ``p`` (n,))
     crop_px : P, the side of the crops it takes
     context : a crop's side in candidate diameters
-    min_side_px : a crop's side at least, image pixels
+    min_side_px : a crop's side at least, image pixels (both crops)
     candidates : the heat's best candidates of a frame it looks at (at most)
     gate : heat probability a candidate needs to be looked at
     threshold : the single image's operating point on the candidates' scores (``sqrt(p * heat)``), chosen by
         training; the stage's own ``threshold`` stays the heat's (windows, and a whole frame without the second look)
     description : how and on what it was trained
+    context2 : None (one crop), or a second crop's side in candidate diameters: the network takes both crops, stacked
+        as six channels (``(n, P, P, 6)``: the first crop's RGB, then the second's), and sees the ball's
+        surroundings and the ball itself at two scales
     """
 
     onnx: bytes = field(repr=False)
@@ -79,6 +87,7 @@ class ConfirmNet:
     gate: float = 0.05
     threshold: float = 0.5
     description: str = ""
+    context2: float | None = None
 
     def __post_init__(self):
         where = "ConfirmNet"
@@ -94,6 +103,11 @@ class ConfirmNet:
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (math.isfinite(v) and lo <= v <= hi):
                 raise ValueError(f"{where}: {name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
             object.__setattr__(self, name, float(v))
+        if self.context2 is not None:
+            v = self.context2
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (math.isfinite(v) and 1.0 <= v <= 32.0):
+                raise ValueError(f"{where}: context2 must be None or a number in [1, 32], got {v!r}")
+            object.__setattr__(self, "context2", float(v))
         for name in ("gate", "threshold"):
             g = getattr(self, name)
             if isinstance(g, bool) or not isinstance(g, (int, float, np.floating)) or not 0.0 < float(g) < 1.0:
@@ -102,15 +116,22 @@ class ConfirmNet:
         object.__setattr__(self, "onnx", bytes(self.onnx))
         object.__setattr__(self, "_sessions", PerThread(SessionFactory(self.onnx)))
 
+    @property
+    def channels(self) -> int:
+        """The crops' channels: 3, or 6 with a second crop (``context2``)."""
+        return 3 if self.context2 is None else 6
+
     def crops(self, image: np.ndarray, uv, d) -> np.ndarray:
-        """(n, P, P, 3) uint8: :func:`confirm_crop` of each candidate."""
-        out = np.empty((len(uv), self.crop_px, self.crop_px, 3), np.uint8)
+        """(n, P, P, 3 or 6) uint8: :func:`confirm_crop` of each candidate (and its second crop, ``context2``)."""
+        out = np.empty((len(uv), self.crop_px, self.crop_px, self.channels), np.uint8)
         for i, ((u, v), di) in enumerate(zip(np.asarray(uv, np.float64).reshape(-1, 2), np.asarray(d, np.float64).reshape(-1))):
-            out[i] = confirm_crop(image, u, v, di, self.context, self.crop_px, self.min_side_px)
+            out[i, ..., :3] = confirm_crop(image, u, v, di, self.context, self.crop_px, self.min_side_px)
+            if self.context2 is not None:
+                out[i, ..., 3:] = confirm_crop(image, u, v, di, self.context2, self.crop_px, self.min_side_px)
         return out
 
     def probabilities(self, crops: np.ndarray) -> np.ndarray:
-        """(n,) float64 ball probabilities of ``crops`` (n, P, P, 3) uint8."""
+        """(n,) float64 ball probabilities of ``crops`` (n, P, P, :attr:`channels`) uint8."""
         if len(crops) == 0:
             return np.zeros(0)
         p = self._sessions.get().run(None, {"crops": np.ascontiguousarray(crops, np.uint8)})[0]
@@ -124,8 +145,9 @@ class ConfirmNet:
 
     # -- files -----------------------------------------------------------------------------------
     def to_fields(self) -> dict:
+        geo = [self.crop_px, self.context, self.min_side_px, self.candidates, self.gate, self.threshold]
         return dict(learned_confirm_onnx=np.frombuffer(self.onnx, np.uint8),
-                    learned_confirm_geometry=np.array([self.crop_px, self.context, self.min_side_px, self.candidates, self.gate, self.threshold], np.float64),
+                    learned_confirm_geometry=np.array(geo + ([] if self.context2 is None else [self.context2]), np.float64),
                     learned_confirm_description=np.array(self.description))
 
     @classmethod
@@ -140,15 +162,15 @@ class ConfirmNet:
         onnx, geo = data["learned_confirm_onnx"], data["learned_confirm_geometry"]
         if onnx.dtype != np.uint8 or onnx.ndim != 1:
             raise ValueError(f"{src}: field 'learned_confirm_onnx' must be the ONNX bytes as a uint8 vector, got dtype {onnx.dtype} shape {onnx.shape}")
-        if geo.dtype.kind not in "biuf" or geo.shape != (6,) or not np.isfinite(geo).all() or not float(geo[0]).is_integer() or not float(geo[3]).is_integer():
+        if geo.dtype.kind not in "biuf" or geo.shape not in ((6,), (7,)) or not np.isfinite(geo).all() or not float(geo[0]).is_integer() or not float(geo[3]).is_integer():
             raise ValueError(f"{src}: field 'learned_confirm_geometry' must be [crop px, context, min side px, candidates, gate, threshold] "
-                             f"(integers, numbers, probabilities), got {geo!r}")
+                             f"and optionally a second crop's context (integers, numbers, probabilities), got {geo!r}")
         desc = data.get("learned_confirm_description", np.array(""))
         if desc.dtype.kind != "U":
             raise ValueError(f"{src}: field 'learned_confirm_description' must be a string, got dtype {desc.dtype}")
         try:
             net = cls(onnx.tobytes(), crop_px=int(geo[0]), context=float(geo[1]), min_side_px=float(geo[2]), candidates=int(geo[3]),
-                      gate=float(geo[4]), threshold=float(geo[5]), description=str(desc))
+                      gate=float(geo[4]), threshold=float(geo[5]), description=str(desc), context2=float(geo[6]) if geo.shape == (7,) else None)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{src}: {exc}") from None
         problem = net.check()
@@ -159,7 +181,7 @@ class ConfirmNet:
     def check(self) -> str | None:
         """None when the network loads and maps two crops to two probabilities; else what is wrong."""
         try:
-            p = self.probabilities(np.zeros((2, self.crop_px, self.crop_px, 3), np.uint8))
+            p = self.probabilities(np.zeros((2, self.crop_px, self.crop_px, self.channels), np.uint8))
         except Exception as exc:  # a damaged graph or the wrong inputs: ONNX Runtime's own message, on one line
             return f"not a confirmation network this rt2 can run ({type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''})"
         if p.shape != (2,):

@@ -9,7 +9,9 @@ half the ball's diameter (and 3 px) of a labelled ball, not one beyond a diamete
 other look: the two are combined at run time, :mod:`tracker.detection.confirm`). A batch is half balls, half not, each crop flipped at random and changed as the stage's patches
 are (:func:`harness.experiments.detector.learned_train.photometric`: blur, white balance, exposure, gamma, lamp
 tint, noise, JPEG). Torch trains it (one thread; the same seed gives the same network); the exported graph takes
-uint8 crops and gives probabilities, and runs without torch.
+uint8 crops and gives probabilities, and runs without torch. With a second context (``rt2 train-shipped
+--confirm-context 6 2``, the shipped files) every example is cut out at both scales, a network is fitted on each
+scale's crops as a single one would be, and the graph averages their probabilities (:func:`confirm_pair`).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import numpy as np
 
 from tracker.detection.confirm import ConfirmNet, confirm_crop
 
-__all__ = ["CANDIDATES", "GATE", "JITTER", "build_confirm_net", "confirm_examples", "confirm_net", "export_confirm", "fit_confirm"]
+__all__ = ["CANDIDATES", "CONTEXT", "GATE", "JITTER", "build_confirm_net", "confirm_examples", "confirm_net", "confirm_pair", "export_confirm", "fit_confirm"]
 
 #: the heat's candidates of a frame looked at (at most), and the heat they need
 CANDIDATES = 6
@@ -54,9 +56,16 @@ def with_lights(image: np.ndarray, centers, diameters, rng, n: int = 3) -> np.nd
     return out
 
 
-def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: float = 0.0, log=print):
+def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: float = 0.0, context: float = CONTEXT, context2: float | None = None,
+                     log=print):
     """``(crops (n, P, P, 3) uint8, labels (n,) float32: 1 a ball)`` of ``pairs`` ``(image, LabelledImage)`` (module
-    docstring); ``lit``: the share of the frames that are also searched with light sources drawn in (:func:`with_lights`)."""
+    docstring); ``lit``: the share of the frames that are also searched with light sources drawn in (:func:`with_lights`);
+    ``context``: a crop's side in candidate diameters; ``context2``: a second crop's (None: none), its three channels
+    after the first's (``(n, P, P, 6)``)."""
+    def crop(image, u, v, d):
+        one = confirm_crop(image, u, v, d, context, CROP_PX, MIN_SIDE_PX)
+        return one if context2 is None else np.concatenate([one, confirm_crop(image, u, v, d, context2, CROP_PX, MIN_SIDE_PX)], axis=2)
+
     from harness.experiments.detector.scores import truth_of
 
     rng = np.random.default_rng([seed, 61])
@@ -81,13 +90,13 @@ def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: floa
                     y = 1.0
                 elif dist[j] <= max(d[j], 6.0):
                     continue
-            crops.append(confirm_crop(image, u, v, di, CONTEXT, CROP_PX, MIN_SIDE_PX))
+            crops.append(crop(image, u, v, di))
             label.append(y)
         for _ in range(jitter if first else 0):
             for (u, v), di in zip(c, d):
                 dj = di * math.exp(rng.uniform(-0.25, 0.25))
                 uj, vj = u + rng.uniform(-0.2, 0.2) * di, v + rng.uniform(-0.2, 0.2) * di
-                crops.append(confirm_crop(image, uj, vj, dj, CONTEXT, CROP_PX, MIN_SIDE_PX))
+                crops.append(crop(image, uj, vj, dj))
                 label.append(1.0)
     # a stage with (almost) no false alarms in its training frames (one barely trained) leaves nothing to tell the balls
     # from: random places of the frames, away from their balls, are the others then (as many as the balls)
@@ -100,13 +109,13 @@ def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: floa
         u, v, di = rng.uniform(0, w - 1), rng.uniform(0, h - 1), math.exp(rng.uniform(math.log(6.0), math.log(48.0)))
         if len(c) and (np.hypot(c[:, 0] - u, c[:, 1] - v) <= np.maximum(d, 6.0) + di).any():
             continue
-        crops.append(confirm_crop(image, u, v, di, CONTEXT, CROP_PX, MIN_SIDE_PX))
+        crops.append(crop(image, u, v, di))
         label.append(0.0)
         n_random += 1
     y = np.array(label, np.float32)
     log(f"confirmation network: {len(y)} crops of {len(pairs)} frames ({len(frames) - len(pairs)} of them again with lights drawn in; {n_cand} candidates of the stage; "
         f"{int(y.sum())} balls, {int((y == 0).sum())} not" + (f", {n_random} of them random places" if n_random else "") + ")")
-    return np.array(crops, np.uint8).reshape(-1, CROP_PX, CROP_PX, 3), y
+    return np.array(crops, np.uint8).reshape(-1, CROP_PX, CROP_PX, 3 if context2 is None else 6), y
 
 
 def confirm_net(torch, c: int = 16):
@@ -133,54 +142,82 @@ def confirm_net(torch, c: int = 16):
 
 def fit_confirm(crops, labels, *, steps: int, seed: int, batch: int = 64, lr: float = 2e-3, log=print, progress: bool = False) -> bytes:
     """The confirmation network fitted on :func:`confirm_examples`' arrays; its ONNX bytes (input ``crops`` uint8,
-    output ``p``)."""
+    output ``p``). Crops of six channels (two crops of each candidate): a network on each crop, each fitted as the one
+    of a single crop would be (the same seed and draws), and a graph that gives the mean of their probabilities
+    (:func:`confirm_pair`)."""
     import torch
-
-    from harness.experiments.detector.learned_train import optimiser_step, photometric
 
     pos, neg = np.flatnonzero(labels == 1), np.flatnonzero(labels == 0)
     if len(pos) == 0 or len(neg) == 0:
         raise ValueError(f"the confirmation network needs balls and other candidates: {len(pos)} balls, {len(neg)} others")
-    torch.manual_seed(seed)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # repeatable sums
     try:
-        rng = np.random.default_rng([seed, 62])
-        net = confirm_net(torch)
-        opt = torch.optim.Adam(net.parameters(), lr=lr, foreach=True)
-        bar = None
-        if progress:
-            from harness.common.progress import progress_bar
-
-            bar = progress_bar(total=steps, desc="confirmation network", unit="step", leave=False)
-        avg = None
-        half = batch // 2
         p = crops.shape[1]
-        for i in range(steps):
-            if i == int(0.7 * steps):
-                for g in opt.param_groups:
-                    g["lr"] = lr / 4
-            idx = np.concatenate([rng.choice(pos, half), rng.choice(neg, batch - half)])
-            xb = np.empty((batch, p, p, 3), np.uint8)
-            for k, j in enumerate(idx):
-                x = crops[j]
-                if rng.random() < 0.5:
-                    x = x[:, ::-1]
-                if rng.random() < 0.5:
-                    x = x[::-1]
-                xb[k] = photometric(np.ascontiguousarray(x), rng)
-            out = net(torch.from_numpy(xb).float())
-            loss = torch.nn.functional.binary_cross_entropy_with_logits(out, torch.from_numpy(labels[idx]))
-            avg = optimiser_step(opt, loss, avg, bar)
-        if bar is not None:
-            bar.close()
-        log(f"confirmation network: {steps} steps of {batch} crops, final loss {avg:.3f}")
-        return export_confirm(torch, net.eval(), p)
+        if crops.shape[3] == 3:
+            return export_confirm(torch, _fit_one(torch, crops, labels, pos, neg, steps, seed, batch, lr, log, progress, ""), p)
+        first = _fit_one(torch, crops[..., :3], labels, pos, neg, steps, seed, batch, lr, log, progress, " (first crop)")
+        second = _fit_one(torch, crops[..., 3:], labels, pos, neg, steps, seed, batch, lr, log, progress, " (second crop)")
+        return export_confirm(torch, confirm_pair(torch, first, second), p, 6)
     finally:
         torch.set_num_threads(threads)
 
 
-def export_confirm(torch, net, p: int) -> bytes:
+def _fit_one(torch, crops, labels, pos, neg, steps: int, seed: int, batch: int, lr: float, log, progress: bool, what: str):
+    """One network (:func:`confirm_net`) fitted on three-channel ``crops``: half balls, half not per batch, each crop
+    flipped at random and changed as the stage's patches are."""
+    from harness.experiments.detector.learned_train import optimiser_step, photometric
+
+    torch.manual_seed(seed)
+    rng = np.random.default_rng([seed, 62])
+    net = confirm_net(torch)
+    opt = torch.optim.Adam(net.parameters(), lr=lr, foreach=True)
+    bar = None
+    if progress:
+        from harness.common.progress import progress_bar
+
+        bar = progress_bar(total=steps, desc="confirmation network" + what, unit="step", leave=False)
+    avg = None
+    half = batch // 2
+    p = crops.shape[1]
+    for i in range(steps):
+        if i == int(0.7 * steps):
+            for g in opt.param_groups:
+                g["lr"] = lr / 4
+        idx = np.concatenate([rng.choice(pos, half), rng.choice(neg, batch - half)])
+        xb = np.empty((batch, p, p, 3), np.uint8)
+        for k, j in enumerate(idx):
+            x = crops[j]
+            if rng.random() < 0.5:
+                x = x[:, ::-1]
+            if rng.random() < 0.5:
+                x = x[::-1]
+            xb[k] = photometric(np.ascontiguousarray(x), rng)
+        out = net(torch.from_numpy(xb).float())
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(out, torch.from_numpy(labels[idx]))
+        avg = optimiser_step(opt, loss, avg, bar)
+    if bar is not None:
+        bar.close()
+    log(f"confirmation network{what}: {steps} steps of {batch} crops, final loss {avg:.3f}")
+    return net.eval()
+
+
+def confirm_pair(torch, first, second):
+    """A network of six-channel crops from two of three channels: ``first`` on channels 0-2, ``second`` on 3-5; its
+    logit is the one of the mean of their probabilities (so :func:`export_confirm`'s sigmoid gives that mean)."""
+    class Pair(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.first, self.second = first, second
+
+        def forward(self, crops):
+            p = 0.5 * (torch.sigmoid(self.first(crops[..., :3])) + torch.sigmoid(self.second(crops[..., 3:])))
+            return torch.logit(p, eps=1e-7)
+
+    return Pair()
+
+
+def export_confirm(torch, net, p: int, channels: int = 3) -> bytes:
     import io
 
     class Deployed(torch.nn.Module):
@@ -192,16 +229,21 @@ def export_confirm(torch, net, p: int) -> bytes:
             return torch.sigmoid(self.inner(crops.float()))
 
     buf = io.BytesIO()
-    torch.onnx.export(Deployed(net), (torch.zeros(2, p, p, 3, dtype=torch.uint8),), buf, input_names=["crops"],
+    torch.onnx.export(Deployed(net), (torch.zeros(2, p, p, channels, dtype=torch.uint8),), buf, input_names=["crops"],
                       output_names=["p"], dynamic_axes={"crops": {0: "n"}, "p": {0: "n"}}, opset_version=17, dynamo=False)
     return buf.getvalue()
 
 
-def build_confirm_net(stage, pairs, *, steps: int, seed: int, description: str, lit: float = LIT, log=print, progress: bool = False) -> ConfirmNet:
+def build_confirm_net(stage, pairs, *, steps: int, seed: int, description: str, lit: float = LIT, context: float = CONTEXT,
+                      context2: float | None = None, log=print, progress: bool = False) -> ConfirmNet:
     """A :class:`ConfirmNet` for ``stage`` trained on its candidates in ``pairs`` (``lit``: the share of them searched
-    again with light sources drawn in)."""
-    crops, labels = confirm_examples(stage, pairs, seed, lit=lit, log=log)
+    again with light sources drawn in; ``context``: a crop's side in candidate diameters; ``context2``: a second
+    crop's, or None)."""
+    crops, labels = confirm_examples(stage, pairs, seed, lit=lit, context=context, context2=context2, log=log)
     onnx = fit_confirm(crops, labels, steps=steps, seed=seed, log=log, progress=progress)
-    return ConfirmNet(onnx, crop_px=CROP_PX, context=CONTEXT, min_side_px=MIN_SIDE_PX, candidates=CANDIDATES, gate=GATE,
+    return ConfirmNet(onnx, crop_px=CROP_PX, context=context, context2=context2, min_side_px=MIN_SIDE_PX, candidates=CANDIDATES, gate=GATE,
                       description=f"{steps} steps of 64 crops, seed {seed}, on {int(labels.sum())} ball and {int((labels == 0).sum())} other crops"
-                      + (f" ({100 * lit:g} % of the frames searched again with light sources drawn in)" if lit else "") + "; " + description)
+                      + (f" ({100 * lit:g} % of the frames searched again with light sources drawn in)" if lit else "")
+                      + (f", crops of {context:g} diameters" if context != CONTEXT and context2 is None else "")
+                      + (f"; two networks so, one on crops of {context:g} diameters, one on crops of {context2:g}, their probabilities averaged"
+                         if context2 is not None else "") + "; " + description)

@@ -77,10 +77,12 @@ ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
           diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, log=print,
-          progress: bool = True, confirm_steps: int = 3000, stage_from=None, confirm_lights: float = 0.5):
+          progress: bool = True, confirm_steps: int = 3000, stage_from=None, confirm_lights: float = 0.5, confirm_context=None):
     """The model (base filter + trained learned stage and its confirmation network) and a dict of what it was trained
     on and its validation figures. ``stage_from``: a model file whose learned stage is kept as it is (its heatmap
-    network, size ratio and description; not trained again): only its confirmation network is trained."""
+    network, size ratio and description; not trained again): only its confirmation network is trained.
+    ``confirm_context``: the confirmation's crop side in candidate diameters, or two (a second crop; None:
+    ``confirm_train.CONTEXT``)."""
     from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.learned_train import (LearnedTrainOptions, _best_threshold, fit_learned, items_at_scale)
     from harness.experiments.detector.scores import truth_of
@@ -143,10 +145,11 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         stage = dataclasses.replace(kept, confirm=None)
         log(f"the learned stage of {stage_from} kept (not trained again)")
     if confirm_steps:
-        from harness.experiments.detector.confirm_train import build_confirm_net
+        from harness.experiments.detector.confirm_train import CONTEXT, build_confirm_net
 
+        contexts = [CONTEXT] if confirm_context is None else [float(c) for c in np.atleast_1d(confirm_context)]
         confirm = build_confirm_net(stage, pairs, steps=confirm_steps, seed=seed, log=log, progress=progress,
-                                    lit=confirm_lights,
+                                    lit=confirm_lights, context=contexts[0], context2=contexts[1] if len(contexts) > 1 else None,
                                     description=f"the candidates of the stage on its training frames ({'; '.join(sources)})")
         stage = dataclasses.replace(stage, confirm=confirm)
         sources.append(f"a confirmation network ({confirm_steps} steps) on the stage's candidates in these frames")
@@ -179,13 +182,18 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     chosen = (f"tracking threshold {stage.track_threshold:g}; threshold {th:g} chosen on {val_what}"
               + (f" with the confirmation network (the heat's alone: {stage.threshold:g})" if stage.confirm is not None else "")
               + f": recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%")
+    from harness.experiments.detector.confirm_train import CONTEXT
+
+    # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
+    given = [] if confirm_context is None else [float(c) for c in np.atleast_1d(confirm_context)]
+    ctx_arg = (" --confirm-context " + " ".join(f"{c:g}" for c in given)) if confirm_steps and given and given != [CONTEXT] else ""
     if stage_from is None:
-        description = (f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps} --confirm-steps {confirm_steps}` on "
+        description = (f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps} --confirm-steps {confirm_steps}{ctx_arg}` on "
                        + "; ".join(sources) + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to "
                        f"{max_side} px, coarse pass at {max_side // 2} px, windows with {WINDOW_CONTEXT_PX} px of context; " + chosen + size_note)
     else:
         before = kept.description.split(STAGE_FROM_MARK)[0]  # a file made so before: its stage's own description
-        description = (f"{before}{STAGE_FROM_MARK}{colour} --seed {seed} --confirm-steps {confirm_steps} --stage-from "
+        description = (f"{before}{STAGE_FROM_MARK}{colour} --seed {seed} --confirm-steps {confirm_steps}{ctx_arg} --stage-from "
                        f"{Path(stage_from).name}` kept that stage and added " + (f"a confirmation network: {stage.confirm.description}" if confirm_steps else "nothing")
                        + "; " + chosen)
     stage = dataclasses.replace(stage, description=description)
@@ -354,6 +362,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--confirm-lights", type=float, default=0.5,
                         help="the share of the training frames the confirmation network's examples are also taken from with "
                              "light sources drawn in (lamps: a white ball's detector's false alarms; default 0.5)")
+    parser.add_argument("--confirm-context", type=float, nargs="+", default=None, metavar="DIAMETERS",
+                        help="the confirmation network's crop: its side in candidate diameters (at least 48 px; default 6, as "
+                             "shipped); two values: two crops of each candidate, stacked, that the network sees together")
     parser.add_argument("--stage-from", default=None,
                         help="a model file whose learned stage is kept as it is (not trained again): only the confirmation network "
                              "is trained, on its candidates, and the thresholds chosen again")
@@ -377,6 +388,11 @@ def run(args) -> int:
 
         if BallSegmentationModel.load(args.stage_from).learned is None:
             raise ValueError(f"--stage-from {args.stage_from}: the model has no learned stage to keep")
+    if args.confirm_context is not None and (len(args.confirm_context) > 2 or not all(1.0 <= c <= 32.0 for c in args.confirm_context)):
+        raise ValueError("--confirm-context must be one or two numbers of diameters between 1 and 32, got "
+                         + " ".join(f"{c:g}" for c in args.confirm_context))
+    if args.confirm_context is not None and not args.confirm_steps:
+        raise ValueError("--confirm-context is the confirmation network's crop: it needs --confirm-steps 1 or more")
     for name in ("hard_pastes", "lights", "mined", "confirm_lights"):
         v = getattr(args, name)
         if not (0.0 <= v <= 1.0):
@@ -384,7 +400,8 @@ def run(args) -> int:
     model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
                         semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights, mined=args.mined,
-                        confirm_steps=args.confirm_steps, stage_from=args.stage_from, confirm_lights=args.confirm_lights)
+                        confirm_steps=args.confirm_steps, stage_from=args.stage_from, confirm_lights=args.confirm_lights,
+                        confirm_context=args.confirm_context)
     with atomic_path(out, "--out") as tmp:
         model.save(tmp)
     print(f"wrote {out}: learned stage threshold {info['threshold']:g}")

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from harness.experiments.detector.coco import LabelledImage
-from harness.experiments.detector.confirm_train import CROP_PX, JITTER, confirm_examples, fit_confirm, with_lights
+from harness.experiments.detector.confirm_train import CONTEXT, CROP_PX, JITTER, confirm_examples, fit_confirm, with_lights
+from tracker.detection.confirm import confirm_crop
 
 
 class _Stage:
@@ -69,3 +70,35 @@ def test_the_fit_is_repeatable_and_refuses_one_sided_examples():
     assert a == fit_confirm(crops, labels, steps=3, seed=5, batch=4, log=lambda m: None)
     with pytest.raises(ValueError, match="needs balls and other candidates: 0 balls, 12 others"):
         fit_confirm(crops, np.zeros(12, np.float32), steps=3, seed=5, log=lambda m: None)
+
+
+def test_a_second_context_stacks_each_examples_crop_at_two_scales():
+    """``context2``: the same examples (the same candidates, jitter and random places: the same seed), each with its
+    crop at the second scale after the first's three channels."""
+    img, li = _frame()
+    img = np.random.default_rng(5).integers(0, 256, img.shape, dtype=np.uint8)  # texture: crops of two sizes differ
+    one, labels_one = confirm_examples(_Stage(), [(img, li)], seed=0, log=lambda m: None)
+    two, labels_two = confirm_examples(_Stage(), [(img, li)], seed=0, context2=2.0, log=lambda m: None)
+    assert two.shape == (len(one), CROP_PX, CROP_PX, 6) and labels_two.tolist() == labels_one.tolist()
+    np.testing.assert_array_equal(two[..., :3], one)
+    np.testing.assert_array_equal(two[0, ..., 3:], confirm_crop(img, 80.0, 60.0, 10.0, 2.0, CROP_PX, 48.0))
+    assert not np.array_equal(two[0, ..., 3:], confirm_crop(img, 80.0, 60.0, 10.0, CONTEXT, CROP_PX, 48.0))
+
+
+def test_two_crops_fit_a_network_on_each_and_average_their_probabilities():
+    """Six-channel crops: each half fitted as a crop of its own would be (the same seed), the graph's probability the
+    mean of the two networks'."""
+    pytest.importorskip("torch", reason="training needs rt2[train]")
+    from tracker.detection.confirm import ConfirmNet
+
+    rng = np.random.default_rng(1)
+    crops = rng.integers(0, 256, (12, CROP_PX, CROP_PX, 6), dtype=np.uint8)
+    labels = np.array([1.0, 0.0] * 6, np.float32)
+    quiet = dict(steps=3, seed=5, batch=4, log=lambda m: None)
+    pair = ConfirmNet(fit_confirm(crops, labels, **quiet), context2=2.0)
+    first = ConfirmNet(fit_confirm(np.ascontiguousarray(crops[..., :3]), labels, **quiet))
+    second = ConfirmNet(fit_confirm(np.ascontiguousarray(crops[..., 3:]), labels, **quiet))
+    probe = rng.integers(0, 256, (5, CROP_PX, CROP_PX, 6), dtype=np.uint8)
+    mean = 0.5 * (first.probabilities(probe[..., :3]) + second.probabilities(probe[..., 3:]))
+    np.testing.assert_allclose(pair.probabilities(probe), mean, atol=1e-5)
+    assert not np.allclose(first.probabilities(probe[..., :3]), second.probabilities(probe[..., 3:]), atol=1e-4)

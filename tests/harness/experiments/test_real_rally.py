@@ -73,18 +73,18 @@ def test_few_label_run_on_real_frames(tmp_path, capsys):
 
 # -- the shipped white model (learned stage) on the held-out rally frames: figures, not plumbing ---------------------
 def test_the_shipped_white_model_finds_the_held_out_rally_ball_without_false_ones():
-    """README Results, "Real white balls with the learned stage": trained on frames 0:58 (and frames we made), scored on
-    the 25 held-out frames 58: and on the same frames with the ball painted out. Measured 2026-11-28: top-4 recall 84 %
-    (21 of 25), no outlier, median 3.50 px against the loose boxes (4.61 before the centres were refined on the ball's edge); an alarm on 1 of the 25 ball-free frames. The 5x5
-    filter finds none of these balls. The bounds leave one ball (and one alarm) of slack for float differences between
-    CPUs."""
+    """README Results, "Real white balls with the learned stage" and "A second look at a whole frame": trained on frames
+    0:58 (and frames we made), scored on the 25 held-out frames 58: and on the same frames with the ball painted out.
+    Measured 2026-12-02 with the file's confirmation network of two crops: top-4 recall 76 % (19 of 25; one crop: 20),
+    no outlier, median 3.52 px against the loose boxes; no alarm on the 25 ball-free frames. The 5x5 filter finds none
+    of these balls. The bounds leave one ball (and two alarms) of slack for float differences between CPUs."""
     from harness.experiments.studies.eval_detector import evaluate
 
     model = BallSegmentationModel.load("data/models/ball_seg_white.npz")
     held_out = take_range(read_coco(RALLY), LATE)
     topk = evaluate(model, held_out, methods=("topk",), progress=False)[0]
     assert topk.n_balls == 25
-    assert topk.recall >= 20 / 25 and topk.outlier_rate <= 1 / 21 and topk.median_center_error_px <= 4.0
+    assert topk.recall >= 18 / 25 and topk.outlier_rate <= 1 / 19 and topk.median_center_error_px <= 4.0
     free = evaluate(model, held_out, methods=("topk",), progress=False, ball_free_margin_px=4.0)[0]
     assert free.n_false_alarm_images <= 2
     paper = evaluate(model, held_out, methods=("paper",), progress=False)[0]
@@ -143,6 +143,13 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
                  "--seed", "4", "--confirm-steps", "3", "--stage-from", str(c), "--out", str(d)]) == 0
     again = BallSegmentationModel.load(d).learned
     assert again.confirm.onnx == kept.confirm.onnx and again.description == kept.description.replace("--stage-from a.npz", "--stage-from c.npz")
+    # --confirm-context: two crops of each candidate; the command in the description, the second context in the file
+    e = tmp_path / "e.npz"
+    assert main(["train-shipped", "--colour", "white", "--frames-per-video", "2", "--semireal-sets", "2", "--rally-range", "40:46",
+                 "--seed", "4", "--confirm-steps", "3", "--confirm-context", "6", "2", "--stage-from", str(a), "--out", str(e)]) == 0
+    two = BallSegmentationModel.load(e).learned
+    assert (two.confirm.context, two.confirm.context2, two.confirm.channels) == (6.0, 2.0, 6) and two.onnx == stage.onnx
+    assert "--confirm-steps 3 --confirm-context 6 2 --stage-from a.npz" in two.description and "one on crops of 6 diameters, one on crops of 2, their probabilities averaged" in two.description
     capsys.readouterr()
     assert main([*args, "--out", str(tmp_path / "m.txt")]) == 2
     err = capsys.readouterr().err
@@ -260,6 +267,10 @@ def test_train_shipped_shares_bad_values_are_one_line(tmp_path, capsys, option, 
     (["--confirm-steps", "-1"], "--confirm-steps must be 0 (none) or more, got -1"),
     (["--confirm-lights", "1.5"], "--confirm-lights must be a share between 0 and 1, got 1.5"),
     (["--confirm-lights", "nan"], "--confirm-lights must be a share between 0 and 1, got nan"),
+    (["--confirm-context", "0.5"], "--confirm-context must be one or two numbers of diameters between 1 and 32, got 0.5"),
+    (["--confirm-context", "nan"], "--confirm-context must be one or two numbers of diameters between 1 and 32, got nan"),
+    (["--confirm-context", "6", "3", "2"], "--confirm-context must be one or two numbers of diameters between 1 and 32, got 6 3 2"),
+    (["--confirm-context", "2", "--confirm-steps", "0"], "--confirm-context is the confirmation network's crop: it needs --confirm-steps 1 or more"),
     (["--stage-from", "no/such/model.npz"], "--stage-from no/such/model.npz: no such model file"),
     (["--stage-from", "data/models/ball_seg_default.npz", "--confirm-steps", "0"], "--stage-from keeps a stage to add a confirmation network to it"),
 ])
