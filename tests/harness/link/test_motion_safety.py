@@ -196,7 +196,9 @@ def move_and_hold_at_full_speed(wam, kin) -> None:
     stroke = 0.84 * kin.qdot_max[0] * 1.4 / 1.875  # the WAM: 2.0 rad
     target = q.copy()
     target[0] -= stroke
-    t0 = wam.t_s + 0.1
+    # far enough ahead for a loaded machine: the bridge's clock runs on, and a trajectory whose start has passed when it
+    # is judged no longer starts at the arm (refused: no teleports; 0.1 s ahead was too little under a parallel suite)
+    t0 = wam.t_s + 1.0
     t, Q, Qd = _smooth(q, target, t0, 1.4)  # min-jerk: peak 1.875 x stroke / 1.4 (the WAM: 2.7 rad/s, 5.9 rad/s^2)
     wam.command_trajectory(t, Q, Qd)
     wam.advance_to(t0 + 0.7)  # the peak speed
