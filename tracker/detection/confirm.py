@@ -13,9 +13,10 @@ the candidates of whole frames only (single images, the label page's proposals, 
 window keeps the heat, and so does a live tracker, whose cameras report the heat's candidates (the consensus of the
 cameras rejects a camera's false alarms there; eight cameras' full frames confirmed cost ~1.4 ms each).
 
-With a second context (``ConfirmNet.context2``) each candidate is cut out twice, at two scales (the shipped files: 6
+With a second context (``ConfirmNet.context2``) each candidate is cut out twice, at two scales (the white file: 6
 and 2 diameters, the ball ~8 and ~24 px across: its surroundings, and the ball itself), and the graph takes both
-crops stacked as six channels; the shipped graphs are two networks, one on each crop, their probabilities averaged
+crops stacked as six channels (:func:`stacked_crop`); its graph is two networks, one on each crop, their
+probabilities averaged
 (on cameras the networks never saw, the two scales are wrong on different things: README Results).
 
 Inference: ONNX Runtime on the CPU, one thread, a session per thread (as the heatmap network); the graph takes
@@ -34,7 +35,7 @@ import numpy as np
 from checks.per_thread import PerThread
 from tracker.detection.onnx_session import SessionFactory
 
-__all__ = ["ConfirmNet", "CONFIRM_FIELDS", "confirm_crop"]
+__all__ = ["ConfirmNet", "CONFIRM_FIELDS", "confirm_crop", "stacked_crop"]
 
 #: the model file's fields of the confirmation network (all or none; with a learned stage only)
 CONFIRM_FIELDS = ("learned_confirm_onnx", "learned_confirm_geometry")
@@ -61,11 +62,19 @@ def confirm_crop(image: np.ndarray, u: float, v: float, d: float, context: float
     return cv2.resize(np.ascontiguousarray(part), (crop_px, crop_px), interpolation=interp)
 
 
+def stacked_crop(image: np.ndarray, u: float, v: float, d: float, contexts, crop_px: int, min_side_px: float) -> np.ndarray:
+    """``(crop_px, crop_px, 3 * len(contexts))`` uint8: :func:`confirm_crop` of the candidate at each context, stacked
+    along the channels in that order (what a confirmation network of one or two crops takes; training cuts its examples
+    with it too)."""
+    one = [confirm_crop(image, u, v, d, c, crop_px, min_side_px) for c in contexts]
+    return one[0] if len(one) == 1 else np.concatenate(one, axis=2)
+
+
 @dataclass(frozen=True, eq=False)
 class ConfirmNet:
     """The confirmation network of a learned stage (module docstring).
 
-    onnx : the network, ONNX bytes (input ``crops`` (n, P, P, 3) uint8; output ``p`` (n,))
+    onnx : the network, ONNX bytes (input ``crops`` (n, P, P, :attr:`channels`) uint8; output ``p`` (n,))
     crop_px : P, the side of the crops it takes
     context : a crop's side in candidate diameters
     min_side_px : a crop's side at least, image pixels (both crops)
@@ -98,16 +107,13 @@ class ConfirmNet:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
                 raise ValueError(f"{where}: {name} must be an integer in [{lo}, {hi}], got {v!r}")
             object.__setattr__(self, name, int(v))
-        for name, lo, hi in (("context", 1.0, 32.0), ("min_side_px", 2.0, 4096.0)):
+        for name, lo, hi in (("context", 1.0, 32.0), ("min_side_px", 2.0, 4096.0), ("context2", 1.0, 32.0)):
             v = getattr(self, name)
+            if name == "context2" and v is None:
+                continue
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (math.isfinite(v) and lo <= v <= hi):
-                raise ValueError(f"{where}: {name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
+                raise ValueError(f"{where}: {name} must be " + ("None or " if name == "context2" else "") + f"a number in [{lo:g}, {hi:g}], got {v!r}")
             object.__setattr__(self, name, float(v))
-        if self.context2 is not None:
-            v = self.context2
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (math.isfinite(v) and 1.0 <= v <= 32.0):
-                raise ValueError(f"{where}: context2 must be None or a number in [1, 32], got {v!r}")
-            object.__setattr__(self, "context2", float(v))
         for name in ("gate", "threshold"):
             g = getattr(self, name)
             if isinstance(g, bool) or not isinstance(g, (int, float, np.floating)) or not 0.0 < float(g) < 1.0:
@@ -117,17 +123,20 @@ class ConfirmNet:
         object.__setattr__(self, "_sessions", PerThread(SessionFactory(self.onnx)))
 
     @property
+    def contexts(self) -> tuple[float, ...]:
+        """The crops' sides in candidate diameters: ``(context,)`` or ``(context, context2)``."""
+        return (self.context,) if self.context2 is None else (self.context, self.context2)
+
+    @property
     def channels(self) -> int:
         """The crops' channels: 3, or 6 with a second crop (``context2``)."""
-        return 3 if self.context2 is None else 6
+        return 3 * len(self.contexts)
 
     def crops(self, image: np.ndarray, uv, d) -> np.ndarray:
-        """(n, P, P, 3 or 6) uint8: :func:`confirm_crop` of each candidate (and its second crop, ``context2``)."""
+        """(n, P, P, :attr:`channels`) uint8: :func:`stacked_crop` of each candidate."""
         out = np.empty((len(uv), self.crop_px, self.crop_px, self.channels), np.uint8)
         for i, ((u, v), di) in enumerate(zip(np.asarray(uv, np.float64).reshape(-1, 2), np.asarray(d, np.float64).reshape(-1))):
-            out[i, ..., :3] = confirm_crop(image, u, v, di, self.context, self.crop_px, self.min_side_px)
-            if self.context2 is not None:
-                out[i, ..., 3:] = confirm_crop(image, u, v, di, self.context2, self.crop_px, self.min_side_px)
+            out[i] = stacked_crop(image, u, v, di, self.contexts, self.crop_px, self.min_side_px)
         return out
 
     def probabilities(self, crops: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ other look: the two are combined at run time, :mod:`tracker.detection.confirm`).
 are (:func:`harness.experiments.detector.learned_train.photometric`: blur, white balance, exposure, gamma, lamp
 tint, noise, JPEG). Torch trains it (one thread; the same seed gives the same network); the exported graph takes
 uint8 crops and gives probabilities, and runs without torch. With a second context (``rt2 train-shipped
---confirm-context 6 2``, the shipped files) every example is cut out at both scales, a network is fitted on each
+--confirm-context 6 2``, the white file) every example is cut out at both scales, a network is fitted on each
 scale's crops as a single one would be, and the graph averages their probabilities (:func:`confirm_pair`).
 """
 
@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from tracker.detection.confirm import ConfirmNet, confirm_crop
+from tracker.detection.confirm import ConfirmNet, stacked_crop
 
 __all__ = ["CANDIDATES", "CONTEXT", "GATE", "JITTER", "build_confirm_net", "confirm_examples", "confirm_net", "confirm_pair", "export_confirm", "fit_confirm"]
 
@@ -62,9 +62,10 @@ def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: floa
     docstring); ``lit``: the share of the frames that are also searched with light sources drawn in (:func:`with_lights`);
     ``context``: a crop's side in candidate diameters; ``context2``: a second crop's (None: none), its three channels
     after the first's (``(n, P, P, 6)``)."""
+    contexts = (context,) if context2 is None else (context, context2)
+
     def crop(image, u, v, d):
-        one = confirm_crop(image, u, v, d, context, CROP_PX, MIN_SIDE_PX)
-        return one if context2 is None else np.concatenate([one, confirm_crop(image, u, v, d, context2, CROP_PX, MIN_SIDE_PX)], axis=2)
+        return stacked_crop(image, u, v, d, contexts, CROP_PX, MIN_SIDE_PX)
 
     from harness.experiments.detector.scores import truth_of
 
@@ -115,7 +116,7 @@ def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: floa
     y = np.array(label, np.float32)
     log(f"confirmation network: {len(y)} crops of {len(pairs)} frames ({len(frames) - len(pairs)} of them again with lights drawn in; {n_cand} candidates of the stage; "
         f"{int(y.sum())} balls, {int((y == 0).sum())} not" + (f", {n_random} of them random places" if n_random else "") + ")")
-    return np.array(crops, np.uint8).reshape(-1, CROP_PX, CROP_PX, 3 if context2 is None else 6), y
+    return np.array(crops, np.uint8).reshape(-1, CROP_PX, CROP_PX, 3 * len(contexts)), y
 
 
 def confirm_net(torch, c: int = 16):

@@ -91,7 +91,10 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     from tracker import BallSegmentationModel
     from tracker.detection.learned import LearnedStage
 
+    from harness.experiments.detector.confirm_train import CONTEXT
+
     base = BallSegmentationModel.load(base_path)
+    contexts = [CONTEXT] if confirm_context is None else [float(c) for c in np.atleast_1d(confirm_context)]
     weight = {**WEIGHTS, "drawn": DRAWN_WEIGHT[colour]}
     pairs, weights, sources, semi = [], [], [], []
     rally_train = take_range(read_labels(RALLY, "auto"), rally_range) if RALLY.is_file() else []
@@ -145,9 +148,8 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         stage = dataclasses.replace(kept, confirm=None)
         log(f"the learned stage of {stage_from} kept (not trained again)")
     if confirm_steps:
-        from harness.experiments.detector.confirm_train import CONTEXT, build_confirm_net
+        from harness.experiments.detector.confirm_train import build_confirm_net
 
-        contexts = [CONTEXT] if confirm_context is None else [float(c) for c in np.atleast_1d(confirm_context)]
         confirm = build_confirm_net(stage, pairs, steps=confirm_steps, seed=seed, log=log, progress=progress,
                                     lit=confirm_lights, context=contexts[0], context2=contexts[1] if len(contexts) > 1 else None,
                                     description=f"the candidates of the stage on its training frames ({'; '.join(sources)})")
@@ -182,11 +184,8 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     chosen = (f"tracking threshold {stage.track_threshold:g}; threshold {th:g} chosen on {val_what}"
               + (f" with the confirmation network (the heat's alone: {stage.threshold:g})" if stage.confirm is not None else "")
               + f": recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%")
-    from harness.experiments.detector.confirm_train import CONTEXT
-
     # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
-    given = [] if confirm_context is None else [float(c) for c in np.atleast_1d(confirm_context)]
-    ctx_arg = (" --confirm-context " + " ".join(f"{c:g}" for c in given)) if confirm_steps and given and given != [CONTEXT] else ""
+    ctx_arg = (" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else ""
     if stage_from is None:
         description = (f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps} --confirm-steps {confirm_steps}{ctx_arg}` on "
                        + "; ".join(sources) + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to "
@@ -364,7 +363,8 @@ def add_arguments(parser) -> None:
                              "light sources drawn in (lamps: a white ball's detector's false alarms; default 0.5)")
     parser.add_argument("--confirm-context", type=float, nargs="+", default=None, metavar="DIAMETERS",
                         help="the confirmation network's crop: its side in candidate diameters (at least 48 px; default 6, as "
-                             "shipped); two values: two crops of each candidate, stacked, that the network sees together")
+                             "shipped); two values: each candidate cut out at both, a network on each crop, their "
+                             "probabilities averaged (the white file: 6 2)")
     parser.add_argument("--stage-from", default=None,
                         help="a model file whose learned stage is kept as it is (not trained again): only the confirmation network "
                              "is trained, on its candidates, and the thresholds chosen again")
