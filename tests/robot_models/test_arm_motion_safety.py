@@ -111,7 +111,7 @@ def test_the_bridge_and_the_client_of_another_arm_refuse_the_scaled_table(name):
     from tests.harness.link.test_motion_safety import _raw_trajectory, move_and_hold_at_full_speed
 
     kin, _ = _arm(name)
-    bridge = BridgeProcess("--robot", name, "--seed", "5", "--publish-truth")
+    bridge = BridgeProcess("--robot", name, "--seed", "5", "--publish-truth", "--watchdog", "2")  # as test_motion_safety's bridge
     try:
         with WamClient(bridge.address, kinematics=kin, heartbeat_s=None, **STARVED_OK) as listener:
             assert listener.n_joints == kin.n_joints and listener.robot_info["joint_names"] == list(kin.joint_names)

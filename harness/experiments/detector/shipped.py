@@ -50,6 +50,13 @@ CALISCOPE_VIDEOS = [REAL / "caliscope_4cam" / "calibration" / "extrinsic" / f"ca
 DEFAULT_BASE = ROOT / "data" / "models" / "ball_seg_default.npz"
 
 
+def coarse_side_of(max_side: int) -> int:
+    """A new stage's coarse pass over a whole frame: its longer side, two thirds of ``max_side`` (640 px of 960).
+    Half of it (480 px) shrank a 1080p frame four times, its balls of 21-49 px to 5-12: the pass missed 12 of the rally's 58
+    training balls and 3 of its 25 held-out ones, which a full-scale window then never searched (README Results)."""
+    return 2 * int(max_side) // 3
+
+
 def _drawn(sources, n_per_video: int, seed: int, colour: str, diameter_px, log):
     from harness.experiments.detector.backgrounds import read_backgrounds
     from harness.experiments.detector.drawn import DrawnOptions, draw_frame
@@ -77,12 +84,15 @@ ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
           diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, log=print,
-          progress: bool = True, confirm_steps: int = 3000, stage_from=None, confirm_lights: float = 0.5, confirm_context=None):
+          progress: bool = True, confirm_steps: int = 3000, stage_from=None, confirm_lights: float = 0.5, confirm_context=None,
+          coarse_side=None):
     """The model (base filter + trained learned stage and its confirmation network) and a dict of what it was trained
     on and its validation figures. ``stage_from``: a model file whose learned stage is kept as it is (its heatmap
-    network, size ratio and description; not trained again): only its confirmation network is trained.
+    network, size ratio and description; not trained again): only its confirmation network is trained, or with
+    ``confirm_steps`` 0 its own kept too (only the thresholds chosen again).
     ``confirm_context``: the confirmation's crop side in candidate diameters, or two (a second crop; None:
-    ``confirm_train.CONTEXT``)."""
+    ``confirm_train.CONTEXT``). ``coarse_side``: a whole frame's coarse pass, its longer side in pixels (0: one pass at
+    ``max_side``; None: :func:`coarse_side_of` for a new stage, a kept stage's own)."""
     from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.learned_train import (LearnedTrainOptions, _best_threshold, fit_learned, items_at_scale)
     from harness.experiments.detector.scores import truth_of
@@ -104,24 +114,27 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         pairs += [(load_image(li), li) for li in rally_train]
         weights += [weight["real"]] * len(rally_train)
         sources.append(f"{len(rally_train)} real rally frames ({rally_range})")
+    # a kept stage and its kept confirmation network train nothing: only their thresholds are chosen again
+    trains = stage_from is None or confirm_steps > 0
     bg = [str(p) for p in CALISCOPE_VIDEOS if p.is_file()] + ([f"{RALLY}@{rally_range}"] if rally_train else [])
-    drawn = _drawn(bg, frames_per_video, seed, colour, diameter_px, log)
+    drawn = _drawn(bg, frames_per_video, seed, colour, diameter_px, log) if trains else []
     pairs += drawn
     weights += [weight["drawn"]] * len(drawn)
-    sources.append(f"{len(drawn)} frames with drawn {colour} balls (caliscope cameras 0-1, rally {rally_range} painted out)")
-    if rally_train:
+    if drawn:
+        sources.append(f"{len(drawn)} frames with drawn {colour} balls (caliscope cameras 0-1, rally {rally_range} painted out)")
+    if rally_train and trains:
         pasted = _pasted(rally_range, bg, seed, frames_per_video, diameter_px, log, hard_share=hard_pastes, colour=colour)
         if pasted:
             pairs += pasted
             weights += [weight["pasted"]] * len(pasted)
             sources.append(f"{len(pasted)} frames with the rally's real ball crops" + (f" made {colour}" if colour != "white" else "") + " pasted in"
                            + (f" ({100 * hard_pastes:g} % of them long-smeared or partly hidden)" if hard_pastes else ""))
-    if semireal_sets:
+    if semireal_sets and trains:
         semi = _semireal(rally_range, semireal_sets, seed, log, colour)
         pairs += semi
         weights += [weight["semireal"]] * len(semi)
         sources.append(f"{len(semi)} semi-real frames (caliscope cameras 0-1, " + (f"the rally's real balls {rally_range}" if colour == "white" else f"drawn {colour} balls") + " flown in 3D)")
-    if renders:
+    if renders and trains:
         r = read_labels(renders, "auto")
         pairs += [(load_image(li), li) for li in r]
         weights += [weight["renders"]] * len(r)
@@ -139,14 +152,17 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
         # the file keeps the base's filter (of orange balls, trained on renders): it never refines the stage's centres, the
         # ball's edge does (for orange too: docs/detector.md, "The shipped models")
-        stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px, coarse_side_px=max_side // 2,
+        stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px,
+                             coarse_side_px=coarse_side_of(max_side) if coarse_side is None else coarse_side,
                              context_px=WINDOW_CONTEXT_PX, filter_refines=False)
     else:
         kept = BallSegmentationModel.load(stage_from).learned
         if kept is None:
             raise ValueError(f"--stage-from {stage_from}: the model has no learned stage to keep")
-        stage = dataclasses.replace(kept, confirm=None)
-        log(f"the learned stage of {stage_from} kept (not trained again)")
+        stage = dataclasses.replace(kept, confirm=kept.confirm if not confirm_steps else None,
+                                    **({} if coarse_side is None else dict(coarse_side_px=coarse_side)))
+        log(f"the learned stage of {stage_from} kept (not trained again)"
+            + ("" if coarse_side is None else f", its whole frames searched " + (f"first at {coarse_side} px" if coarse_side else "in one pass")))
     if confirm_steps:
         from harness.experiments.detector.confirm_train import build_confirm_net
 
@@ -185,15 +201,21 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
               + (f" with the confirmation network (the heat's alone: {stage.threshold:g})" if stage.confirm is not None else "")
               + f": recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%")
     # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
-    ctx_arg = (" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else ""
+    ctx_arg = ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
+        + ("" if coarse_side is None else f" --coarse-side {coarse_side}")
     if stage_from is None:
         description = (f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps} --confirm-steps {confirm_steps}{ctx_arg}` on "
                        + "; ".join(sources) + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to "
-                       f"{max_side} px, coarse pass at {max_side // 2} px, windows with {WINDOW_CONTEXT_PX} px of context; " + chosen + size_note)
+                       f"{max_side} px, " + (f"coarse pass at {stage.coarse_side_px} px" if stage.coarse_side_px else "one pass") + f", windows with {WINDOW_CONTEXT_PX} px of context; " + chosen + size_note)
     else:
-        before = kept.description.split(STAGE_FROM_MARK)[0]  # a file made so before: its stage's own description
+        # a file made so before: its stage's own description, where a new confirmation network replaces the kept one's; a
+        # kept confirmation network keeps the history of how it was made
+        before = kept.description.split(STAGE_FROM_MARK)[0] if confirm_steps or stage.confirm is None else kept.description
         description = (f"{before}{STAGE_FROM_MARK}{colour} --seed {seed} --confirm-steps {confirm_steps}{ctx_arg} --stage-from "
-                       f"{Path(stage_from).name}` kept that stage and added " + (f"a confirmation network: {stage.confirm.description}" if confirm_steps else "nothing")
+                       f"{Path(stage_from).name}` kept that stage"
+                       + ("" if coarse_side is None else " (" + (f"its coarse pass over whole frames at {coarse_side} px" if coarse_side else "whole frames in one pass") + ")")
+                       + (f" and added a confirmation network: {stage.confirm.description}" if confirm_steps
+                          else " and its confirmation network" if stage.confirm is not None else " and added nothing")
                        + "; " + chosen)
     stage = dataclasses.replace(stage, description=description)
     log(f"threshold {th:g} on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
@@ -357,7 +379,7 @@ def add_arguments(parser) -> None:
                              "mined every 1000 steps (bootstrapping; default 0)")
     parser.add_argument("--confirm-steps", type=int, default=3000,
                         help="optimiser steps of the confirmation network, the second look at a whole frame's best candidates "
-                             "(default 3000, as shipped; 0 = none)")
+                             "(default 3000, as shipped; 0 = none, or with --stage-from the kept file's own)")
     parser.add_argument("--confirm-lights", type=float, default=0.5,
                         help="the share of the training frames the confirmation network's examples are also taken from with "
                              "light sources drawn in (lamps: a white ball's detector's false alarms; default 0.5)")
@@ -367,7 +389,12 @@ def add_arguments(parser) -> None:
                              "probabilities averaged (the white file: 6 2)")
     parser.add_argument("--stage-from", default=None,
                         help="a model file whose learned stage is kept as it is (not trained again): only the confirmation network "
-                             "is trained, on its candidates, and the thresholds chosen again")
+                             "is trained, on its candidates, and the thresholds chosen again; with --confirm-steps 0 its "
+                             "confirmation network is kept too (with --coarse-side: the file's passes changed, nothing trained)")
+    parser.add_argument("--coarse-side", type=int, default=None, metavar="PX",
+                        help="a whole frame's first, coarse pass: its longer side in pixels, whose best peaks are searched "
+                             "again at full scale (0: one pass at --max-side-px; default two thirds of --max-side-px for a new "
+                             "stage, a --stage-from stage's own)")
     parser.add_argument("--max-side-px", type=int, default=960,
                         help="frames with a longer side are shrunk to it before the network (default 960: VGA frames as they are)")
 
@@ -381,18 +408,21 @@ def run(args) -> int:
         raise ValueError(f"--confirm-steps must be 0 (none) or more, got {args.confirm_steps}")
     if args.stage_from is not None and not Path(args.stage_from).is_file():
         raise ValueError(f"--stage-from {args.stage_from}: no such model file")
-    if args.stage_from is not None and not args.confirm_steps:
-        raise ValueError("--stage-from keeps a stage to add a confirmation network to it: it needs --confirm-steps 1 or more")
+    max_side, side_of = args.max_side_px, "--max-side-px"
     if args.stage_from is not None:  # before any frame is read
         from tracker import BallSegmentationModel
 
-        if BallSegmentationModel.load(args.stage_from).learned is None:
+        kept = BallSegmentationModel.load(args.stage_from).learned
+        if kept is None:
             raise ValueError(f"--stage-from {args.stage_from}: the model has no learned stage to keep")
+        max_side, side_of = kept.max_side_px, "the kept stage's side"
     if args.confirm_context is not None and (len(args.confirm_context) > 2 or not all(1.0 <= c <= 32.0 for c in args.confirm_context)):
         raise ValueError("--confirm-context must be one or two numbers of diameters between 1 and 32, got "
                          + " ".join(f"{c:g}" for c in args.confirm_context))
     if args.confirm_context is not None and not args.confirm_steps:
         raise ValueError("--confirm-context is the confirmation network's crop: it needs --confirm-steps 1 or more")
+    if args.coarse_side is not None and args.coarse_side != 0 and not 64 <= args.coarse_side < max_side:
+        raise ValueError(f"--coarse-side must be 0 (one pass) or a side of 64 px up to below {side_of} ({max_side}), got {args.coarse_side}")
     for name in ("hard_pastes", "lights", "mined", "confirm_lights"):
         v = getattr(args, name)
         if not (0.0 <= v <= 1.0):
@@ -401,7 +431,7 @@ def run(args) -> int:
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
                         semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights, mined=args.mined,
                         confirm_steps=args.confirm_steps, stage_from=args.stage_from, confirm_lights=args.confirm_lights,
-                        confirm_context=args.confirm_context)
+                        confirm_context=args.confirm_context, coarse_side=args.coarse_side)
     with atomic_path(out, "--out") as tmp:
         model.save(tmp)
     print(f"wrote {out}: learned stage threshold {info['threshold']:g}")

@@ -386,6 +386,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--no-confirm", action="store_true",
                         help="rank a whole frame's candidates by the learned stage's heat alone, without its confirmation network "
                              "(if it has one), at the heat's own threshold")
+    parser.add_argument("--coarse-side", type=int, default=None, metavar="PX",
+                        help="a model with a learned stage: search whole frames first at this longer side, its best peaks again at "
+                             "full scale (0: one pass at the stage's full scale); default: the model's own")
     parser.add_argument("--no-verifier", action="store_true",
                         help="run 'ours' and 'topk' with the model's 5x5 filter alone, without its candidate verifier (if it has one)")
     parser.add_argument("--ball-diameter-px", default=None, metavar="LO:HI",
@@ -413,6 +416,14 @@ def run(args) -> int:
         model = replace(model, verifier=None)
     if getattr(args, "no_confirm", False) and model.learned is not None and model.learned.confirm is not None:
         model = replace(model, learned=replace(model.learned, confirm=None))
+    coarse = getattr(args, "coarse_side", None)
+    if coarse is not None:
+        if model.learned is None:
+            raise ValueError(f"--coarse-side {coarse}: the model has no learned stage (its whole frames are searched by its 5x5 filter)")
+        if coarse != 0 and not 64 <= coarse < model.learned.max_side_px:
+            raise ValueError(f"--coarse-side must be 0 (one pass) or a side of 64 px up to below the stage's full scale "
+                             f"({model.learned.max_side_px} px), got {coarse}")
+        model = replace(model, learned=replace(model.learned, coarse_side_px=coarse))
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if getattr(args, "camera", None):  # before --time-range: the time order is one camera's
         labelled = select_cameras(labelled, args.camera)

@@ -213,6 +213,19 @@ def test_learned_threshold_refuses_what_is_no_probability(synthetic_ball_coco, c
     assert f"--learned-threshold must be a probability in (0, 1) or 'track', got {value!r}" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("model, value, message", [
+    ("data/models/ball_seg_white.npz", "-1", "--coarse-side must be 0 (one pass) or a side of 64 px up to below the stage's full scale (960 px), got -1"),
+    ("data/models/ball_seg_white.npz", "63", "--coarse-side must be 0 (one pass) or a side of 64 px up to below the stage's full scale (960 px), got 63"),
+    ("data/models/ball_seg_white.npz", "960", "--coarse-side must be 0 (one pass) or a side of 64 px up to below the stage's full scale (960 px), got 960"),
+    ("data/models/ball_seg_default.npz", "640", "--coarse-side 640: the model has no learned stage"),
+])
+def test_coarse_side_refuses_what_the_stage_cannot_search(synthetic_ball_coco, capsys, model, value, message):
+    args = ["eval", "detector", "--data", str(synthetic_ball_coco(30, 1)), "--model", model, "--coarse-side", value]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
 def test_cli_thresholds_override_the_model(synthetic_ball_coco, tmp_path, capsys):
     model, data = _model_and_data(synthetic_ball_coco, tmp_path)
     base, strict = tmp_path / "base.json", tmp_path / "strict.json"

@@ -75,16 +75,21 @@ def test_few_label_run_on_real_frames(tmp_path, capsys):
 def test_the_shipped_white_model_finds_the_held_out_rally_ball_without_false_ones():
     """README Results, "Real white balls with the learned stage" and "A second look at a whole frame": trained on frames
     0:58 (and frames we made), scored on the 25 held-out frames 58: and on the same frames with the ball painted out.
-    Measured 2026-12-02 with the file's confirmation network of two crops: top-4 recall 76 % (19 of 25; one crop: 20),
-    no outlier, median 3.52 px against the loose boxes; no alarm on the 25 ball-free frames. The 5x5 filter finds none
-    of these balls. The bounds leave one ball (and two alarms) of slack for float differences between CPUs."""
+    Measured 2026-12-02 with the file's confirmation network of two crops and its coarse pass at 640 px: top-4 recall
+    84 % (21 of 25; the coarse pass at 480 px: 19), no outlier, median 3.39 px against the loose boxes; no alarm on the
+    25 ball-free frames. The 5x5 filter finds none of these balls. The bounds leave one ball (and two alarms) of slack
+    for float differences between CPUs; the coarse pass at 480 px (the file's before) misses balls the file finds."""
+    import dataclasses
+
     from harness.experiments.studies.eval_detector import evaluate
 
     model = BallSegmentationModel.load("data/models/ball_seg_white.npz")
     held_out = take_range(read_coco(RALLY), LATE)
     topk = evaluate(model, held_out, methods=("topk",), progress=False)[0]
     assert topk.n_balls == 25
-    assert topk.recall >= 18 / 25 and topk.outlier_rate <= 1 / 19 and topk.median_center_error_px <= 4.0
+    assert topk.recall >= 20 / 25 and topk.outlier_rate <= 1 / 21 and topk.median_center_error_px <= 4.0
+    coarse480 = dataclasses.replace(model, learned=dataclasses.replace(model.learned, coarse_side_px=480))
+    assert evaluate(coarse480, held_out, methods=("topk",), progress=False)[0].recall < topk.recall
     free = evaluate(model, held_out, methods=("topk",), progress=False, ball_free_margin_px=4.0)[0]
     assert free.n_false_alarm_images <= 2
     paper = evaluate(model, held_out, methods=("paper",), progress=False)[0]
@@ -98,7 +103,9 @@ def test_the_tracking_threshold_finds_more_held_out_rally_balls_and_the_motion_c
     image's operating point. The rally's phone stands still: with ``--motion-cue`` (frame 57 starting the background)
     the candidates where nothing moved go, measured 2026-11-30: 45 of them, the outliers 69.7 -> 25.8 % at the same
     recall (the players move: what is left). The heat alone (``--no-confirm``): the confirmation network of the file
-    (since 2026-12-01) drops most of those false candidates itself."""
+    (since 2026-12-01) drops most of those false candidates itself. With the file's coarse pass at 640 px (2026-12-02)
+    the heat offers more candidates on these 1080p frames: 88 % (22/25) at 77.1 % outliers, with the cue 42.1 % (58
+    dropped)."""
     rows = {}
     for cue in ([], ["--motion-cue"]):
         out = tmp_path / f"track{len(cue)}.json"
@@ -107,7 +114,7 @@ def test_the_tracking_threshold_finds_more_held_out_rally_balls_and_the_motion_c
         rows[bool(cue)] = {r["method"]: r for r in json.loads(out.read_text())}["topk"]
     plain, cued = rows[False], rows[True]
     assert plain["recall"] >= 22 / 25 and plain["outlier_rate"] >= 0.3
-    assert cued["recall"] == plain["recall"] and cued["outlier_rate"] <= 0.4 < plain["outlier_rate"]
+    assert cued["recall"] == plain["recall"] and cued["outlier_rate"] <= 0.5 < plain["outlier_rate"]
     assert cued["motion_cue"] == {"sequences": 1, "images_without_cue": 0, "candidates_dropped": cued["motion_cue"]["candidates_dropped"]}
     assert cued["motion_cue"]["candidates_dropped"] >= 25
 
@@ -150,6 +157,16 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     two = BallSegmentationModel.load(e).learned
     assert (two.confirm.context, two.confirm.context2, two.confirm.channels) == (6.0, 2.0, 6) and two.onnx == stage.onnx
     assert "--confirm-steps 3 --confirm-context 6 2 --stage-from a.npz" in two.description and "one on crops of 6 diameters, one on crops of 2, their probabilities averaged" in two.description
+    # a new stage's coarse pass: two thirds of the network's side; --coarse-side sets a kept stage's (0: one pass), and
+    # --confirm-steps 0 keeps its confirmation network too: nothing trained, the threshold chosen again
+    assert stage.coarse_side_px == 640 and "frames shrunk to 960 px, coarse pass at 640 px" in stage.description
+    f = tmp_path / "f.npz"
+    assert main(["train-shipped", "--colour", "white", "--rally-range", "40:46", "--seed", "4", "--confirm-steps", "0", "--coarse-side", "0",
+                 "--stage-from", str(a), "--out", str(f)]) == 0
+    one = BallSegmentationModel.load(f).learned
+    assert one.coarse_side_px == 0 and one.onnx == stage.onnx and one.confirm.onnx == stage.confirm.onnx
+    assert one.description.startswith(stage.description + "; then `rt2 train-shipped --colour white --seed 4 --confirm-steps 0 --coarse-side 0 "
+                                      "--stage-from a.npz` kept that stage (whole frames in one pass) and its confirmation network; tracking threshold ")
     capsys.readouterr()
     assert main([*args, "--out", str(tmp_path / "m.txt")]) == 2
     err = capsys.readouterr().err
@@ -272,7 +289,13 @@ def test_train_shipped_shares_bad_values_are_one_line(tmp_path, capsys, option, 
     (["--confirm-context", "6", "3", "2"], "--confirm-context must be one or two numbers of diameters between 1 and 32, got 6 3 2"),
     (["--confirm-context", "2", "--confirm-steps", "0"], "--confirm-context is the confirmation network's crop: it needs --confirm-steps 1 or more"),
     (["--stage-from", "no/such/model.npz"], "--stage-from no/such/model.npz: no such model file"),
-    (["--stage-from", "data/models/ball_seg_default.npz", "--confirm-steps", "0"], "--stage-from keeps a stage to add a confirmation network to it"),
+    (["--stage-from", "data/models/ball_seg_default.npz", "--confirm-steps", "0"], "--stage-from data/models/ball_seg_default.npz: the model has no learned stage to keep"),
+    (["--coarse-side", "-1"], "--coarse-side must be 0 (one pass) or a side of 64 px up to below --max-side-px (960), got -1"),
+    (["--coarse-side", "32"], "--coarse-side must be 0 (one pass) or a side of 64 px up to below --max-side-px (960), got 32"),
+    (["--coarse-side", "960"], "--coarse-side must be 0 (one pass) or a side of 64 px up to below --max-side-px (960), got 960"),
+    (["--coarse-side", "700", "--max-side-px", "640"], "--coarse-side must be 0 (one pass) or a side of 64 px up to below --max-side-px (640), got 700"),
+    (["--coarse-side", "960", "--stage-from", "data/models/ball_seg_white.npz", "--max-side-px", "2000"],
+     "--coarse-side must be 0 (one pass) or a side of 64 px up to below the kept stage's side (960), got 960"),
 ])
 def test_train_shipped_confirmation_options_bad_values_are_one_line(tmp_path, capsys, args, message):
     assert main(["train-shipped", "--colour", "white", *args, "--out", str(tmp_path / "m.npz")]) == 2
