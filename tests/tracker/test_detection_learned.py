@@ -230,7 +230,7 @@ def test_full_frames_take_the_coarse_pass_only_where_it_removes_most_pixels(brig
     stage = LearnedStage(bright_spot_onnx, max_side_px=960, threshold=0.5, coarse_side_px=480)
     calls = []
     real = LearnedStage._two_passes
-    monkeypatch.setattr(LearnedStage, "_two_passes", lambda self, *a: calls.append(a[0].shape) or real(self, *a))
+    monkeypatch.setattr(LearnedStage, "_two_passes", lambda self, *a, **kw: calls.append(a[0].shape) or real(self, *a, **kw))
     vga, full_hd = np.zeros((480, 640, 3), np.uint8), np.zeros((1080, 1920, 3), np.uint8)
     vga[200:204, 300:304] = 255  # one whole cell
     uv, sc, _ = stage.candidates(vga)

@@ -20,6 +20,16 @@ The coarse pass pays only where it removes most of the pixels: it is taken when 
 scale is at least ``COARSE_MIN_RATIO`` times the coarse side (a 1080p frame at 960 px: a quarter of the
 pixels); a VGA frame takes one pass, which ``rt2 bench detector`` measured faster than two there.
 
+Large balls. The network learned balls of ``diameter_range_px`` (network pixels); a ball close to a camera can be
+wider at the full scale (the caliscope session's near cameras: balls of 40-145 px at 1280x720, up to 109 network
+pixels), where its heat stays low or it is not found at all, while the coarse pass, at a smaller scale, finds it. A
+coarse peak whose diameter at the full scale exceeds ``BIG_SHARE`` of the largest trained diameter is also searched
+as a window at the scale where it measures ``REFIT_SHARE`` of it, and the better of the two searches is kept, where it
+is still that large there. Only before the confirmation's second look (single images, the label page's proposals,
+``rt2 label --auto``), which judges what it adds: a tracker's cameras report the heat alone, and on the semi-real 3D
+flights the search gave them positions in more frame sets, every one of those wrong (none OK), and one OK position fewer
+(README Results, "The coarse pass over large frames").
+
 Inference is ONNX Runtime on the CPU, one intra-op thread per call (the pipeline runs cameras on its
 own threads): the fastest of the torch-free runtimes we measured for this network (OpenCV's dnn module
 took 1.5-2.2x as long, a numpy im2col version longer still). The ONNX graph (exported by ``rt2 train``
@@ -51,6 +61,10 @@ LEARNED_FIELDS = ("learned_onnx", "learned_stride", "learned_max_side_px", "lear
 #: a full frame takes the coarse pass first when its longer side at the network's scale is at least this
 #: many times ``coarse_side_px`` (module docstring)
 COARSE_MIN_RATIO = 1.5
+#: a coarse peak whose ball would be wider than this share of the network's largest trained diameter at the full scale
+#: is searched again where it is ``REFIT_SHARE`` of it (module docstring, "Large balls")
+BIG_SHARE = 40.0 / 48.0
+REFIT_SHARE = 28.0 / 48.0
 
 
 def learned_scale(height: int, width: int, max_side_px: int) -> float:
@@ -305,7 +319,7 @@ class LearnedStage:
         look = self.confirm if whole and confirm else None
         kk, th = (k, threshold) if look is None else (max(k, look.candidates), look.gate)
         if whole and self.coarse_side_px and max(h, w) * scale >= COARSE_MIN_RATIO * self.coarse_side_px:
-            uv, sc, d = self._two_passes(image, kk, th)
+            uv, sc, d = self._two_passes(image, kk, th, refit=look is not None)
         else:
             uv, sc, d = self._one_pass(image, window, kk, th, scale)
         if look is None:
@@ -343,8 +357,9 @@ class LearnedStage:
             return x0, y0, x1, y1
         return ax0, ay0, ax1, ay1
 
-    def _two_passes(self, image, k: int, threshold):
-        """Full frame: the coarse pass's best peaks, each searched again as a window at full scale (module docstring)."""
+    def _two_passes(self, image, k: int, threshold, refit: bool = False):
+        """Full frame: the coarse pass's best peaks, each searched again as a window at full scale (module docstring);
+        ``refit``: a peak too large for the full scale also where it fits (module docstring, "Large balls")."""
         h, w = image.shape[:2]
         uv, _, d = self._one_pass(image, None, self.coarse_candidates, self.coarse_threshold, learned_scale(h, w, self.coarse_side_px))
         if len(uv) == 0:
@@ -356,7 +371,13 @@ class LearnedStage:
             x0, y0 = max(0, int(math.floor(u - half))), max(0, int(math.floor(v - half)))
             x1, y1 = min(w, int(math.ceil(u + half)) + 1), min(h, int(math.ceil(v + half)) + 1)
             if x0 < x1 and y0 < y1:
-                found.append(self._one_pass(image, (x0, y0, x1, y1), 1, threshold, s))
+                f = self._one_pass(image, (x0, y0, x1, y1), 1, threshold, s)
+                hi = self.diameter_range_px[1]
+                if refit and dd * s > BIG_SHARE * hi:  # too large for the network at the full scale: again where it fits
+                    g = self._one_pass(image, (x0, y0, x1, y1), 1, threshold, REFIT_SHARE * hi / dd)
+                    if len(g[1]) and g[2][0] * s > BIG_SHARE * hi and (len(f[1]) == 0 or g[1][0] > f[1][0]):
+                        f = g
+                found.append(f)
         found = [f for f in found if len(f[1])]
         if not found:
             return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
