@@ -365,6 +365,7 @@ class LearnedStage:
         if len(uv) == 0:
             return uv, np.zeros(0), d
         s = self.scale_of(h, w)
+        big = BIG_SHARE * self.diameter_range_px[1]  # network pixels: a ball wider at the full scale is searched again
         found = []
         for (u, v), dd in zip(uv, d):
             half = max(2 * self.stride / s, 0.75 * dd)  # the coarse centre is within a coarse cell; the ball fits
@@ -372,10 +373,9 @@ class LearnedStage:
             x1, y1 = min(w, int(math.ceil(u + half)) + 1), min(h, int(math.ceil(v + half)) + 1)
             if x0 < x1 and y0 < y1:
                 f = self._one_pass(image, (x0, y0, x1, y1), 1, threshold, s)
-                hi = self.diameter_range_px[1]
-                if refit and dd * s > BIG_SHARE * hi:  # too large for the network at the full scale: again where it fits
-                    g = self._one_pass(image, (x0, y0, x1, y1), 1, threshold, REFIT_SHARE * hi / dd)
-                    if len(g[1]) and g[2][0] * s > BIG_SHARE * hi and (len(f[1]) == 0 or g[1][0] > f[1][0]):
+                if refit and dd * s > big:  # too large for the network at the full scale: again where it fits
+                    g = self._one_pass(image, (x0, y0, x1, y1), 1, threshold, REFIT_SHARE * self.diameter_range_px[1] / dd)
+                    if len(g[1]) and g[2][0] * s > big and (len(f[1]) == 0 or g[1][0] > f[1][0]):
                         f = g
                 found.append(f)
         found = [f for f in found if len(f[1])]

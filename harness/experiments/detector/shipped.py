@@ -57,6 +57,18 @@ def coarse_side_of(max_side: int) -> int:
     return 2 * int(max_side) // 3
 
 
+#: the smallest coarse side an option may ask for (a coarse pass of fewer pixels holds no ball's peak)
+MIN_COARSE_SIDE_PX = 64
+
+
+def coarse_side_problem(value: int, max_side: int, bound: str) -> str | None:
+    """None when ``value`` is a coarse side a stage of ``max_side`` can search with (0: one pass), else the option's
+    one-line error; ``bound`` names the upper bound as the user gave it (``--max-side-px``, the kept stage's side)."""
+    if value == 0 or MIN_COARSE_SIDE_PX <= value < max_side:
+        return None
+    return f"--coarse-side must be 0 (one pass) or a side of {MIN_COARSE_SIDE_PX} px up to below {bound}, got {value}"
+
+
 def _drawn(sources, n_per_video: int, seed: int, colour: str, diameter_px, log):
     from harness.experiments.detector.backgrounds import read_backgrounds
     from harness.experiments.detector.drawn import DrawnOptions, draw_frame
@@ -139,9 +151,6 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         pairs += [(load_image(li), li) for li in r]
         weights += [weight["renders"]] * len(r)
         sources.append(f"{len(r)} renders ({renders})")
-    items = []
-    for (im, li), w in zip(pairs, weights):
-        items += items_at_scale([(im, li)], max_side, weight=w)
     opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0), p_light=lights, p_mined=mined,
                                **({} if arch is None else {"arch": arch}))
     if lights:
@@ -149,6 +158,9 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     if mined:
         sources.append(f"{100 * mined:g} % of the patches near its own false alarms in these frames, mined every {opts.mine_every} steps")
     if stage_from is None:
+        items = []
+        for (im, li), w in zip(pairs, weights):
+            items += items_at_scale([(im, li)], max_side, weight=w)
         _, onnx = fit_learned(items, opts, seed, log=log, progress=progress)
         # the file keeps the base's filter (of orange balls, trained on renders): it never refines the stage's centres, the
         # ball's edge does (for orange too: docs/detector.md, "The shipped models")
@@ -201,17 +213,17 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
               + (f" with the confirmation network (the heat's alone: {stage.threshold:g})" if stage.confirm is not None else "")
               + f": recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%")
     # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
-    ctx_arg = ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
+    cmd_extra = ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
         + ("" if coarse_side is None else f" --coarse-side {coarse_side}")
     if stage_from is None:
-        description = (f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps} --confirm-steps {confirm_steps}{ctx_arg}` on "
+        description = (f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps} --confirm-steps {confirm_steps}{cmd_extra}` on "
                        + "; ".join(sources) + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to "
                        f"{max_side} px, " + (f"coarse pass at {stage.coarse_side_px} px" if stage.coarse_side_px else "one pass") + f", windows with {WINDOW_CONTEXT_PX} px of context; " + chosen + size_note)
     else:
         # a file made so before: its stage's own description, where a new confirmation network replaces the kept one's; a
         # kept confirmation network keeps the history of how it was made
         before = kept.description.split(STAGE_FROM_MARK)[0] if confirm_steps or stage.confirm is None else kept.description
-        description = (f"{before}{STAGE_FROM_MARK}{colour} --seed {seed} --confirm-steps {confirm_steps}{ctx_arg} --stage-from "
+        description = (f"{before}{STAGE_FROM_MARK}{colour} --seed {seed} --confirm-steps {confirm_steps}{cmd_extra} --stage-from "
                        f"{Path(stage_from).name}` kept that stage"
                        + ("" if coarse_side is None else " (" + (f"its coarse pass over whole frames at {coarse_side} px" if coarse_side else "whole frames in one pass") + ")")
                        + (f" and added a confirmation network: {stage.confirm.description}" if confirm_steps
@@ -408,21 +420,22 @@ def run(args) -> int:
         raise ValueError(f"--confirm-steps must be 0 (none) or more, got {args.confirm_steps}")
     if args.stage_from is not None and not Path(args.stage_from).is_file():
         raise ValueError(f"--stage-from {args.stage_from}: no such model file")
-    max_side, side_of = args.max_side_px, "--max-side-px"
+    max_side, side_of = args.max_side_px, f"--max-side-px ({args.max_side_px})"
     if args.stage_from is not None:  # before any frame is read
         from tracker import BallSegmentationModel
 
         kept = BallSegmentationModel.load(args.stage_from).learned
         if kept is None:
             raise ValueError(f"--stage-from {args.stage_from}: the model has no learned stage to keep")
-        max_side, side_of = kept.max_side_px, "the kept stage's side"
+        max_side, side_of = kept.max_side_px, f"the kept stage's side ({kept.max_side_px})"
     if args.confirm_context is not None and (len(args.confirm_context) > 2 or not all(1.0 <= c <= 32.0 for c in args.confirm_context)):
         raise ValueError("--confirm-context must be one or two numbers of diameters between 1 and 32, got "
                          + " ".join(f"{c:g}" for c in args.confirm_context))
     if args.confirm_context is not None and not args.confirm_steps:
         raise ValueError("--confirm-context is the confirmation network's crop: it needs --confirm-steps 1 or more")
-    if args.coarse_side is not None and args.coarse_side != 0 and not 64 <= args.coarse_side < max_side:
-        raise ValueError(f"--coarse-side must be 0 (one pass) or a side of 64 px up to below {side_of} ({max_side}), got {args.coarse_side}")
+    problem = None if args.coarse_side is None else coarse_side_problem(args.coarse_side, max_side, side_of)
+    if problem:
+        raise ValueError(problem)
     for name in ("hard_pastes", "lights", "mined", "confirm_lights"):
         v = getattr(args, name)
         if not (0.0 <= v <= 1.0):

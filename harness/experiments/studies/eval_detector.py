@@ -420,9 +420,11 @@ def run(args) -> int:
     if coarse is not None:
         if model.learned is None:
             raise ValueError(f"--coarse-side {coarse}: the model has no learned stage (its whole frames are searched by its 5x5 filter)")
-        if coarse != 0 and not 64 <= coarse < model.learned.max_side_px:
-            raise ValueError(f"--coarse-side must be 0 (one pass) or a side of 64 px up to below the stage's full scale "
-                             f"({model.learned.max_side_px} px), got {coarse}")
+        from harness.experiments.detector.shipped import coarse_side_problem
+
+        problem = coarse_side_problem(coarse, model.learned.max_side_px, f"the stage's full scale ({model.learned.max_side_px} px)")
+        if problem:
+            raise ValueError(problem)
         model = replace(model, learned=replace(model.learned, coarse_side_px=coarse))
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if getattr(args, "camera", None):  # before --time-range: the time order is one camera's
