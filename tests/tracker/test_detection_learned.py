@@ -118,6 +118,10 @@ HOSTILE = [
     ("size ratio as a vector", lambda f: f.update(learned_size_ratio=np.array([1.5, 1.6])), "learned_size_ratio"),
     ("refine flag as a number", lambda f: f.update(learned_refine=np.array(1.0)), "learned_refine"),
     ("refine flag as a vector", lambda f: f.update(learned_refine=np.array([True, False])), "learned_refine"),
+    ("coarse pass of five values", lambda f: f.update(learned_coarse=np.array([640.0, 0.1, 8.0, 24.0, 1.0])), "learned_coarse"),
+    ("coarse context fractional", lambda f: f.update(learned_coarse=np.array([640.0, 0.1, 8.0, 24.5])), "learned_coarse"),
+    ("coarse context negative", lambda f: f.update(learned_coarse=np.array([640.0, 0.1, 8.0, -8.0])), "coarse_context_px"),
+    ("coarse context not finite", lambda f: f.update(learned_coarse=np.array([640.0, 0.1, 8.0, np.inf])), "learned_coarse"),
 ]
 
 
@@ -141,6 +145,36 @@ def test_every_field_is_written(tmp_path, tiny_onnx):
     old.pop("learned_refine")  # files written before the flag: the filter refines
     np.savez(tmp_path / "old.npz", **old)
     assert BallSegmentationModel.load(tmp_path / "old.npz").learned.filter_refines is True
+    # the coarse peaks' windows' context: written as the coarse pass's fourth value where set; files without it: the windows'
+    wide = LearnedStage(tiny_onnx, max_side_px=960, coarse_side_px=640, context_px=8, coarse_context_px=24)
+    back = BallSegmentationModel.load(dataclasses.replace(base, learned=wide).save(tmp_path / "c.npz")).learned
+    assert (back.coarse_side_px, back.context_px, back.coarse_context_px) == (640, 8, 24)
+    assert np.load(tmp_path / "c.npz")["learned_coarse"].shape == (4,) and fields["learned_coarse"].shape == (3,)
+    assert BallSegmentationModel.load(tmp_path / "m.npz").learned.coarse_context_px is None
+
+
+def test_the_coarse_peaks_windows_see_their_own_context_before_the_second_look(bright_spot_onnx, monkeypatch):
+    """Before the second look (``refit``: single images, proposals, rt2 label --auto) a coarse peak's window at full scale
+    is searched with ``coarse_context_px`` network pixels around it; a tracker's whole frame (the heat alone) and a
+    window a caller gives take ``context_px``, and so does everything where ``coarse_context_px`` is not set."""
+    seen = []
+    real = LearnedStage.network_input
+    monkeypatch.setattr(LearnedStage, "network_input", lambda self, image, window, s, context=None: seen.append((window, context)) or real(self, image, window, s, context))
+    full_hd = np.zeros((1080, 1920, 3), np.uint8)
+    full_hd[496:512, 896:912] = 255  # a bright spot of whole cells at both scales: one coarse peak
+    for coarse_context, refit, expected in ((24, True, 24), (24, False, None), (None, True, None)):
+        stage = LearnedStage(bright_spot_onnx, max_side_px=960, threshold=0.5, coarse_side_px=480, context_px=8, coarse_context_px=coarse_context)
+        seen.clear()
+        uv, _, _ = stage._two_passes(full_hd, 4, 0.5, refit=refit)
+        assert len(uv) >= 1 and np.linalg.norm(uv[0] - [903.5, 503.5]) < 8.0
+        assert seen[0] == (None, None) and len(seen) >= 2 and [c for w, c in seen[1:]] == [expected] * (len(seen) - 1), (coarse_context, refit)
+        crop, _, _ = real(stage, full_hd, seen[1][0], 0.5, seen[1][1])
+        window = seen[1][0]
+        # the network sees the window plus the context (network pixels at scale 0.5), padded to whole cells
+        assert crop.shape[1] >= round((window[2] - window[0]) * 0.5) + 2 * (8 if expected is None else expected) - 4
+    seen.clear()
+    stage.candidates(full_hd, (880, 480, 930, 530))  # a caller's window: the stage's context
+    assert seen == [((880, 480, 930, 530), None)]
 
 
 def test_a_stage_pickles_and_runs_in_the_copy(tiny_onnx):

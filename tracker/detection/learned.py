@@ -15,7 +15,14 @@ ball's surroundings), at the same scale.
 
 Full frames in two passes (``coarse_side_px`` < ``max_side_px``): the network first runs on the frame
 shrunk to ``coarse_side_px`` with ``coarse_threshold``; each of its ``coarse_candidates`` best peaks is then
-searched as a window at the full scale, where the stage's own threshold decides and the centre is refined.
+searched as a window at the full scale, where the stage's own threshold decides and the centre is refined. Those
+windows see ``coarse_context_px`` network pixels around them (``context_px`` where it is not set): a tracker's window
+follows a ball it knows and keeps its context small (its cost), while a coarse peak's window must show the network
+enough of the surroundings to score the ball as the full frame would (the shipped white stage: 24 px, not its
+windows' 8; with 8, a large or smeared ball's heat at full scale fell to 0.2-0.4 where one pass over the frame gave it
+0.5-0.7: README Results, "The coarse peaks' context"). Like the large balls' search below, only before the
+confirmation's second look: a tracker's cameras search their whole frames with the windows' context (tried there, the
+semi-real 3D flights gave positions in as many frame sets or more, fewer of them OK).
 The coarse pass pays only where it removes most of the pixels: it is taken when the frame at the network's
 scale is at least ``COARSE_MIN_RATIO`` times the coarse side (a 1080p frame at 960 px: a quarter of the
 pixels); a VGA frame takes one pass, which ``rt2 bench detector`` measured faster than two there.
@@ -219,6 +226,8 @@ class LearnedStage:
     coarse_side_px : full frames: the longer side of the first, coarse pass (0 = one pass at ``max_side_px``)
     coarse_threshold : the coarse pass's heat threshold (a probability)
     coarse_candidates : the coarse peaks searched again at full scale
+    coarse_context_px : network pixels searched around each coarse peak's window at full scale before the second look
+        (None: ``context_px``; module docstring)
     track_threshold : the heat probability a tracker's cameras report candidates down to (None: ``threshold``).
         Lower than ``threshold``, the single image's operating point: in a rig the robust consensus (three
         cameras that agree, the 3D size test) rejects a camera's false alarms, while a camera that misses the
@@ -252,6 +261,7 @@ class LearnedStage:
     track_threshold: float | None = None
     size_ratio: float | None = None
     confirm: ConfirmNet | None = None
+    coarse_context_px: int | None = None
 
     def __post_init__(self):
         where = "LearnedStage"
@@ -260,10 +270,14 @@ class LearnedStage:
         if not isinstance(self.onnx, (bytes, bytearray)) or len(self.onnx) < 16:
             raise ValueError(f"{where}: onnx must be the network's ONNX bytes, got {type(self.onnx).__name__} of length "
                              f"{len(self.onnx) if hasattr(self.onnx, '__len__') else '?'}")
-        for name in ("stride", "max_side_px", "context_px", "coarse_side_px", "coarse_candidates"):
+        for name in ("stride", "max_side_px", "context_px", "coarse_side_px", "coarse_candidates", "coarse_context_px"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name in ("context_px", "coarse_side_px") else 1):
-                raise ValueError(f"{where}: {name} must be a positive integer, got {v!r}")
+            if name == "coarse_context_px" and v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name in ("context_px", "coarse_side_px", "coarse_context_px") else 1):
+                raise ValueError(f"{where}: {name} must be " + ("None or " if name == "coarse_context_px" else "")
+                                 + ("an integer >= 0" if name in ("context_px", "coarse_side_px", "coarse_context_px") else "a positive integer")
+                                 + f", got {v!r}")
             object.__setattr__(self, name, int(v))
         if self.coarse_side_px and not 8 * self.stride <= self.coarse_side_px < self.max_side_px:
             raise ValueError(f"{where}: coarse_side_px must be 0 or in [{8 * self.stride}, max_side_px = {self.max_side_px}), got {self.coarse_side_px}")
@@ -359,8 +373,10 @@ class LearnedStage:
 
     def _two_passes(self, image, k: int, threshold, refit: bool = False):
         """Full frame: the coarse pass's best peaks, each searched again as a window at full scale (module docstring);
-        ``refit``: a peak too large for the full scale also where it fits (module docstring, "Large balls")."""
+        ``refit`` (before the second look): the windows with ``coarse_context_px`` of context, and a peak too large for
+        the full scale also where it fits (module docstring, "Large balls")."""
         h, w = image.shape[:2]
+        ctx = self.coarse_context_px if refit else None  # the peaks' windows' context before the second look (else the stage's windows')
         uv, _, d = self._one_pass(image, None, self.coarse_candidates, self.coarse_threshold, learned_scale(h, w, self.coarse_side_px))
         if len(uv) == 0:
             return uv, np.zeros(0), d
@@ -372,7 +388,7 @@ class LearnedStage:
             x0, y0 = max(0, int(math.floor(u - half))), max(0, int(math.floor(v - half)))
             x1, y1 = min(w, int(math.ceil(u + half)) + 1), min(h, int(math.ceil(v + half)) + 1)
             if x0 < x1 and y0 < y1:
-                f = self._one_pass(image, (x0, y0, x1, y1), 1, threshold, s)
+                f = self._one_pass(image, (x0, y0, x1, y1), 1, threshold, s, context=ctx)
                 if refit and dd * s > big:  # too large for the network at the full scale: again where it fits
                     g = self._one_pass(image, (x0, y0, x1, y1), 1, threshold, REFIT_SHARE * self.diameter_range_px[1] / dd)
                     if len(g[1]) and g[2][0] * s > big and (len(f[1]) == 0 or g[1][0] > f[1][0]):
@@ -393,9 +409,9 @@ class LearnedStage:
         keep = keep[:k]
         return uv[keep], sc[keep], d[keep]
 
-    def network_input(self, image, window, s: float) -> tuple:
-        """What a pass hands the network for ``image`` (or for ``window`` ``(x0, y0, x1, y1)`` of it, with the context)
-        shrunk by ``s``: ``(input (h, w, 3) uint8 padded to whole cells, placement (sx, sy, bx0, by0) of its pixels in
+    def network_input(self, image, window, s: float, context: int | None = None) -> tuple:
+        """What a pass hands the network for ``image`` (or for ``window`` ``(x0, y0, x1, y1)`` of it, with ``context``
+        network pixels around it; None: ``context_px``) shrunk by ``s``: ``(input (h, w, 3) uint8 padded to whole cells, placement (sx, sy, bx0, by0) of its pixels in
         the image, the searched box (x0, y0, x1, y1))``."""
         h, w = image.shape[:2]
         if window is None:
@@ -404,7 +420,7 @@ class LearnedStage:
         else:
             x0, y0, x1, y1 = (int(v) for v in window)
         # the box the network sees, in image pixels: the window plus the context, inside the image
-        m = self.context_px / s
+        m = (self.context_px if context is None else context) / s
         bx0, by0 = max(0, int(math.floor(x0 - m))), max(0, int(math.floor(y0 - m)))
         bx1, by1 = min(w, int(math.ceil(x1 + m))), min(h, int(math.ceil(y1 + m)))
         crop = image[by0:by1, bx0:bx1]
@@ -421,10 +437,11 @@ class LearnedStage:
             crop = cv2.copyMakeBorder(crop, 0, ph, 0, pw, cv2.BORDER_REFLECT_101 if min(ch, cw) > 1 else cv2.BORDER_REPLICATE)
         return crop, (sx, sy, bx0, by0), (x0, y0, x1, y1)
 
-    def _one_pass(self, image, window, k: int, threshold, s: float):
-        """Candidates of ``image`` (or of ``window`` in it, with the context) with the image shrunk by ``s``."""
+    def _one_pass(self, image, window, k: int, threshold, s: float, context: int | None = None):
+        """Candidates of ``image`` (or of ``window`` in it, with ``context`` network pixels around it; None: ``context_px``)
+        with the image shrunk by ``s``."""
         th = self._threshold_logit if threshold is None else math.log(threshold / (1.0 - threshold))
-        crop, placement, box = self.network_input(image, window, s)
+        crop, placement, box = self.network_input(image, window, s, context)
         kk = 4 * k if window is not None else k  # some peaks of the context may fall outside the window
         return decode_placed(self.run(crop), th, kk, self.stride, placement, box, k)
 
@@ -434,7 +451,8 @@ class LearnedStage:
                     learned_max_side_px=np.array(self.max_side_px), learned_threshold=np.array(self.threshold),
                     learned_diameter_range_px=np.array(self.diameter_range_px), learned_context_px=np.array(self.context_px),
                     learned_description=np.array(self.description),
-                    learned_coarse=np.array([self.coarse_side_px, self.coarse_threshold, self.coarse_candidates], np.float64),
+                    learned_coarse=np.array([self.coarse_side_px, self.coarse_threshold, self.coarse_candidates]
+                                            + ([] if self.coarse_context_px is None else [self.coarse_context_px]), np.float64),
                     learned_refine=np.array(self.filter_refines),
                     **({} if self.track_threshold is None else {"learned_track_threshold": np.array(self.track_threshold)}),
                     **({} if self.size_ratio is None else {"learned_size_ratio": np.array(self.size_ratio)}),
@@ -463,11 +481,14 @@ class LearnedStage:
         if data["learned_description"].dtype.kind != "U":
             raise ValueError(f"{src}: field 'learned_description' must be a string, got dtype {data['learned_description'].dtype}")
         coarse = {}
-        if "learned_coarse" in data:  # optional: [side px, threshold, candidates] of the coarse pass
+        if "learned_coarse" in data:  # optional: [side px, threshold, candidates(, the peaks' windows' context px)] of the coarse pass
             c = data["learned_coarse"]
-            if c.dtype.kind not in "biuf" or c.shape != (3,) or not np.isfinite(c).all() or not float(c[0]).is_integer() or not float(c[2]).is_integer():
-                raise ValueError(f"{src}: field 'learned_coarse' must be [side px, threshold, candidates] (integers, a probability), got {c!r}")
-            coarse = dict(coarse_side_px=int(c[0]), coarse_threshold=float(c[1]), coarse_candidates=int(c[2]))
+            if (c.dtype.kind not in "biuf" or c.shape not in ((3,), (4,)) or not np.isfinite(c).all() or not float(c[0]).is_integer()
+                    or not float(c[2]).is_integer() or (c.shape == (4,) and not float(c[3]).is_integer())):
+                raise ValueError(f"{src}: field 'learned_coarse' must be [side px, threshold, candidates] and optionally the peaks' windows' "
+                                 f"context px (integers, a probability), got {c!r}")
+            coarse = dict(coarse_side_px=int(c[0]), coarse_threshold=float(c[1]), coarse_candidates=int(c[2]),
+                          **({"coarse_context_px": int(c[3])} if c.shape == (4,) else {}))
         if "learned_refine" in data:  # optional: whether the file's filter refines the stage's centres (default yes)
             r = data["learned_refine"]
             if r.dtype != np.bool_ or r.shape != ():

@@ -847,12 +847,12 @@ def with_contrast(rest: list[LearnedItem], crops: list[LearnedItem]) -> list[Lea
 def kept_passes(name: str, base: LearnedStage | None) -> dict:
     """The full-frame passes a trained stage keeps of ``base``: the base's network as it is ("shipped") or fine-tuned
     ("fine-tuned", a little changed, at the base's scale) searches full frames as the base does (its coarse pass: side,
-    threshold, candidates; its confirmation network, which looks at crops, not at the heat network), in the
+    threshold, candidates, its peaks' windows' context; its confirmation network, which looks at crops, not at the heat network), in the
     cross-validation and in the file; a stage from scratch has one pass and no confirmation (no fields)."""
     if name not in ("shipped", "fine-tuned") or base is None:
         return {}
     return dict(coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold, coarse_candidates=base.coarse_candidates,
-                confirm=base.confirm)
+                coarse_context_px=base.coarse_context_px, confirm=base.confirm)
 
 
 def operating_points(name: str, base: LearnedStage | None, single_threshold: float) -> dict:

@@ -69,6 +69,22 @@ def coarse_side_problem(value: int, max_side: int, bound: str) -> str | None:
     return f"--coarse-side must be 0 (one pass) or a side of {MIN_COARSE_SIDE_PX} px up to below {bound}, got {value}"
 
 
+#: a new stage's coarse peaks' windows: network pixels of context around each at full scale
+#: (``LearnedStage.coarse_context_px``; a tracker's windows keep ``WINDOW_CONTEXT_PX``). With the windows' 8 px a large
+#: or smeared ball's heat at full scale fell to 0.2-0.4 where one pass over the frame gave 0.5-0.7 (README Results,
+#: "The coarse peaks' context")
+COARSE_CONTEXT_PX = 24
+#: the most context an option may ask for around a coarse peak's window (network pixels; beyond the network's receptive field)
+MAX_COARSE_CONTEXT_PX = 256
+
+
+def coarse_context_problem(value: int) -> str | None:
+    """None when ``value`` is a context a coarse peak's window can be searched with, else the option's one-line error."""
+    if 0 <= value <= MAX_COARSE_CONTEXT_PX:
+        return None
+    return f"--coarse-context must be 0 to {MAX_COARSE_CONTEXT_PX} network pixels around a coarse peak's window, got {value}"
+
+
 def _drawn(sources, n_per_video: int, seed: int, colour: str, diameter_px, log):
     from harness.experiments.detector.backgrounds import read_backgrounds
     from harness.experiments.detector.drawn import DrawnOptions, draw_frame
@@ -97,14 +113,15 @@ ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
           diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, log=print,
           progress: bool = True, confirm_steps: int = 3000, stage_from=None, confirm_lights: float = 0.5, confirm_context=None,
-          coarse_side=None):
+          coarse_side=None, coarse_context=None):
     """The model (base filter + trained learned stage and its confirmation network) and a dict of what it was trained
     on and its validation figures. ``stage_from``: a model file whose learned stage is kept as it is (its heatmap
     network, size ratio and description; not trained again): only its confirmation network is trained, or with
     ``confirm_steps`` 0 its own kept too (only the thresholds chosen again).
     ``confirm_context``: the confirmation's crop side in candidate diameters, or two (a second crop; None:
     ``confirm_train.CONTEXT``). ``coarse_side``: a whole frame's coarse pass, its longer side in pixels (0: one pass at
-    ``max_side``; None: :func:`coarse_side_of` for a new stage, a kept stage's own)."""
+    ``max_side``; None: :func:`coarse_side_of` for a new stage, a kept stage's own); ``coarse_context``: network pixels of
+    context around each coarse peak's window at full scale (None: ``COARSE_CONTEXT_PX`` for a new stage, a kept stage's own)."""
     from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.learned_train import (LearnedTrainOptions, _best_threshold, fit_learned, items_at_scale)
     from harness.experiments.detector.scores import truth_of
@@ -166,15 +183,16 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         # ball's edge does (for orange too: docs/detector.md, "The shipped models")
         stage = LearnedStage(onnx, max_side_px=max_side, threshold=0.5, diameter_range_px=opts.diameter_range_px,
                              coarse_side_px=coarse_side_of(max_side) if coarse_side is None else coarse_side,
+                             coarse_context_px=COARSE_CONTEXT_PX if coarse_context is None else coarse_context,
                              context_px=WINDOW_CONTEXT_PX, filter_refines=False)
     else:
         kept = BallSegmentationModel.load(stage_from).learned
         if kept is None:
             raise ValueError(f"--stage-from {stage_from}: the model has no learned stage to keep")
         stage = dataclasses.replace(kept, confirm=kept.confirm if not confirm_steps else None,
-                                    **({} if coarse_side is None else dict(coarse_side_px=coarse_side)))
-        log(f"the learned stage of {stage_from} kept (not trained again)"
-            + ("" if coarse_side is None else f", its whole frames searched " + (f"first at {coarse_side} px" if coarse_side else "in one pass")))
+                                    **({} if coarse_side is None else dict(coarse_side_px=coarse_side)),
+                                    **({} if coarse_context is None else dict(coarse_context_px=coarse_context)))
+        log(f"the learned stage of {stage_from} kept (not trained again)" + _passes_note(coarse_side, coarse_context, ", "))
     if confirm_steps:
         from harness.experiments.detector.confirm_train import build_confirm_net
 
@@ -214,18 +232,18 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
               + f": recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%")
     # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
     cmd_extra = ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
-        + ("" if coarse_side is None else f" --coarse-side {coarse_side}")
+        + ("" if coarse_side is None else f" --coarse-side {coarse_side}") + ("" if coarse_context is None else f" --coarse-context {coarse_context}")
     if stage_from is None:
         description = (f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps} --confirm-steps {confirm_steps}{cmd_extra}` on "
                        + "; ".join(sources) + f"; network layout {opts.arch}, {steps} steps of {opts.batch} patches of {opts.patch_px} px; frames shrunk to "
-                       f"{max_side} px, " + (f"coarse pass at {stage.coarse_side_px} px" if stage.coarse_side_px else "one pass") + f", windows with {WINDOW_CONTEXT_PX} px of context; " + chosen + size_note)
+                       f"{max_side} px, " + (f"coarse pass at {stage.coarse_side_px} px, its peaks' windows with {stage.coarse_context_px} px of context" if stage.coarse_side_px else "one pass") + f", windows with {WINDOW_CONTEXT_PX} px of context; " + chosen + size_note)
     else:
         # a file made so before: its stage's own description, where a new confirmation network replaces the kept one's; a
         # kept confirmation network keeps the history of how it was made
         before = kept.description.split(STAGE_FROM_MARK)[0] if confirm_steps or stage.confirm is None else kept.description
         description = (f"{before}{STAGE_FROM_MARK}{colour} --seed {seed} --confirm-steps {confirm_steps}{cmd_extra} --stage-from "
                        f"{Path(stage_from).name}` kept that stage"
-                       + ("" if coarse_side is None else " (" + (f"its coarse pass over whole frames at {coarse_side} px" if coarse_side else "whole frames in one pass") + ")")
+                       + _passes_note(coarse_side, coarse_context, " (", ")")
                        + (f" and added a confirmation network: {stage.confirm.description}" if confirm_steps
                           else " and its confirmation network" if stage.confirm is not None else " and added nothing")
                        + "; " + chosen)
@@ -235,6 +253,13 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     model = dataclasses.replace(base, learned=stage, ball_colour=colour if colour == "white" else base.ball_colour,
                                 description=base.description + f"; learned stage: {stage.description}")
     return model, dict(validation=s, threshold=th, sources=sources)
+
+
+def _passes_note(coarse_side, coarse_context, before: str, after: str = "") -> str:
+    """What ``--coarse-side`` and ``--coarse-context`` changed of a kept stage's whole-frame passes, for its log and description."""
+    parts = ([] if coarse_side is None else [f"its coarse pass over whole frames at {coarse_side} px" if coarse_side else "whole frames in one pass"]) \
+        + ([] if coarse_context is None else [f"its coarse peaks' windows with {coarse_context} px of context"])
+    return f"{before}{', '.join(parts)}{after}" if parts else ""
 
 
 def size_ratio_of(stage, frames) -> tuple[float | None, int, float]:
@@ -402,11 +427,16 @@ def add_arguments(parser) -> None:
     parser.add_argument("--stage-from", default=None,
                         help="a model file whose learned stage is kept as it is (not trained again): only the confirmation network "
                              "is trained, on its candidates, and the thresholds chosen again; with --confirm-steps 0 its "
-                             "confirmation network is kept too (with --coarse-side: the file's passes changed, nothing trained)")
+                             "confirmation network is kept too (with --coarse-side or --coarse-context: the file's passes "
+                             "changed, nothing trained)")
     parser.add_argument("--coarse-side", type=int, default=None, metavar="PX",
                         help="a whole frame's first, coarse pass: its longer side in pixels, whose best peaks are searched "
                              "again at full scale (0: one pass at --max-side-px; default two thirds of --max-side-px for a new "
                              "stage, a --stage-from stage's own)")
+    parser.add_argument("--coarse-context", type=int, default=None, metavar="PX",
+                        help="network pixels of context around each coarse peak's window at full scale (default "
+                             f"{COARSE_CONTEXT_PX} for a new stage, a --stage-from stage's own; a tracker's windows keep "
+                             f"{WINDOW_CONTEXT_PX})")
     parser.add_argument("--max-side-px", type=int, default=960,
                         help="frames with a longer side are shrunk to it before the network (default 960: VGA frames as they are)")
 
@@ -436,6 +466,9 @@ def run(args) -> int:
     problem = None if args.coarse_side is None else coarse_side_problem(args.coarse_side, max_side, side_of)
     if problem:
         raise ValueError(problem)
+    problem = None if args.coarse_context is None else coarse_context_problem(args.coarse_context)
+    if problem:
+        raise ValueError(problem)
     for name in ("hard_pastes", "lights", "mined", "confirm_lights"):
         v = getattr(args, name)
         if not (0.0 <= v <= 1.0):
@@ -444,7 +477,7 @@ def run(args) -> int:
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
                         semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights, mined=args.mined,
                         confirm_steps=args.confirm_steps, stage_from=args.stage_from, confirm_lights=args.confirm_lights,
-                        confirm_context=args.confirm_context, coarse_side=args.coarse_side)
+                        confirm_context=args.confirm_context, coarse_side=args.coarse_side, coarse_context=args.coarse_context)
     with atomic_path(out, "--out") as tmp:
         model.save(tmp)
     print(f"wrote {out}: learned stage threshold {info['threshold']:g}")

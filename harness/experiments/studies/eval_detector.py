@@ -389,6 +389,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--coarse-side", type=int, default=None, metavar="PX",
                         help="a model with a learned stage: search whole frames first at this longer side, its best peaks again at "
                              "full scale (0: one pass at the stage's full scale); default: the model's own")
+    parser.add_argument("--coarse-context", type=int, default=None, metavar="PX",
+                        help="a model with a learned stage: network pixels of context around each coarse peak's window at full "
+                             "scale; default: the model's own")
     parser.add_argument("--no-verifier", action="store_true",
                         help="run 'ours' and 'topk' with the model's 5x5 filter alone, without its candidate verifier (if it has one)")
     parser.add_argument("--ball-diameter-px", default=None, metavar="LO:HI",
@@ -426,6 +429,16 @@ def run(args) -> int:
         if problem:
             raise ValueError(problem)
         model = replace(model, learned=replace(model.learned, coarse_side_px=coarse))
+    ctx = getattr(args, "coarse_context", None)
+    if ctx is not None:
+        if model.learned is None:
+            raise ValueError(f"--coarse-context {ctx}: the model has no learned stage (its whole frames are searched by its 5x5 filter)")
+        from harness.experiments.detector.shipped import coarse_context_problem
+
+        problem = coarse_context_problem(ctx)
+        if problem:
+            raise ValueError(problem)
+        model = replace(model, learned=replace(model.learned, coarse_context_px=ctx))
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if getattr(args, "camera", None):  # before --time-range: the time order is one camera's
         labelled = select_cameras(labelled, args.camera)

@@ -218,9 +218,13 @@ def test_learned_threshold_refuses_what_is_no_probability(synthetic_ball_coco, c
     ("data/models/ball_seg_white.npz", "63", "--coarse-side must be 0 (one pass) or a side of 64 px up to below the stage's full scale (960 px), got 63"),
     ("data/models/ball_seg_white.npz", "960", "--coarse-side must be 0 (one pass) or a side of 64 px up to below the stage's full scale (960 px), got 960"),
     ("data/models/ball_seg_default.npz", "640", "--coarse-side 640: the model has no learned stage"),
+    ("data/models/ball_seg_white.npz", "--coarse-context=-1", "--coarse-context must be 0 to 256 network pixels around a coarse peak's window, got -1"),
+    ("data/models/ball_seg_white.npz", "--coarse-context=257", "--coarse-context must be 0 to 256 network pixels around a coarse peak's window, got 257"),
+    ("data/models/ball_seg_default.npz", "--coarse-context=24", "--coarse-context 24: the model has no learned stage"),
 ])
 def test_coarse_side_refuses_what_the_stage_cannot_search(synthetic_ball_coco, capsys, model, value, message):
-    args = ["eval", "detector", "--data", str(synthetic_ball_coco(30, 1)), "--model", model, "--coarse-side", value]
+    option = [value] if value.startswith("--") else ["--coarse-side", value]
+    args = ["eval", "detector", "--data", str(synthetic_ball_coco(30, 1)), "--model", model, *option]
     assert main(args) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
