@@ -845,24 +845,32 @@ def with_contrast(rest: list[LearnedItem], crops: list[LearnedItem]) -> list[Lea
 
 
 def kept_passes(name: str, base: LearnedStage | None) -> dict:
-    """The full-frame passes a trained stage keeps of ``base``: the base's network as it is ("shipped") or fine-tuned
-    ("fine-tuned", a little changed, at the base's scale) searches full frames as the base does (its coarse pass: side,
-    threshold, candidates, its peaks' windows' context; its confirmation network, which looks at crops, not at the heat network), in the
-    cross-validation and in the file; a stage from scratch has one pass and no confirmation (no fields)."""
-    if name not in ("shipped", "fine-tuned") or base is None:
+    """What a trained stage keeps of ``base``, in the cross-validation and in the file: the base's network as it is
+    ("shipped") or fine-tuned ("fine-tuned", a little changed, at the base's scale) searches full frames as the base
+    does (its coarse pass: side, threshold, candidates, its peaks' windows' context); every stage, one from scratch
+    too, keeps the base's confirmation network, which looks at crops, not at the heat network (without it a stage from
+    scratch gave back a camera's ceiling lamp the confirmation had learned to reject: README Results, "Few labels of one
+    camera"); a stage from scratch searches in one pass."""
+    if base is None:
         return {}
+    if name not in ("shipped", "fine-tuned"):
+        return {} if base.confirm is None else dict(confirm=base.confirm)
     return dict(coarse_side_px=base.coarse_side_px, coarse_threshold=base.coarse_threshold, coarse_candidates=base.coarse_candidates,
                 coarse_context_px=base.coarse_context_px, confirm=base.confirm)
 
 
-def operating_points(name: str, base: LearnedStage | None, single_threshold: float) -> dict:
+def operating_points(name: str, base: LearnedStage | None, single_threshold: float, topk_threshold: float | None = None) -> dict:
     """The written stage's single-image threshold, ``single_threshold`` (chosen on the cross-validation's scores):
     the confirmation network's where the stage keeps the base's (:func:`kept_passes`; its scores are the confirmed
-    ones), the heat keeping the base's own threshold; else the heat's."""
+    ones), the heat keeping the base's own threshold (the base's network, or a fine-tune of it) or, a stage from scratch,
+    ``topk_threshold`` (the top-K threshold the cross-validation chose for it); else the heat's."""
     confirm = kept_passes(name, base).get("confirm")
     if confirm is None:
         return dict(threshold=single_threshold)
-    return dict(threshold=base.threshold, confirm=replace(confirm, threshold=single_threshold))
+    heat = base.threshold if name in ("shipped", "fine-tuned") else topk_threshold
+    if heat is None:
+        raise ValueError(f"operating_points: a stage {name!r} that keeps the base's confirmation network needs its top-K threshold")
+    return dict(threshold=heat, confirm=replace(confirm, threshold=single_threshold))
 
 
 def continue_steps(finetune_steps: int, scratch_steps: int) -> int:
@@ -998,7 +1006,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
     elif best.name == "shipped":
         stage = base.__class__(base.onnx, stride=base.stride, max_side_px=base.max_side_px,
                                diameter_range_px=base.diameter_range_px, context_px=base.context_px,
-                               **{**kept_passes(best.name, base), **operating_points(best.name, base, single_threshold)}, filter_refines=base.filter_refines,
+                               **{**kept_passes(best.name, base), **operating_points(best.name, base, single_threshold, best.threshold)}, filter_refines=base.filter_refines,
                                track_threshold=min(best.threshold, TRACK_THRESHOLD),
                                size_ratio=base.size_ratio,  # the same network: its diameters' record holds
                                description=base.description + f"; {thresholds} on {len(labelled)} images")
@@ -1023,7 +1031,7 @@ def train_stage(labelled, images, folds, *, base: LearnedStage | None, seed: int
         inherited = base.size_ratio if best.name == "fine-tuned" and base is not None else None
         stage = LearnedStage(onnx_all, max_side_px=max_side, diameter_range_px=LearnedTrainOptions().diameter_range_px,
                              context_px=WINDOW_CONTEXT_PX if base is None else base.context_px, track_threshold=min(best.threshold, TRACK_THRESHOLD),
-                             **{**kept_passes(best.name, base), **operating_points(best.name, base, single_threshold)},
+                             **{**kept_passes(best.name, base), **operating_points(best.name, base, single_threshold, best.threshold)},
                              filter_refines=True if base is None else base.filter_refines, size_ratio=inherited,
                              description=f"{best.name} on {len(labelled)} images ({steps} steps, seed {seed}; {thresholds})"
                              + ("" if not mined else f"; continued {n_continue} steps with {100 * mined:g} % of its patches near its own false alarms, "

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -337,14 +339,15 @@ def test_a_fine_tune_keeps_its_base_coarse_pass_in_cross_validation_and_in_the_f
     assert stage.onnx != base.onnx
     # the cross-validation's stages: two folds x (fine-tuned with the coarse pass, scratch without), then the file's
     assert [s.coarse_side_px for s in made] == [64, 0, 64, 0, 64]
-    assert L.kept_passes("scratch", base) == {} and L.kept_passes("fine-tuned", None) == {}
+    assert L.kept_passes("scratch", base) == {} and L.kept_passes("fine-tuned", None) == {}  # a base without a confirmation network
 
 
 @pytest.mark.parametrize("winner", ["shipped", "fine-tuned", "scratch"])
 def test_a_trained_stage_keeps_its_bases_confirmation_network_with_the_threshold_chosen_for_it(synthetic_ball_coco, monkeypatch, winner):
-    """The confirmation network looks at crops, not at the heat network: the base as it is and fine-tuned keep it, in the
-    cross-validation (whose scores are then the confirmed ones) and in the file, where the single image's threshold
-    chosen is the confirmation's and the heat keeps the base's; a stage from scratch has none."""
+    """The confirmation network looks at crops, not at the heat network: every stage keeps it, the base as it is,
+    fine-tuned and one from scratch, in the cross-validation (whose scores are then the confirmed ones) and in the file,
+    where the single image's threshold chosen is the confirmation's; the heat keeps the base's threshold, a stage from
+    scratch the top-K one chosen for it."""
     import torch
 
     from harness.experiments.detector import learned_train as L
@@ -362,12 +365,15 @@ def test_a_trained_stage_keeps_its_bases_confirmation_network_with_the_threshold
     stage, info = L.train_stage(labelled, images, cv_folds(labelled, 2), base=base, seed=0, finetune_steps=3, scratch_steps=3, batch=4,
                                 patch_px=32, log=lambda m: None)
     assert info["chosen"].name == winner
-    assert [s.confirm is confirm for s in made[:4]] == [True, False, True, False]  # the folds' fine-tunes and stages from scratch
-    if winner == "scratch":
-        assert stage.confirm is None and stage.threshold == info["single_threshold"]
-    else:
-        assert stage.confirm.onnx == confirm.onnx and stage.confirm.threshold == info["single_threshold"] and stage.threshold == 0.35
-    assert L.operating_points("scratch", base, 0.2) == {"threshold": 0.2}
+    assert [s.confirm is confirm for s in made[:4]] == [True, True, True, True]  # the folds' fine-tunes and stages from scratch
+    assert stage.confirm.onnx == confirm.onnx and stage.confirm.threshold == info["single_threshold"]
+    assert stage.threshold == (info["chosen"].threshold if winner == "scratch" else 0.35)
+    points = L.operating_points("scratch", base, 0.2, 0.3)
+    assert points["threshold"] == 0.3 and points["confirm"].onnx == confirm.onnx and points["confirm"].threshold == 0.2
+    plain = dataclasses.replace(base, confirm=None)
+    assert L.operating_points("scratch", plain, 0.2, 0.3) == {"threshold": 0.2} and L.kept_passes("scratch", plain) == {}
+    with pytest.raises(ValueError, match="needs its top-K threshold"):
+        L.operating_points("scratch", base, 0.2)
 
 
 def test_contrast_crops_are_the_bases_false_candidates_next_to_a_ball():
