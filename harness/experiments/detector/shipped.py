@@ -434,9 +434,9 @@ def add_arguments(parser) -> None:
                              "again at full scale (0: one pass at --max-side-px; default two thirds of --max-side-px for a new "
                              "stage, a --stage-from stage's own)")
     parser.add_argument("--coarse-context", type=int, default=None, metavar="PX",
-                        help="network pixels of context around each coarse peak's window at full scale (default "
-                             f"{COARSE_CONTEXT_PX} for a new stage, a --stage-from stage's own; a tracker's windows keep "
-                             f"{WINDOW_CONTEXT_PX})")
+                        help="network pixels of context around each coarse peak's window at full scale, before the second "
+                             f"look (single images, proposals, rt2 label --auto; default {COARSE_CONTEXT_PX} for a new stage, a "
+                             f"--stage-from stage's own; a tracker's cameras search with the windows' {WINDOW_CONTEXT_PX})")
     parser.add_argument("--max-side-px", type=int, default=960,
                         help="frames with a longer side are shrunk to it before the network (default 960: VGA frames as they are)")
 

@@ -391,7 +391,7 @@ def add_arguments(parser) -> None:
                              "full scale (0: one pass at the stage's full scale); default: the model's own")
     parser.add_argument("--coarse-context", type=int, default=None, metavar="PX",
                         help="a model with a learned stage: network pixels of context around each coarse peak's window at full "
-                             "scale; default: the model's own")
+                             "scale, before the second look; default: the model's own")
     parser.add_argument("--no-verifier", action="store_true",
                         help="run 'ours' and 'topk' with the model's 5x5 filter alone, without its candidate verifier (if it has one)")
     parser.add_argument("--ball-diameter-px", default=None, metavar="LO:HI",
