@@ -154,7 +154,7 @@ def test_every_field_is_written(tmp_path, tiny_onnx):
 
 
 def test_the_coarse_peaks_windows_see_their_own_context_before_the_second_look(bright_spot_onnx, monkeypatch):
-    """Before the second look (``refit``: single images, proposals, rt2 label --auto) a coarse peak's window at full scale
+    """Before the second look (``second_look``: single images, proposals, rt2 label --auto) a coarse peak's window at full scale
     is searched with ``coarse_context_px`` network pixels around it; a tracker's whole frame (the heat alone) and a
     window a caller gives take ``context_px``, and so does everything where ``coarse_context_px`` is not set."""
     seen = []
@@ -162,12 +162,12 @@ def test_the_coarse_peaks_windows_see_their_own_context_before_the_second_look(b
     monkeypatch.setattr(LearnedStage, "network_input", lambda self, image, window, s, context=None: seen.append((window, context)) or real(self, image, window, s, context))
     full_hd = np.zeros((1080, 1920, 3), np.uint8)
     full_hd[496:512, 896:912] = 255  # a bright spot of whole cells at both scales: one coarse peak
-    for coarse_context, refit, expected in ((24, True, 24), (24, False, None), (None, True, None)):
+    for coarse_context, second_look, expected in ((24, True, 24), (24, False, None), (None, True, None)):
         stage = LearnedStage(bright_spot_onnx, max_side_px=960, threshold=0.5, coarse_side_px=480, context_px=8, coarse_context_px=coarse_context)
         seen.clear()
-        uv, _, _ = stage._two_passes(full_hd, 4, 0.5, refit=refit)
+        uv, _, _ = stage._two_passes(full_hd, 4, 0.5, second_look=second_look)
         assert len(uv) >= 1 and np.linalg.norm(uv[0] - [903.5, 503.5]) < 8.0
-        assert seen[0] == (None, None) and len(seen) >= 2 and [c for w, c in seen[1:]] == [expected] * (len(seen) - 1), (coarse_context, refit)
+        assert seen[0] == (None, None) and len(seen) >= 2 and [c for w, c in seen[1:]] == [expected] * (len(seen) - 1), (coarse_context, second_look)
         crop, _, _ = real(stage, full_hd, seen[1][0], 0.5, seen[1][1])
         window = seen[1][0]
         # the network sees the window plus the context (network pixels at scale 0.5), padded to whole cells

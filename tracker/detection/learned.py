@@ -270,14 +270,13 @@ class LearnedStage:
         if not isinstance(self.onnx, (bytes, bytearray)) or len(self.onnx) < 16:
             raise ValueError(f"{where}: onnx must be the network's ONNX bytes, got {type(self.onnx).__name__} of length "
                              f"{len(self.onnx) if hasattr(self.onnx, '__len__') else '?'}")
-        for name in ("stride", "max_side_px", "context_px", "coarse_side_px", "coarse_candidates", "coarse_context_px"):
+        lowest = dict(stride=1, max_side_px=1, context_px=0, coarse_side_px=0, coarse_candidates=1, coarse_context_px=0)
+        for name, lo in lowest.items():
             v = getattr(self, name)
-            if name == "coarse_context_px" and v is None:
+            if v is None and name == "coarse_context_px":
                 continue
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (0 if name in ("context_px", "coarse_side_px", "coarse_context_px") else 1):
-                raise ValueError(f"{where}: {name} must be " + ("None or " if name == "coarse_context_px" else "")
-                                 + ("an integer >= 0" if name in ("context_px", "coarse_side_px", "coarse_context_px") else "a positive integer")
-                                 + f", got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise ValueError(f"{where}: {name} must be {'None or ' if name == 'coarse_context_px' else ''}an integer >= {lo}, got {v!r}")
             object.__setattr__(self, name, int(v))
         if self.coarse_side_px and not 8 * self.stride <= self.coarse_side_px < self.max_side_px:
             raise ValueError(f"{where}: coarse_side_px must be 0 or in [{8 * self.stride}, max_side_px = {self.max_side_px}), got {self.coarse_side_px}")
@@ -333,7 +332,7 @@ class LearnedStage:
         look = self.confirm if whole and confirm else None
         kk, th = (k, threshold) if look is None else (max(k, look.candidates), look.gate)
         if whole and self.coarse_side_px and max(h, w) * scale >= COARSE_MIN_RATIO * self.coarse_side_px:
-            uv, sc, d = self._two_passes(image, kk, th, refit=look is not None)
+            uv, sc, d = self._two_passes(image, kk, th, second_look=look is not None)
         else:
             uv, sc, d = self._one_pass(image, window, kk, th, scale)
         if look is None:
@@ -371,12 +370,12 @@ class LearnedStage:
             return x0, y0, x1, y1
         return ax0, ay0, ax1, ay1
 
-    def _two_passes(self, image, k: int, threshold, refit: bool = False):
+    def _two_passes(self, image, k: int, threshold, second_look: bool = False):
         """Full frame: the coarse pass's best peaks, each searched again as a window at full scale (module docstring);
-        ``refit`` (before the second look): the windows with ``coarse_context_px`` of context, and a peak too large for
-        the full scale also where it fits (module docstring, "Large balls")."""
+        ``second_look`` (the confirmation will judge the candidates): the windows with ``coarse_context_px`` of context,
+        and a peak too large for the full scale also where it fits (module docstring, "Large balls")."""
         h, w = image.shape[:2]
-        ctx = self.coarse_context_px if refit else None  # the peaks' windows' context before the second look (else the stage's windows')
+        ctx = self.coarse_context_px if second_look else None  # the peaks' windows' context (None: the stage's windows')
         uv, _, d = self._one_pass(image, None, self.coarse_candidates, self.coarse_threshold, learned_scale(h, w, self.coarse_side_px))
         if len(uv) == 0:
             return uv, np.zeros(0), d
@@ -389,7 +388,7 @@ class LearnedStage:
             x1, y1 = min(w, int(math.ceil(u + half)) + 1), min(h, int(math.ceil(v + half)) + 1)
             if x0 < x1 and y0 < y1:
                 f = self._one_pass(image, (x0, y0, x1, y1), 1, threshold, s, context=ctx)
-                if refit and dd * s > big:  # too large for the network at the full scale: again where it fits
+                if second_look and dd * s > big:  # too large for the network at the full scale: again where it fits
                     g = self._one_pass(image, (x0, y0, x1, y1), 1, threshold, REFIT_SHARE * self.diameter_range_px[1] / dd)
                     if len(g[1]) and g[2][0] * s > big and (len(f[1]) == 0 or g[1][0] > f[1][0]):
                         f = g

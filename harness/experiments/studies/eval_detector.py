@@ -419,26 +419,20 @@ def run(args) -> int:
         model = replace(model, verifier=None)
     if getattr(args, "no_confirm", False) and model.learned is not None and model.learned.confirm is not None:
         model = replace(model, learned=replace(model.learned, confirm=None))
-    coarse = getattr(args, "coarse_side", None)
-    if coarse is not None:
-        if model.learned is None:
-            raise ValueError(f"--coarse-side {coarse}: the model has no learned stage (its whole frames are searched by its 5x5 filter)")
-        from harness.experiments.detector.shipped import coarse_side_problem
+    from harness.experiments.detector.shipped import coarse_context_problem, coarse_side_problem
 
-        problem = coarse_side_problem(coarse, model.learned.max_side_px, f"the stage's full scale ({model.learned.max_side_px} px)")
+    # the stage's whole-frame passes as the options say: (option, value, its problem or None, the stage's field)
+    for option, value, check, name in (
+            ("--coarse-side", getattr(args, "coarse_side", None), lambda v, st: coarse_side_problem(v, st.max_side_px, f"the stage's full scale ({st.max_side_px} px)"), "coarse_side_px"),
+            ("--coarse-context", getattr(args, "coarse_context", None), lambda v, st: coarse_context_problem(v), "coarse_context_px")):
+        if value is None:
+            continue
+        if model.learned is None:
+            raise ValueError(f"{option} {value}: the model has no learned stage (its whole frames are searched by its 5x5 filter)")
+        problem = check(value, model.learned)
         if problem:
             raise ValueError(problem)
-        model = replace(model, learned=replace(model.learned, coarse_side_px=coarse))
-    ctx = getattr(args, "coarse_context", None)
-    if ctx is not None:
-        if model.learned is None:
-            raise ValueError(f"--coarse-context {ctx}: the model has no learned stage (its whole frames are searched by its 5x5 filter)")
-        from harness.experiments.detector.shipped import coarse_context_problem
-
-        problem = coarse_context_problem(ctx)
-        if problem:
-            raise ValueError(problem)
-        model = replace(model, learned=replace(model.learned, coarse_context_px=ctx))
+        model = replace(model, learned=replace(model.learned, **{name: value}))
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if getattr(args, "camera", None):  # before --time-range: the time order is one camera's
         labelled = select_cameras(labelled, args.camera)
