@@ -32,6 +32,12 @@ EXAMPLE_CANDIDATES = 16
 #: the share of the training frames searched again with light sources drawn in (:func:`with_lights`): the stage's
 #: candidates on them are lamps, the white ball's detector's false alarms on held-out cameras (README Results)
 LIT = 0.5
+#: the share of the training frames searched again with look-alikes drawn in (:func:`with_lookalikes`; 0: none, as
+#: the files of 2026-12-02 were made)
+LOOKALIKES = 0.0
+#: a look-alike's size (its longer side, pixels, log-uniform) and how many a frame gets
+LOOKALIKE_SIDE_PX = (8.0, 160.0)
+LOOKALIKES_PER_FRAME = 3
 #: jittered crops of each labelled ball (more balls than the candidates alone give)
 JITTER = 3
 #: a crop: its side in candidate diameters (at least MIN_SIDE_PX), resampled to CROP_PX
@@ -56,12 +62,80 @@ def with_lights(image: np.ndarray, centers, diameters, rng, n: int = 3) -> np.nd
     return out
 
 
+def draw_lookalike(image: np.ndarray, rng: np.random.Generator, centers, diameters, reflectance, tries: int = 5) -> np.ndarray:
+    """``image`` (h, w, 3) uint8 RGB with one thing of the ball's colour that is not a ball drawn in where it covers
+    none of the balls at ``centers`` (n, 2) of ``diameters`` (n,) (a copy; the image itself where no place is found in
+    ``tries``): a rotated rectangle or an irregular polygon, flat-lit (a gradient across it, not a sphere's shading),
+    with corners, of a colour of ``reflectance`` ``((lo R, G, B), (hi R, G, B))`` linear, textured, its edge a little
+    soft, often cut by the frame's edge: a box, a cloth, a cap or a sign of the ball's colour, which a detector
+    that knows the colour and not the shape takes for the ball (the orange file's false alarms on held-out cameras)."""
+    import cv2
+
+    h, w = image.shape[:2]
+    side = math.exp(rng.uniform(*np.log(LOOKALIKE_SIDE_PX)))
+    c, d = np.asarray(centers, np.float64).reshape(-1, 2), np.asarray(diameters, np.float64).reshape(-1)
+    for _ in range(tries):
+        if rng.random() < 0.4:  # across the frame's edge
+            edge = int(rng.integers(4))
+            t = rng.uniform(0.0, 1.0)
+            off = rng.uniform(-0.3, 0.3) * side
+            cx, cy = [(off, t * (h - 1)), (w - 1 - off, t * (h - 1)), (t * (w - 1), off), (t * (w - 1), h - 1 - off)][edge]
+        else:
+            cx, cy = rng.uniform(0, w - 1), rng.uniform(0, h - 1)
+        if (np.hypot(c[:, 0] - cx, c[:, 1] - cy) > 0.75 * side + 0.5 * d + 2.0).all():
+            break
+    else:
+        return image
+    ang = rng.uniform(0.0, math.pi)
+    if rng.random() < 0.5:  # a rectangle
+        a, b = 0.5 * side, 0.5 * side * rng.uniform(0.35, 1.0)
+        pts = np.array([(-a, -b), (a, -b), (a, b), (-a, b)])
+    else:  # an irregular polygon of 5-9 corners
+        k = int(rng.integers(5, 10))
+        th = np.sort(rng.uniform(0.0, 2 * math.pi, k))
+        rad = 0.5 * side * rng.uniform(0.45, 1.0, k)
+        pts = np.stack([rad * np.cos(th), rad * np.sin(th)], 1)
+    rot = np.array([[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]])
+    pts = pts @ rot.T + (cx, cy)
+    mask = np.zeros((h, w), np.float32)
+    cv2.fillPoly(mask, [np.rint(pts * 4).astype(np.int32)], 1.0, lineType=cv2.LINE_AA, shift=2)
+    sigma = rng.uniform(0.3, 1.5)
+    mask = cv2.GaussianBlur(mask, (0, 0), sigma)
+    lo, hi = (np.asarray(x, np.float64) for x in reflectance)
+    refl = rng.uniform(lo, hi)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    g = rng.normal(size=2)
+    g /= max(np.hypot(*g), 1e-9)
+    ramp = ((x - cx) * g[0] + (y - cy) * g[1]) / max(side, 1.0)  # -0.5..0.5 across it
+    # as bright as the surroundings allow: a thing in a dark room is dark
+    x0, x1, y0, y1 = (int(np.clip(v, 0, m)) for v, m in ((cx - side, w), (cx + side + 1, w), (cy - side, h), (cy + side + 1, h)))
+    around = image[y0:y1, x0:x1] if x1 > x0 and y1 > y0 else image
+    level = float(np.mean((around.astype(np.float32) / 255.0) ** 2.2))
+    light = rng.uniform(0.4, 1.0) * min(1.0, 0.1 + 4.0 * level) * (1.0 + rng.uniform(0.0, 0.6) * ramp)
+    texture = 1.0 + rng.uniform(0.0, 0.08) * cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), rng.uniform(0.5, 3.0)) * 3.0
+    lin = np.clip(light[..., None] * texture[..., None] * refl[None, None, :].astype(np.float32), 0.0, 1.0)
+    colour = 255.0 * lin ** (1 / 2.2)
+    out = image.astype(np.float32) * (1.0 - mask[..., None]) + colour * mask[..., None]
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def with_lookalikes(image: np.ndarray, centers, diameters, rng, reflectance, n: int = LOOKALIKES_PER_FRAME) -> np.ndarray:
+    """``image`` with ``n`` look-alikes of the ball's colour drawn in away from its balls (:func:`draw_lookalike`)."""
+    out = image
+    for _ in range(n):
+        out = draw_lookalike(out, rng, centers, diameters, reflectance)
+    return out
+
+
 def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: float = 0.0, context: float = CONTEXT, context2: float | None = None,
-                     log=print):
+                     lookalikes: float = LOOKALIKES, reflectance=None, log=print):
     """``(crops (n, P, P, 3) uint8, labels (n,) float32: 1 a ball)`` of ``pairs`` ``(image, LabelledImage)`` (module
     docstring); ``lit``: the share of the frames that are also searched with light sources drawn in (:func:`with_lights`);
     ``context``: a crop's side in candidate diameters; ``context2``: a second crop's (None: none), its three channels
-    after the first's (``(n, P, P, 6)``)."""
+    after the first's (``(n, P, P, 6)``); ``lookalikes``: the share of the frames also searched with things of the
+    ball's colour ``reflectance`` (:func:`draw_lookalike`) drawn in."""
+    if lookalikes and reflectance is None:
+        raise ValueError("look-alikes need the ball's reflectance")
     contexts = (context,) if context2 is None else (context, context2)
 
     def crop(image, u, v, d):
@@ -78,6 +152,9 @@ def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: floa
         if lit and rng.random() < lit:
             c, d = truth_of(li)
             frames.append((with_lights(image, c, d, rng), li, False))
+        if lookalikes and rng.random() < lookalikes:
+            c, d = truth_of(li)
+            frames.append((with_lookalikes(image, c, d, rng, reflectance), li, False))
     for image, li, first in frames:
         c, d = truth_of(li)
         uv, _, dd = stage.candidates(image, None, k=EXAMPLE_CANDIDATES, threshold=GATE, confirm=False)
@@ -114,7 +191,7 @@ def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: floa
         label.append(0.0)
         n_random += 1
     y = np.array(label, np.float32)
-    log(f"confirmation network: {len(y)} crops of {len(pairs)} frames ({len(frames) - len(pairs)} of them again with lights drawn in; {n_cand} candidates of the stage; "
+    log(f"confirmation network: {len(y)} crops of {len(pairs)} frames ({len(frames) - len(pairs)} of them again with lights or look-alikes drawn in; {n_cand} candidates of the stage; "
         f"{int(y.sum())} balls, {int((y == 0).sum())} not" + (f", {n_random} of them random places" if n_random else "") + ")")
     return np.array(crops, np.uint8).reshape(-1, CROP_PX, CROP_PX, 3 * len(contexts)), y
 
@@ -236,15 +313,17 @@ def export_confirm(torch, net, p: int, channels: int = 3) -> bytes:
 
 
 def build_confirm_net(stage, pairs, *, steps: int, seed: int, description: str, lit: float = LIT, context: float = CONTEXT,
-                      context2: float | None = None, log=print, progress: bool = False) -> ConfirmNet:
+                      context2: float | None = None, lookalikes: float = LOOKALIKES, reflectance=None, log=print, progress: bool = False) -> ConfirmNet:
     """A :class:`ConfirmNet` for ``stage`` trained on its candidates in ``pairs`` (``lit``: the share of them searched
     again with light sources drawn in; ``context``: a crop's side in candidate diameters; ``context2``: a second
-    crop's, or None)."""
-    crops, labels = confirm_examples(stage, pairs, seed, lit=lit, context=context, context2=context2, log=log)
+    crop's, or None; ``lookalikes``: the share searched again with things of the ball's colour ``reflectance`` drawn in)."""
+    crops, labels = confirm_examples(stage, pairs, seed, lit=lit, context=context, context2=context2, lookalikes=lookalikes, reflectance=reflectance, log=log)
     onnx = fit_confirm(crops, labels, steps=steps, seed=seed, log=log, progress=progress)
     return ConfirmNet(onnx, crop_px=CROP_PX, context=context, context2=context2, min_side_px=MIN_SIDE_PX, candidates=CANDIDATES, gate=GATE,
                       description=f"{steps} steps of 64 crops, seed {seed}, on {int(labels.sum())} ball and {int((labels == 0).sum())} other crops"
-                      + (f" ({100 * lit:g} % of the frames searched again with light sources drawn in)" if lit else "")
+                      + (f" ({100 * lit:g} % of the frames searched again with light sources drawn in"
+                         + (f", {100 * lookalikes:g} % with things of the ball's colour" if lookalikes else "") + ")" if lit else "")
+                      + (f" ({100 * lookalikes:g} % of the frames searched again with things of the ball's colour drawn in)" if lookalikes and not lit else "")
                       + (f", crops of {context:g} diameters" if context != CONTEXT and context2 is None else "")
                       + (f"; two networks so, one on crops of {context:g} diameters, one on crops of {context2:g}, their probabilities averaged"
                          if context2 is not None else "") + "; " + description)

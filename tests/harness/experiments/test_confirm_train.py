@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from harness.experiments.detector.coco import LabelledImage
-from harness.experiments.detector.confirm_train import CONTEXT, CROP_PX, JITTER, confirm_examples, fit_confirm, with_lights
+from harness.experiments.detector.confirm_train import CONTEXT, CROP_PX, JITTER, confirm_examples, draw_lookalike, fit_confirm, with_lights, with_lookalikes
+from harness.experiments.detector.drawn import BALL_REFLECTANCE
 from tracker.detection.confirm import confirm_crop
 
 
@@ -59,6 +60,41 @@ def test_lamps_are_drawn_away_from_the_balls():
     disc = np.hypot(xx - 80, yy - 60) <= 6
     np.testing.assert_array_equal(out[disc], img[disc])
     assert (out == 255).all(axis=-1).sum() >= 10  # saturated cores
+
+
+def test_lookalikes_are_of_the_balls_colour_away_from_the_balls_and_flat_edged():
+    """A look-alike: a thing of the ball's colour (orange: red over green over blue) drawn where no ball is, in a copy;
+    its pixels cover a polygon's area, not a disc's outline alone; nowhere to put it leaves the image as it was."""
+    img, li = _frame()
+    img = np.full((120, 160, 3), 120, np.uint8)
+    yy, xx = np.mgrid[0:120, 0:160]
+    disc = np.hypot(xx - 80, yy - 60) <= 6
+    drawn = 0
+    for seed in range(20):
+        out = with_lookalikes(img, li.centers_px, [10.0], np.random.default_rng(seed), BALL_REFLECTANCE["orange"], n=2)
+        assert out.shape == img.shape and out.dtype == np.uint8 and (img == 120).all()  # a copy
+        np.testing.assert_array_equal(out[disc], img[disc])
+        changed = (out.astype(int) - img).any(axis=-1)
+        if changed.sum() >= 20:
+            drawn += 1
+            core = out[changed & (np.abs(out.astype(int) - img).sum(-1) > 60)]
+            if len(core):
+                r, g, b = np.median(core, axis=0)
+                assert r > g > b, (seed, r, g, b)
+    assert drawn >= 15
+    rng = np.random.default_rng(0)
+    assert draw_lookalike(img, rng, np.array([[80.0, 60.0]]), np.array([1000.0]), BALL_REFLECTANCE["orange"]) is img
+
+
+def test_frames_searched_again_with_lookalikes_add_their_candidates_and_need_the_colour():
+    stage = _Stage()
+    crops, labels = confirm_examples(stage, [_frame()] * 4, seed=0, lookalikes=1.0, reflectance=BALL_REFLECTANCE["orange"], log=lambda m: None)
+    assert len(stage.calls) == 8 and labels.sum() == 4 * (1 + JITTER) + 4
+    plain, plain_labels = confirm_examples(_Stage(), [_frame()] * 4, seed=0, log=lambda m: None)
+    none, none_labels = confirm_examples(_Stage(), [_frame()] * 4, seed=0, lookalikes=0.0, reflectance=BALL_REFLECTANCE["orange"], log=lambda m: None)
+    np.testing.assert_array_equal(none, plain)  # a share of 0 draws nothing: files made before are made again alike
+    with pytest.raises(ValueError, match="look-alikes need the ball's reflectance"):
+        confirm_examples(_Stage(), [_frame()], seed=0, lookalikes=0.5, log=lambda m: None)
 
 
 def test_the_fit_is_repeatable_and_refuses_one_sided_examples():
