@@ -28,6 +28,15 @@ frames, where the network's diameters are ~1.1x), so the detector takes the cent
 network's diameter for the 3D size test: with the fitted diameters too, the size test rejected 2-3x as many
 positions (`rt2 eval framesets` recall 73 % on seed 5, 94 % with the network's).
 
+Chroma: a ball of a saturated colour (orange) lit from one side darkens towards its far side, and there grey's
+steepest fall is the shading's, not the ball's outline: on orange balls drawn into real frames (lit from a random
+side, `rt2 eval detector --data /tmp/orange/eval_drawn`) the grey fit's median error was 3.1 px, leaning to the lit
+side. With ``chroma`` the window is ``255 max(R - B, 0) // (R + G + B + CHROMA_DARK)`` in integers instead of grey
+(the pyramid and smoothing as before): the shaded side keeps the ball's hue, so its outline is the edge; the median
+error there 0.67 px, on the semi-real caliscope frames' drawn orange balls 1.14 -> 0.27 px (README Results,
+"Orange centres from the ball's chroma"). ``CHROMA_DARK`` keeps dark pixels' noise from ruling the chroma. The
+detector uses it for a model of orange balls (``DetectorOptions.edge_channel``).
+
 :func:`refine_edges_reference` is the plain numpy version, :func:`refine_edges` the compiled one used per
 frame (the same arithmetic in the same order; a test checks that they agree).
 """
@@ -42,7 +51,7 @@ import numpy as np
 
 from checks.numba_cache import key_cache_on_callees
 
-__all__ = ["N_RAYS", "PASSES", "refine_edges", "refine_edges_reference"]
+__all__ = ["CHROMA_DARK", "N_RAYS", "PASSES", "refine_edges", "refine_edges_reference"]
 
 N_RAYS = 32  #: rays cast from the candidate's centre
 STEP_PX = 0.5  #: sample spacing along a ray, px
@@ -55,6 +64,8 @@ SMOOTH = 0.08  #: the grey window's Gaussian, x the candidate's diameter (at lea
 PYRAMID_PX = 16.0  #: a ball at least twice this wide is looked at in a pyramid level where it is 16-32 px
 MIN_DIAMETER_PX, MAX_DIAMETER_PX = 4.0, 400.0  #: candidates outside these diameters keep their centre
 FIT_ROUNDS = 3  #: least-squares fits per pass, each without the previous fit's outliers
+#: the chroma window's darkness offset: ``255 (R - B) // (R + G + B + CHROMA_DARK)`` (dark pixels' noise stays small)
+CHROMA_DARK = 30
 
 
 def _bilinear(gray, x, y):
@@ -108,20 +119,25 @@ def _gauss_taps(sigma):
     return taps
 
 
-def window_of(image: np.ndarray, u: float, v: float, diameter: float):
+def window_of(image: np.ndarray, u: float, v: float, diameter: float, chroma: bool = False):
     """The smoothed grey window the rays of a candidate at (u, v) of ``diameter`` px are cast in, both passes:
     ``(gray (h, w) float64, x0, y0, scale)``: the window's pixel (x, y) is the image's ``(x0 + scale x, y0 + scale y)``;
     None where the window is empty. Grey = OpenCV's luminance (``COLOR_RGB2GRAY``'s integer arithmetic); a ball wider
     than ``PYRAMID_PX`` is looked at in a pyramid level (``cv2.pyrDown``'s, ``scale`` = 2 or 4 ...) where it is about
     that wide, then smoothed by a Gaussian of ``max(0.6, SMOOTH x its diameter there)`` px (separable, float64, borders
     reflected as OpenCV's default). The numpy reference of :func:`_window_nb` (the same arithmetic in the same order;
-    grey and pyramid are OpenCV's to the bit, a test checks)."""
+    grey and pyramid are OpenCV's to the bit, a test checks). ``chroma``: the window is the ball's colour's chroma
+    instead of grey, ``255 (R - B) // (R + G + B + CHROMA_DARK)`` (at least 0), in integers: a ball of a saturated
+    colour (orange) keeps it on its shaded side, where its brightness falls off (module docstring, "Chroma")."""
     h, w = image.shape[:2]
     x0, y0, x1, y1 = _window_box(h, w, u, v, diameter)
     if x1 - x0 < 2 or y1 - y0 < 2:
         return None
     rgb = image[y0:y1, x0:x1].astype(np.int64)
-    gray = (rgb[..., 0] * GRAY_R + rgb[..., 1] * GRAY_G + rgb[..., 2] * GRAY_B + (1 << (GRAY_SHIFT - 1))) >> GRAY_SHIFT
+    if chroma:
+        gray = np.maximum(rgb[..., 0] - rgb[..., 2], 0) * 255 // (rgb[..., 0] + rgb[..., 1] + rgb[..., 2] + CHROMA_DARK)
+    else:
+        gray = (rgb[..., 0] * GRAY_R + rgb[..., 1] * GRAY_G + rgb[..., 2] * GRAY_B + (1 << (GRAY_SHIFT - 1))) >> GRAY_SHIFT
     scale = 1
     while diameter / scale >= 2 * PYRAMID_PX and min(gray.shape) >= 8:
         gray = _pyr_down_reference(gray)
@@ -211,11 +227,12 @@ def _one_pass(image, u, v, r0):
     return fit
 
 
-def refine_edges_reference(image: np.ndarray, uv_px: np.ndarray, diameter_px: np.ndarray):
+def refine_edges_reference(image: np.ndarray, uv_px: np.ndarray, diameter_px: np.ndarray, chroma: bool = False):
     """Centres and diameters of the candidates ``uv_px`` (n, 2) of diameters ``diameter_px`` (n,) in ``image``
     ((H, W, 3) uint8 RGB) refined by their edge (module docstring); returns ``(uv (n, 2), diameter (n,), refined (n,) bool)``:
-    a candidate whose fit failed keeps its centre and diameter."""
-    return _refine(image, uv_px, diameter_px)
+    a candidate whose fit failed keeps its centre and diameter. ``chroma``: the edge of the ball's colour's chroma,
+    not of grey (:func:`window_of`; a ball of a saturated colour)."""
+    return _refine(image, uv_px, diameter_px, bool(chroma))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -230,7 +247,7 @@ def _kept(a, b, rr, r0, u0, v0):
     return 0.5 * r0 <= rr <= 1.5 * r0 and not math.hypot(a - u0, b - v0) > r0
 
 
-def _refine(image, uv_px, diameter_px):
+def _refine(image, uv_px, diameter_px, chroma=False):
     """The passes of the module docstring over every candidate, each pass in its own window (:func:`window_of` of
     the previous pass's centre and diameter), numpy (:func:`_refine_nb` is the kernel)."""
     uv = np.array(uv_px, np.float64).reshape(-1, 2)
@@ -243,7 +260,7 @@ def _refine(image, uv_px, diameter_px):
         r0, u, v, dd = 0.5 * d0, u0, v0, d0
         good = True
         for _ in range(PASSES):
-            win = window_of(image, u, v, dd)
+            win = window_of(image, u, v, dd, chroma)
             fit = None if win is None else _one_pass(win[0], (u - win[1]) / win[3], (v - win[2]) / win[3], 0.5 * dd / win[3])
             if fit is None:
                 good = False
@@ -387,7 +404,7 @@ _COS, _SIN = np.cos(_ANGLES), np.sin(_ANGLES)
 
 
 @numba.njit(cache=True, nogil=True)
-def _window_nb(image, u, v, diameter):
+def _window_nb(image, u, v, diameter, chroma):
     """:func:`window_of` compiled: ``(ok, gray, x0, y0, scale)``."""
     x0, y0, x1, y1 = _window_box(image.shape[0], image.shape[1], u, v, diameter)
     if x1 - x0 < 2 or y1 - y0 < 2:
@@ -397,8 +414,11 @@ def _window_nb(image, u, v, diameter):
     half = 1 << (GRAY_SHIFT - 1)
     for y in range(gh):
         for x in range(gw):
-            gray[y, x] = (np.int64(image[y0 + y, x0 + x, 0]) * GRAY_R + np.int64(image[y0 + y, x0 + x, 1]) * GRAY_G
-                          + np.int64(image[y0 + y, x0 + x, 2]) * GRAY_B + half) >> GRAY_SHIFT
+            r, g, b = np.int64(image[y0 + y, x0 + x, 0]), np.int64(image[y0 + y, x0 + x, 1]), np.int64(image[y0 + y, x0 + x, 2])
+            if chroma:
+                gray[y, x] = max(r - b, 0) * 255 // (r + g + b + CHROMA_DARK)
+            else:
+                gray[y, x] = (r * GRAY_R + g * GRAY_G + b * GRAY_B + half) >> GRAY_SHIFT
     scale = 1
     while diameter / scale >= 2 * PYRAMID_PX and min(gh, gw) >= 8:
         oh, ow = (gh + 1) // 2, (gw + 1) // 2
@@ -437,7 +457,7 @@ _PYR_TAPS_NB = np.array(_PYR_TAPS, np.int64)
 
 
 @numba.njit(cache=True, nogil=True)
-def _refine_nb(image, uv, d, ca, sa):
+def _refine_nb(image, uv, d, ca, sa, chroma):
     """:func:`_refine` compiled, windows included: ``uv`` and ``d`` (copies) refined in place; returns the flags."""
     n = len(d)
     ok = np.zeros(n, np.bool_)
@@ -448,7 +468,7 @@ def _refine_nb(image, uv, d, ca, sa):
         r0, u, v, dd = 0.5 * d0, u0, v0, d0
         good = True
         for _ in range(PASSES):
-            has, gray, x0, y0, sc = _window_nb(image, u, v, dd)
+            has, gray, x0, y0, sc = _window_nb(image, u, v, dd, chroma)
             if not has:
                 good = False
                 break
@@ -468,13 +488,13 @@ def _refine_nb(image, uv, d, ca, sa):
     return ok
 
 
-def refine_edges(image: np.ndarray, uv_px: np.ndarray, diameter_px: np.ndarray):
+def refine_edges(image: np.ndarray, uv_px: np.ndarray, diameter_px: np.ndarray, chroma: bool = False):
     """:func:`refine_edges_reference` compiled (numba), windows, rays and fit in one call: the same results, faster."""
     uv = np.array(uv_px, np.float64).reshape(-1, 2)
     d = np.array(diameter_px, np.float64).reshape(-1)
     if len(d) == 0:
         return uv, d, np.zeros(0, bool)
-    ok = _refine_nb(image, uv, d, _COS, _SIN)
+    ok = _refine_nb(image, uv, d, _COS, _SIN, bool(chroma))
     return uv, d, ok
 
 

@@ -291,8 +291,10 @@ def centring(model, min_peak: float = AutoOptions.t_low):
     from harness.experiments.autolabel.silhouette import silhouette_centre
     from tracker.detection.edge_refine import refine_edges
 
+    chroma = model.ball_colour == "orange"  # a saturated ball's edge is its chroma's (tracker.DetectorOptions.edge_channel)
+
     def edge(image, uv, d):
-        c, _, ok = refine_edges(image, np.asarray(uv, float)[None], np.array([d], float))
+        c, _, ok = refine_edges(image, np.asarray(uv, float)[None], np.array([d], float), chroma)
         return c[0] if ok[0] else None
 
     if model.ball_colour != "white":  # a filter of the ball's colour (the real-camera orange model): its silhouette
