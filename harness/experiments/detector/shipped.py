@@ -121,7 +121,9 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     ``confirm_context``: the confirmation's crop side in candidate diameters, or two (a second crop; None:
     ``confirm_train.CONTEXT``). ``coarse_side``: a whole frame's coarse pass, its longer side in pixels (0: one pass at
     ``max_side``; None: :func:`coarse_side_of` for a new stage, a kept stage's own); ``coarse_context``: network pixels of
-    context around each coarse peak's window at full scale (None: ``COARSE_CONTEXT_PX`` for a new stage, a kept stage's own)."""
+    context around each coarse peak's window at full scale (None: ``COARSE_CONTEXT_PX`` for a new stage, a kept stage's own);
+    ``confirm_lookalikes``: the share of the confirmation's training frames searched again with look-alikes of the
+    ball's colour drawn in (:func:`harness.experiments.detector.confirm_train.draw_lookalike`)."""
     from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.learned_train import (LearnedTrainOptions, _best_threshold, fit_learned, items_at_scale)
     from harness.experiments.detector.scores import truth_of
@@ -468,6 +470,8 @@ def run(args) -> int:
                          + " ".join(f"{c:g}" for c in args.confirm_context))
     if args.confirm_context is not None and not args.confirm_steps:
         raise ValueError("--confirm-context is the confirmation network's crop: it needs --confirm-steps 1 or more")
+    if args.confirm_lookalikes and not args.confirm_steps:
+        raise ValueError("--confirm-lookalikes is the confirmation network's training: it needs --confirm-steps 1 or more")
     problem = None if args.coarse_side is None else coarse_side_problem(args.coarse_side, max_side, side_of)
     if problem:
         raise ValueError(problem)
