@@ -33,7 +33,7 @@ from checks.arrays import describe
 from checks.per_thread import PerThread
 from tracker.detection._correlate import blob_frontier, coarse_grid, grid_boxes
 from tracker.detection.blobs import find_blobs
-from tracker.detection.edge_refine import refine_edges
+from tracker.detection.edge_refine import chroma_for, refine_edges
 from tracker.detection.model import BallSegmentationModel, LogitWorkspace, logit, sigmoid
 
 __all__ = ["BallDetector", "DetectorOptions", "Detections", "METHODS"]
@@ -202,7 +202,7 @@ class BallDetector:
         self._th_logit, self._tl_logit = logit(self.t_high), logit(self.t_low)  # B > T  <=>  logit(B) > logit(T)
         self._tl_frontier = _float32_at_or_below(self._tl_logit)  # the coarse-to-fine search's blob edge test
         self.learned = model.learned if options.method == "ours" and options.learned else None
-        self._edge_chroma = options.edge_channel == "chroma" or (options.edge_channel == "auto" and model.ball_colour == "orange")
+        self._edge_chroma = options.edge_channel == "chroma" or (options.edge_channel == "auto" and chroma_for(model.ball_colour))
         # the learned stage reports each ball's diameter; its area range is open unless the options set one
         own_area = (1.0, float(LEARNED_MAX_AREA_PX)) if self.learned is not None else model.area_range_px
         min_area = own_area[0] if options.min_area_px is None else options.min_area_px

@@ -51,7 +51,7 @@ import numpy as np
 
 from checks.numba_cache import key_cache_on_callees
 
-__all__ = ["CHROMA_DARK", "N_RAYS", "PASSES", "refine_edges", "refine_edges_reference"]
+__all__ = ["CHROMA_COLOURS", "CHROMA_DARK", "N_RAYS", "PASSES", "chroma_for", "refine_edges", "refine_edges_reference"]
 
 N_RAYS = 32  #: rays cast from the candidate's centre
 STEP_PX = 0.5  #: sample spacing along a ray, px
@@ -66,6 +66,14 @@ MIN_DIAMETER_PX, MAX_DIAMETER_PX = 4.0, 400.0  #: candidates outside these diame
 FIT_ROUNDS = 3  #: least-squares fits per pass, each without the previous fit's outliers
 #: the chroma window's darkness offset: ``255 (R - B) // (R + G + B + CHROMA_DARK)`` (dark pixels' noise stays small)
 CHROMA_DARK = 30
+#: the ball colours (``BallSegmentationModel.ball_colour``) whose edge is fitted on the chroma: saturated ones
+CHROMA_COLOURS = frozenset({"orange"})
+
+
+def chroma_for(ball_colour: str) -> bool:
+    """Whether a ball of ``ball_colour`` is fitted on the chroma, not on grey (module docstring, "Chroma"): the rule
+    the detector's ``edge_channel`` "auto" and the label consensus's re-centring share."""
+    return ball_colour in CHROMA_COLOURS
 
 
 def _bilinear(gray, x, y):

@@ -289,9 +289,9 @@ def centring(model, min_peak: float = AutoOptions.t_low):
     if learned is None or learned.filter_refines:
         return centroid
     from harness.experiments.autolabel.silhouette import silhouette_centre
-    from tracker.detection.edge_refine import refine_edges
+    from tracker.detection.edge_refine import chroma_for, refine_edges
 
-    chroma = model.ball_colour == "orange"  # a saturated ball's edge is its chroma's (tracker.DetectorOptions.edge_channel)
+    chroma = chroma_for(model.ball_colour)  # a saturated ball's edge is its chroma's, as the detector's
 
     def edge(image, uv, d):
         c, _, ok = refine_edges(image, np.asarray(uv, float)[None], np.array([d], float), chroma)

@@ -312,6 +312,16 @@ def export_confirm(torch, net, p: int, channels: int = 3) -> bytes:
     return buf.getvalue()
 
 
+def _searched_again(lit: float, lookalikes: float) -> str:
+    """The description's note of the frames searched again (the shipped files' words: lights alone as before)."""
+    lights = f"{100 * lit:g} % of the frames searched again with light sources drawn in"
+    if lit and lookalikes:
+        return f" ({lights}, {100 * lookalikes:g} % with things of the ball's colour)"
+    if lit:
+        return f" ({lights})"
+    return f" ({100 * lookalikes:g} % of the frames searched again with things of the ball's colour drawn in)" if lookalikes else ""
+
+
 def build_confirm_net(stage, pairs, *, steps: int, seed: int, description: str, lit: float = LIT, context: float = CONTEXT,
                       context2: float | None = None, lookalikes: float = LOOKALIKES, reflectance=None, log=print, progress: bool = False) -> ConfirmNet:
     """A :class:`ConfirmNet` for ``stage`` trained on its candidates in ``pairs`` (``lit``: the share of them searched
@@ -321,9 +331,7 @@ def build_confirm_net(stage, pairs, *, steps: int, seed: int, description: str, 
     onnx = fit_confirm(crops, labels, steps=steps, seed=seed, log=log, progress=progress)
     return ConfirmNet(onnx, crop_px=CROP_PX, context=context, context2=context2, min_side_px=MIN_SIDE_PX, candidates=CANDIDATES, gate=GATE,
                       description=f"{steps} steps of 64 crops, seed {seed}, on {int(labels.sum())} ball and {int((labels == 0).sum())} other crops"
-                      + (f" ({100 * lit:g} % of the frames searched again with light sources drawn in"
-                         + (f", {100 * lookalikes:g} % with things of the ball's colour" if lookalikes else "") + ")" if lit else "")
-                      + (f" ({100 * lookalikes:g} % of the frames searched again with things of the ball's colour drawn in)" if lookalikes and not lit else "")
+                      + _searched_again(lit, lookalikes)
                       + (f", crops of {context:g} diameters" if context != CONTEXT and context2 is None else "")
                       + (f"; two networks so, one on crops of {context:g} diameters, one on crops of {context2:g}, their probabilities averaged"
                          if context2 is not None else "") + "; " + description)
