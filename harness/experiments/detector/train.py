@@ -140,7 +140,8 @@ class TrainOptions:
         writes the fine-tuned one (the behaviour before the guard)
     learned : "auto" also trains the learned detector stage (:mod:`harness.experiments.detector.learned_train`:
         no stage (the filter alone), the base's stage as it is, fine-tuned, or from scratch, chosen by
-        cross-validation; ``rt2 train``'s default); "on" the same without "no stage" among the choices; "off" (the default of this function: the filter studies) writes the filter alone (and drops
+        cross-validation, the base's stage kept unless another scores more than one labelled ball better; ``rt2
+        train``'s default); "on" the same without "no stage" among the choices; "off" (the default of this function: the filter studies) writes the filter alone (and drops
         a base model's stage)
     learned_folds : folds of the learned stage's cross-validation
     learned_folds_by : "time" (time-contiguous folds of whole frame sets, :func:`cv_folds`), "camera" (each fold whole
@@ -1072,7 +1073,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--learned", choices=LEARNED_CHOICES, default="auto",
                         help="'auto' (default): also train the learned detector stage (a small heatmap network): no stage (the 5x5 "
                              "filter alone), the base model's stage as it is, fine-tuned, or from scratch, whichever cross-validation "
-                             "over time-contiguous folds scores best; 'on': the same without 'no stage' (a stage is always written); "
+                             "over time-contiguous folds scores best (the base's own stage unless another scores more than one labelled ball "
+                             "better); 'on': the same without 'no stage' (a stage is always written); "
                              "'off': the 5x5 filter alone")
     parser.add_argument("--learned-folds", type=int, default=TrainOptions.learned_folds,
                         help=f"folds of the learned stage's cross-validation (default {TrainOptions.learned_folds})")

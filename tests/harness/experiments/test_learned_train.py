@@ -912,3 +912,40 @@ def test_a_tie_keeps_the_bases_own_threshold_where_it_is_among_the_best():
     assert _best_threshold(truth, cands, 4, 6.0, prefer=0.5)[0] == 0.5
     assert _best_threshold(truth, cands, 4, 6.0, prefer=0.8)[0] == 0.6
     assert single_image_threshold(truth, cands, 0.6, 6.0, prefer=0.4)[0] == 0.4
+
+
+def test_the_bases_own_threshold_is_kept_unless_another_wins_by_more_than_one_labelled_ball():
+    """Four balls, one a candidate at 0.45: 0.4 finds it too and beats 0.5 by one ball (a quarter) and nothing else;
+    the base's own 0.5 is kept with a margin of one ball, not with less."""
+    from harness.experiments.detector.learned_train import _best_threshold, one_ball, single_image_threshold
+
+    truth = ([np.array([[10.0, 10.0]]), np.array([[10.0, 10.0]]), np.array([[10.0, 10.0]]), np.array([[10.0, 10.0]])], [np.array([10.0])] * 4)
+    cands = [(np.array([[10.0, 10.0]]), np.array([s])) for s in (0.9, 0.9, 0.9, 0.45)]
+    assert one_ball(truth) == 0.25 and one_ball(([np.zeros((0, 2))], [np.zeros(0)])) == 0.0
+    assert _best_threshold(truth, cands, 4, 6.0, prefer=0.5)[0] == 0.4  # a tie only: the better one wins
+    assert _best_threshold(truth, cands, 4, 6.0, prefer=0.5, margin=0.25)[0] == 0.5
+    assert _best_threshold(truth, cands, 4, 6.0, prefer=0.5, margin=0.2)[0] == 0.4
+    assert single_image_threshold(truth, cands, 0.6, 6.0, prefer=0.5, margin=0.25)[0] == 0.5
+    assert single_image_threshold(truth, cands, 0.6, 6.0, prefer=0.5)[0] == 0.4
+
+
+@pytest.mark.parametrize("lead, chosen", [(0.0, "shipped"), (0.04, "shipped"), (0.1, "shipped"), (0.11, "fine-tuned")])
+def test_the_shipped_stage_is_kept_unless_another_wins_by_more_than_one_labelled_ball(synthetic_ball_coco, monkeypatch, lead, chosen):
+    """On few labels the folds decide a ball or two by chance: a fine-tune (or a stage from scratch) replaces the
+    shipped stage only when it scores more than one labelled ball's share better (10 balls: 0.1)."""
+    from harness.experiments.detector import learned_train as L
+    from harness.experiments.detector.train import cv_folds
+    from tracker.detection.learned import LearnedStage
+
+    labelled, images, onnx = _twelve_images_and_a_network(synthetic_ball_coco)
+    assert sum(li.n_balls for li in labelled) == 10
+    base = LearnedStage(onnx, max_side_px=128, threshold=0.5)
+    monkeypatch.setattr(L.StageChoice, "gain", property(lambda c: {"shipped": 0.5, "fine-tuned": 0.5 + lead}.get(c.name, 0.0)))
+    lines = []
+    stage, info = L.train_stage(labelled, images, cv_folds(labelled, 2), base=base, seed=0, finetune_steps=3, scratch_steps=3, batch=4,
+                                patch_px=32, log=lines.append)
+    assert info["chosen"].name == chosen
+    kept = [line for line in lines if line.startswith("learned stage: the shipped stage kept: fine-tuned scores")]
+    assert len(kept) == (1 if 0 < lead <= 0.1 else 0)
+    if chosen == "shipped":
+        assert stage.onnx == base.onnx
