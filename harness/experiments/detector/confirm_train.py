@@ -37,6 +37,9 @@ LIT = 0.5
 LOOKALIKES = 0.0
 #: a look-alike's size (its longer side, pixels, log-uniform) and how many a frame gets
 LOOKALIKE_SIDE_PX = (8.0, 160.0)
+#: the share of the training frames searched again with bare skin and coloured glints drawn in (:func:`with_skin`; 0:
+#: none, as the files of 2026-12-02 were made)
+SKIN = 0.0
 LOOKALIKES_PER_FRAME = 3
 #: jittered crops of each labelled ball (more balls than the candidates alone give)
 JITTER = 3
@@ -62,6 +65,32 @@ def with_lights(image: np.ndarray, centers, diameters, rng, n: int = 3) -> np.nd
     return out
 
 
+def _place(rng, h: int, w: int, reach: float, c, d, tries: int, edge_share: float = 0.4, span: float | None = None):
+    """A centre for something of ``reach`` pixels around it that covers none of the balls at ``c`` (n, 2) of ``d`` (n,)
+    (``edge_share`` of the time across the frame's edge, its centre up to 0.3 ``span`` (default ``reach``) either
+    side of it), or None where ``tries`` find none."""
+    for _ in range(tries):
+        if rng.random() < edge_share:
+            edge = int(rng.integers(4))
+            t = rng.uniform(0.0, 1.0)
+            off = rng.uniform(-0.3, 0.3) * (reach if span is None else span)
+            cx, cy = [(off, t * (h - 1)), (w - 1 - off, t * (h - 1)), (t * (w - 1), off), (t * (w - 1), h - 1 - off)][edge]
+        else:
+            cx, cy = rng.uniform(0, w - 1), rng.uniform(0, h - 1)
+        if (np.hypot(c[:, 0] - cx, c[:, 1] - cy) > reach + 0.5 * d + 2.0).all():
+            return cx, cy
+    return None
+
+
+def _level(image: np.ndarray, cx: float, cy: float, r: float) -> float:
+    """The mean linear brightness (0-1) of ``image`` within ``r`` pixels of ``(cx, cy)`` (a thing there is lit as its
+    surroundings are)."""
+    h, w = image.shape[:2]
+    x0, x1, y0, y1 = (int(np.clip(v, 0, m)) for v, m in ((cx - r, w), (cx + r + 1, w), (cy - r, h), (cy + r + 1, h)))
+    around = image[y0:y1, x0:x1] if x1 > x0 and y1 > y0 else image
+    return float(np.mean((around.astype(np.float32) / 255.0) ** 2.2))
+
+
 def draw_lookalike(image: np.ndarray, rng: np.random.Generator, centers, diameters, reflectance, tries: int = 5) -> np.ndarray:
     """``image`` (h, w, 3) uint8 RGB with one thing of the ball's colour that is not a ball drawn in where it covers
     none of the balls at ``centers`` (n, 2) of ``diameters`` (n,) (a copy; the image itself where no place is found in
@@ -74,18 +103,10 @@ def draw_lookalike(image: np.ndarray, rng: np.random.Generator, centers, diamete
     h, w = image.shape[:2]
     side = math.exp(rng.uniform(*np.log(LOOKALIKE_SIDE_PX)))
     c, d = np.asarray(centers, np.float64).reshape(-1, 2), np.asarray(diameters, np.float64).reshape(-1)
-    for _ in range(tries):
-        if rng.random() < 0.4:  # across the frame's edge
-            edge = int(rng.integers(4))
-            t = rng.uniform(0.0, 1.0)
-            off = rng.uniform(-0.3, 0.3) * side
-            cx, cy = [(off, t * (h - 1)), (w - 1 - off, t * (h - 1)), (t * (w - 1), off), (t * (w - 1), h - 1 - off)][edge]
-        else:
-            cx, cy = rng.uniform(0, w - 1), rng.uniform(0, h - 1)
-        if (np.hypot(c[:, 0] - cx, c[:, 1] - cy) > 0.75 * side + 0.5 * d + 2.0).all():
-            break
-    else:
+    at = _place(rng, h, w, 0.75 * side, c, d, tries, span=side)
+    if at is None:
         return image
+    cx, cy = at
     ang = rng.uniform(0.0, math.pi)
     if rng.random() < 0.5:  # a rectangle
         a, b = 0.5 * side, 0.5 * side * rng.uniform(0.35, 1.0)
@@ -108,15 +129,117 @@ def draw_lookalike(image: np.ndarray, rng: np.random.Generator, centers, diamete
     g /= max(np.hypot(*g), 1e-9)
     ramp = ((x - cx) * g[0] + (y - cy) * g[1]) / max(side, 1.0)  # -0.5..0.5 across it
     # as bright as the surroundings allow: a thing in a dark room is dark
-    x0, x1, y0, y1 = (int(np.clip(v, 0, m)) for v, m in ((cx - side, w), (cx + side + 1, w), (cy - side, h), (cy + side + 1, h)))
-    around = image[y0:y1, x0:x1] if x1 > x0 and y1 > y0 else image
-    level = float(np.mean((around.astype(np.float32) / 255.0) ** 2.2))
+    level = _level(image, cx, cy, side)
     light = rng.uniform(0.4, 1.0) * min(1.0, 0.1 + 4.0 * level) * (1.0 + rng.uniform(0.0, 0.6) * ramp)
     texture = 1.0 + rng.uniform(0.0, 0.08) * cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), rng.uniform(0.5, 3.0)) * 3.0
     lin = np.clip(light[..., None] * texture[..., None] * refl[None, None, :].astype(np.float32), 0.0, 1.0)
     colour = 255.0 * lin ** (1 / 2.2)
     out = image.astype(np.float32) * (1.0 - mask[..., None]) + colour * mask[..., None]
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+#: skin drawn in (:func:`draw_skin`): the limb's or face's width (pixels, log-uniform), its length in widths, and
+#: how many a frame gets with its coloured glints (:func:`draw_glint`)
+SKIN_WIDTH_PX = (14.0, 130.0)
+SKIN_LENGTH = (1.0, 3.5)
+SKIN_PER_FRAME = 2
+GLINTS_PER_FRAME = 2
+#: a glint's core radius (pixels, log-uniform)
+GLINT_RADIUS_PX = (1.2, 5.0)
+
+
+def draw_skin(image: np.ndarray, rng: np.random.Generator, centers, diameters, tries: int = 5) -> np.ndarray:
+    """``image`` (h, w, 3) uint8 RGB with bare skin drawn in where it covers none of the balls at ``centers`` (n, 2) of
+    ``diameters`` (n,) (a copy; the image itself where no place is found in ``tries``): a capsule (a forearm, an elbow,
+    a finger) or an ellipse (a forehead, a knuckle, a knee) of a skin tone from dark to pale, shaded as a rounded
+    body under one light, with the light's specular highlight on it (a white ball's detector's false alarms on
+    held-out cameras: elbows and foreheads, README Results), as bright as its surroundings allow, its edge a little
+    soft, often cut by the frame's edge."""
+    import cv2
+
+    h, w = image.shape[:2]
+    width = math.exp(rng.uniform(*np.log(SKIN_WIDTH_PX)))
+    length = width * (rng.uniform(*SKIN_LENGTH) if rng.random() < 0.6 else rng.uniform(1.3, 1.8))  # never round: a ball is
+    c, d = np.asarray(centers, np.float64).reshape(-1, 2), np.asarray(diameters, np.float64).reshape(-1)
+    at = _place(rng, h, w, 0.5 * length + 4.0, c, d, tries)  # its soft edge within 4 px
+    if at is None:
+        return image
+    cx, cy = at
+    ang = rng.uniform(0.0, math.pi)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    ca, sa = math.cos(ang), math.sin(ang)
+    xr, yr = (x - cx) * ca + (y - cy) * sa, -(x - cx) * sa + (y - cy) * ca
+    half = 0.5 * width
+    if length > 1.45 * width:  # a capsule: the distance from its axis's segment
+        ax = np.maximum(np.abs(xr) - 0.5 * (length - width), 0.0) * np.sign(xr)
+        nx, ny = ax / half, yr / half
+    else:  # an ellipse of these axes
+        nx, ny = xr / (0.5 * length), yr / half
+    rho2 = nx * nx + ny * ny
+    inside = (rho2 <= 1.0).astype(np.float32)
+    mask = cv2.GaussianBlur(inside, (0, 0), rng.uniform(0.4, 1.5))
+    nz = np.sqrt(np.clip(1.0 - rho2, 0.0, 1.0))
+    nxi, nyi = nx * ca - ny * sa, nx * sa + ny * ca  # the surface's normal in the image's axes
+    light = rng.normal(size=3)
+    light[2] = abs(light[2]) + 0.6
+    light /= np.linalg.norm(light)
+    diffuse = np.clip(nxi * light[0] + nyi * light[1] + nz * light[2], 0.0, 1.0)
+    half_v = light + (0.0, 0.0, 1.0)
+    half_v /= np.linalg.norm(half_v)
+    spec = np.clip(nxi * half_v[0] + nyi * half_v[1] + nz * half_v[2], 0.0, 1.0) ** rng.uniform(15.0, 80.0)
+    tone = rng.uniform(0.0, 1.0)
+    r = 0.06 + 0.6 * tone
+    g = r * rng.uniform(0.33, 0.58)
+    refl = np.array([r, g, g * rng.uniform(0.3, 0.75)], np.float32)  # linear: pale (0.75, 0.41, 0.26) to dark (0.27, 0.09, 0.02)
+    level = _level(image, cx, cy, length)
+    bright = rng.uniform(0.5, 1.3) * min(1.0, 0.1 + 4.0 * level)
+    ambient = rng.uniform(0.15, 0.5)
+    shade = bright * (ambient + (1.0 - ambient) * diffuse)
+    gloss = bright * rng.uniform(0.2, 1.0) * spec
+    texture = 1.0 + rng.uniform(0.0, 0.06) * cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), rng.uniform(0.5, 2.5)) * 3.0
+    lin = np.clip(shade[..., None] * texture[..., None] * refl[None, None, :] + gloss[..., None], 0.0, 1.0)
+    colour = 255.0 * lin ** (1 / 2.2)
+    out = image.astype(np.float32) * (1.0 - mask[..., None]) + colour * mask[..., None]
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def draw_glint(image: np.ndarray, rng: np.random.Generator, centers, diameters, tries: int = 5) -> np.ndarray:
+    """``image`` with a small coloured light drawn in away from the balls (a copy; the image itself where no place is
+    found): a status LED or a screen's spot, a core of 1-5 px saturated in one hue (blue most often, green, red,
+    amber) and its glow a few times wider, as a camera sees it out of focus; a white ball's detector's false alarms
+    (README Results)."""
+    h, w = image.shape[:2]
+    r = math.exp(rng.uniform(*np.log(GLINT_RADIUS_PX)))
+    glow = r * rng.uniform(1.5, 4.0)
+    c, d = np.asarray(centers, np.float64).reshape(-1, 2), np.asarray(diameters, np.float64).reshape(-1)
+    squash = rng.uniform(0.7, 1.0)  # its glow stretched along the rows by 1 / squash
+    at = _place(rng, h, w, (r + 3.0 * glow) / squash, c, d, tries, edge_share=0.0)
+    if at is None:
+        return image
+    cx, cy = at
+    hue = [(0.25, 0.55, 1.0), (0.3, 1.0, 0.45), (1.0, 0.25, 0.2), (1.0, 0.7, 0.15)][int(rng.choice(4, p=[0.45, 0.25, 0.15, 0.15]))]
+    colour = 255.0 * np.clip(np.array(hue, np.float32) * rng.uniform(0.75, 1.0) + rng.uniform(0.0, 0.3), 0.0, 1.0)
+    reach = int(math.ceil((r + 3.0 * glow) / squash)) + 1
+    x0, x1, y0, y1 = max(0, int(cx) - reach), min(w, int(cx) + reach + 1), max(0, int(cy) - reach), min(h, int(cy) + reach + 1)
+    y, x = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+    rho = np.hypot((x - cx) * squash, y - cy)
+    alpha = np.where(rho <= r, 1.0, rng.uniform(0.4, 1.0) * np.exp(-(((rho - r) / glow) ** 2)))
+    alpha = np.where(rho <= r + 3.0 * glow, alpha, 0.0).astype(np.float32)
+    out = image.copy()
+    part = out[y0:y1, x0:x1].astype(np.float32)
+    out[y0:y1, x0:x1] = np.clip(np.rint(part * (1.0 - alpha[..., None]) + colour * alpha[..., None]), 0, 255).astype(np.uint8)
+    return out
+
+
+def with_skin(image: np.ndarray, centers, diameters, rng) -> np.ndarray:
+    """``image`` with ``SKIN_PER_FRAME`` pieces of bare skin (:func:`draw_skin`) and ``GLINTS_PER_FRAME`` coloured
+    glints (:func:`draw_glint`) drawn in away from its balls."""
+    out = image
+    for _ in range(SKIN_PER_FRAME):
+        out = draw_skin(out, rng, centers, diameters)
+    for _ in range(GLINTS_PER_FRAME):
+        out = draw_glint(out, rng, centers, diameters)
+    return out
 
 
 def with_lookalikes(image: np.ndarray, centers, diameters, rng, reflectance, n: int = LOOKALIKES_PER_FRAME) -> np.ndarray:
@@ -128,12 +251,13 @@ def with_lookalikes(image: np.ndarray, centers, diameters, rng, reflectance, n: 
 
 
 def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: float = 0.0, context: float = CONTEXT, context2: float | None = None,
-                     lookalikes: float = LOOKALIKES, reflectance=None, log=print):
+                     lookalikes: float = LOOKALIKES, reflectance=None, skin: float = SKIN, log=print):
     """``(crops (n, P, P, 3) uint8, labels (n,) float32: 1 a ball)`` of ``pairs`` ``(image, LabelledImage)`` (module
     docstring); ``lit``: the share of the frames that are also searched with light sources drawn in (:func:`with_lights`);
     ``context``: a crop's side in candidate diameters; ``context2``: a second crop's (None: none), its three channels
     after the first's (``(n, P, P, 6)``); ``lookalikes``: the share of the frames also searched with things of the
-    ball's colour ``reflectance`` (:func:`draw_lookalike`) drawn in."""
+    ball's colour ``reflectance`` (:func:`draw_lookalike`) drawn in; ``skin``: the share also searched with bare skin
+    and coloured glints drawn in (:func:`with_skin`)."""
     if lookalikes and reflectance is None:
         raise ValueError("look-alikes need the ball's reflectance")
     contexts = (context,) if context2 is None else (context, context2)
@@ -155,6 +279,9 @@ def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: floa
         if lookalikes and rng.random() < lookalikes:
             c, d = truth_of(li)
             frames.append((with_lookalikes(image, c, d, rng, reflectance), li, False))
+        if skin and rng.random() < skin:
+            c, d = truth_of(li)
+            frames.append((with_skin(image, c, d, rng), li, False))
     for image, li, first in frames:
         c, d = truth_of(li)
         uv, _, dd = stage.candidates(image, None, k=EXAMPLE_CANDIDATES, threshold=GATE, confirm=False)
@@ -191,7 +318,7 @@ def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: floa
         label.append(0.0)
         n_random += 1
     y = np.array(label, np.float32)
-    log(f"confirmation network: {len(y)} crops of {len(pairs)} frames ({len(frames) - len(pairs)} of them again with lights or look-alikes drawn in; {n_cand} candidates of the stage; "
+    log(f"confirmation network: {len(y)} crops of {len(pairs)} frames ({len(frames) - len(pairs)} of them again with lights, look-alikes or skin drawn in; {n_cand} candidates of the stage; "
         f"{int(y.sum())} balls, {int((y == 0).sum())} not" + (f", {n_random} of them random places" if n_random else "") + ")")
     return np.array(crops, np.uint8).reshape(-1, CROP_PX, CROP_PX, 3 * len(contexts)), y
 
@@ -312,26 +439,32 @@ def export_confirm(torch, net, p: int, channels: int = 3) -> bytes:
     return buf.getvalue()
 
 
-def _searched_again(lit: float, lookalikes: float) -> str:
+def _searched_again(lit: float, lookalikes: float, skin: float = 0.0) -> str:
     """The description's note of the frames searched again (the shipped files' words: lights alone as before)."""
     lights = f"{100 * lit:g} % of the frames searched again with light sources drawn in"
-    if lit and lookalikes:
-        return f" ({lights}, {100 * lookalikes:g} % with things of the ball's colour)"
+    people = f"{100 * skin:g} % with bare skin and coloured glints"
+    if lit and (lookalikes or skin):
+        return f" ({lights}" + (f", {100 * lookalikes:g} % with things of the ball's colour" if lookalikes else "") + (f", {people}" if skin else "") + ")"
     if lit:
         return f" ({lights})"
-    return f" ({100 * lookalikes:g} % of the frames searched again with things of the ball's colour drawn in)" if lookalikes else ""
+    if lookalikes:
+        return f" ({100 * lookalikes:g} % of the frames searched again with things of the ball's colour drawn in" + (f", {people}" if skin else "") + ")"
+    return f" ({100 * skin:g} % of the frames searched again with bare skin and coloured glints drawn in)" if skin else ""
 
 
 def build_confirm_net(stage, pairs, *, steps: int, seed: int, description: str, lit: float = LIT, context: float = CONTEXT,
-                      context2: float | None = None, lookalikes: float = LOOKALIKES, reflectance=None, log=print, progress: bool = False) -> ConfirmNet:
+                      context2: float | None = None, lookalikes: float = LOOKALIKES, reflectance=None, skin: float = SKIN, log=print,
+                      progress: bool = False) -> ConfirmNet:
     """A :class:`ConfirmNet` for ``stage`` trained on its candidates in ``pairs`` (``lit``: the share of them searched
     again with light sources drawn in; ``context``: a crop's side in candidate diameters; ``context2``: a second
-    crop's, or None; ``lookalikes``: the share searched again with things of the ball's colour ``reflectance`` drawn in)."""
-    crops, labels = confirm_examples(stage, pairs, seed, lit=lit, context=context, context2=context2, lookalikes=lookalikes, reflectance=reflectance, log=log)
+    crop's, or None; ``lookalikes``: the share searched again with things of the ball's colour ``reflectance`` drawn in;
+    ``skin``: the share searched again with bare skin and coloured glints drawn in)."""
+    crops, labels = confirm_examples(stage, pairs, seed, lit=lit, context=context, context2=context2, lookalikes=lookalikes, reflectance=reflectance,
+                                     skin=skin, log=log)
     onnx = fit_confirm(crops, labels, steps=steps, seed=seed, log=log, progress=progress)
     return ConfirmNet(onnx, crop_px=CROP_PX, context=context, context2=context2, min_side_px=MIN_SIDE_PX, candidates=CANDIDATES, gate=GATE,
                       description=f"{steps} steps of 64 crops, seed {seed}, on {int(labels.sum())} ball and {int((labels == 0).sum())} other crops"
-                      + _searched_again(lit, lookalikes)
+                      + _searched_again(lit, lookalikes, skin)
                       + (f", crops of {context:g} diameters" if context != CONTEXT and context2 is None else "")
                       + (f"; two networks so, one on crops of {context:g} diameters, one on crops of {context2:g}, their probabilities averaged"
                          if context2 is not None else "") + "; " + description)

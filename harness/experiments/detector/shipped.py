@@ -113,7 +113,7 @@ ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
           diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, log=print,
           progress: bool = True, confirm_steps: int = 3000, stage_from=None, confirm_lights: float = 0.5, confirm_context=None,
-          coarse_side=None, coarse_context=None, confirm_lookalikes: float = 0.0):
+          coarse_side=None, coarse_context=None, confirm_lookalikes: float = 0.0, confirm_skin: float = 0.0):
     """The model (base filter + trained learned stage and its confirmation network) and a dict of what it was trained
     on and its validation figures. ``stage_from``: a model file whose learned stage is kept as it is (its heatmap
     network, size ratio and description; not trained again): only its confirmation network is trained, or with
@@ -123,7 +123,8 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     ``max_side``; None: :func:`coarse_side_of` for a new stage, a kept stage's own); ``coarse_context``: network pixels of
     context around each coarse peak's window at full scale (None: ``COARSE_CONTEXT_PX`` for a new stage, a kept stage's own);
     ``confirm_lookalikes``: the share of the confirmation's training frames searched again with look-alikes of the
-    ball's colour drawn in (:func:`harness.experiments.detector.confirm_train.draw_lookalike`)."""
+    ball's colour drawn in (:func:`harness.experiments.detector.confirm_train.draw_lookalike`); ``confirm_skin``: the share
+    searched again with bare skin and coloured glints drawn in (:func:`harness.experiments.detector.confirm_train.with_skin`)."""
     from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.learned_train import (LearnedTrainOptions, _best_threshold, fit_learned, items_at_scale)
     from harness.experiments.detector.scores import truth_of
@@ -200,7 +201,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         from harness.experiments.detector.drawn import BALL_REFLECTANCE
 
         confirm = build_confirm_net(stage, pairs, steps=confirm_steps, seed=seed, log=log, progress=progress,
-                                    lit=confirm_lights, lookalikes=confirm_lookalikes, reflectance=BALL_REFLECTANCE[colour], context=contexts[0], context2=contexts[1] if len(contexts) > 1 else None,
+                                    lit=confirm_lights, lookalikes=confirm_lookalikes, skin=confirm_skin, reflectance=BALL_REFLECTANCE[colour], context=contexts[0], context2=contexts[1] if len(contexts) > 1 else None,
                                     description=f"the candidates of the stage on its training frames ({'; '.join(sources)})")
         stage = dataclasses.replace(stage, confirm=confirm)
         sources.append(f"a confirmation network ({confirm_steps} steps) on the stage's candidates in these frames")
@@ -236,6 +237,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
     cmd_extra = ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
         + (f" --confirm-lookalikes {confirm_lookalikes:g}" if confirm_steps and confirm_lookalikes else "") \
+        + (f" --confirm-skin {confirm_skin:g}" if confirm_steps and confirm_skin else "") \
         + ("" if coarse_side is None else f" --coarse-side {coarse_side}") + ("" if coarse_context is None else f" --coarse-context {coarse_context}")
     if stage_from is None:
         description = (f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps} --confirm-steps {confirm_steps}{cmd_extra}` on "
@@ -427,6 +429,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--confirm-lookalikes", type=float, default=0.0,
                         help="the share of the training frames the confirmation network's examples are also taken from with "
                              "things of the ball's colour that are no ball drawn in (boxes, cloths, signs; default 0)")
+    parser.add_argument("--confirm-skin", type=float, default=0.0,
+                        help="the share of the training frames the confirmation network's examples are also taken from with "
+                             "bare skin (elbows, foreheads, knuckles with a highlight) and coloured glints (LEDs) drawn in: a "
+                             "white ball's detector's false alarms (default 0)")
     parser.add_argument("--confirm-context", type=float, nargs="+", default=None, metavar="DIAMETERS",
                         help="the confirmation network's crop: its side in candidate diameters (at least 48 px; default 6, as "
                              "shipped); two values: each candidate cut out at both, a network on each crop, their "
@@ -470,15 +476,16 @@ def run(args) -> int:
                          + " ".join(f"{c:g}" for c in args.confirm_context))
     if args.confirm_context is not None and not args.confirm_steps:
         raise ValueError("--confirm-context is the confirmation network's crop: it needs --confirm-steps 1 or more")
-    if args.confirm_lookalikes and not args.confirm_steps:
-        raise ValueError("--confirm-lookalikes is the confirmation network's training: it needs --confirm-steps 1 or more")
+    for name in ("confirm_lookalikes", "confirm_skin"):
+        if getattr(args, name) and not args.confirm_steps:
+            raise ValueError(f"--{name.replace('_', '-')} is the confirmation network's training: it needs --confirm-steps 1 or more")
     problem = None if args.coarse_side is None else coarse_side_problem(args.coarse_side, max_side, side_of)
     if problem:
         raise ValueError(problem)
     problem = None if args.coarse_context is None else coarse_context_problem(args.coarse_context)
     if problem:
         raise ValueError(problem)
-    for name in ("hard_pastes", "lights", "mined", "confirm_lights", "confirm_lookalikes"):
+    for name in ("hard_pastes", "lights", "mined", "confirm_lights", "confirm_lookalikes", "confirm_skin"):
         v = getattr(args, name)
         if not (0.0 <= v <= 1.0):
             raise ValueError(f"--{name.replace('_', '-')} must be a share between 0 and 1, got {v!r}")
@@ -486,6 +493,7 @@ def run(args) -> int:
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
                         semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights, mined=args.mined,
                         confirm_steps=args.confirm_steps, stage_from=args.stage_from, confirm_lights=args.confirm_lights, confirm_lookalikes=args.confirm_lookalikes,
+                        confirm_skin=args.confirm_skin,
                         confirm_context=args.confirm_context, coarse_side=args.coarse_side, coarse_context=args.coarse_context)
     with atomic_path(out, "--out") as tmp:
         model.save(tmp)

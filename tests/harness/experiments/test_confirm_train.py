@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from harness.experiments.detector.coco import LabelledImage
-from harness.experiments.detector.confirm_train import CONTEXT, CROP_PX, JITTER, confirm_examples, draw_lookalike, fit_confirm, with_lights, with_lookalikes
+from harness.experiments.detector.confirm_train import (CONTEXT, CROP_PX, JITTER, confirm_examples, draw_glint, draw_lookalike, draw_skin, fit_confirm,
+                                                         with_lights, with_lookalikes, with_skin)
 from harness.experiments.detector.drawn import BALL_REFLECTANCE
 from tracker.detection.confirm import confirm_crop
 
@@ -95,6 +96,64 @@ def test_frames_searched_again_with_lookalikes_add_their_candidates_and_need_the
     np.testing.assert_array_equal(none, plain)  # a share of 0 draws nothing: files made before are made again alike
     with pytest.raises(ValueError, match="look-alikes need the ball's reflectance"):
         confirm_examples(_Stage(), [_frame()], seed=0, lookalikes=0.5, log=lambda m: None)
+
+
+def test_skin_is_skin_toned_shaded_away_from_the_balls_and_never_round():
+    """Bare skin: drawn where no ball is, in a copy; its pixels warm (red over green over blue), shaded (not one flat
+    colour), longer than wide (a ball is round); nowhere to put it leaves the image as it was."""
+    import cv2
+
+    img = np.full((120, 160, 3), 120, np.uint8)
+    c = np.array([[80.0, 60.0]])
+    yy, xx = np.mgrid[0:120, 0:160]
+    disc = np.hypot(xx - 80, yy - 60) <= 6
+    drawn = 0
+    for seed in range(20):
+        out = draw_skin(img, np.random.default_rng(seed), c, [10.0])
+        assert out.shape == img.shape and out.dtype == np.uint8 and (img == 120).all()  # a copy
+        np.testing.assert_array_equal(out[disc], img[disc])
+        core = (np.abs(out.astype(int) - img).sum(-1) > 60).astype(np.uint8)
+        if core.sum() >= 30:
+            drawn += 1
+            r, g, b = np.median(out[core > 0], axis=0)
+            assert r > g > b, (seed, r, g, b)
+            assert out[core > 0].astype(int).sum(-1).std() > 3  # shaded
+            n, lab, stats, _ = cv2.connectedComponentsWithStats(core)
+            big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+            pts = np.column_stack(np.nonzero(lab == big)).astype(np.float32)
+            if len(pts) >= 30 and stats[big, cv2.CC_STAT_LEFT] > 0 and stats[big, cv2.CC_STAT_TOP] > 0 \
+                    and stats[big, cv2.CC_STAT_LEFT] + stats[big, cv2.CC_STAT_WIDTH] < 160 and stats[big, cv2.CC_STAT_TOP] + stats[big, cv2.CC_STAT_HEIGHT] < 120:
+                ev = np.linalg.eigvalsh(np.cov(pts.T))
+                assert ev[1] / ev[0] > 1.3 ** 2 * 0.8, (seed, ev)  # elongated: axes at least 1.3 : 1 (soft edges aside)
+    assert drawn >= 10
+    assert draw_skin(img, np.random.default_rng(0), c, np.array([1000.0])) is img
+
+
+def test_glints_are_small_saturated_lights_away_from_the_balls():
+    img = np.full((120, 160, 3), 40, np.uint8)
+    c = np.array([[80.0, 60.0]])
+    yy, xx = np.mgrid[0:120, 0:160]
+    disc = np.hypot(xx - 80, yy - 60) <= 6
+    for seed in range(20):
+        out = draw_glint(img, np.random.default_rng(seed), c, [10.0])
+        assert (img == 40).all()
+        np.testing.assert_array_equal(out[disc], img[disc])
+        changed = np.abs(out.astype(int) - img).sum(-1) > 30
+        assert 0 < changed.sum() < 0.1 * changed.size  # small
+        brightest = out.reshape(-1, 3)[np.argmax(out.astype(int).sum(-1))].astype(int)
+        assert brightest.max() - brightest.min() >= 40, (seed, brightest)  # of one hue, not white
+    assert draw_glint(img, np.random.default_rng(0), c, np.array([1000.0])) is img
+
+
+def test_frames_searched_again_with_skin_add_their_candidates_and_a_share_of_0_draws_nothing():
+    stage = _Stage()
+    crops, labels = confirm_examples(stage, [_frame()] * 4, seed=0, skin=1.0, log=lambda m: None)
+    assert len(stage.calls) == 8 and labels.sum() == 4 * (1 + JITTER) + 4
+    plain, _ = confirm_examples(_Stage(), [_frame()] * 4, seed=0, log=lambda m: None)
+    none, _ = confirm_examples(_Stage(), [_frame()] * 4, seed=0, skin=0.0, log=lambda m: None)
+    np.testing.assert_array_equal(none, plain)
+    img, li = _frame()
+    assert with_skin(img, li.centers_px, [10.0], np.random.default_rng(0)).shape == img.shape
 
 
 def test_the_fit_is_repeatable_and_refuses_one_sided_examples():
