@@ -37,10 +37,10 @@ LIT = 0.5
 LOOKALIKES = 0.0
 #: a look-alike's size (its longer side, pixels, log-uniform) and how many a frame gets
 LOOKALIKE_SIDE_PX = (8.0, 160.0)
+LOOKALIKES_PER_FRAME = 3
 #: the share of the training frames searched again with bare skin and coloured glints drawn in (:func:`with_skin`; 0:
 #: none, as the files of 2026-12-02 were made)
 SKIN = 0.0
-LOOKALIKES_PER_FRAME = 3
 #: jittered crops of each labelled ball (more balls than the candidates alone give)
 JITTER = 3
 #: a crop: its side in candidate diameters (at least MIN_SIDE_PX), resampled to CROP_PX

@@ -156,6 +156,19 @@ def test_frames_searched_again_with_skin_add_their_candidates_and_a_share_of_0_d
     assert with_skin(img, li.centers_px, [10.0], np.random.default_rng(0)).shape == img.shape
 
 
+def test_the_descriptions_note_of_frames_searched_again_names_each_share():
+    """The file's words: lights alone as the shipped files say them; look-alikes and skin each named with its share."""
+    from harness.experiments.detector.confirm_train import _searched_again
+
+    assert _searched_again(0.5, 0.0) == " (50 % of the frames searched again with light sources drawn in)"
+    assert _searched_again(0.5, 0.5, 0.25) == (" (50 % of the frames searched again with light sources drawn in, 50 % with things of the "
+                                                "ball's colour, 25 % with bare skin and coloured glints)")
+    assert _searched_again(0.5, 0.0, 0.5) == " (50 % of the frames searched again with light sources drawn in, 50 % with bare skin and coloured glints)"
+    assert _searched_again(0.0, 0.0, 0.5) == " (50 % of the frames searched again with bare skin and coloured glints drawn in)"
+    assert _searched_again(0.0, 0.5, 0.5).endswith("things of the ball's colour drawn in, 50 % with bare skin and coloured glints)")
+    assert _searched_again(0.0, 0.0, 0.0) == ""
+
+
 def test_the_fit_is_repeatable_and_refuses_one_sided_examples():
     pytest.importorskip("torch", reason="training needs rt2[train]")
     rng = np.random.default_rng(0)
