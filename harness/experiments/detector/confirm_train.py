@@ -166,7 +166,9 @@ def draw_skin(image: np.ndarray, rng: np.random.Generator, centers, diameters, t
         return image
     cx, cy = at
     ang = rng.uniform(0.0, math.pi)
-    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    m = int(math.ceil(0.5 * length)) + 8  # the shape and its softened edge: only these pixels change
+    x0, x1, y0, y1 = max(0, int(cx) - m), min(w, int(cx) + m + 1), max(0, int(cy) - m), min(h, int(cy) + m + 1)
+    y, x = np.mgrid[y0:y1, x0:x1].astype(np.float32)
     ca, sa = math.cos(ang), math.sin(ang)
     xr, yr = (x - cx) * ca + (y - cy) * sa, -(x - cx) * sa + (y - cy) * ca
     half = 0.5 * width
@@ -196,11 +198,16 @@ def draw_skin(image: np.ndarray, rng: np.random.Generator, centers, diameters, t
     ambient = rng.uniform(0.15, 0.5)
     shade = bright * (ambient + (1.0 - ambient) * diffuse)
     gloss = bright * rng.uniform(0.2, 1.0) * spec
-    texture = 1.0 + rng.uniform(0.0, 0.06) * cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), rng.uniform(0.5, 2.5)) * 3.0
+    # the texture from the whole frame's noise, as the skin of the figures in README Results was drawn (the same draws)
+    strength = rng.uniform(0.0, 0.06)
+    grain = cv2.GaussianBlur(rng.normal(size=(h, w)).astype(np.float32), (0, 0), rng.uniform(0.5, 2.5))[y0:y1, x0:x1]
+    texture = 1.0 + strength * grain * 3.0
     lin = np.clip(shade[..., None] * texture[..., None] * refl[None, None, :] + gloss[..., None], 0.0, 1.0)
     colour = 255.0 * lin ** (1 / 2.2)
-    out = image.astype(np.float32) * (1.0 - mask[..., None]) + colour * mask[..., None]
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    out = image.copy()
+    part = image[y0:y1, x0:x1].astype(np.float32) * (1.0 - mask[..., None]) + colour * mask[..., None]
+    out[y0:y1, x0:x1] = np.clip(np.rint(part), 0, 255).astype(np.uint8)
+    return out
 
 
 def draw_glint(image: np.ndarray, rng: np.random.Generator, centers, diameters, tries: int = 5) -> np.ndarray:
@@ -271,17 +278,13 @@ def confirm_examples(stage, pairs, seed: int, *, jitter: int = JITTER, lit: floa
     crops, label = [], []
     n_cand = 0
     frames = []
+    again = ((lit, lambda im, c, d: with_lights(im, c, d, rng)), (lookalikes, lambda im, c, d: with_lookalikes(im, c, d, rng, reflectance)),
+             (skin, lambda im, c, d: with_skin(im, c, d, rng)))
     for image, li in pairs:
         frames.append((image, li, True))
-        if lit and rng.random() < lit:
-            c, d = truth_of(li)
-            frames.append((with_lights(image, c, d, rng), li, False))
-        if lookalikes and rng.random() < lookalikes:
-            c, d = truth_of(li)
-            frames.append((with_lookalikes(image, c, d, rng, reflectance), li, False))
-        if skin and rng.random() < skin:
-            c, d = truth_of(li)
-            frames.append((with_skin(image, c, d, rng), li, False))
+        for share, draw in again:  # each share in turn, its draw only where it is set (a share of 0 draws nothing)
+            if share and rng.random() < share:
+                frames.append((draw(image, *truth_of(li)), li, False))
     for image, li, first in frames:
         c, d = truth_of(li)
         uv, _, dd = stage.candidates(image, None, k=EXAMPLE_CANDIDATES, threshold=GATE, confirm=False)
@@ -440,16 +443,14 @@ def export_confirm(torch, net, p: int, channels: int = 3) -> bytes:
 
 
 def _searched_again(lit: float, lookalikes: float, skin: float = 0.0) -> str:
-    """The description's note of the frames searched again (the shipped files' words: lights alone as before)."""
-    lights = f"{100 * lit:g} % of the frames searched again with light sources drawn in"
-    people = f"{100 * skin:g} % with bare skin and coloured glints"
-    if lit and (lookalikes or skin):
-        return f" ({lights}" + (f", {100 * lookalikes:g} % with things of the ball's colour" if lookalikes else "") + (f", {people}" if skin else "") + ")"
-    if lit:
-        return f" ({lights})"
-    if lookalikes:
-        return f" ({100 * lookalikes:g} % of the frames searched again with things of the ball's colour drawn in" + (f", {people}" if skin else "") + ")"
-    return f" ({100 * skin:g} % of the frames searched again with bare skin and coloured glints drawn in)" if skin else ""
+    """The description's note of the frames searched again: the first share's words whole, the others' after it (the
+    shipped files' words: lights alone as before)."""
+    parts = [(x, what) for x, what in ((lit, "light sources"), (lookalikes, "things of the ball's colour"),
+                                       (skin, "bare skin and coloured glints")) if x]
+    if not parts:
+        return ""
+    (first, what), rest = parts[0], parts[1:]
+    return f" ({100 * first:g} % of the frames searched again with {what} drawn in" + "".join(f", {100 * x:g} % with {w}" for x, w in rest) + ")"
 
 
 def build_confirm_net(stage, pairs, *, steps: int, seed: int, description: str, lit: float = LIT, context: float = CONTEXT,

@@ -129,6 +129,28 @@ def test_skin_is_skin_toned_shaded_away_from_the_balls_and_never_round():
     assert draw_skin(img, np.random.default_rng(0), c, np.array([1000.0])) is img
 
 
+def test_skin_drawn_whole_inside_the_frame_is_never_round():
+    """Every piece of skin drawn whole inside a VGA frame (at least 8 of 40) is longer than wide: its pixels' second
+    moments at least 1.25 : 1 (axes 1.3 : 1 or more, its soft edge aside); a disc's are 1 : 1."""
+    import cv2
+
+    h, w = 480, 640
+    img = np.full((h, w, 3), 120, np.uint8)
+    checked = 0
+    for seed in range(40):
+        out = draw_skin(img, np.random.default_rng(seed), np.array([[w / 2, h / 2]]), [10.0])
+        shape = (np.abs(out.astype(int) - img).sum(-1) > 8).astype(np.uint8)
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(shape)
+        assert n >= 2, seed  # a VGA frame always has room for it
+        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        x, y, bw, bh = stats[big, :4]
+        if x > 0 and y > 0 and x + bw < w and y + bh < h:
+            checked += 1
+            ev = np.linalg.eigvalsh(np.cov(np.column_stack(np.nonzero(lab == big)).astype(np.float64).T))
+            assert ev[1] / ev[0] > 1.25, (seed, ev)
+    assert checked >= 8
+
+
 def test_glints_are_small_saturated_lights_away_from_the_balls():
     img = np.full((120, 160, 3), 40, np.uint8)
     c = np.array([[80.0, 60.0]])
