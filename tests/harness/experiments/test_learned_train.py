@@ -619,6 +619,47 @@ def test_patches_near_mined_alarms_only_when_asked(synthetic_ball_coco):
         LearnedTrainOptions(mine_every=0)
 
 
+def test_the_weights_moving_average_is_kept_when_asked(synthetic_ball_coco):
+    """``ema``: the network written is the exponential moving average of its weights over the steps (each step's
+    weights averaged in as torch's AveragedModel does), not the last step's; 0 keeps the last step's; repeatable."""
+    import torch
+
+    from harness.experiments.detector.learned_train import build_net
+
+    labelled = read_coco(synthetic_ball_coco(6, 0))
+    items = items_at_scale([(load_image(li), li) for li in labelled], 640)
+    opts = LearnedTrainOptions(iterations=12, batch=4, patch_px=64)
+    lines = []
+    last, last_onnx = fit_learned(items, opts, 3, log=lambda m: None)
+    avg, avg_onnx = fit_learned(items, dataclasses.replace(opts, ema=0.9), 3, log=lines.append)
+    assert fit_learned(items, dataclasses.replace(opts, ema=0.9), 3, log=lambda m: None)[1] == avg_onnx
+    assert avg_onnx != last_onnx and "moving average kept (decay 0.9 per step)" in lines[-1]
+    # the average by hand, from the same run's weights after each step
+    seen = []
+    original = torch.optim.Adam.step
+
+    def step(self, *a, **k):
+        out = original(self, *a, **k)
+        seen.append([p.detach().clone() for g in self.param_groups for p in g["params"]])
+        return out
+
+    torch.optim.Adam.step = step
+    try:
+        fit_learned(items, dataclasses.replace(opts, ema=0.9), 3, log=lambda m: None)
+    finally:
+        torch.optim.Adam.step = original
+    expected = seen[0]
+    for w in seen[1:]:
+        expected = [0.9 * e + 0.1 * x for e, x in zip(expected, w)]
+    names = [n for n, _ in build_net(torch).named_parameters()]
+    for name, e in zip(names, expected):
+        np.testing.assert_allclose(avg[name].numpy(), e.numpy(), rtol=1e-5, atol=1e-6)
+    assert not np.allclose(last["head.weight"].numpy(), avg["head.weight"].numpy())
+    for bad in (-0.1, 1.0, True, "0.9", float("nan")):
+        with pytest.raises(ValueError, match="ema must be a decay per step from 0"):
+            LearnedTrainOptions(ema=bad)
+
+
 def test_mining_during_training_is_logged_and_repeatable(synthetic_ball_coco):
     labelled = read_coco(synthetic_ball_coco(10, 0))
     items = items_at_scale([(load_image(li), li) for li in labelled], 640)
