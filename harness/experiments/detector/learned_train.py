@@ -32,7 +32,7 @@ import numpy as np
 from harness.experiments.detector.augment import AugmentOptions, jpeg, optics
 from tracker.detection.learned import LearnedStage, learned_scale
 
-__all__ = ["FitTask", "LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "contrast_crops", "items_at_scale", "false_alarms", "kept_passes", "mine_false_peaks", "auto_workers", "run_fit", "run_fits", "sample_patches", "with_contrast",
+__all__ = ["FitTask", "LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "contrast_crops", "fade_balls", "items_at_scale", "false_alarms", "kept_passes", "mine_false_peaks", "auto_workers", "run_fit", "run_fits", "sample_patches", "with_contrast",
            "stage_candidates", "targets"]
 
 STRIDE = 4
@@ -67,6 +67,9 @@ class LearnedTrainOptions:
     mine_every : steps between two minings (the first after this many steps; none at the last step)
     mine_first : mine once more before the first step too (a network continued from one already trained: its false
         alarms are there from the start)
+    p_faded : share of the patches with balls whose balls are faded into their surroundings (:func:`fade_balls`: their
+        contrast cut to ``FADE_CONTRAST`` of it, as a dim ball in a dark frame, a grey ball on a grey floor or a smear
+        is); 0 = none, no random draw
     ema : the network kept is the exponential moving average of its weights over the steps, with this decay per step
         (``torch.optim.swa_utils.AveragedModel``, as detectors' trainings keep one: YOLO's ModelEMA, timm's
         ModelEmaV2); 0 = the last step's weights (no average)
@@ -88,6 +91,7 @@ class LearnedTrainOptions:
     mine_every: int = 1000
     mine_first: bool = False
     ema: float = 0.0
+    p_faded: float = 0.0
 
     def __post_init__(self):
         for name in ("iterations", "batch", "patch_px", "max_side_px", "mine_every"):
@@ -98,7 +102,7 @@ class LearnedTrainOptions:
             raise ValueError(f"LearnedTrainOptions.patch_px must be a multiple of {2 * STRIDE}, got {self.patch_px}")
         if self.arch not in ARCHS:
             raise ValueError(f"LearnedTrainOptions.arch must be one of {list(ARCHS)}, got {self.arch!r}")
-        for name in ("p_light", "p_mined"):
+        for name in ("p_light", "p_mined", "p_faded"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
                 raise ValueError(f"LearnedTrainOptions.{name} must be a share between 0 and 1, got {v!r}")
@@ -213,6 +217,8 @@ def sample_patches(items: list[LearnedItem], n: int, rng: np.random.Generator, o
             patch = np.ascontiguousarray(patch[:, ::-1])
             c = c.copy()
             c[:, 0] = p - 1 - c[:, 0]
+        if opts.p_faded and len(c) and rng.random() < opts.p_faded:  # before the exposure: the frame's own dimming on top
+            patch = fade_balls(patch, rng, c, dd)
         if opts.augment:
             patch = photometric(patch, rng, aug or _PATCH_AUGMENT)
         if opts.p_light and rng.random() < opts.p_light:  # after the exposure: a lamp's core stays saturated
@@ -255,6 +261,37 @@ def draw_light(patch: np.ndarray, rng: np.random.Generator, centers, diameters, 
     if rng.random() < 0.3:  # a warm or cool lamp: one channel under the clip
         colour[int(rng.integers(3))] = rng.uniform(215.0, 250.0)
     out = patch.astype(np.float32) * (1.0 - alpha[..., None]) + colour * alpha[..., None]
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+#: a faded ball's contrast against its surroundings, a share of its own (uniform; :func:`fade_balls`)
+FADE_CONTRAST = (0.25, 0.7)
+
+
+def fade_balls(patch: np.ndarray, rng: np.random.Generator, centers, diameters) -> np.ndarray:
+    """A copy of ``patch`` (P, P, 3) uint8 whose balls at ``centers`` (n, 2) of ``diameters`` (n,) (patch pixels) are
+    faded into their surroundings: each ball's disc (and a pixel around it) becomes ``bg + a (patch - bg)``, ``bg`` the
+    patch with the ball painted out (``cv2.inpaint``, Telea: what is around it, carried in), ``a`` drawn from
+    ``FADE_CONTRAST`` for each ball, the disc's edge feathered over a pixel. The ball keeps its place, size and shading,
+    at a fraction of its contrast: the held-out balls the heat misses most are dim or grey against what is around them
+    (README Results)."""
+    p = patch.shape[0]
+    c, d = np.asarray(centers, np.float64).reshape(-1, 2), np.asarray(diameters, np.float64).reshape(-1)
+    inside = (c[:, 0] > -0.5 * d) & (c[:, 0] < p - 1 + 0.5 * d) & (c[:, 1] > -0.5 * d) & (c[:, 1] < p - 1 + 0.5 * d)
+    if not inside.any():
+        return patch
+    y, x = np.mgrid[0:p, 0:p].astype(np.float32)
+    keep = np.ones((p, p), np.float32)  # 1 = the patch as it is, a = the ball's contrast
+    hole = np.zeros((p, p), np.uint8)
+    for (cx, cy), di in zip(c[inside], d[inside]):
+        r = 0.5 * float(di) + 1.0
+        dist = np.hypot(x - np.float32(cx), y - np.float32(cy))
+        w = np.clip(r + 0.5 - dist, 0.0, 1.0)  # 1 inside the disc, 0 a pixel beyond it
+        a = np.float32(rng.uniform(*FADE_CONTRAST))
+        keep = np.minimum(keep, 1.0 - w * (1.0 - a))
+        hole[dist <= r + 1.0] = 255
+    bg = cv2.inpaint(np.ascontiguousarray(patch), hole, 3, cv2.INPAINT_TELEA).astype(np.float32)
+    out = bg + keep[..., None] * (patch.astype(np.float32) - bg)
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 

@@ -111,7 +111,7 @@ ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 
 
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
-          diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, ema: float = 0.0, log=print,
+          diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, ema: float = 0.0, faded: float = 0.0, log=print,
           progress: bool = True, confirm_steps: int = 3000, stage_from=None, confirm_lights: float = 0.5, confirm_context=None,
           coarse_side=None, coarse_context=None, confirm_lookalikes: float = 0.0, confirm_skin: float = 0.0):
     """The model (base filter + trained learned stage and its confirmation network) and a dict of what it was trained
@@ -171,12 +171,14 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         pairs += [(load_image(li), li) for li in r]
         weights += [weight["renders"]] * len(r)
         sources.append(f"{len(r)} renders ({renders})")
-    opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0), p_light=lights, p_mined=mined, ema=ema,
+    opts = LearnedTrainOptions(iterations=steps, max_side_px=max_side, diameter_range_px=(4.0, 48.0), p_light=lights, p_mined=mined, ema=ema, p_faded=faded,
                                **({} if arch is None else {"arch": arch}))
     if lights:
         sources.append(f"light sources drawn into {100 * lights:g} % of the patches")
     if mined:
         sources.append(f"{100 * mined:g} % of the patches near its own false alarms in these frames, mined every {opts.mine_every} steps")
+    if faded:
+        sources.append(f"the balls of {100 * faded:g} % of the patches with balls faded into their surroundings")
     if ema:
         sources.append(f"the weights' moving average kept (decay {ema:g} per step)")
     if stage_from is None:
@@ -425,6 +427,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--ema", type=float, default=0.0, metavar="DECAY",
                         help="keep the exponential moving average of the network's weights over the steps, with this decay "
                              "per step (e.g. 0.999; default 0: the last step's weights)")
+    parser.add_argument("--faded", type=float, default=0.0, metavar="SHARE",
+                        help="the share of training patches with balls whose balls are faded into their surroundings "
+                             "(their contrast cut to 25-70 %%: dim, grey and smeared balls; default 0)")
     parser.add_argument("--confirm-steps", type=int, default=3000,
                         help="optimiser steps of the confirmation network, the second look at a whole frame's best candidates "
                              "(default 3000, as shipped; 0 = none, or with --stage-from the kept file's own)")
@@ -490,18 +495,19 @@ def run(args) -> int:
     problem = None if args.coarse_context is None else coarse_context_problem(args.coarse_context)
     if problem:
         raise ValueError(problem)
-    for name in ("hard_pastes", "lights", "mined", "confirm_lights", "confirm_lookalikes", "confirm_skin"):
+    for name in ("hard_pastes", "lights", "mined", "faded", "confirm_lights", "confirm_lookalikes", "confirm_skin"):
         v = getattr(args, name)
         if not (0.0 <= v <= 1.0):
             raise ValueError(f"--{name.replace('_', '-')} must be a share between 0 and 1, got {v!r}")
     if not 0.0 <= args.ema < 1.0:
         raise ValueError(f"--ema must be a decay per step from 0 (none) to below 1, got {args.ema!r}")
-    if args.ema and args.stage_from is not None:
-        raise ValueError("--ema is the learned stage's training: a --stage-from stage is kept as it is, not trained again")
+    for name in ("ema", "faded"):
+        if getattr(args, name) and args.stage_from is not None:
+            raise ValueError(f"--{name} is the learned stage's training: a --stage-from stage is kept as it is, not trained again")
     model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
                         semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights, mined=args.mined,
-                        ema=args.ema, confirm_steps=args.confirm_steps, stage_from=args.stage_from, confirm_lights=args.confirm_lights, confirm_lookalikes=args.confirm_lookalikes,
+                        ema=args.ema, faded=args.faded, confirm_steps=args.confirm_steps, stage_from=args.stage_from, confirm_lights=args.confirm_lights, confirm_lookalikes=args.confirm_lookalikes,
                         confirm_skin=args.confirm_skin,
                         confirm_context=args.confirm_context, coarse_side=args.coarse_side, coarse_context=args.coarse_context)
     with atomic_path(out, "--out") as tmp:

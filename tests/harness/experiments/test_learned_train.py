@@ -562,6 +562,51 @@ def test_p_light_draws_lights_only_when_asked(synthetic_ball_coco, monkeypatch):
             LearnedTrainOptions(p_light=bad)
 
 
+def test_a_faded_ball_keeps_its_place_at_a_fraction_of_its_contrast():
+    import cv2
+
+    from harness.experiments.detector.learned_train import FADE_CONTRAST, fade_balls
+
+    base = np.random.default_rng(1).integers(50, 70, (96, 96, 3), dtype=np.uint8)
+    cv2.circle(base, (40, 50), 8, (235, 235, 235), -1)  # a ball 17 px across on a dark, noisy floor
+    yy, xx = np.mgrid[0:96, 0:96]
+    dist = np.hypot(xx - 40, yy - 50)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        out = fade_balls(base, rng, np.array([[40.0, 50.0]]), np.array([17.0]))
+        assert out.dtype == np.uint8 and out.shape == base.shape and out is not base
+        assert (out[dist > 11.5] == base[dist > 11.5]).all()  # nothing beyond the ball and its feathered pixel
+        contrast = (out[dist <= 6].mean() - 60.0) / (base[dist <= 6].mean() - 60.0)
+        assert FADE_CONTRAST[0] - 0.06 <= contrast <= FADE_CONTRAST[1] + 0.06
+        assert out[dist <= 6].mean() > out[(dist > 12) & (dist < 20)].mean() + 40  # still a ball brighter than its floor
+    assert (base[dist <= 6] == 235).all()  # the patch itself untouched
+    off = np.array([[400.0, 400.0]])
+    assert fade_balls(base, rng, off, np.array([17.0])) is base  # no ball in the patch: nothing to fade
+
+
+def test_p_faded_fades_balls_only_when_asked(synthetic_ball_coco, monkeypatch):
+    import harness.experiments.detector.learned_train as L
+
+    labelled = read_coco(synthetic_ball_coco(10, 0))
+    items = items_at_scale([(load_image(li), li) for li in labelled], 640)
+    calls = []
+    real = L.fade_balls
+    monkeypatch.setattr(L, "fade_balls", lambda *a: calls.append(1) or real(*a))
+    opts = dict(patch_px=64, p_ball=1.0, augment=False)
+    changed = 0
+    for seed in range(8):  # one patch a draw: its place is drawn before the fading, so its targets are the plain one's
+        faded = sample_patches(items, 1, np.random.default_rng(seed), LearnedTrainOptions(p_faded=1.0, **opts))
+        plain = sample_patches(items, 1, np.random.default_rng(seed), LearnedTrainOptions(**opts))  # p_faded 0: no draw
+        assert len(calls) == seed + 1
+        changed += bool((faded[0] != plain[0]).any())
+        for a, b in zip(faded[1:], plain[1:]):  # the targets stay the balls'
+            assert np.array_equal(a, b)
+    assert changed >= 6  # a ball cut by the patch's edge may keep its pixels
+    for bad in (-0.1, 1.5, True, "0.3"):
+        with pytest.raises(ValueError, match="p_faded must be a share between 0 and 1"):
+            LearnedTrainOptions(p_faded=bad)
+
+
 class _BrightnessNet(torch.nn.Module):
     """A stand-in network with a known heat: each 4x4 cell's mean brightness (255 -> logit +6, 0 -> -6), offsets 0."""
 

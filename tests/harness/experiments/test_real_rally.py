@@ -284,6 +284,9 @@ def test_hard_pastes_hide_part_of_the_ball_or_smear_it_long():
     ("--ema", "1", "white", "--ema must be a decay per step from 0 (none) to below 1, got 1.0"),
     ("--ema", "-0.5", "orange", "--ema must be a decay per step from 0 (none) to below 1, got -0.5"),
     ("--ema", "nan", "white", "--ema must be a decay per step from 0 (none) to below 1, got nan"),
+    ("--faded", "1.5", "white", "--faded must be a share between 0 and 1, got 1.5"),
+    ("--faded", "-0.2", "orange", "--faded must be a share between 0 and 1, got -0.2"),
+    ("--faded", "nan", "white", "--faded must be a share between 0 and 1, got nan"),
 ])
 def test_train_shipped_shares_bad_values_are_one_line(tmp_path, capsys, option, value, colour, message):
     assert main(["train-shipped", "--colour", colour, option, value, "--out", str(tmp_path / "m.npz")]) == 2
@@ -318,6 +321,8 @@ def test_train_shipped_shares_bad_values_are_one_line(tmp_path, capsys, option, 
      "--coarse-context must be 0 to 256 network pixels around a coarse peak's window, got 300"),
     (["--ema", "0.999", "--stage-from", "data/models/ball_seg_white.npz"],
      "--ema is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
+    (["--faded", "0.5", "--stage-from", "data/models/ball_seg_white.npz"],
+     "--faded is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
 ])
 def test_train_shipped_confirmation_options_bad_values_are_one_line(tmp_path, capsys, args, message):
     assert main(["train-shipped", "--colour", "white", *args, "--out", str(tmp_path / "m.npz")]) == 2
