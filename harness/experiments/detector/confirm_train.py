@@ -348,11 +348,16 @@ def confirm_net(torch, c: int = 16):
     return Confirm()
 
 
-def fit_confirm(crops, labels, *, steps: int, seed: int, batch: int = 64, lr: float = 2e-3, log=print, progress: bool = False) -> bytes:
+def fit_confirm(crops, labels, *, steps: int, seed: int, batch: int = 64, lr: float = 2e-3, ema: float = 0.0, log=print,
+                progress: bool = False) -> bytes:
     """The confirmation network fitted on :func:`confirm_examples`' arrays; its ONNX bytes (input ``crops`` uint8,
     output ``p``). Crops of six channels (two crops of each candidate): a network on each crop, each fitted as the one
     of a single crop would be (the same seed and draws), and a graph that gives the mean of their probabilities
-    (:func:`confirm_pair`)."""
+    (:func:`confirm_pair`). ``ema``: the exponential moving average of the weights over the steps is kept, with this
+    decay per step (as :class:`harness.experiments.detector.learned_train.LearnedTrainOptions`'s ``ema``; 0 = the last
+    step's weights)."""
+    if isinstance(ema, bool) or not isinstance(ema, (int, float)) or not 0.0 <= ema < 1.0:
+        raise ValueError(f"the confirmation network's ema must be a decay per step from 0 (none) to below 1, got {ema!r}")
     import torch
 
     pos, neg = np.flatnonzero(labels == 1), np.flatnonzero(labels == 0)
@@ -363,23 +368,28 @@ def fit_confirm(crops, labels, *, steps: int, seed: int, batch: int = 64, lr: fl
     try:
         p = crops.shape[1]
         if crops.shape[3] == 3:
-            return export_confirm(torch, _fit_one(torch, crops, labels, pos, neg, steps, seed, batch, lr, log, progress, ""), p)
-        first = _fit_one(torch, crops[..., :3], labels, pos, neg, steps, seed, batch, lr, log, progress, " (first crop)")
-        second = _fit_one(torch, crops[..., 3:], labels, pos, neg, steps, seed, batch, lr, log, progress, " (second crop)")
+            return export_confirm(torch, _fit_one(torch, crops, labels, pos, neg, steps, seed, batch, lr, log, progress, "", ema), p)
+        first = _fit_one(torch, crops[..., :3], labels, pos, neg, steps, seed, batch, lr, log, progress, " (first crop)", ema)
+        second = _fit_one(torch, crops[..., 3:], labels, pos, neg, steps, seed, batch, lr, log, progress, " (second crop)", ema)
         return export_confirm(torch, confirm_pair(torch, first, second), p, 6)
     finally:
         torch.set_num_threads(threads)
 
 
-def _fit_one(torch, crops, labels, pos, neg, steps: int, seed: int, batch: int, lr: float, log, progress: bool, what: str):
+def _fit_one(torch, crops, labels, pos, neg, steps: int, seed: int, batch: int, lr: float, log, progress: bool, what: str, ema: float = 0.0):
     """One network (:func:`confirm_net`) fitted on three-channel ``crops``: half balls, half not per batch, each crop
-    flipped at random and changed as the stage's patches are."""
+    flipped at random and changed as the stage's patches are; with ``ema``, the moving average of its weights."""
     from harness.experiments.detector.learned_train import optimiser_step, photometric
 
     torch.manual_seed(seed)
     rng = np.random.default_rng([seed, 62])
     net = confirm_net(torch)
     opt = torch.optim.Adam(net.parameters(), lr=lr, foreach=True)
+    average = None
+    if ema:
+        from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+        average = AveragedModel(net, multi_avg_fn=get_ema_multi_avg_fn(ema))
     bar = None
     if progress:
         from harness.common.progress import progress_bar
@@ -404,10 +414,13 @@ def _fit_one(torch, crops, labels, pos, neg, steps: int, seed: int, batch: int, 
         out = net(torch.from_numpy(xb).float())
         loss = torch.nn.functional.binary_cross_entropy_with_logits(out, torch.from_numpy(labels[idx]))
         avg = optimiser_step(opt, loss, avg, bar)
+        if average is not None:
+            average.update_parameters(net)
     if bar is not None:
         bar.close()
-    log(f"confirmation network{what}: {steps} steps of {batch} crops, final loss {avg:.3f}")
-    return net.eval()
+    log(f"confirmation network{what}: {steps} steps of {batch} crops, final loss {avg:.3f}"
+        + (f"; the weights' moving average kept (decay {ema:g} per step)" if average is not None else ""))
+    return (net if average is None else average.module).eval()
 
 
 def confirm_pair(torch, first, second):
@@ -454,18 +467,19 @@ def _searched_again(lit: float, lookalikes: float, skin: float = 0.0) -> str:
 
 
 def build_confirm_net(stage, pairs, *, steps: int, seed: int, description: str, lit: float = LIT, context: float = CONTEXT,
-                      context2: float | None = None, lookalikes: float = LOOKALIKES, reflectance=None, skin: float = SKIN, log=print,
-                      progress: bool = False) -> ConfirmNet:
+                      context2: float | None = None, lookalikes: float = LOOKALIKES, reflectance=None, skin: float = SKIN, ema: float = 0.0,
+                      log=print, progress: bool = False) -> ConfirmNet:
     """A :class:`ConfirmNet` for ``stage`` trained on its candidates in ``pairs`` (``lit``: the share of them searched
     again with light sources drawn in; ``context``: a crop's side in candidate diameters; ``context2``: a second
     crop's, or None; ``lookalikes``: the share searched again with things of the ball's colour ``reflectance`` drawn in;
-    ``skin``: the share searched again with bare skin and coloured glints drawn in)."""
+    ``skin``: the share searched again with bare skin and coloured glints drawn in; ``ema``: :func:`fit_confirm`'s)."""
     crops, labels = confirm_examples(stage, pairs, seed, lit=lit, context=context, context2=context2, lookalikes=lookalikes, reflectance=reflectance,
                                      skin=skin, log=log)
-    onnx = fit_confirm(crops, labels, steps=steps, seed=seed, log=log, progress=progress)
+    onnx = fit_confirm(crops, labels, steps=steps, seed=seed, ema=ema, log=log, progress=progress)
     return ConfirmNet(onnx, crop_px=CROP_PX, context=context, context2=context2, min_side_px=MIN_SIDE_PX, candidates=CANDIDATES, gate=GATE,
                       description=f"{steps} steps of 64 crops, seed {seed}, on {int(labels.sum())} ball and {int((labels == 0).sum())} other crops"
                       + _searched_again(lit, lookalikes, skin)
+                      + (f", the weights' moving average kept (decay {ema:g} per step)" if ema else "")
                       + (f", crops of {context:g} diameters" if context != CONTEXT and context2 is None else "")
                       + (f"; two networks so, one on crops of {context:g} diameters, one on crops of {context2:g}, their probabilities averaged"
                          if context2 is not None else "") + "; " + description)

@@ -113,7 +113,7 @@ ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
           diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, ema: float = 0.0, faded: float = 0.0, log=print,
           progress: bool = True, confirm_steps: int = 3000, stage_from=None, confirm_lights: float = 0.5, confirm_context=None,
-          coarse_side=None, coarse_context=None, confirm_lookalikes: float = 0.0, confirm_skin: float = 0.0):
+          coarse_side=None, coarse_context=None, confirm_lookalikes: float = 0.0, confirm_skin: float = 0.0, confirm_ema: float = 0.0):
     """The model (base filter + trained learned stage and its confirmation network) and a dict of what it was trained
     on and its validation figures. ``stage_from``: a model file whose learned stage is kept as it is (its heatmap
     network, size ratio and description; not trained again): only its confirmation network is trained, or with
@@ -124,7 +124,9 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     context around each coarse peak's window at full scale (None: ``COARSE_CONTEXT_PX`` for a new stage, a kept stage's own);
     ``confirm_lookalikes``: the share of the confirmation's training frames searched again with look-alikes of the
     ball's colour drawn in (:func:`harness.experiments.detector.confirm_train.draw_lookalike`); ``confirm_skin``: the share
-    searched again with bare skin and coloured glints drawn in (:func:`harness.experiments.detector.confirm_train.with_skin`)."""
+    searched again with bare skin and coloured glints drawn in (:func:`harness.experiments.detector.confirm_train.with_skin`);
+    ``ema``, ``faded``, ``confirm_ema``: the learned stage's and the confirmation network's moving averages of their
+    weights, the learned stage's faded balls (:class:`harness.experiments.detector.learned_train.LearnedTrainOptions`)."""
     from harness.experiments.detector.labels import read_labels
     from harness.experiments.detector.learned_train import (LearnedTrainOptions, _best_threshold, fit_learned, items_at_scale)
     from harness.experiments.detector.scores import truth_of
@@ -205,7 +207,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
         from harness.experiments.detector.drawn import BALL_REFLECTANCE
 
         confirm = build_confirm_net(stage, pairs, steps=confirm_steps, seed=seed, log=log, progress=progress,
-                                    lit=confirm_lights, lookalikes=confirm_lookalikes, skin=confirm_skin, reflectance=BALL_REFLECTANCE[colour], context=contexts[0], context2=contexts[1] if len(contexts) > 1 else None,
+                                    lit=confirm_lights, lookalikes=confirm_lookalikes, skin=confirm_skin, ema=confirm_ema, reflectance=BALL_REFLECTANCE[colour], context=contexts[0], context2=contexts[1] if len(contexts) > 1 else None,
                                     description=f"the candidates of the stage on its training frames ({'; '.join(sources)})")
         stage = dataclasses.replace(stage, confirm=confirm)
         sources.append(f"a confirmation network ({confirm_steps} steps) on the stage's candidates in these frames")
@@ -239,9 +241,12 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
               + (f" with the confirmation network (the heat's alone: {stage.threshold:g})" if stage.confirm is not None else "")
               + f": recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%")
     # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
-    cmd_extra = ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
+    cmd_extra = "".join(f" --{flag} {v:g}" for flag, v in (("hard-pastes", hard_pastes), ("lights", lights), ("mined", mined), ("ema", ema),
+                                                          ("faded", faded)) if v and stage_from is None) \
+        + ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
         + (f" --confirm-lookalikes {confirm_lookalikes:g}" if confirm_steps and confirm_lookalikes else "") \
         + (f" --confirm-skin {confirm_skin:g}" if confirm_steps and confirm_skin else "") \
+        + (f" --confirm-ema {confirm_ema:g}" if confirm_steps and confirm_ema else "") \
         + ("" if coarse_side is None else f" --coarse-side {coarse_side}") + ("" if coarse_context is None else f" --coarse-context {coarse_context}")
     if stage_from is None:
         description = (f"{colour} balls; trained by `rt2 train-shipped --colour {colour} --seed {seed} --steps {steps} --confirm-steps {confirm_steps}{cmd_extra}` on "
@@ -443,6 +448,9 @@ def add_arguments(parser) -> None:
                         help="the share of the training frames the confirmation network's examples are also taken from with "
                              "bare skin (elbows, foreheads, knuckles with a highlight) and coloured glints (LEDs) drawn in: a "
                              "white ball's detector's false alarms (default 0)")
+    parser.add_argument("--confirm-ema", type=float, default=0.0, metavar="DECAY",
+                        help="keep the exponential moving average of the confirmation network's weights over its steps, with "
+                             "this decay per step (e.g. 0.999; default 0: the last step's weights)")
     parser.add_argument("--confirm-context", type=float, nargs="+", default=None, metavar="DIAMETERS",
                         help="the confirmation network's crop: its side in candidate diameters (at least 48 px; default 6, as "
                              "shipped); two values: each candidate cut out at both, a network on each crop, their "
@@ -486,7 +494,7 @@ def run(args) -> int:
                          + " ".join(f"{c:g}" for c in args.confirm_context))
     if args.confirm_context is not None and not args.confirm_steps:
         raise ValueError("--confirm-context is the confirmation network's crop: it needs --confirm-steps 1 or more")
-    for name in ("confirm_lookalikes", "confirm_skin"):
+    for name in ("confirm_lookalikes", "confirm_skin", "confirm_ema"):
         if getattr(args, name) and not args.confirm_steps:
             raise ValueError(f"--{name.replace('_', '-')} is the confirmation network's training: it needs --confirm-steps 1 or more")
     problem = None if args.coarse_side is None else coarse_side_problem(args.coarse_side, max_side, side_of)
@@ -499,8 +507,9 @@ def run(args) -> int:
         v = getattr(args, name)
         if not (0.0 <= v <= 1.0):
             raise ValueError(f"--{name.replace('_', '-')} must be a share between 0 and 1, got {v!r}")
-    if not 0.0 <= args.ema < 1.0:
-        raise ValueError(f"--ema must be a decay per step from 0 (none) to below 1, got {args.ema!r}")
+    for name in ("ema", "confirm_ema"):
+        if not 0.0 <= getattr(args, name) < 1.0:
+            raise ValueError(f"--{name.replace('_', '-')} must be a decay per step from 0 (none) to below 1, got {getattr(args, name)!r}")
     for name in ("ema", "faded"):
         if getattr(args, name) and args.stage_from is not None:
             raise ValueError(f"--{name} is the learned stage's training: a --stage-from stage is kept as it is, not trained again")
@@ -508,7 +517,7 @@ def run(args) -> int:
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
                         semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights, mined=args.mined,
                         ema=args.ema, faded=args.faded, confirm_steps=args.confirm_steps, stage_from=args.stage_from, confirm_lights=args.confirm_lights, confirm_lookalikes=args.confirm_lookalikes,
-                        confirm_skin=args.confirm_skin,
+                        confirm_skin=args.confirm_skin, confirm_ema=args.confirm_ema,
                         confirm_context=args.confirm_context, coarse_side=args.coarse_side, coarse_context=args.coarse_context)
     with atomic_path(out, "--out") as tmp:
         model.save(tmp)

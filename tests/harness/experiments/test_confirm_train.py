@@ -202,6 +202,46 @@ def test_the_fit_is_repeatable_and_refuses_one_sided_examples():
         fit_confirm(crops, np.zeros(12, np.float32), steps=3, seed=5, log=lambda m: None)
 
 
+def test_the_confirmation_networks_moving_average_is_kept_when_asked(monkeypatch):
+    """``ema``: the network exported is the exponential moving average of its weights over the steps, not the last
+    step's; repeatable; 0 keeps the last step's; a decay outside [0, 1) is refused."""
+    torch = pytest.importorskip("torch", reason="training needs rt2[train]")
+    import harness.experiments.detector.confirm_train as CT
+
+    rng = np.random.default_rng(0)
+    crops = rng.integers(0, 256, (12, CROP_PX, CROP_PX, 3), dtype=np.uint8)
+    labels = np.array([1.0, 0.0] * 6, np.float32)
+    exported, seen = [], []
+    real_export, real_step = CT.export_confirm, torch.optim.Adam.step
+
+    def export(torch_, net, *a):
+        exported.append({k: v.detach().clone() for k, v in net.state_dict().items()})
+        return real_export(torch_, net, *a)
+
+    def step(self, *a, **k):
+        out = real_step(self, *a, **k)
+        seen.append([p.detach().clone() for g in self.param_groups for p in g["params"]])
+        return out
+
+    monkeypatch.setattr(CT, "export_confirm", export)
+    monkeypatch.setattr(torch.optim.Adam, "step", step)
+    lines = []
+    last = fit_confirm(crops, labels, steps=6, seed=5, batch=4, log=lambda m: None)
+    seen.clear()
+    avg = fit_confirm(crops, labels, steps=6, seed=5, batch=4, ema=0.8, log=lines.append)
+    assert avg != last and "moving average kept (decay 0.8 per step)" in lines[-1]
+    expected = seen[0]
+    for w in seen[1:]:
+        expected = [0.8 * e + 0.2 * x for e, x in zip(expected, w)]
+    names = [n for n, _ in CT.confirm_net(torch).named_parameters()]
+    for name, e in zip(names, expected):
+        np.testing.assert_allclose(exported[-1][name].numpy(), e.numpy(), rtol=1e-5, atol=1e-6)
+    assert avg == fit_confirm(crops, labels, steps=6, seed=5, batch=4, ema=0.8, log=lambda m: None)
+    for bad in (-0.1, 1.0, True, float("nan")):
+        with pytest.raises(ValueError, match="ema must be a decay per step from 0 \\(none\\) to below 1"):
+            fit_confirm(crops, labels, steps=2, seed=5, batch=4, ema=bad, log=lambda m: None)
+
+
 def test_a_second_context_stacks_each_examples_crop_at_two_scales():
     """``context2``: the same examples (the same candidates, jitter and random places: the same seed), each with its
     crop at the second scale after the first's three channels."""

@@ -125,7 +125,7 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     filter never refining it; the same seed gives the same file; a wrong --out is one line."""
     pytest.importorskip("torch", reason="training needs rt2[train]")
     args = ["train-shipped", "--colour", "white", "--steps", "2", "--frames-per-video", "2", "--semireal-sets", "2",
-            "--rally-range", "40:46", "--seed", "3", "--confirm-steps", "2"]
+            "--rally-range", "40:46", "--seed", "3", "--confirm-steps", "2", "--ema", "0.5", "--faded", "0.5"]
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
     assert main([*args, "--out", str(a)]) == 0
     assert main([*args, "--out", str(b)]) == 0
@@ -134,7 +134,8 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     stage = model.learned
     assert model.ball_colour == "white" and stage.track_threshold == min(stage.threshold, 0.2) and not stage.filter_refines
     for source in ("6 real rally frames (40:46)", "drawn white balls", "real ball crops pasted", "semi-real frames", "network layout s8",
-                   "a confirmation network (2 steps)", "--confirm-steps 2"):
+                   "a confirmation network (2 steps)", "the weights' moving average kept (decay 0.5 per step)",
+                   "the balls of 50 % of the patches with balls faded into their surroundings", "--confirm-steps 2 --ema 0.5 --faded 0.5`"):
         assert source in stage.description, source
     assert stage.confirm is not None and stage.confirm.threshold in (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
     # --stage-from: that file's stage as it is (network, thresholds, size record), a confirmation network trained anew
@@ -153,10 +154,11 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     # --confirm-context: two crops of each candidate; the command in the description, the second context in the file
     e = tmp_path / "e.npz"
     assert main(["train-shipped", "--colour", "white", "--frames-per-video", "2", "--semireal-sets", "2", "--rally-range", "40:46",
-                 "--seed", "4", "--confirm-steps", "3", "--confirm-context", "6", "2", "--stage-from", str(a), "--out", str(e)]) == 0
+                 "--seed", "4", "--confirm-steps", "3", "--confirm-context", "6", "2", "--confirm-ema", "0.9", "--stage-from", str(a), "--out", str(e)]) == 0
     two = BallSegmentationModel.load(e).learned
     assert (two.confirm.context, two.confirm.context2, two.confirm.channels) == (6.0, 2.0, 6) and two.onnx == stage.onnx
-    assert "--confirm-steps 3 --confirm-context 6 2 --stage-from a.npz" in two.description and "one on crops of 6 diameters, one on crops of 2, their probabilities averaged" in two.description
+    assert "--confirm-steps 3 --confirm-context 6 2 --confirm-ema 0.9 --stage-from a.npz" in two.description
+    assert "the weights' moving average kept (decay 0.9 per step)" in two.confirm.description and "one on crops of 6 diameters, one on crops of 2, their probabilities averaged" in two.description
     # a new stage's coarse pass: two thirds of the network's side; --coarse-side sets a kept stage's (0: one pass), and
     # --confirm-steps 0 keeps its confirmation network too: nothing trained, the threshold chosen again
     assert stage.coarse_side_px == 640 and "frames shrunk to 960 px, coarse pass at 640 px" in stage.description
@@ -321,6 +323,9 @@ def test_train_shipped_shares_bad_values_are_one_line(tmp_path, capsys, option, 
      "--coarse-context must be 0 to 256 network pixels around a coarse peak's window, got 300"),
     (["--ema", "0.999", "--stage-from", "data/models/ball_seg_white.npz"],
      "--ema is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
+    (["--confirm-ema", "1"], "--confirm-ema must be a decay per step from 0 (none) to below 1, got 1.0"),
+    (["--confirm-ema", "nan"], "--confirm-ema must be a decay per step from 0 (none) to below 1, got nan"),
+    (["--confirm-ema", "0.999", "--confirm-steps", "0"], "--confirm-ema is the confirmation network's training: it needs --confirm-steps 1 or more"),
     (["--faded", "0.5", "--stage-from", "data/models/ball_seg_white.npz"],
      "--faded is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
 ])
