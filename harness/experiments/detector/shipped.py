@@ -137,6 +137,9 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
 
     from harness.experiments.detector.confirm_train import CONTEXT
 
+    if stage_from is not None and (ema or faded):  # as run() says before any frame is read
+        raise ValueError(f"--{'ema' if ema else 'faded'} is the learned stage's training: a --stage-from stage is kept as it is, not trained again")
+
     base = BallSegmentationModel.load(base_path)
     contexts = [CONTEXT] if confirm_context is None else [float(c) for c in np.atleast_1d(confirm_context)]
     weight = {**WEIGHTS, "drawn": DRAWN_WEIGHT[colour]}

@@ -335,6 +335,16 @@ def test_train_shipped_confirmation_options_bad_values_are_one_line(tmp_path, ca
     assert message in err and "Traceback" not in err and not (tmp_path / "m.npz").exists()
 
 
+@pytest.mark.parametrize("option", ["ema", "faded"])
+def test_build_refuses_the_learned_stages_training_options_for_a_kept_stage(option):
+    """``shipped.build`` called as a function (not through the command's checks): a kept stage is not trained, so its
+    training options are an error, not a description that claims them."""
+    from harness.experiments.detector.shipped import build
+
+    with pytest.raises(ValueError, match=f"--{option} is the learned stage's training: a --stage-from stage is kept as it is"):
+        build("white", 0, steps=1, stage_from="data/models/ball_seg_white.npz", log=lambda m: None, **{option: 0.5})
+
+
 def test_train_shipped_refuses_a_stage_from_a_model_without_one(tmp_path, capsys):
     pytest.importorskip("torch", reason="training needs rt2[train]")
     assert main(["train-shipped", "--colour", "white", "--frames-per-video", "2", "--semireal-sets", "2", "--rally-range", "40:46",
