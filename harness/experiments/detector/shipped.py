@@ -135,7 +135,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     from tracker import BallSegmentationModel
     from tracker.detection.learned import LearnedStage
 
-    from harness.experiments.detector.confirm_train import CONTEXT
+    from harness.experiments.detector.confirm_train import CONTEXT, LIT
 
     if stage_from is not None and (ema or faded):  # as run() says before any frame is read
         raise ValueError(f"--{'ema' if ema else 'faded'} is the learned stage's training: a --stage-from stage is kept as it is, not trained again")
@@ -247,6 +247,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     cmd_extra = "".join(f" --{flag} {v:g}" for flag, v in (("hard-pastes", hard_pastes), ("lights", lights), ("mined", mined), ("ema", ema),
                                                           ("faded", faded)) if v and stage_from is None) \
         + ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
+        + (f" --confirm-lights {confirm_lights:g}" if confirm_steps and confirm_lights != LIT else "") \
         + (f" --confirm-lookalikes {confirm_lookalikes:g}" if confirm_steps and confirm_lookalikes else "") \
         + (f" --confirm-skin {confirm_skin:g}" if confirm_steps and confirm_skin else "") \
         + (f" --confirm-ema {confirm_ema:g}" if confirm_steps and confirm_ema else "") \

@@ -154,10 +154,11 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     # --confirm-context: two crops of each candidate; the command in the description, the second context in the file
     e = tmp_path / "e.npz"
     assert main(["train-shipped", "--colour", "white", "--frames-per-video", "2", "--semireal-sets", "2", "--rally-range", "40:46",
-                 "--seed", "4", "--confirm-steps", "3", "--confirm-context", "6", "2", "--confirm-ema", "0.9", "--stage-from", str(a), "--out", str(e)]) == 0
+                 "--seed", "4", "--confirm-steps", "3", "--confirm-context", "6", "2", "--confirm-ema", "0.9", "--confirm-lights", "0.25", "--stage-from", str(a), "--out", str(e)]) == 0
     two = BallSegmentationModel.load(e).learned
     assert (two.confirm.context, two.confirm.context2, two.confirm.channels) == (6.0, 2.0, 6) and two.onnx == stage.onnx
-    assert "--confirm-steps 3 --confirm-context 6 2 --confirm-ema 0.9 --stage-from a.npz" in two.description
+    assert "--confirm-steps 3 --confirm-context 6 2 --confirm-lights 0.25 --confirm-ema 0.9 --stage-from a.npz" in two.description
+    assert "25 % of the frames searched again with light sources drawn in" in two.confirm.description
     assert "the weights' moving average kept (decay 0.9 per step)" in two.confirm.description and "one on crops of 6 diameters, one on crops of 2, their probabilities averaged" in two.description
     # a new stage's coarse pass: two thirds of the network's side; --coarse-side sets a kept stage's (0: one pass), and
     # --confirm-steps 0 keeps its confirmation network too: nothing trained, the threshold chosen again
