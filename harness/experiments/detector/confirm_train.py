@@ -356,8 +356,10 @@ def fit_confirm(crops, labels, *, steps: int, seed: int, batch: int = 64, lr: fl
     (:func:`confirm_pair`). ``ema``: the exponential moving average of the weights over the steps is kept, with this
     decay per step (as :class:`harness.experiments.detector.learned_train.LearnedTrainOptions`'s ``ema``; 0 = the last
     step's weights)."""
-    if isinstance(ema, bool) or not isinstance(ema, (int, float)) or not 0.0 <= ema < 1.0:
-        raise ValueError(f"the confirmation network's ema must be a decay per step from 0 (none) to below 1, got {ema!r}")
+    from harness.experiments.detector.learned_train import ema_problem
+
+    if ema_problem(ema):
+        raise ValueError(f"the confirmation network's ema {ema_problem(ema)}")
     import torch
 
     pos, neg = np.flatnonzero(labels == 1), np.flatnonzero(labels == 0)
@@ -379,17 +381,13 @@ def fit_confirm(crops, labels, *, steps: int, seed: int, batch: int = 64, lr: fl
 def _fit_one(torch, crops, labels, pos, neg, steps: int, seed: int, batch: int, lr: float, log, progress: bool, what: str, ema: float = 0.0):
     """One network (:func:`confirm_net`) fitted on three-channel ``crops``: half balls, half not per batch, each crop
     flipped at random and changed as the stage's patches are; with ``ema``, the moving average of its weights."""
-    from harness.experiments.detector.learned_train import optimiser_step, photometric
+    from harness.experiments.detector.learned_train import averaged, moving_average, optimiser_step, photometric
 
     torch.manual_seed(seed)
     rng = np.random.default_rng([seed, 62])
     net = confirm_net(torch)
     opt = torch.optim.Adam(net.parameters(), lr=lr, foreach=True)
-    average = None
-    if ema:
-        from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
-
-        average = AveragedModel(net, multi_avg_fn=get_ema_multi_avg_fn(ema))
+    average = moving_average(torch, net, ema)
     bar = None
     if progress:
         from harness.common.progress import progress_bar
@@ -418,9 +416,9 @@ def _fit_one(torch, crops, labels, pos, neg, steps: int, seed: int, batch: int, 
             average.update_parameters(net)
     if bar is not None:
         bar.close()
-    log(f"confirmation network{what}: {steps} steps of {batch} crops, final loss {avg:.3f}"
-        + (f"; the weights' moving average kept (decay {ema:g} per step)" if average is not None else ""))
-    return (net if average is None else average.module).eval()
+    kept, note = averaged(net, average, ema)
+    log(f"confirmation network{what}: {steps} steps of {batch} crops, final loss {avg:.3f}{note}")
+    return kept.eval()
 
 
 def confirm_pair(torch, first, second):

@@ -32,7 +32,7 @@ import numpy as np
 from harness.experiments.detector.augment import AugmentOptions, jpeg, optics
 from tracker.detection.learned import LearnedStage, learned_scale
 
-__all__ = ["FitTask", "LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "contrast_crops", "fade_balls", "items_at_scale", "false_alarms", "kept_passes", "mine_false_peaks", "auto_workers", "run_fit", "run_fits", "sample_patches", "with_contrast",
+__all__ = ["FitTask", "LearnedItem", "LearnedTrainOptions", "build_net", "deploy_onnx", "export_onnx", "fit_learned", "averaged", "contrast_crops", "ema_problem", "fade_balls", "items_at_scale", "moving_average", "false_alarms", "kept_passes", "mine_false_peaks", "auto_workers", "run_fit", "run_fits", "sample_patches", "with_contrast",
            "stage_candidates", "targets"]
 
 STRIDE = 4
@@ -44,6 +44,30 @@ STRIDE = 4
 #: (docs/results_history.md), so s8 stays the default
 ARCHS = ("s8", "s16")
 DEFAULT_ARCH = "s8"
+
+
+def ema_problem(decay) -> str | None:
+    """None when ``decay`` is a moving average's decay per step (0 = none, up to below 1); else what is wrong with it."""
+    if isinstance(decay, bool) or not isinstance(decay, (int, float)) or not 0.0 <= decay < 1.0:
+        return f"must be a decay per step from 0 (none) to below 1, got {decay!r}"
+    return None
+
+
+def moving_average(torch, net, decay: float):
+    """The exponential moving average of ``net``'s weights with ``decay`` per step (torch's ``AveragedModel``, updated
+    with ``update_parameters(net)`` after each step), or None for a decay of 0; :func:`averaged` gives the network to keep."""
+    if not decay:
+        return None
+    from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+    return AveragedModel(net, multi_avg_fn=get_ema_multi_avg_fn(decay))
+
+
+def averaged(net, average, decay: float) -> tuple:
+    """``(the network to keep, what the training's log line says of it)``: the moving average's when there is one."""
+    if average is None:
+        return net, ""
+    return average.module, f"; the weights' moving average kept (decay {decay:g} per step)"
 
 
 @dataclass(frozen=True)
@@ -106,8 +130,8 @@ class LearnedTrainOptions:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
                 raise ValueError(f"LearnedTrainOptions.{name} must be a share between 0 and 1, got {v!r}")
-        if isinstance(self.ema, bool) or not isinstance(self.ema, (int, float)) or not 0.0 <= self.ema < 1.0:
-            raise ValueError(f"LearnedTrainOptions.ema must be a decay per step from 0 (none) to below 1, got {self.ema!r}")
+        if ema_problem(self.ema):
+            raise ValueError(f"LearnedTrainOptions.ema {ema_problem(self.ema)}")
         if not (0 < self.scale_range[0] <= self.scale_range[1]):
             raise ValueError(f"LearnedTrainOptions.scale_range must be (lo, hi) with 0 < lo <= hi, got {self.scale_range!r}")
 
@@ -603,11 +627,7 @@ def fit_learned(items: list[LearnedItem], opts: LearnedTrainOptions, seed: int, 
         # test compares them), in three quarters of its time (1.1 against 1.45 ms a step alone)
         opt = torch.optim.Adam(net.parameters(), lr=opts.lr, weight_decay=opts.weight_decay, foreach=True)
         sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda i: 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(i, opts.iterations) / opts.iterations)))
-        average = None
-        if opts.ema:
-            from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
-
-            average = AveragedModel(net, multi_avg_fn=get_ema_multi_avg_fn(opts.ema))
+        average = moving_average(torch, net, opts.ema)
         net.train()
         bar = None
         if progress:
@@ -641,9 +661,8 @@ def fit_learned(items: list[LearnedItem], opts: LearnedTrainOptions, seed: int, 
                     average.update_parameters(net)
         if bar is not None:
             bar.close()
-        log(f"learned stage: {opts.iterations} steps of {opts.batch} patches, final loss {avg:.3f}"
-            + (f"; the weights' moving average kept (decay {opts.ema:g} per step)" if average is not None else ""))
-        kept = net if average is None else average.module
+        kept, note = averaged(net, average, opts.ema)
+        log(f"learned stage: {opts.iterations} steps of {opts.batch} patches, final loss {avg:.3f}{note}")
         state = {k: v.detach().clone() for k, v in kept.state_dict().items()}
         return state, export_onnx(torch, kept)
     finally:

@@ -137,7 +137,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
 
     from harness.experiments.detector.confirm_train import CONTEXT, LIT
 
-    if stage_from is not None and (ema or faded):  # as run() says before any frame is read
+    if stage_from is not None and (ema or faded):  # before any frame is read
         raise ValueError(f"--{'ema' if ema else 'faded'} is the learned stage's training: a --stage-from stage is kept as it is, not trained again")
 
     base = BallSegmentationModel.load(base_path)
@@ -478,6 +478,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from harness.common.outputs import atomic_path, check_output_file
+    from harness.experiments.detector.learned_train import ema_problem
 
     out = Path(args.out)
     check_output_file(out, "--out", suffix=".npz")
@@ -512,11 +513,8 @@ def run(args) -> int:
         if not (0.0 <= v <= 1.0):
             raise ValueError(f"--{name.replace('_', '-')} must be a share between 0 and 1, got {v!r}")
     for name in ("ema", "confirm_ema"):
-        if not 0.0 <= getattr(args, name) < 1.0:
-            raise ValueError(f"--{name.replace('_', '-')} must be a decay per step from 0 (none) to below 1, got {getattr(args, name)!r}")
-    for name in ("ema", "faded"):
-        if getattr(args, name) and args.stage_from is not None:
-            raise ValueError(f"--{name} is the learned stage's training: a --stage-from stage is kept as it is, not trained again")
+        if ema_problem(getattr(args, name)):
+            raise ValueError(f"--{name.replace('_', '-')} {ema_problem(getattr(args, name))}")
     model, info = build(args.colour, args.seed, steps=args.steps, base_path=args.base, rally_range=args.rally_range,
                         renders=args.renders, frames_per_video=args.frames_per_video, max_side=args.max_side_px,
                         semireal_sets=args.semireal_sets, arch=args.arch, hard_pastes=args.hard_pastes, lights=args.lights, mined=args.mined,

@@ -664,7 +664,7 @@ def test_patches_near_mined_alarms_only_when_asked(synthetic_ball_coco):
         LearnedTrainOptions(mine_every=0)
 
 
-def test_the_weights_moving_average_is_kept_when_asked(synthetic_ball_coco):
+def test_the_weights_moving_average_is_kept_when_asked(synthetic_ball_coco, monkeypatch):
     """``ema``: the network written is the exponential moving average of its weights over the steps (each step's
     weights averaged in as torch's AveragedModel does), not the last step's; 0 keeps the last step's; repeatable."""
     import torch
@@ -688,11 +688,8 @@ def test_the_weights_moving_average_is_kept_when_asked(synthetic_ball_coco):
         seen.append([p.detach().clone() for g in self.param_groups for p in g["params"]])
         return out
 
-    torch.optim.Adam.step = step
-    try:
-        fit_learned(items, dataclasses.replace(opts, ema=0.9), 3, log=lambda m: None)
-    finally:
-        torch.optim.Adam.step = original
+    monkeypatch.setattr(torch.optim.Adam, "step", step)
+    fit_learned(items, dataclasses.replace(opts, ema=0.9), 3, log=lambda m: None)
     expected = seen[0]
     for w in seen[1:]:
         expected = [0.9 * e + 0.1 * x for e, x in zip(expected, w)]
