@@ -137,8 +137,10 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
 
     from harness.experiments.detector.confirm_train import CONTEXT, LIT
 
-    if stage_from is not None and (ema or faded):  # before any frame is read
-        raise ValueError(f"--{'ema' if ema else 'faded'} is the learned stage's training: a --stage-from stage is kept as it is, not trained again")
+    heat_options = {"lights": lights, "mined": mined, "ema": ema, "faded": faded}  # what only the heat network's training uses
+    given = [name for name, v in heat_options.items() if v]
+    if stage_from is not None and given:  # before any frame is read: a kept stage is not trained, its description must not claim them
+        raise ValueError(f"--{given[0]} is the learned stage's training: a --stage-from stage is kept as it is, not trained again")
 
     base = BallSegmentationModel.load(base_path)
     contexts = [CONTEXT] if confirm_context is None else [float(c) for c in np.atleast_1d(confirm_context)]
@@ -244,8 +246,7 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
               + (f" with the confirmation network (the heat's alone: {stage.threshold:g})" if stage.confirm is not None else "")
               + f": recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%")
     # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
-    cmd_extra = "".join(f" --{flag} {v:g}" for flag, v in (("hard-pastes", hard_pastes), ("lights", lights), ("mined", mined), ("ema", ema),
-                                                          ("faded", faded)) if v and stage_from is None) \
+    cmd_extra = "".join(f" --{flag} {v:g}" for flag, v in {"hard-pastes": hard_pastes, **heat_options}.items() if v and stage_from is None) \
         + ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
         + (f" --confirm-lights {confirm_lights:g}" if confirm_steps and confirm_lights != LIT else "") \
         + (f" --confirm-lookalikes {confirm_lookalikes:g}" if confirm_steps and confirm_lookalikes else "") \

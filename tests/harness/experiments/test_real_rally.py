@@ -329,6 +329,10 @@ def test_train_shipped_shares_bad_values_are_one_line(tmp_path, capsys, option, 
     (["--confirm-ema", "0.999", "--confirm-steps", "0"], "--confirm-ema is the confirmation network's training: it needs --confirm-steps 1 or more"),
     (["--faded", "0.5", "--stage-from", "data/models/ball_seg_white.npz"],
      "--faded is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
+    (["--lights", "0.3", "--stage-from", "data/models/ball_seg_white.npz"],
+     "--lights is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
+    (["--mined", "0.2", "--stage-from", "data/models/ball_seg_white.npz"],
+     "--mined is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
 ])
 def test_train_shipped_confirmation_options_bad_values_are_one_line(tmp_path, capsys, args, message):
     assert main(["train-shipped", "--colour", "white", *args, "--out", str(tmp_path / "m.npz")]) == 2
@@ -336,7 +340,7 @@ def test_train_shipped_confirmation_options_bad_values_are_one_line(tmp_path, ca
     assert message in err and "Traceback" not in err and not (tmp_path / "m.npz").exists()
 
 
-@pytest.mark.parametrize("option", ["ema", "faded"])
+@pytest.mark.parametrize("option", ["ema", "faded", "lights", "mined"])
 def test_build_refuses_the_learned_stages_training_options_for_a_kept_stage(option):
     """``shipped.build`` called as a function (not through the command's checks): a kept stage is not trained, so its
     training options are an error, not a description that claims them."""
