@@ -138,9 +138,11 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     from harness.experiments.detector.confirm_train import CONTEXT, LIT
 
     heat_options = {"lights": lights, "mined": mined, "ema": ema, "faded": faded}  # what only the heat network's training uses
-    given = [name for name, v in heat_options.items() if v]
+    given = [name for name, v in heat_options.items() if v] + (["arch"] if arch is not None else [])
     if stage_from is not None and given:  # before any frame is read: a kept stage is not trained, its description must not claim them
         raise ValueError(f"--{given[0]} is the learned stage's training: a --stage-from stage is kept as it is, not trained again")
+    if stage_from is not None and not confirm_steps and hard_pastes:  # nothing is trained: no frame is pasted
+        raise ValueError("--hard-pastes shapes the training frames: with --stage-from and --confirm-steps 0 nothing is trained")
 
     base = BallSegmentationModel.load(base_path)
     contexts = [CONTEXT] if confirm_context is None else [float(c) for c in np.atleast_1d(confirm_context)]
@@ -246,7 +248,9 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
               + (f" with the confirmation network (the heat's alone: {stage.threshold:g})" if stage.confirm is not None else "")
               + f": recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%")
     # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
-    cmd_extra = "".join(f" --{flag} {v:g}" for flag, v in {"hard-pastes": hard_pastes, **heat_options}.items() if v and stage_from is None) \
+    # --hard-pastes shapes the frames both networks learn from (a kept stage's new confirmation network's too)
+    cmd_extra = ("" if arch is None else f" --arch {arch}") \
+        + "".join(f" --{flag} {v:g}" for flag, v in {"hard-pastes": hard_pastes, **heat_options}.items() if v and (stage_from is None or flag == "hard-pastes")) \
         + ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
         + (f" --confirm-lights {confirm_lights:g}" if confirm_steps and confirm_lights != LIT else "") \
         + (f" --confirm-lookalikes {confirm_lookalikes:g}" if confirm_steps and confirm_lookalikes else "") \

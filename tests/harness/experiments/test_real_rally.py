@@ -125,7 +125,7 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     filter never refining it; the same seed gives the same file; a wrong --out is one line."""
     pytest.importorskip("torch", reason="training needs rt2[train]")
     args = ["train-shipped", "--colour", "white", "--steps", "2", "--frames-per-video", "2", "--semireal-sets", "2",
-            "--rally-range", "40:46", "--seed", "3", "--confirm-steps", "2", "--ema", "0.5", "--faded", "0.5"]
+            "--rally-range", "40:46", "--seed", "3", "--confirm-steps", "2", "--ema", "0.5", "--faded", "0.5", "--arch", "s8"]
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
     assert main([*args, "--out", str(a)]) == 0
     assert main([*args, "--out", str(b)]) == 0
@@ -135,7 +135,7 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     assert model.ball_colour == "white" and stage.track_threshold == min(stage.threshold, 0.2) and not stage.filter_refines
     for source in ("6 real rally frames (40:46)", "drawn white balls", "real ball crops pasted", "semi-real frames", "network layout s8",
                    "a confirmation network (2 steps)", "the weights' moving average kept (decay 0.5 per step)",
-                   "the balls of 50 % of the patches with balls faded into their surroundings", "--confirm-steps 2 --ema 0.5 --faded 0.5`"):
+                   "the balls of 50 % of the patches with balls faded into their surroundings", "--confirm-steps 2 --arch s8 --ema 0.5 --faded 0.5`"):
         assert source in stage.description, source
     assert stage.confirm is not None and stage.confirm.threshold in (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
     # --stage-from: that file's stage as it is (network, thresholds, size record), a confirmation network trained anew
@@ -154,10 +154,13 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     # --confirm-context: two crops of each candidate; the command in the description, the second context in the file
     e = tmp_path / "e.npz"
     assert main(["train-shipped", "--colour", "white", "--frames-per-video", "2", "--semireal-sets", "2", "--rally-range", "40:46",
-                 "--seed", "4", "--confirm-steps", "3", "--confirm-context", "6", "2", "--confirm-ema", "0.9", "--confirm-lights", "0.25", "--stage-from", str(a), "--out", str(e)]) == 0
+                 "--seed", "4", "--confirm-steps", "3", "--confirm-context", "6", "2", "--confirm-ema", "0.9", "--confirm-lights", "0.25", "--hard-pastes", "0.5",
+                 "--stage-from", str(a), "--out", str(e)]) == 0
     two = BallSegmentationModel.load(e).learned
     assert (two.confirm.context, two.confirm.context2, two.confirm.channels) == (6.0, 2.0, 6) and two.onnx == stage.onnx
-    assert "--confirm-steps 3 --confirm-context 6 2 --confirm-lights 0.25 --confirm-ema 0.9 --stage-from a.npz" in two.description
+    # --hard-pastes shaped the new confirmation network's frames: its command says so
+    assert "--confirm-steps 3 --hard-pastes 0.5 --confirm-context 6 2 --confirm-lights 0.25 --confirm-ema 0.9 --stage-from a.npz" in two.description
+    assert "(50 % of them long-smeared or partly hidden)" in two.description
     assert "25 % of the frames searched again with light sources drawn in" in two.confirm.description
     assert "the weights' moving average kept (decay 0.9 per step)" in two.confirm.description and "one on crops of 6 diameters, one on crops of 2, their probabilities averaged" in two.description
     # a new stage's coarse pass: two thirds of the network's side; --coarse-side sets a kept stage's (0: one pass), and
@@ -333,6 +336,10 @@ def test_train_shipped_shares_bad_values_are_one_line(tmp_path, capsys, option, 
      "--lights is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
     (["--mined", "0.2", "--stage-from", "data/models/ball_seg_white.npz"],
      "--mined is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
+    (["--arch", "s16", "--stage-from", "data/models/ball_seg_white.npz"],
+     "--arch is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
+    (["--hard-pastes", "0.5", "--confirm-steps", "0", "--stage-from", "data/models/ball_seg_white.npz"],
+     "--hard-pastes shapes the training frames: with --stage-from and --confirm-steps 0 nothing is trained"),
 ])
 def test_train_shipped_confirmation_options_bad_values_are_one_line(tmp_path, capsys, args, message):
     assert main(["train-shipped", "--colour", "white", *args, "--out", str(tmp_path / "m.npz")]) == 2
@@ -340,14 +347,14 @@ def test_train_shipped_confirmation_options_bad_values_are_one_line(tmp_path, ca
     assert message in err and "Traceback" not in err and not (tmp_path / "m.npz").exists()
 
 
-@pytest.mark.parametrize("option", ["ema", "faded", "lights", "mined"])
+@pytest.mark.parametrize("option", ["ema", "faded", "lights", "mined", "arch"])
 def test_build_refuses_the_learned_stages_training_options_for_a_kept_stage(option):
     """``shipped.build`` called as a function (not through the command's checks): a kept stage is not trained, so its
     training options are an error, not a description that claims them."""
     from harness.experiments.detector.shipped import build
 
     with pytest.raises(ValueError, match=f"--{option} is the learned stage's training: a --stage-from stage is kept as it is"):
-        build("white", 0, steps=1, stage_from="data/models/ball_seg_white.npz", log=lambda m: None, **{option: 0.5})
+        build("white", 0, steps=1, stage_from="data/models/ball_seg_white.npz", log=lambda m: None, **{option: "s16" if option == "arch" else 0.5})
 
 
 def test_train_shipped_refuses_a_stage_from_a_model_without_one(tmp_path, capsys):
