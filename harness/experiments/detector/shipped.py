@@ -248,8 +248,14 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
               + (f" with the confirmation network (the heat's alone: {stage.threshold:g})" if stage.confirm is not None else "")
               + f": recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%")
     # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
-    # --hard-pastes shapes the frames both networks learn from (a kept stage's new confirmation network's too)
-    cmd_extra = ("" if arch is None else f" --arch {arch}") \
+    # the frames' options where not the defaults (the shipped files' descriptions unchanged): the rally's range always
+    # (the threshold's frames), the others where frames are made (a new stage's --max-side-px: a kept stage keeps its own)
+    cmd_extra = ("" if rally_range == "0:58" else f" --rally-range {rally_range}") \
+        + ("" if frames_per_video == 64 or not trains else f" --frames-per-video {frames_per_video}") \
+        + ("" if semireal_sets == 160 or not trains else f" --semireal-sets {semireal_sets}") \
+        + ("" if not renders or not trains else f" --renders {Path(renders).name}") \
+        + ("" if max_side == 960 or stage_from is not None else f" --max-side-px {max_side}") \
+        + ("" if arch is None else f" --arch {arch}") \
         + "".join(f" --{flag} {v:g}" for flag, v in {"hard-pastes": hard_pastes, **heat_options}.items() if v and (stage_from is None or flag == "hard-pastes")) \
         + ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
         + (f" --confirm-lights {confirm_lights:g}" if confirm_steps and confirm_lights != LIT else "") \

@@ -135,7 +135,7 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     assert model.ball_colour == "white" and stage.track_threshold == min(stage.threshold, 0.2) and not stage.filter_refines
     for source in ("6 real rally frames (40:46)", "drawn white balls", "real ball crops pasted", "semi-real frames", "network layout s8",
                    "a confirmation network (2 steps)", "the weights' moving average kept (decay 0.5 per step)",
-                   "the balls of 50 % of the patches with balls faded into their surroundings", "--confirm-steps 2 --arch s8 --ema 0.5 --faded 0.5`"):
+                   "the balls of 50 % of the patches with balls faded into their surroundings", "--confirm-steps 2 --rally-range 40:46 --frames-per-video 2 --semireal-sets 2 --arch s8 --ema 0.5 --faded 0.5`"):
         assert source in stage.description, source
     assert stage.confirm is not None and stage.confirm.threshold in (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
     # --stage-from: that file's stage as it is (network, thresholds, size record), a confirmation network trained anew
@@ -159,7 +159,7 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     two = BallSegmentationModel.load(e).learned
     assert (two.confirm.context, two.confirm.context2, two.confirm.channels) == (6.0, 2.0, 6) and two.onnx == stage.onnx
     # --hard-pastes shaped the new confirmation network's frames: its command says so
-    assert "--confirm-steps 3 --hard-pastes 0.5 --confirm-context 6 2 --confirm-lights 0.25 --confirm-ema 0.9 --stage-from a.npz" in two.description
+    assert "--confirm-steps 3 --rally-range 40:46 --frames-per-video 2 --semireal-sets 2 --hard-pastes 0.5 --confirm-context 6 2 --confirm-lights 0.25 --confirm-ema 0.9 --stage-from a.npz" in two.description
     assert "(50 % of them long-smeared or partly hidden)" in two.description
     assert "25 % of the frames searched again with light sources drawn in" in two.confirm.description
     assert "the weights' moving average kept (decay 0.9 per step)" in two.confirm.description and "one on crops of 6 diameters, one on crops of 2, their probabilities averaged" in two.description
@@ -171,7 +171,7 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
                  "--stage-from", str(a), "--out", str(f)]) == 0
     one = BallSegmentationModel.load(f).learned
     assert one.coarse_side_px == 0 and one.onnx == stage.onnx and one.confirm.onnx == stage.confirm.onnx
-    assert one.description.startswith(stage.description + "; then `rt2 train-shipped --colour white --seed 4 --confirm-steps 0 --coarse-side 0 "
+    assert one.description.startswith(stage.description + "; then `rt2 train-shipped --colour white --seed 4 --confirm-steps 0 --rally-range 40:46 --coarse-side 0 "
                                       "--stage-from a.npz` kept that stage (whole frames in one pass) and its confirmation network; tracking threshold ")
     # --coarse-context: the coarse peaks' windows' context (a new stage's: 24 px, the tracker's windows keeping 8)
     assert (stage.coarse_context_px, stage.context_px) == (24, 8) and "its peaks' windows with 24 px of context" in stage.description
@@ -180,7 +180,7 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
                  "--stage-from", str(f), "--out", str(g)]) == 0
     wide = BallSegmentationModel.load(g).learned
     assert (wide.coarse_context_px, wide.coarse_side_px, wide.context_px) == (40, 0, 8) and wide.onnx == stage.onnx
-    assert "--confirm-steps 0 --coarse-context 40 --stage-from f.npz` kept that stage (its coarse peaks' windows with 40 px of context)" in wide.description
+    assert "--confirm-steps 0 --rally-range 40:46 --coarse-context 40 --stage-from f.npz` kept that stage (its coarse peaks' windows with 40 px of context)" in wide.description
     capsys.readouterr()
     assert main([*args, "--out", str(tmp_path / "m.txt")]) == 2
     err = capsys.readouterr().err
@@ -193,7 +193,7 @@ def test_train_shipped_makes_an_orange_model_for_real_cameras(tmp_path):
     itself: its ball is white); the file's filter (of renders) never refines it; the same seed gives the same file."""
     pytest.importorskip("torch", reason="training needs rt2[train]")
     args = ["train-shipped", "--colour", "orange", "--steps", "2", "--frames-per-video", "2", "--semireal-sets", "2",
-            "--rally-range", "40:46", "--seed", "3", "--confirm-steps", "2"]
+            "--rally-range", "40:46", "--seed", "3", "--confirm-steps", "2", "--max-side-px", "640"]
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
     assert main([*args, "--out", str(a)]) == 0 and main([*args, "--out", str(b)]) == 0
     assert a.read_bytes() == b.read_bytes()
@@ -203,6 +203,9 @@ def test_train_shipped_makes_an_orange_model_for_real_cameras(tmp_path):
     for source in ("drawn orange balls", "real ball crops made orange pasted", "semi-real frames (caliscope cameras 0-1, drawn orange balls"):
         assert source in stage.description, source
     assert "real rally frames" not in stage.description
+    # the command in the description gives the frames' options that are not the defaults
+    assert "--confirm-steps 2 --rally-range 40:46 --frames-per-video 2 --semireal-sets 2 --max-side-px 640`" in stage.description
+    assert stage.max_side_px == 640 and "frames shrunk to 640 px" in stage.description
 
 
 def test_pasted_real_balls_take_the_colour_asked_for():
