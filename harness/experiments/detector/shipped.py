@@ -106,12 +106,16 @@ WEIGHTS = {"real": 4.0, "pasted": 1.0, "renders": 1.0, "semireal": 1.0}
 DRAWN_WEIGHT = {"white": 0.3, "orange": 1.0}
 #: the semi-real source's cameras (the caliscope session's; 2 and 3 stay held out for evaluation)
 SEMIREAL_CAMERAS = (0, 1)
+#: the recipe's frames by default (``build``, the command's options, and the description's command, which gives an
+#: option only where it differs): the rally's training part, background frames per video, semi-real frame sets, the
+#: network's longer side
+RALLY_RANGE, FRAMES_PER_VIDEO, SEMIREAL_SETS, MAX_SIDE_PX = "0:58", 64, 160, 960
 #: an orange ball from a real white one: per-channel gains (sRGB levels) drawn between these (orange to yellow-orange)
 ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 
 
-def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = "0:58", renders=None,
-          diameter_px=(5.0, 48.0), frames_per_video: int = 64, max_side: int = 960, semireal_sets: int = 160, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, ema: float = 0.0, faded: float = 0.0, log=print,
+def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_range: str = RALLY_RANGE, renders=None,
+          diameter_px=(5.0, 48.0), frames_per_video: int = FRAMES_PER_VIDEO, max_side: int = MAX_SIDE_PX, semireal_sets: int = SEMIREAL_SETS, arch: str | None = None, hard_pastes: float = 0.0, lights: float = 0.0, mined: float = 0.0, ema: float = 0.0, faded: float = 0.0, log=print,
           progress: bool = True, confirm_steps: int = 3000, stage_from=None, confirm_lights: float = 0.5, confirm_context=None,
           coarse_side=None, coarse_context=None, confirm_lookalikes: float = 0.0, confirm_skin: float = 0.0, confirm_ema: float = 0.0):
     """The model (base filter + trained learned stage and its confirmation network) and a dict of what it was trained
@@ -250,13 +254,15 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     # the command as it was given: a context other than the default is part of it (the shipped files' descriptions unchanged)
     # the frames' options where not the defaults (the shipped files' descriptions unchanged): the rally's range always
     # (the threshold's frames), the others where frames are made (a new stage's --max-side-px: a kept stage keeps its own)
-    cmd_extra = ("" if rally_range == "0:58" else f" --rally-range {rally_range}") \
-        + ("" if frames_per_video == 64 or not trains else f" --frames-per-video {frames_per_video}") \
-        + ("" if semireal_sets == 160 or not trains else f" --semireal-sets {semireal_sets}") \
+    # (--hard-pastes shapes a kept stage's new confirmation network's frames too; the heat's options and --arch were
+    # refused above for a kept stage)
+    cmd_extra = ("" if rally_range == RALLY_RANGE else f" --rally-range {rally_range}") \
+        + ("" if frames_per_video == FRAMES_PER_VIDEO or not trains else f" --frames-per-video {frames_per_video}") \
+        + ("" if semireal_sets == SEMIREAL_SETS or not trains else f" --semireal-sets {semireal_sets}") \
         + ("" if not renders or not trains else f" --renders {Path(renders).name}") \
-        + ("" if max_side == 960 or stage_from is not None else f" --max-side-px {max_side}") \
+        + ("" if max_side == MAX_SIDE_PX or stage_from is not None else f" --max-side-px {max_side}") \
         + ("" if arch is None else f" --arch {arch}") \
-        + "".join(f" --{flag} {v:g}" for flag, v in {"hard-pastes": hard_pastes, **heat_options}.items() if v and (stage_from is None or flag == "hard-pastes")) \
+        + "".join(f" --{flag} {v:g}" for flag, v in {"hard-pastes": hard_pastes, **heat_options}.items() if v) \
         + ((" --confirm-context " + " ".join(f"{c:g}" for c in contexts)) if confirm_steps and contexts != [CONTEXT] else "") \
         + (f" --confirm-lights {confirm_lights:g}" if confirm_steps and confirm_lights != LIT else "") \
         + (f" --confirm-lookalikes {confirm_lookalikes:g}" if confirm_steps and confirm_lookalikes else "") \
@@ -428,13 +434,13 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--steps", type=int, default=3000, help="optimiser steps of the learned stage (default 3000, as shipped)")
     parser.add_argument("--base", default=str(DEFAULT_BASE), help="the model whose 5x5 filter the file keeps (default: the shipped orange model)")
-    parser.add_argument("--rally-range", default="0:58", help="the rally frames trained on, in time order (default 0:58; the rest stays held out)")
+    parser.add_argument("--rally-range", default=RALLY_RANGE, help=f"the rally frames trained on, in time order (default {RALLY_RANGE}; the rest stays held out)")
     parser.add_argument("--renders", default=None, help="an rt2 sim dataset folder of renders added to training (default none)")
-    parser.add_argument("--frames-per-video", type=int, default=64, help="background frames taken from each video (default 64)")
+    parser.add_argument("--frames-per-video", type=int, default=FRAMES_PER_VIDEO, help=f"background frames taken from each video (default {FRAMES_PER_VIDEO})")
     parser.add_argument("--arch", default=None, choices=ARCHS, help="the network's layout (default: the training default)")
-    parser.add_argument("--semireal-sets", type=int, default=160,
+    parser.add_argument("--semireal-sets", type=int, default=SEMIREAL_SETS,
                         help="semi-real frame sets (caliscope cameras 0-1, the rally's training balls or, orange, a drawn ball "
-                             "flown in 3D) added to training (default 160; 0 = none)")
+                             f"flown in 3D) added to training (default {SEMIREAL_SETS}; 0 = none)")
     parser.add_argument("--hard-pastes", type=float, default=0.0,
                         help="the share of pasted real balls made hard, half flown 1-3 diameters over the exposure, half "
                              "partly hidden behind an object (default 0)")
@@ -483,8 +489,8 @@ def add_arguments(parser) -> None:
                         help="network pixels of context around each coarse peak's window at full scale, before the second "
                              f"look (single images, proposals, rt2 label --auto; default {COARSE_CONTEXT_PX} for a new stage, a "
                              f"--stage-from stage's own; a tracker's cameras search with the windows' {WINDOW_CONTEXT_PX})")
-    parser.add_argument("--max-side-px", type=int, default=960,
-                        help="frames with a longer side are shrunk to it before the network (default 960: VGA frames as they are)")
+    parser.add_argument("--max-side-px", type=int, default=MAX_SIDE_PX,
+                        help=f"frames with a longer side are shrunk to it before the network (default {MAX_SIDE_PX}: VGA frames as they are)")
 
 
 def run(args) -> int:
