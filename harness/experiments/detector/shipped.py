@@ -255,8 +255,9 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     # the frames' options where not the defaults (the shipped files' descriptions unchanged): the rally's range always
     # (the threshold's frames), the others where frames are made (a new stage's --max-side-px: a kept stage keeps its own)
     # (--hard-pastes shapes a kept stage's new confirmation network's frames too; the heat's options and --arch were
-    # refused above for a kept stage)
+    # refused above for a kept stage); --base, the file whose filter the new file keeps, where it is not the default
     cmd_extra = ("" if rally_range == RALLY_RANGE else f" --rally-range {rally_range}") \
+        + ("" if Path(base_path).resolve() == DEFAULT_BASE.resolve() else f" --base {Path(base_path).name}") \
         + ("" if frames_per_video == FRAMES_PER_VIDEO or not trains else f" --frames-per-video {frames_per_video}") \
         + ("" if semireal_sets == SEMIREAL_SETS or not trains else f" --semireal-sets {semireal_sets}") \
         + ("" if not renders or not trains else f" --renders {Path(renders).name}") \

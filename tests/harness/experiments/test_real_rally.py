@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -166,13 +167,15 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     # a new stage's coarse pass: two thirds of the network's side; --coarse-side sets a kept stage's (0: one pass), and
     # --confirm-steps 0 keeps its confirmation network too: nothing trained, the threshold chosen again
     assert stage.coarse_side_px == 640 and "frames shrunk to 960 px, coarse pass at 640 px" in stage.description
-    f = tmp_path / "f.npz"
+    f, filter_only = tmp_path / "f.npz", tmp_path / "filter.npz"
+    filter_only.write_bytes(Path("data/models/ball_seg_default.npz").read_bytes())
     assert main(["train-shipped", "--colour", "white", "--rally-range", "40:46", "--seed", "4", "--confirm-steps", "0", "--coarse-side", "0",
-                 "--stage-from", str(a), "--out", str(f)]) == 0
+                 "--base", str(filter_only), "--stage-from", str(a), "--out", str(f)]) == 0
     one = BallSegmentationModel.load(f).learned
     assert one.coarse_side_px == 0 and one.onnx == stage.onnx and one.confirm.onnx == stage.confirm.onnx
-    assert one.description.startswith(stage.description + "; then `rt2 train-shipped --colour white --seed 4 --confirm-steps 0 --rally-range 40:46 --coarse-side 0 "
-                                      "--stage-from a.npz` kept that stage (whole frames in one pass) and its confirmation network; tracking threshold ")
+    # a --base other than the default (the file whose filter it keeps) is in the command too
+    assert one.description.startswith(stage.description + "; then `rt2 train-shipped --colour white --seed 4 --confirm-steps 0 --rally-range 40:46 --base filter.npz "
+                                      "--coarse-side 0 --stage-from a.npz` kept that stage (whole frames in one pass) and its confirmation network; tracking threshold ")
     # --coarse-context: the coarse peaks' windows' context (a new stage's: 24 px, the tracker's windows keeping 8)
     assert (stage.coarse_context_px, stage.context_px) == (24, 8) and "its peaks' windows with 24 px of context" in stage.description
     g = tmp_path / "g.npz"
