@@ -180,10 +180,13 @@ def test_train_shipped_makes_a_white_model_from_every_source_seeded(tmp_path, ca
     assert (stage.coarse_context_px, stage.context_px) == (24, 8) and "its peaks' windows with 24 px of context" in stage.description
     g = tmp_path / "g.npz"
     assert main(["train-shipped", "--colour", "white", "--rally-range", "40:46", "--seed", "4", "--confirm-steps", "0", "--coarse-context", "40",
-                 "--stage-from", str(f), "--out", str(g)]) == 0
-    wide = BallSegmentationModel.load(g).learned
+                 "--base", str(a), "--stage-from", str(f), "--out", str(g)]) == 0
+    wide_model = BallSegmentationModel.load(g)
+    wide = wide_model.learned
     assert (wide.coarse_context_px, wide.coarse_side_px, wide.context_px) == (40, 0, 8) and wide.onnx == stage.onnx
-    assert "--confirm-steps 0 --rally-range 40:46 --coarse-context 40 --stage-from f.npz` kept that stage (its coarse peaks' windows with 40 px of context)" in wide.description
+    assert "--confirm-steps 0 --rally-range 40:46 --base a.npz --coarse-context 40 --stage-from f.npz` kept that stage (its coarse peaks' windows with 40 px of context)" in wide.description
+    # a base with a learned stage of its own (a white file): the new file's description has its filter's part, then this stage
+    assert wide_model.description == model.description.split("; learned stage: ")[0] + "; learned stage: " + wide.description
     capsys.readouterr()
     assert main([*args, "--out", str(tmp_path / "m.txt")]) == 2
     err = capsys.readouterr().err
