@@ -110,8 +110,6 @@ SEMIREAL_CAMERAS = (0, 1)
 #: option only where it differs): the rally's training part, background frames per video, semi-real frame sets, the
 #: network's longer side
 RALLY_RANGE, FRAMES_PER_VIDEO, SEMIREAL_SETS, MAX_SIDE_PX = "0:58", 64, 160, 960
-#: where a model file's description turns from its filter to its learned stage
-LEARNED_MARK = "; learned stage: "
 #: an orange ball from a real white one: per-channel gains (sRGB levels) drawn between these (orange to yellow-orange)
 ORANGE_GAIN = ((0.92, 0.32, 0.04), (1.05, 0.62, 0.25))
 
@@ -290,6 +288,8 @@ def build(colour: str, seed: int, *, steps: int, base_path=DEFAULT_BASE, rally_r
     log(f"threshold {th:g} on {val_what}: recall {100 * np.nan_to_num(s.recall):.1f}%, outliers {100 * s.outlier_rate:.1f}%, "
         f"median {s.median_center_error_px:.2f} px")
     # a base with a learned stage of its own (--base a white file) gives its filter's part: the stage is this one
+    from harness.experiments.detector.train import LEARNED_MARK
+
     filter_part = base.description.split(LEARNED_MARK, 1)[0]
     model = dataclasses.replace(base, learned=stage, ball_colour=colour if colour == "white" else base.ball_colour,
                                 description=filter_part + LEARNED_MARK + stage.description)

@@ -86,6 +86,9 @@ LEARNED_CHOICES = ("auto", "on", "off")
 FILTER_CHOICES = ("auto", "fit", "keep")
 #: how the learned stage's cross-validation folds images (:func:`learned_folds`)
 LEARNED_FOLDS_BY = ("auto", "time", "camera")
+#: where a model file's description turns from its filter to its learned stage (written here; ``rt2 train-shipped``
+#: reads a base's filter part up to it)
+LEARNED_MARK = "; learned stage: "
 #: ``learned_folds_by`` "auto" folds by camera when every image names one of at least this many cameras
 CAMERA_FOLDS_MIN_CAMERAS = 3
 #: rt2 train's exit status when the model it chose finds too few balls in cross-validation (not written without --force)
@@ -834,7 +837,7 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
         if stage is None:
             log("learned stage: none written (the 5x5 filter alone scored best in cross-validation)")
         model = dataclasses.replace(model, learned=stage, description=model.description + (
-            f"; learned stage: {c.name if stage is not None else 'none, the filter alone'} (of {', '.join(x.name for x in l_info['choices'])}) by {l_info['folds']}-fold cross-validation"
+            f"{LEARNED_MARK}{c.name if stage is not None else 'none, the filter alone'} (of {', '.join(x.name for x in l_info['choices'])}) by {l_info['folds']}-fold cross-validation"
             + ("" if by == "time" else " (folds by camera)") + ": "
             + "; ".join(x.line() for x in l_info["choices"])))
     elif model.learned is not None:
