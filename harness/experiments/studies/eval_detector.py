@@ -433,6 +433,29 @@ def run(args) -> int:
         if problem:
             raise ValueError(problem)
         model = replace(model, learned=replace(model.learned, **{name: value}))
+    # the options' values before any image is read (reading and sorting the balls by colour takes a while)
+    if args.max_images is not None and args.max_images < 1:
+        raise ValueError(f"--max-images must be a positive number of images, got {args.max_images}")
+    if args.max_candidates < 1:
+        raise ValueError(f"--max-candidates must be a positive number of candidates, got {args.max_candidates}")
+    for name in ("t_high", "t_low"):
+        v = getattr(args, name)
+        if v is not None and not 0.0 < v < 1.0:
+            raise ValueError(f"--{name.replace('_', '-')} must be a probability in (0, 1), got {v}")
+    t_high = model.t_high if args.t_high is None else args.t_high
+    t_low = model.t_low if args.t_low is None else args.t_low
+    if not t_low < t_high:
+        raise ValueError(f"need T_l < T_h, got T_l={t_low:g} and T_h={t_high:g} (--t-low/--t-high and the model's defaults combined)")
+    ball_free_margin = BALL_FREE_MARGIN_PX if getattr(args, "ball_free", False) else None
+    area_px = None
+    if getattr(args, "ball_diameter_px", None) is not None:
+        text = str(args.ball_diameter_px)
+        try:
+            lo, hi = (float(t) for t in text.split(":"))
+        except ValueError:
+            raise ValueError(f"--ball-diameter-px must be LO:HI in pixels (e.g. 20:60), got {text!r}") from None
+        area_px = area_from_diameters(model, (lo, hi))
+    learned_threshold = learned_threshold_of(model, getattr(args, "learned_threshold", None))
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if getattr(args, "camera", None):  # before --time-range: the time order is one camera's
         labelled = select_cameras(labelled, args.camera)
@@ -455,24 +478,6 @@ def run(args) -> int:
     warmup = frames_before(every, labelled) if motion_cue is not None else []
     colour = model.ball_colour if args.ball_colour == "model" else args.ball_colour
     labelled = select_ball_colour(labelled, colour, progress=True)
-    for name in ("t_high", "t_low"):
-        v = getattr(args, name)
-        if v is not None and not 0.0 < v < 1.0:
-            raise ValueError(f"--{name.replace('_', '-')} must be a probability in (0, 1), got {v}")
-    t_high = model.t_high if args.t_high is None else args.t_high
-    t_low = model.t_low if args.t_low is None else args.t_low
-    if not t_low < t_high:
-        raise ValueError(f"need T_l < T_h, got T_l={t_low:g} and T_h={t_high:g} (--t-low/--t-high and the model's defaults combined)")
-    ball_free_margin = BALL_FREE_MARGIN_PX if getattr(args, "ball_free", False) else None
-    area_px = None
-    if getattr(args, "ball_diameter_px", None) is not None:
-        text = str(args.ball_diameter_px)
-        try:
-            lo, hi = (float(t) for t in text.split(":"))
-        except ValueError:
-            raise ValueError(f"--ball-diameter-px must be LO:HI in pixels (e.g. 20:60), got {text!r}") from None
-        area_px = area_from_diameters(model, (lo, hi))
-    learned_threshold = learned_threshold_of(model, getattr(args, "learned_threshold", None))
     scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low,
                       ball_free_margin_px=ball_free_margin, area_px=area_px, learned_threshold=learned_threshold, motion_cue=motion_cue,
                       cue_warmup=warmup)

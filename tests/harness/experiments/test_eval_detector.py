@@ -213,6 +213,31 @@ def test_learned_threshold_refuses_what_is_no_probability(synthetic_ball_coco, c
     assert f"--learned-threshold must be a probability in (0, 1) or 'track', got {value!r}" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("option, message", [
+    (["--max-candidates", "0"], "--max-candidates must be a positive number of candidates, got 0"),
+    (["--max-images", "0"], "--max-images must be a positive number of images, got 0"),
+    (["--max-images", "-3"], "--max-images must be a positive number of images, got -3"),
+    (["--learned-threshold", "1.5"], "--learned-threshold must be a probability in (0, 1) or 'track', got '1.5'"),
+    (["--ball-diameter-px", "40:10"], "--ball-diameter-px must be LO:HI with 0 < LO <= HI"),
+    (["--t-high", "2"], "--t-high must be a probability in (0, 1), got 2"),
+])
+def test_option_values_are_refused_before_any_image_is_read(synthetic_ball_coco, tmp_path, capsys, option, message):
+    """A wrong option value is named at once, not after the images were read and sorted by colour (slow on a large
+    set): a set whose images cannot be read shows which comes first."""
+    import shutil
+
+    data = tmp_path / "unreadable"
+    shutil.copytree(synthetic_ball_coco(30, 1), data)
+    for image in data.glob("*.png"):
+        image.write_bytes(b"not a png")
+    args = ["eval", "detector", "--data", str(data), "--model", "data/models/ball_seg_white.npz", *option]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert main(["eval", "detector", "--data", str(data), "--model", "data/models/ball_seg_white.npz"]) == 2
+    assert "f000000_cam0.png" in capsys.readouterr().err  # the images' own error, where the options are right
+
+
 @pytest.mark.parametrize("model, value, message", [
     ("data/models/ball_seg_white.npz", "-1", "--coarse-side must be 0 (one pass) or a side of 64 px up to below the stage's full scale (960 px), got -1"),
     ("data/models/ball_seg_white.npz", "63", "--coarse-side must be 0 (one pass) or a side of 64 px up to below the stage's full scale (960 px), got 63"),
