@@ -59,6 +59,8 @@ def coarse_side_of(max_side: int) -> int:
 
 #: the smallest coarse side an option may ask for (a coarse pass of fewer pixels holds no ball's peak)
 MIN_COARSE_SIDE_PX = 64
+#: the smallest ``--max-side-px``: its default coarse pass (:func:`coarse_side_of`) no smaller than ``MIN_COARSE_SIDE_PX``
+MIN_MAX_SIDE_PX = 3 * MIN_COARSE_SIDE_PX // 2
 
 
 def coarse_side_problem(value: int, max_side: int, bound: str) -> str | None:
@@ -506,6 +508,18 @@ def run(args) -> int:
     check_output_file(out, "--out", suffix=".npz")
     if args.confirm_steps < 0:
         raise ValueError(f"--confirm-steps must be 0 (none) or more, got {args.confirm_steps}")
+    # the frames' and the heat network's options before any frame is read (making the frames takes minutes)
+    if args.stage_from is None and args.steps < 1:
+        raise ValueError(f"--steps must be a positive number of optimiser steps, got {args.steps}")
+    if args.semireal_sets < 0:
+        raise ValueError(f"--semireal-sets must be 0 (none) or more, got {args.semireal_sets}")
+    if args.frames_per_video < 1:
+        raise ValueError(f"--frames-per-video must be a positive number of frames, got {args.frames_per_video}")
+    if args.stage_from is None and args.max_side_px < MIN_MAX_SIDE_PX:  # a kept stage keeps its own side
+        raise ValueError(f"--max-side-px must be at least {MIN_MAX_SIDE_PX} px (a whole frame's coarse pass, two thirds of it, "
+                         f"needs {MIN_COARSE_SIDE_PX}), got {args.max_side_px}")
+    if args.renders is not None and not Path(args.renders).exists():
+        raise ValueError(f"--renders {args.renders}: no such folder or label file")
     if args.stage_from is not None and not Path(args.stage_from).is_file():
         raise ValueError(f"--stage-from {args.stage_from}: no such model file")
     max_side, side_of = args.max_side_px, f"--max-side-px ({args.max_side_px})"

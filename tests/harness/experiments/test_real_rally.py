@@ -349,6 +349,15 @@ def test_train_shipped_shares_bad_values_are_one_line(tmp_path, capsys, option, 
      "--arch is the learned stage's training: a --stage-from stage is kept as it is, not trained again"),
     (["--hard-pastes", "0.5", "--confirm-steps", "0", "--stage-from", "data/models/ball_seg_white.npz"],
      "--hard-pastes shapes the training frames: with --stage-from and --confirm-steps 0 nothing is trained"),
+    # the frames' and the heat network's options, refused before the frames are made (they were found minutes later, or
+    # under another option's name: --frames-per-video 0 as "--background-frames")
+    (["--steps", "0"], "--steps must be a positive number of optimiser steps, got 0"),
+    (["--steps", "-5"], "--steps must be a positive number of optimiser steps, got -5"),
+    (["--semireal-sets", "-1"], "--semireal-sets must be 0 (none) or more, got -1"),
+    (["--frames-per-video", "0"], "--frames-per-video must be a positive number of frames, got 0"),
+    (["--max-side-px", "10"], "--max-side-px must be at least 96 px (a whole frame's coarse pass, two thirds of it, needs 64), got 10"),
+    (["--max-side-px", "95"], "--max-side-px must be at least 96 px (a whole frame's coarse pass, two thirds of it, needs 64), got 95"),
+    (["--renders", "no/such/renders"], "--renders no/such/renders: no such folder or label file"),
 ])
 def test_train_shipped_confirmation_options_bad_values_are_one_line(tmp_path, capsys, args, message):
     assert main(["train-shipped", "--colour", "white", *args, "--out", str(tmp_path / "m.npz")]) == 2
