@@ -247,11 +247,16 @@ def run(args) -> int:
 
     if args.repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
+    if args.roi_half_size_px < 1:
+        raise ValueError(f"--roi-half-size-px must be >= 1, got {args.roi_half_size_px}")
     model = BallSegmentationModel.load(args.model)
     image, center, what = _bench_image(args.data, args.seed, "white" if model.ball_colour == "white" else "orange",
                                        finds=lambda im, c: len(_window_detector(model, args.roi_half_size_px).detect(im, _window(im, c, args.roi_half_size_px))) > 0)
-    rows, breakdown = bench(model, image, center, repeats=args.repeats, roi_half_size_px=args.roi_half_size_px)
     side = 2 * args.roi_half_size_px
+    if side >= min(image.shape[:2]):  # the window would be the whole frame: the ROI rows would time the full frame again
+        raise ValueError(f"--roi-half-size-px {args.roi_half_size_px}: a {side}x{side} window is not smaller than the "
+                         f"{image.shape[1]}x{image.shape[0]} frame ({what}); give less than {min(image.shape[:2]) // 2}")
+    rows, breakdown = bench(model, image, center, repeats=args.repeats, roi_half_size_px=args.roi_half_size_px)
     print(f"ball detector, one thread, {image.shape[1]}x{image.shape[0]} frame ({what}); ROI {side}x{side}; medians of {args.repeats} (ROI: {10 * args.repeats}) runs")
     print(f"{'mode':<5} {'backend':<40} {'median ms':>10}")
     for r in rows + breakdown:

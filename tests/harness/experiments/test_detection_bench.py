@@ -85,10 +85,21 @@ def test_bench_frame_from_a_coco_set(tmp_path, synthetic_ball_coco, capsys):
     assert {(r["mode"], r["backend"]) for r in json.loads(out.read_text())} == ROWS
 
 
-def test_bench_bad_input(tmp_path, capsys):
+@pytest.mark.parametrize("args, message", [
+    (["--repeats", "0"], "--repeats must be >= 1"),
+    (["--roi-half-size-px", "0"], "--roi-half-size-px must be >= 1, got 0"),
+    (["--roi-half-size-px", "-4"], "--roi-half-size-px must be >= 1, got -4"),
+    # the window as large as the frame (96x128 here) or larger: the ROI rows would time the full frame again
+    (["--roi-half-size-px", "48"], "--roi-half-size-px 48: a 96x96 window is not smaller than the 128x96 frame"),
+    (["--roi-half-size-px", "100000"], "--roi-half-size-px 100000: a 200000x200000 window is not smaller than the 128x96 frame"),
+])
+def test_bench_bad_input(tmp_path, synthetic_ball_coco, capsys, args, message):
     model = hand_made_model().save(tmp_path / "hand.npz")
-    assert main(["bench", "detector", "--model", str(model), "--repeats", "0"]) == 2
-    assert "--repeats must be >= 1" in capsys.readouterr().err
+    out = tmp_path / "bench.json"
+    assert main(["bench", "detector", "--model", str(model), "--data", str(synthetic_ball_coco(30, 0)), "--repeats", "2", *args,
+                 "--json", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and not out.exists()
 
 
 def test_bench_of_the_white_model_times_a_white_ball_it_finds(tmp_path, capsys):
