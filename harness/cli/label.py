@@ -184,9 +184,9 @@ def run_auto(args) -> int:
         raise ValueError("--auto needs --source SPEC (replay LOG.mcap, video DIR) and --rig RIG (the recording's calibration)")
     if args.every < 1 or args.max_frames < 1:
         raise ValueError(f"--every and --max-frames must be positive integers, got {args.every}, {args.max_frames}")
-    options = AutoOptions(min_support=args.min_support, max_reprojection_px=args.max_reprojection, flight_window=args.flight_window,
-                          max_flight_residual_m=args.max_flight_residual, max_size_ratio=args.max_size_ratio, trim_px=args.trim,
-                          second_look=args.second_look, recentre=args.recentre, smooth_window=args.smooth_window)
+    options = AutoOptions.from_flags(min_support=args.min_support, max_reprojection_px=args.max_reprojection, flight_window=args.flight_window,
+                                     max_flight_residual_m=args.max_flight_residual, max_size_ratio=args.max_size_ratio, trim_px=args.trim,
+                                     second_look=args.second_look, recentre=args.recentre, smooth_window=args.smooth_window)
     out = Path(args.out)
     if (out / "annotations.json").exists():
         raise ValueError(f"--out {args.out!r} already holds annotations.json: --auto writes a new data set folder")

@@ -79,6 +79,10 @@ __all__ = ["AutoOptions", "FrameSetLabels", "auto_label", "centring", "flight_co
 
 
 _INTEGER_OPTIONS = frozenset({"min_support", "flight_window", "max_candidates", "smooth_window"})  #: of AutoOptions
+#: the options of ``rt2 label --auto`` (and ``rt2 eval autolabel``), by the :class:`AutoOptions` field each fills
+FLAGS = {"min_support": "--min-support", "max_reprojection_px": "--max-reprojection", "flight_window": "--flight-window",
+         "max_flight_residual_m": "--max-flight-residual", "max_size_ratio": "--max-size-ratio", "trim_px": "--trim",
+         "smooth_window": "--smooth-window", "second_look": "--second-look", "recentre": "--recentre"}
 
 
 @dataclass(frozen=True)
@@ -125,6 +129,18 @@ class AutoOptions:
     second_look_scale: float = 0.5
     smooth_window: int = 8
     smooth_max_rms_m: float = 0.01
+
+    @classmethod
+    def from_flags(cls, **given) -> "AutoOptions":
+        """The options of ``rt2 label --auto`` (and the study that measures it), ``given`` by field; a bad value's
+        error names the command's option (``FLAGS``), not the field it fills."""
+        try:
+            return cls(**given)
+        except ValueError as e:
+            message = str(e)
+            for field, flag in FLAGS.items():
+                message = message.replace(f"AutoOptions.{field} ", f"{flag} ")
+            raise ValueError(message) from None
 
     def __post_init__(self):
         checks = [("min_support", lambda v: v >= 3, "an integer >= 3 (two cameras always meet somewhere)"),

@@ -394,8 +394,8 @@ def run(args) -> int:
     if args.train_out is not None:
         check_output_file(args.train_out, "--train-out", suffix=".npz")
     given = {"max_size_ratio": args.max_size_ratio, "trim_px": args.trim}
-    options = AutoOptions(flight_window=args.flight_window, second_look=args.second_look, recentre=args.recentre,
-                          smooth_window=args.smooth_window, **{k: v for k, v in given.items() if v is not None})
+    options = AutoOptions.from_flags(flight_window=args.flight_window, second_look=args.second_look, recentre=args.recentre,
+                                     smooth_window=args.smooth_window, **{k: v for k, v in given.items() if v is not None})
     ball = ball_options(args.scene, args.ball, args.ball_crops, args.crop_frames)
     if args.train_held_out is not None:  # checked before the consensus pass, not after it
         names = _scene_rig_names(args.scene)

@@ -155,13 +155,15 @@ HOSTILE = [
     (["--source", "video", "ROOT/nothing", "--rig", "lab4_vga"], r"--source video .*nothing: no such folder"),
     (["--source", "sim", "--rig", "lab4_vga"], r"--source sim: rt2 label --auto reads a recording"),
     (["--source", "replay", "LOG"], r"--auto needs --source SPEC .* and --rig RIG"),
-    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--min-support", "2"], r"AutoOptions.min_support must be an integer >= 3"),
-    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--flight-window", "-1"], r"AutoOptions.flight_window must be"),
-    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--smooth-window", "51"], r"AutoOptions.smooth_window must be an integer in \[0, 50\], got 51"),
-    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--max-size-ratio", "0.5"], r"AutoOptions.max_size_ratio must be in \[1, 10\], got 0.5"),
-    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--max-size-ratio", "nan"], r"AutoOptions.max_size_ratio must be in \[1, 10\], got nan"),
-    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--trim", "0"], r"AutoOptions.trim_px must be in \(0, 50\] px, got 0.0"),
-    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--trim", "nan"], r"AutoOptions.trim_px must be in \(0, 50\] px, got nan"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--min-support", "2"], r"--min-support must be an integer >= 3"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--flight-window", "-1"], r"--flight-window must be"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--smooth-window", "51"], r"--smooth-window must be an integer in \[0, 50\], got 51"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--max-size-ratio", "0.5"], r"--max-size-ratio must be in \[1, 10\], got 0.5"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--max-size-ratio", "nan"], r"--max-size-ratio must be in \[1, 10\], got nan"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--trim", "0"], r"--trim must be in \(0, 50\] px, got 0.0"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--trim", "nan"], r"--trim must be in \(0, 50\] px, got nan"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--max-reprojection", "-1"], r"--max-reprojection must be in \(0, 50\] px, got -1.0"),
+    (["--source", "replay", "LOG", "--rig", "lab4_vga", "--max-flight-residual", "-1"], r"--max-flight-residual must be in \(0, 1\] m, got -1.0"),
     (["--source", "replay", "LOG", "--rig", "lab4_vga", "--out", "ROOT/taken"], r"already holds annotations.json"),
     (["--source", "replay", "LOG", "--rig", "nosuchrig"], r"nosuchrig"),
     (["SOURCE", "--source", "replay", "LOG", "--rig", "lab4_vga"], r"--auto takes the recording as --source SPEC"),
@@ -214,6 +216,19 @@ def test_eval_autolabel_refuses_an_unknown_held_out_camera_before_the_work(tmp_p
     assert main(["eval", "autolabel", "--scene", "lab", "--frames", "5", "--train-held-out", "cam9"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["rt2 eval autolabel: error: --train-held-out 'cam9': the lab rig's cameras are ['cam0', 'cam1', 'cam2', 'cam3']"]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--trim", "-3"], "--trim must be in (0, 50] px, got -3.0"),
+    (["--max-size-ratio", "0.5"], "--max-size-ratio must be in [1, 10], got 0.5"),
+    (["--flight-window", "51"], "--flight-window must be an integer in [0, 50], got 51"),
+    (["--smooth-window", "-1"], "--smooth-window must be an integer in [0, 50], got -1"),
+])
+def test_eval_autolabel_names_the_option_of_a_bad_value(tmp_path, capsys, args, message):
+    """The study takes rt2 label --auto's options: a bad value is named by the option, as the command names it."""
+    assert main(["eval", "autolabel", "--scene", "lab", "--frames", "5", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"rt2 eval autolabel: error: {message}"]
 
 
 def test_eval_autolabel_held_out_training_that_finds_no_ball_is_one_line_not_a_figure(monkeypatch, capsys):
