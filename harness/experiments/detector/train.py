@@ -113,6 +113,15 @@ def _check_workers(workers) -> None:
         raise ValueError(f"--workers must be an integer >= 1, got {workers!r}")
 
 
+#: ``rt2 train``'s options, by the :class:`TrainOptions` field each fills
+TRAIN_FLAGS = {"epochs": "--epochs", "seed": "--seed", "val_fraction": "--val-fraction", "input_transform": "--input-transform",
+               "ball_colour": "--ball-colour", "core_fraction": "--core-fraction", "augment_copies": "--augment",
+               "threshold_choice": "--thresholds", "cv_folds": "--cv-folds", "verifier": "--verifier", "keep_base": "--keep-base",
+               "learned": "--learned", "learned_folds": "--learned-folds", "learned_folds_by": "--learned-folds-by",
+               "learned_steps": "--learned-steps", "learned_mined": "--learned-mined", "filter": "--filter", "allow_no_ball": "--force",
+               "workers": "--workers"}
+
+
 @dataclass(frozen=True)
 class TrainOptions:
     """Options of :func:`train`.
@@ -201,6 +210,18 @@ class TrainOptions:
     filter: str = "auto"
     allow_no_ball: bool = False
     workers: int | None = 1
+
+    @classmethod
+    def from_flags(cls, **given) -> "TrainOptions":
+        """``rt2 train``'s options, ``given`` by field; a bad value's error names the command's option
+        (``TRAIN_FLAGS``), not the field it fills."""
+        try:
+            return cls(**given)
+        except ValueError as e:
+            message = str(e).replace("TrainOptions.filter 'keep' with learned 'off'", "--filter keep with --learned off")
+            for field, flag in TRAIN_FLAGS.items():
+                message = message.replace(f"TrainOptions.{field} ", f"{flag} ")
+            raise ValueError(message) from None
 
     def __post_init__(self):
         _check_workers(self.workers)
@@ -1159,7 +1180,18 @@ def run(args) -> int:
     out = Path(args.out)
     check_output_file(out, "--out", suffix=".npz")  # before the training, not after
     _check_workers(args.workers)  # before the images are read
+    if args.max_images is not None and args.max_images < 1:
+        raise ValueError(f"--max-images must be a positive number of images, got {args.max_images}")
     base, origin = resolve_base(args.from_model, args.ball_colour)
+    augment = args.augment if args.augment is not None else (3 if base is not None else 0)
+    seeds = args.seeds if args.seeds else [args.seed]
+    # every option's value checked before the images are read, each named by its option
+    options = TrainOptions.from_flags(epochs=args.epochs, seed=seeds[0], val_fraction=args.val_fraction, input_transform=args.input_transform,
+                                      ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
+                                      threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
+                                      keep_base=args.keep_base, learned=args.learned, learned_folds=args.learned_folds,
+                                      learned_folds_by=args.learned_folds_by, learned_steps=args.learned_steps,
+                                      learned_mined=args.learned_mined, filter=args.filter, allow_no_ball=args.force, workers=args.workers)
     labelled = [li for path in args.data for li in read_labels(path, args.label_format)]
     if args.camera:  # before --time-range: the time order is one camera's (as rt2 eval detector --camera)
         labelled = select_cameras(labelled, args.camera)
@@ -1170,23 +1202,15 @@ def run(args) -> int:
         labelled = keep_supported(labelled, args.data, args.min_support)
     if args.max_images is not None:
         labelled = labelled[: args.max_images]
-    augment = args.augment if args.augment is not None else (3 if base is not None else 0)
     from harness.experiments.detector.backgrounds import read_backgrounds
 
     backgrounds = read_backgrounds(args.backgrounds, args.background_frames, load_image=load_image) if args.backgrounds else []
-    seeds = args.seeds if args.seeds else [args.seed]
     cmd = "rt2 " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["train"] else "rt2 train"
     print(f"training from {origin} on {len(labelled)} images" + (f" + {len(backgrounds)} ball-free backgrounds" if backgrounds else "")
           + f", {augment} augmented copies each, seeds {seeds}")
     results = []
     for seed in seeds:
-        opts = TrainOptions(epochs=args.epochs, seed=seed, val_fraction=args.val_fraction, input_transform=args.input_transform,
-                            ball_colour=args.ball_colour, core_fraction=args.core_fraction, augment_copies=augment,
-                            threshold_choice=args.thresholds, cv_folds=args.cv_folds, verifier=args.verifier,
-                            keep_base=args.keep_base, learned=args.learned, learned_folds=args.learned_folds,
-                            learned_folds_by=args.learned_folds_by,
-                            learned_steps=args.learned_steps, learned_mined=args.learned_mined, filter=args.filter, allow_no_ball=args.force,
-                            workers=args.workers)
+        opts = dataclasses.replace(options, seed=seed)
         picked = ([f"cameras {' '.join(args.camera)}"] if args.camera else []) + ([f"time range {args.time_range}"] if args.time_range else [])
         sources = f"data {', '.join(map(str, args.data))}" + (f" ({', '.join(picked)})" if picked else "")
         if backgrounds:

@@ -267,13 +267,13 @@ def test_which_filter_train_keeps():
 
 def test_learned_options_hostile(synthetic_ball_coco, tmp_path, capsys):
     data = str(synthetic_ball_coco(12, 3))
-    for extra, message in ((["--learned", "maybe"], "invalid choice"), (["--learned-steps", "0"], "learned_steps"),
-                           (["--learned-folds", "1"], "learned_folds"), (["--filter", "maybe"], "invalid choice"),
-                           (["--filter", "keep", "--learned", "off"], "trains nothing"),
+    for extra, message in ((["--learned", "maybe"], "invalid choice"), (["--learned-steps", "0"], "--learned-steps must be a positive integer, got 0"),
+                           (["--learned-folds", "1"], "--learned-folds must be an integer >= 2, got 1"), (["--filter", "maybe"], "invalid choice"),
+                           (["--filter", "keep", "--learned", "off"], "--filter keep with --learned off trains nothing"),
                            (["--filter", "keep", "--from", "none"], "there is no base model"),
-                           (["--learned-mined", "1.5"], "learned_mined must be 'auto' or a share between 0 and 1"),
-                           (["--learned-mined", "-0.1"], "learned_mined must be 'auto' or a share between 0 and 1"),
-                           (["--learned-mined", "nan"], "learned_mined must be 'auto' or a share between 0 and 1"),
+                           (["--learned-mined", "1.5"], "--learned-mined must be 'auto' or a share between 0 and 1"),
+                           (["--learned-mined", "-0.1"], "--learned-mined must be 'auto' or a share between 0 and 1"),
+                           (["--learned-mined", "nan"], "--learned-mined must be 'auto' or a share between 0 and 1"),
                            (["--learned-mined", "maybe"], "must be 'auto' or a share between 0 and 1, got 'maybe'"),
                            (["--workers", "0"], "--workers must be an integer >= 1, got 0"),
                            (["--workers", "-2"], "--workers must be an integer >= 1, got -2"),

@@ -213,6 +213,30 @@ def test_cli_writes_a_loadable_model(synthetic_ball_coco, tmp_path, capsys):
 
 
 # -- bad input ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("option, message", [
+    (["--epochs", "0"], "--epochs must be >= 1, got 0"),
+    (["--augment", "-1"], "--augment must be an integer >= 0, got -1"),
+    (["--val-fraction", "1.5"], "--val-fraction must be in (0, 1), got 1.5"),
+    (["--core-fraction", "0"], "--core-fraction must be in (0, 1], got 0.0"),
+    (["--cv-folds", "1"], "--cv-folds must be an integer >= 2, got 1"),
+    (["--learned-steps", "0", "--learned", "on"], "--learned-steps must be a positive integer, got 0"),
+    (["--max-images", "0"], "--max-images must be a positive number of images, got 0"),
+])
+def test_cli_option_values_are_named_by_their_option_before_any_image_is_read(synthetic_ball_coco, tmp_path, capsys, option, message):
+    """A wrong value is named by the option the user typed (not the TrainOptions field it fills) and before the
+    images are read: a set whose images cannot be read shows which comes first."""
+    import shutil
+
+    data = tmp_path / "unreadable"
+    shutil.copytree(synthetic_ball_coco(12, 3), data)
+    for image in data.glob("*.png"):
+        image.write_bytes(b"not a png")
+    assert main(["train", "--data", str(data), "--out", str(tmp_path / "m.npz"), *option]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "TrainOptions" not in err and "Traceback" not in err
+    assert not (tmp_path / "m.npz").exists()
+
+
 def test_cli_bad_inputs(synthetic_ball_coco, tmp_path, capsys):
     good = synthetic_ball_coco(30, 0)
     assert main(["train", "--data", str(good), "--out", str(tmp_path / "m.pt")]) == 2
