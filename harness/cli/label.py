@@ -104,6 +104,12 @@ def run(args) -> int:
         raise ValueError(f"--train-learned-steps must be >= 1, got {args.train_learned_steps}")
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port must be in [0, 65535], got {args.port}")
+    if args.train_seed < 0:  # the page's Train would fail at the user's first click
+        raise ValueError(f"--train-seed must be >= 0, got {args.train_seed}")
+    if args.suggestions < 1:
+        raise ValueError(f"--suggestions must be >= 1, got {args.suggestions}")
+    if args.min_train < 3:
+        raise ValueError(f"--min-train must be >= 3 (rt2 train holds out frames for validation), got {args.min_train}")
     train_args = (["--seed", str(args.train_seed)] + ([] if args.train_epochs is None else ["--epochs", str(args.train_epochs)])
                   + ([] if args.train_learned_steps is None else ["--learned-steps", str(args.train_learned_steps)]))
     options = LabelOptions(n_suggestions=args.suggestions, min_train_labels=args.min_train, train_args=tuple(train_args),

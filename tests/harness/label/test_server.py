@@ -295,7 +295,8 @@ HOSTILE = [
 ]
 
 
-@pytest.mark.parametrize("option, value", [("--train-epochs", "0"), ("--train-learned-steps", "0"), ("--port", "70000")])
+@pytest.mark.parametrize("option, value", [("--train-epochs", "0"), ("--train-learned-steps", "0"), ("--port", "70000"),
+                                           ("--train-seed", "-1"), ("--suggestions", "0"), ("--min-train", "2"), ("--confirm-below", "1.5")])
 def test_hostile_options_are_one_line_exit_2(ball_folder, tmp_path, capsys, option, value):
     assert rt2_main(["label", str(ball_folder), "--out", str(tmp_path / "o"), option, value]) == 2
     err = capsys.readouterr().err.strip().splitlines()
