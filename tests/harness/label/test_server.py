@@ -366,7 +366,7 @@ BAD_SOURCES = [
     (["LOG", "--every", "0"], "--every must be a positive integer"),
     (["LOG", "--model", "missing.npz"], "missing.npz"),
     (["LOG", "--port", "70000"], r"--port must be in \[0, 65535\]"),
-    (["LOG", "--min-train", "1"], "min_train_labels >= 3"),
+    (["LOG", "--min-train", "1"], r"--min-train must be >= 3 \(rt2 train holds out frames for validation\), got 1"),
 ]
 
 
