@@ -20,6 +20,8 @@ import re
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+from harness.logs.writer import LogError, check_log_images
+
 __all__ = ["DEFAULT_MAX_BACKLOG", "DEFAULT_WORKERS", "NEXT_PORT", "SIM_RENDER", "ConfigError", "TrackConfig", "check_output_path"]
 
 #: frame sets that may wait for the tracker before the oldest is skipped (``max_backlog``); chosen with
@@ -137,8 +139,8 @@ class TrackConfig:
         src = " ".join(self.source)
         if not _number(self.rate_hz) or not self.rate_hz > 0:
             raise ConfigError("rate_hz", f"{{rate_hz}} must be a positive number, got {self.rate_hz}")
-        if not _whole(self.seed):
-            raise ConfigError("seed", f"{{seed}} must be a whole number, got {self.seed!r}")
+        if not _whole(self.seed) or self.seed < 0:  # the sim source's seeds are numpy's: none below 0
+            raise ConfigError("seed", f"{{seed}} must be a whole number >= 0, got {self.seed!r}")
         if self.prerender_s is not None:
             if not sim:
                 raise ConfigError("prerender_s", f"{{prerender_s}} applies to the sim source only, got {{source}} {src}")
@@ -197,6 +199,11 @@ class TrackConfig:
             raise ConfigError("foxglove_port", f"{{foxglove_port}} must be a port number 0..65535 or None, got {self.foxglove_port!r}")
         if not isinstance(self.log_overwrite, bool):
             raise ConfigError("log_overwrite", f"{{log_overwrite}} must be True or False, got {self.log_overwrite!r}")
+        try:
+            check_log_images(self.log_images)
+        except LogError:
+            raise ConfigError("log_images", f"{{log_images}} must be 'all', 'none' or a positive integer N (every N-th frame set), "
+                                            f"got {self.log_images!r}") from None
 
     @property
     def queue_len(self) -> int:
