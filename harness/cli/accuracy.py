@@ -72,15 +72,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--no-log", action="store_true", help="write no session log")
 
 
+#: the options of ``rt2 accuracy`` (and ``rt2 demo``), by the :class:`AccuracyConfig` field each fills
+FLAGS = {"seed": "--seed", "n_frames": "--frames", "rate_hz": "--rate-hz", "rig": "--rig", "model": "--model", "trackers": "--trackers",
+         "eps_px": "--eps-px", "inject_faults": "--inject-faults", "scene": "--scene", "robot": "--robot"}
+
+
 def config_from_args(args) -> AccuracyConfig:
     frames = args.frames if args.frames is not None else (QUICK_FRAMES if args.quick else DEFAULT_FRAMES)
     if args.model is not None and not Path(args.model).is_file():
         raise FileNotFoundError(f"--model {args.model!r}: no such file")
     arm = "wam" if args.robot is None or is_link_address(args.robot) else args.robot
     load_arm(arm)  # a bad arm: one line naming the file and field, before anything runs
-    config = AccuracyConfig(seed=args.seed, n_frames=frames, rate_hz=args.rate_hz, rig=args.rig, model=args.model,
-                            trackers=tuple(args.trackers), eps_px=args.eps_px, inject_faults=args.inject_faults,
-                            scene=SCENES[args.scene], robot=arm)
+    try:
+        config = AccuracyConfig(seed=args.seed, n_frames=frames, rate_hz=args.rate_hz, rig=args.rig, model=args.model,
+                                trackers=tuple(args.trackers), eps_px=args.eps_px, inject_faults=args.inject_faults,
+                                scene=SCENES[args.scene], robot=arm)
+    except ValueError as e:  # named by the option the user gave, not by the field it fills
+        message = str(e)
+        for field, flag in FLAGS.items():
+            message = message.replace(f"AccuracyConfig.{field} ", f"{flag} ")
+        raise ValueError(message) from None
     if args.reprojection_px is not None:
         if args.ideal or args.no_calibration_error:
             raise ValueError("--reprojection-px sets the calibration error: it cannot go with --ideal or --no-calibration-error")

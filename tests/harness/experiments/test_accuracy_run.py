@@ -143,14 +143,18 @@ def test_cli_ideal_switches_the_realism_off(accuracy_session, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, match", [
-    (["--frames", "5"], "n_frames must be an integer >= 20"),
+    (["--frames", "5"], "--frames must be an integer >= 20, got 5"),
+    (["--seed", "-1"], "--seed must be an integer >= 0, got -1"),
+    (["--eps-px", "-1"], "--eps-px must be a positive number of pixels"),
+    (["--trackers", "rt2", "rt2"], "--trackers must be distinct kinds of"),
+    (["--rate-hz", "0"], "--rate-hz must be in [1, 10000] Hz, got 0.0"),
     (["--model", "/nonexistent/model.npz"], "no such file"),
     (["--log-images", "sometimes"], "log_images must be"),
 ])
 def test_cli_bad_input_is_one_line(argv, match, tmp_path, capsys):
     code = main(["accuracy", "--workers", "1", "--out", str(tmp_path), *argv])
     err = capsys.readouterr().err
-    assert code == 2 and match in err and "Traceback" not in err
+    assert code == 2 and match in err and "Traceback" not in err and "AccuracyConfig" not in err
 
 
 def test_missing_model_is_named(tmp_path):

@@ -190,6 +190,7 @@ def test_plan_latency_plans_ahead_and_is_reproducible(default_play, tmp_path):
 # ----------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize("argv, match", [
     (["--balls", "0"], "--balls must be >= 1"),
+    (["--seed", "-1"], "--seed must be >= 0, got -1"),
     (["--filter", "median"], "unknown filter 'median'"),
     (["--tracker", "vicon"], "unknown tracker 'vicon'"),
     (["--workers", "0"], "--workers must be >= 1"),
