@@ -82,14 +82,15 @@ def _build_parser(argv: list[str]) -> tuple[argparse.ArgumentParser, dict]:
     groups: dict[str, argparse._SubParsersAction] = {}
     leaves: dict[tuple[str, ...], argparse.ArgumentParser] = {}
     for words, (module, help_text) in COMMANDS.items():
+        listed = help_text.replace("%", "%%")  # a command's line in its group's list is a format string ("within 20 %")
         if len(words) == 1:
-            leaves[words] = top.add_parser(words[0], help=help_text, description=help_text)
+            leaves[words] = top.add_parser(words[0], help=listed, description=help_text)
             continue
         group = words[0]
         if group not in groups:
-            gp = top.add_parser(group, help=GROUP_HELP.get(group, ""))
+            gp = top.add_parser(group, help=GROUP_HELP.get(group, "").replace("%", "%%"))
             groups[group] = gp.add_subparsers(dest="subcommand", metavar="SUBCOMMAND", required=True)
-        leaves[words] = groups[group].add_parser(words[1], help=help_text, description=help_text)
+        leaves[words] = groups[group].add_parser(words[1], help=listed, description=help_text)
     # Import and configure only the command being run.
     for words, sub in leaves.items():
         if list(words) == argv[: len(words)]:
