@@ -98,6 +98,20 @@ def _build_parser(argv: list[str]) -> tuple[argparse.ArgumentParser, dict]:
     return parser, leaves
 
 
+#: the options that seed numpy's generators (which take no seed below 0), by their fields in the parsed options
+SEED_OPTIONS = {"seed": "--seed", "seeds": "--seeds", "train_seed": "--train-seed"}
+
+
+def _check_seeds(args) -> None:
+    """Every command's seeds before it runs: a seed below 0 named by its option (numpy's own error, "expected
+    non-negative integer", names none, and some commands would meet it only minutes into a run)."""
+    for field, flag in SEED_OPTIONS.items():
+        value = getattr(args, field, None)
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if isinstance(v, int) and not isinstance(v, bool) and v < 0:
+                raise ValueError(f"{flag} must be >= 0, got {v}")
+
+
 def main(argv: list[str] | None = None) -> int:
     if argv is None:  # a process of its own (not a call from a test): started by ReadyProcess, die with the parent
         from harness.common.spawn import die_with_parent_from_env
@@ -109,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     words = tuple(w for w in (args.command, getattr(args, "subcommand", None)) if w)
     cmd = " ".join(words)
     try:
+        _check_seeds(args)
         return int(importlib.import_module(COMMANDS[words][0]).run(args) or 0)
     except BrokenPipeError:  # output piped into `head` & co.: stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

@@ -104,8 +104,6 @@ def run(args) -> int:
         raise ValueError(f"--train-learned-steps must be >= 1, got {args.train_learned_steps}")
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port must be in [0, 65535], got {args.port}")
-    if args.train_seed < 0:  # the page's Train would fail at the user's first click
-        raise ValueError(f"--train-seed must be >= 0, got {args.train_seed}")
     if args.suggestions < 1:
         raise ValueError(f"--suggestions must be >= 1, got {args.suggestions}")
     if args.min_train < 3:

@@ -96,8 +96,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _check(args) -> None:
     if args.balls < 1:
         raise ValueError(f"--balls must be >= 1, got {args.balls}")
-    if args.seed < 0:  # the serves' and the noise's generators are numpy's: none below 0
-        raise ValueError(f"--seed must be >= 0, got {args.seed}")
     if args.rate_hz is not None and not args.rate_hz > 0:
         raise ValueError(f"--rate-hz must be > 0, got {args.rate_hz}")
     if args.latency_ms is not None and not 0 <= args.latency_ms < 1000:

@@ -248,7 +248,7 @@ def test_a_feed_with_a_camera_outside_the_assembler_keeps_its_readers():
     (["--sim-render-nice", "20"], "--sim-render-nice must be a whole number in [0, 19], got 20"),
     (["--sim-render-nice", "5", "--source", "replay", "x.mcap"], "--sim-render-nice applies to the sim source only"),
     # found by the sim source or the log writer once the service opened, under their own field names, before
-    (["--seed", "-1"], "--seed must be a whole number >= 0, got -1"),
+    (["--seed", "-1"], "--seed must be >= 0, got -1"),
     (["--log-images", "-1"], "--log-images must be 'all', 'none' or a positive integer N (every N-th frame set), got '-1'"),
 ])
 def test_bad_renderer_priority_on_the_command_line_is_one_line(capsys, tmp_path, args, message):
