@@ -58,6 +58,8 @@ def iter_frames(source, *, every: int = 1, max_frames: int | None = None):
     src = Path(source)
     if every < 1:
         raise ValueError(f"--every must be >= 1, got {every}")
+    if max_frames is not None and max_frames < 1:  # 0 read one frame before it stopped
+        raise ValueError(f"--max-frames must be >= 1, got {max_frames}")
     kept = 0
     if src.is_dir():
         files = sorted(p for p in src.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)

@@ -38,6 +38,8 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    if args.holdout_every < 0:  # 0 and 1: none held out
+        raise ValueError(f"--holdout-every must be >= 0 (0: none held out), got {args.holdout_every}")
     spec = load_board(args.board)
     names = args.names.split(",") if args.names else [Path(v).stem for v in args.videos]
     if len(names) != len(args.videos) or len(set(names)) != len(names):

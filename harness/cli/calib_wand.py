@@ -36,6 +36,8 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    if args.holdout_every < 0:  # 0 and 1: none held out
+        raise ValueError(f"--holdout-every must be >= 0 (0: none held out), got {args.holdout_every}")
     cal = calibrate_recording(args.recording, args.intrinsics, wand=args.wand, ball=args.ball, world_points=args.world_points,
                               reference=args.reference, holdout_every=args.holdout_every, every=args.every, seed=args.seed)
     written = save_calibration(cal.rig, cal.report, args, error=cal.error_px)

@@ -54,3 +54,23 @@ def test_board_not_seen_by_a_camera_is_named(real_data, tmp_path, capsys):
     code = main(["calib", "board", "--videos", *videos, "--board", str(wrong), "--every", "6", "--out", str(out)])
     assert code == 2 and not out.exists()
     assert "cam_0: 0 usable board views" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["intrinsics", "--images", "VIDEO0", "--board", "BOARD", "--out", "OUT", "--max-frames", "0"], "--max-frames must be >= 1, got 0"),
+    (["intrinsics", "--images", "VIDEO0", "--board", "BOARD", "--out", "OUT", "--every", "0"], "--every must be >= 1, got 0"),
+    (["board", "--videos", "VIDEO0", "VIDEO1", "--board", "BOARD", "--out", "OUT", "--holdout-every", "-1"],
+     "--holdout-every must be >= 0 (0: none held out), got -1"),
+    (["wand", "--recording", "VIDEO0", "--intrinsics", "BOARD", "--wand", "0.13,0.26", "--out", "OUT", "--holdout-every", "-2"],
+     "--holdout-every must be >= 0 (0: none held out), got -2"),
+])
+def test_calib_option_values_are_one_line_and_write_nothing(real_data, tmp_path, capsys, argv, message):
+    """A bad count is named by its option before a frame is calibrated: --max-frames 0 read one frame and then said it
+    had too few board views, --holdout-every below 0 was taken as none held out."""
+    root = real_data / "caliscope_4cam"
+    names = {"VIDEO0": root / "calibration" / "extrinsic" / "cam_0.mp4", "VIDEO1": root / "calibration" / "extrinsic" / "cam_1.mp4",
+             "BOARD": root / "charuco.toml", "OUT": tmp_path / "out.toml"}
+    assert main(["calib", *[str(names.get(a, a)) for a in argv]]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
