@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import signal
 import sys
@@ -62,6 +63,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ready-json", action="store_true", help="print the ready line as JSON")
 
 
+#: the largest --clock-skew-ms (a day: a test of the clock-offset estimate, not a clock that is off by years)
+MAX_CLOCK_SKEW_MS = 86_400_000.0
+
+
 def run(args) -> int:
     logging.basicConfig(level=logging.INFO, stream=sys.stderr,
                         format="%(asctime)s rt2 robot serve: %(levelname)s %(message)s")
@@ -77,10 +82,18 @@ def run(args) -> int:
                         ("--world-bind", args.world_bind)):
         if value is not None:
             check_endpoint(flag, value)  # bad input names the option the user typed
-    options = BridgeOptions(bind=args.bind, state_bind=args.state_bind, watchdog_s=args.watchdog,
-                            clock_skew_ns=int(round(args.clock_skew_ms * 1e6)), publish_truth=args.publish_truth,
-                            batch_ticks=args.batch,
-                            truth_bind=None if args.world else args.truth_stream)
+    if not math.isfinite(args.clock_skew_ms) or abs(args.clock_skew_ms) > MAX_CLOCK_SKEW_MS:
+        raise ValueError(f"--clock-skew-ms must be a number of milliseconds within +-{MAX_CLOCK_SKEW_MS:g}, got {args.clock_skew_ms!r}")
+    try:
+        options = BridgeOptions(bind=args.bind, state_bind=args.state_bind, watchdog_s=args.watchdog,
+                                clock_skew_ns=int(round(args.clock_skew_ms * 1e6)), publish_truth=args.publish_truth,
+                                batch_ticks=args.batch,
+                                truth_bind=None if args.world else args.truth_stream)
+    except ValueError as e:  # named by the option the user gave, not by the field it fills
+        message = str(e)
+        for field, flag in (("watchdog_s", "--watchdog"), ("batch_ticks", "--batch")):
+            message = message.replace(f"BridgeOptions.{field} ", f"{flag} ")
+        raise ValueError(message) from None
     if args.world == "play":
         from harness.experiments.play.world import WorldBridge, WorldOptions
 

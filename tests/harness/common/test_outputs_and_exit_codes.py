@@ -51,6 +51,20 @@ def test_robot_serve_names_the_bad_endpoint_option(flag, capsys):
     assert err == f"rt2 robot serve: error: {flag} must be a ZeroMQ endpoint like tcp://127.0.0.1:7650, got 'garbage'"
 
 
+@pytest.mark.parametrize("args, message", [
+    (["--watchdog", "-1"], "--watchdog must be in [0.01, 10] s, got -1.0"),
+    (["--watchdog", "nan"], "--watchdog must be in [0.01, 10] s, got nan"),
+    (["--batch", "0"], "--batch must be an integer in [1, 50], got 0"),
+    (["--clock-skew-ms", "nan"], "--clock-skew-ms must be a number of milliseconds within +-8.64e+07, got nan"),
+    (["--clock-skew-ms=-inf"], "--clock-skew-ms must be a number of milliseconds within +-8.64e+07, got -inf"),
+    (["--clock-skew-ms", "1e12"], "--clock-skew-ms must be a number of milliseconds within +-8.64e+07, got 1000000000000.0"),
+])
+def test_robot_serve_names_the_option_of_a_bad_value(args, message, capsys):
+    """Not the bridge's field (BridgeOptions.watchdog_s) nor Python's 'cannot convert float NaN to integer'."""
+    assert main(["robot", "serve", "--sim", "--duration", "1", *args]) == 2
+    assert capsys.readouterr().err.strip() == f"rt2 robot serve: error: {message}"
+
+
 @pytest.mark.parametrize("name, ok", [("m.npz", True), ("m.npz.tmp", False), ("m.NPZ", False), ("m", False), ("npz", False)])
 def test_an_output_of_the_wrong_kind_is_refused_before_its_folder_is_made(tmp_path, name, ok):
     from harness.common.outputs import OutputError, check_output_file
