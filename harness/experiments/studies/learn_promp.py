@@ -54,6 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
 
 
+#: the most RBFs per joint ``--n-basis`` may ask for (a demonstration of the teacher's has a few hundred samples; 20 fit it)
+MAX_BASIS = 100
+
+
 def _check_args(args) -> None:
     if args.demos < 2:
         raise ValueError(f"--demos must be >= 2, got {args.demos}")
@@ -63,6 +67,8 @@ def _check_args(args) -> None:
         raise ValueError(f"--few must be in [2, --demos = {args.demos}], got {args.few}")
     if args.pseudo_demos <= 0:
         raise ValueError(f"--pseudo-demos must be > 0, got {args.pseudo_demos}")
+    if not 2 <= args.n_basis <= MAX_BASIS:  # before the demonstrations are made (each needs as many samples as RBFs)
+        raise ValueError(f"--n-basis must be in [2, {MAX_BASIS}] RBFs per joint, got {args.n_basis}")
     from harness.sim.robot.arms import load_arm
 
     args.arm = load_arm(args.robot)  # a bad arm: one line naming the file and the field

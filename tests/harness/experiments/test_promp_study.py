@@ -50,6 +50,9 @@ def test_table_output_and_no_save(tmp_path, capsys):
     (["--demos", "1"], "--demos must be >= 2"),
     (["--out", "p.yaml"], "--out must end in .npz"),
     (["--pseudo-demos", "0"], "--pseudo-demos must be > 0"),
+    # before the demonstrations are made: 0 was named 'n_basis' after them, 1000 'demos[0] has too few samples'
+    (["--n-basis", "0"], "--n-basis must be in [2, 100] RBFs per joint, got 0"),
+    (["--n-basis", "1000"], "--n-basis must be in [2, 100] RBFs per joint, got 1000"),
 ])
 def test_bad_arguments_exit_2(capsys, argv, match):
     assert main(["learn", "promp", *argv]) == 2
