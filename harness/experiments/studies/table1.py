@@ -97,7 +97,10 @@ def run_table1(cameras=CAMERAS, rates=OUTLIER_RATES, *, trials: int = 10_000, se
             raise ValueError(f"--outlier-rates: every rate must be in [0, 100] %, got {p * 100:g}")
     if seed < 0:
         raise ValueError(f"--seed must be >= 0, got {seed}")
-    eps_px = RobustOptions(**({} if eps_px is None else {"eps_px": eps_px})).eps_px  # validates it
+    try:
+        eps_px = RobustOptions(**({} if eps_px is None else {"eps_px": eps_px})).eps_px  # validates it
+    except ValueError as e:  # named by the option, as the other checks here name theirs
+        raise ValueError(str(e).replace("RobustOptions.eps_px ", "--eps-px ")) from None
     tasks = _tasks(cameras, rates, trials, seed, eps_px)
     bar = progress_bar(total=len(tasks), desc="sim table1", unit="chunk", file=sys.stderr, disable=not progress)
     with bar:

@@ -112,7 +112,7 @@ def test_bad_arguments(capsys):
         run_table1((4,), (1.5,), trials=10, progress=False)
     with pytest.raises(ValueError, match=r"--seed must be >= 0, got -1"):
         run_table1((4,), (0.1,), trials=10, seed=-1, progress=False)
-    with pytest.raises(ValueError, match=r"RobustOptions.eps_px must be a positive number, got 0"):
+    with pytest.raises(ValueError, match=r"--eps-px must be a positive number, got 0"):
         run_table1((4,), (0.1,), trials=10, eps_px=0, progress=False)
     with pytest.raises(ValueError, match=r"--workers must be >= 1"):
         run_table1((4,), (0.1,), trials=10, workers=0, progress=False)
