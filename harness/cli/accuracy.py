@@ -19,6 +19,7 @@ from harness.experiments.accuracy.config import DEFAULT_FRAMES, DEFAULT_LOG_IMAG
 from harness.experiments.accuracy.session_scene import SCENES
 from harness.experiments.accuracy.stats import BASELINE_WORDS, TRACKER_KINDS, check_baseline, fmt, format_goals, format_table, rt2_goals
 from harness.common.executor import add_sweep_arguments, options_from_args
+from harness.common.options import named_by_options
 from harness.logs.codecs import IMAGE_FORMATS
 from harness.sim.robot.arms import is_link_address, load_arm
 
@@ -83,15 +84,10 @@ def config_from_args(args) -> AccuracyConfig:
         raise FileNotFoundError(f"--model {args.model!r}: no such file")
     arm = "wam" if args.robot is None or is_link_address(args.robot) else args.robot
     load_arm(arm)  # a bad arm: one line naming the file and field, before anything runs
-    try:
+    with named_by_options("AccuracyConfig", FLAGS):
         config = AccuracyConfig(seed=args.seed, n_frames=frames, rate_hz=args.rate_hz, rig=args.rig, model=args.model,
                                 trackers=tuple(args.trackers), eps_px=args.eps_px, inject_faults=args.inject_faults,
                                 scene=SCENES[args.scene], robot=arm)
-    except ValueError as e:  # named by the option the user gave, not by the field it fills
-        message = str(e)
-        for field, flag in FLAGS.items():
-            message = message.replace(f"AccuracyConfig.{field} ", f"{flag} ")
-        raise ValueError(message) from None
     if args.reprojection_px is not None:
         if args.ideal or args.no_calibration_error:
             raise ValueError("--reprojection-px sets the calibration error: it cannot go with --ideal or --no-calibration-error")

@@ -20,6 +20,7 @@ import sys
 
 from harness.link.bridge_core import check_endpoint
 from harness.common.fast_exit import exit_at_once_when_done
+from harness.common.options import named_by_options
 from harness.link.bridge_sim import BridgeOptions, SimBridge
 from harness.sim.robot.arms import load_arm
 from harness.sim.robot.simulated_wam import SimulatedWam, SimWamOptions
@@ -84,16 +85,11 @@ def run(args) -> int:
             check_endpoint(flag, value)  # bad input names the option the user typed
     if not math.isfinite(args.clock_skew_ms) or abs(args.clock_skew_ms) > MAX_CLOCK_SKEW_MS:
         raise ValueError(f"--clock-skew-ms must be a number of milliseconds within +-{MAX_CLOCK_SKEW_MS:g}, got {args.clock_skew_ms!r}")
-    try:
+    with named_by_options("BridgeOptions", {"watchdog_s": "--watchdog", "batch_ticks": "--batch"}):
         options = BridgeOptions(bind=args.bind, state_bind=args.state_bind, watchdog_s=args.watchdog,
                                 clock_skew_ns=int(round(args.clock_skew_ms * 1e6)), publish_truth=args.publish_truth,
                                 batch_ticks=args.batch,
                                 truth_bind=None if args.world else args.truth_stream)
-    except ValueError as e:  # named by the option the user gave, not by the field it fills
-        message = str(e)
-        for field, flag in (("watchdog_s", "--watchdog"), ("batch_ticks", "--batch")):
-            message = message.replace(f"BridgeOptions.{field} ", f"{flag} ")
-        raise ValueError(message) from None
     if args.world == "play":
         from harness.experiments.play.world import WorldBridge, WorldOptions
 

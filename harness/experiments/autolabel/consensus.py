@@ -75,6 +75,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from harness.common.options import named_by_options
+
 __all__ = ["AutoOptions", "FrameSetLabels", "auto_label", "centring", "flight_consistent", "flight_prediction", "flight_span_s", "labels_of", "max_ball_area_px", "moved", "recentred", "smoothed", "trimmed"]
 
 
@@ -134,13 +136,8 @@ class AutoOptions:
     def from_flags(cls, **given) -> "AutoOptions":
         """The options of ``rt2 label --auto`` (and the study that measures it), ``given`` by field; a bad value's
         error names the command's option (``FLAGS``), not the field it fills."""
-        try:
+        with named_by_options("AutoOptions", FLAGS):
             return cls(**given)
-        except ValueError as e:
-            message = str(e)
-            for field, flag in FLAGS.items():
-                message = message.replace(f"AutoOptions.{field} ", f"{flag} ")
-            raise ValueError(message) from None
 
     def __post_init__(self):
         checks = [("min_support", lambda v: v >= 3, "an integer >= 3 (two cameras always meet somewhere)"),

@@ -40,6 +40,7 @@ from tracker.detection.blobs import find_blobs
 from tracker.detection.model import BALL_COLOURS, INPUT_TRANSFORMS, logit, transform_lut
 
 from harness.common.memory import available_memory_bytes
+from harness.common.options import named_by_options
 from harness.experiments.detector.subsets import image_camera
 
 __all__ = [
@@ -215,13 +216,8 @@ class TrainOptions:
     def from_flags(cls, **given) -> "TrainOptions":
         """``rt2 train``'s options, ``given`` by field; a bad value's error names the command's option
         (``TRAIN_FLAGS``), not the field it fills."""
-        try:
+        with named_by_options("TrainOptions", TRAIN_FLAGS, {"TrainOptions.filter 'keep' with learned 'off'": "--filter keep with --learned off"}):
             return cls(**given)
-        except ValueError as e:
-            message = str(e).replace("TrainOptions.filter 'keep' with learned 'off'", "--filter keep with --learned off")
-            for field, flag in TRAIN_FLAGS.items():
-                message = message.replace(f"TrainOptions.{field} ", f"{flag} ")
-            raise ValueError(message) from None
 
     def __post_init__(self):
         _check_workers(self.workers)

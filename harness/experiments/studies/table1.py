@@ -28,6 +28,7 @@ from harness.common.outputs import finite_or_none
 from harness.common.progress import progress_bar
 
 from harness.common.executor import SweepOptions, add_sweep_arguments, options_from_args, run_sweep
+from harness.common.options import named_by_options
 from harness.experiments.studies.paper_tables import GROSS_ERROR_M, PAPER_TABLE1, failure_floor
 
 __all__ = ["add_arguments", "check_goals", "format_table", "run", "run_table1"]
@@ -97,10 +98,8 @@ def run_table1(cameras=CAMERAS, rates=OUTLIER_RATES, *, trials: int = 10_000, se
             raise ValueError(f"--outlier-rates: every rate must be in [0, 100] %, got {p * 100:g}")
     if seed < 0:
         raise ValueError(f"--seed must be >= 0, got {seed}")
-    try:
+    with named_by_options("RobustOptions", {"eps_px": "--eps-px"}):  # as the other checks here name their options
         eps_px = RobustOptions(**({} if eps_px is None else {"eps_px": eps_px})).eps_px  # validates it
-    except ValueError as e:  # named by the option, as the other checks here name theirs
-        raise ValueError(str(e).replace("RobustOptions.eps_px ", "--eps-px ")) from None
     tasks = _tasks(cameras, rates, trials, seed, eps_px)
     bar = progress_bar(total=len(tasks), desc="sim table1", unit="chunk", file=sys.stderr, disable=not progress)
     with bar:
