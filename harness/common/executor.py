@@ -25,6 +25,9 @@ sweep stops. While the executor is open, SIGINT and SIGTERM raise :class:`SweepI
 thread; the sweep kills its workers (work inside them is lost, finished results are kept) and the caller
 writes what finished, marked partial. A worker that dies raises :class:`WorkerLost`.
 
+An exception raised by a signal handler inside compiled code comes out wrapped: numba's dispatcher raises
+``SystemError`` from it (`rt2 play` stopped by SIGTERM while its launcher's compiled flight ran ended in that
+traceback); ``map`` takes an exception that was raised from the stop, once a signal came, as the stop.
 An exception raised by a signal handler can be lost: Python prints and drops it when the handler runs inside
 a ``__del__`` method or a weakref callback (numba and llvmlite free compiler objects that way while the main
 process loads a kernel), and a library's ``except BaseException`` can swallow it. The stop therefore does not
@@ -68,6 +71,19 @@ class SweepStopped(BaseException):
     def __init__(self, message: str, *, done: int = 0, total: int = 0):
         super().__init__(message)
         self.done, self.total = done, total
+
+
+def _caused_by(exc: BaseException, kind: type) -> bool:
+    """Whether ``exc`` or an exception it was raised from (``__cause__``, ``__context__``) is a ``kind``: numba's
+    compiled functions turn an exception raised inside them by a signal handler (their calls back into Python,
+    e.g. to unpickle a constant) into ``SystemError: ... returned a result with an exception set``, from it."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, kind):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 class SweepInterrupted(SweepStopped, KeyboardInterrupt):
@@ -358,7 +374,11 @@ class Executor:
         except WorkerLost as exc:
             self.close(kill=True)
             raise WorkerLost(str(exc), done=done, total=len(tasks)) from None
-        except BaseException:
+        except BaseException as exc:
+            if self._signum is not None and _caused_by(exc, SweepInterrupted):  # the stop, wrapped by compiled code
+                self._acknowledge_stop()
+                self.close(kill=True)
+                raise SweepInterrupted(self._signum, done=done, total=len(tasks)) from None
             self.close(kill=True)
             raise
 

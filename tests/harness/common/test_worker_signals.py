@@ -324,9 +324,19 @@ def long_task_here(i):  # in this process: task 1 meets the signal, drops it, an
     return i
 
 
+def wrapped_task_here(i):  # in this process: task 1 meets the signal inside "compiled code", which wraps it
+    if i == 1:
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5.0)  # the handler raises here
+        except SweepInterrupted as exc:  # as numba's dispatcher does when a call back into Python raised
+            raise SystemError("CPUDispatcher(<function f>) returned a result with an exception set") from exc
+    return i
+
+
 mode = sys.argv[1]
-options = SweepOptions(workers=1 if mode == "here" else 2)
-fn, tasks = (long_task_here, range(20)) if mode == "here" else (time.sleep, [0.2] * 20)
+options = SweepOptions(workers=2 if mode == "workers" else 1)
+fn, tasks = {"here": (long_task_here, range(20)), "wrapped": (wrapped_task_here, range(20)), "workers": (time.sleep, [0.2] * 20)}[mode]
 with Executor(options) as ex:
     try:
         for i, _ in ex.map(fn, tasks):
@@ -351,6 +361,16 @@ def test_a_signal_whose_exception_is_dropped_still_stops_the_sweep(mode):
     (line,) = [ln for ln in proc.stdout.splitlines() if ln.startswith("STOPPED")]
     done, total = map(int, line.split()[1:])
     assert total == 20 and done < 10  # stopped at the next poll, not after every task
+
+
+def test_a_signal_whose_exception_compiled_code_wraps_stops_the_sweep():
+    """numba raises ``SystemError`` from an exception a signal handler raised inside its compiled function: ``rt2 play``
+    stopped by SIGTERM there ended in that traceback instead of the stop (exit 128 + 15, the finished balls kept)."""
+    proc = subprocess.run([sys.executable, "-c", SWALLOWED, "wrapped"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 128 + signal.SIGTERM, proc.stdout + proc.stderr[-2000:]
+    assert "SystemError" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    (line,) = [ln for ln in proc.stdout.splitlines() if ln.startswith("STOPPED")]
+    assert line.split()[1:] == ["1", "20"]  # task 0 finished, task 1 stopped
 
 
 # -- rt2 accuracy --live: one motion on the live streams of its two child services -------------------------
