@@ -516,8 +516,6 @@ def run(args) -> int:
     check_output_file(args.json, "--json")  # before the frame sets are rendered, not after
     if args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
-    if args.seed < 0:
-        raise ValueError(f"--seed must be >= 0, got {args.seed}")
     if not (np.isfinite(args.tol_m) and args.tol_m > 0):
         raise ValueError(f"--tol-m must be a positive number of metres, got {args.tol_m}")
     if not (np.isfinite(args.max_size_ratio) and args.max_size_ratio > 0):

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from harness.cli import main
+from harness.cli import COMMANDS, main
 
 ROWS = [
     (["sim", "reach", "--seed", "-1"], "--seed must be >= 0, got -1"),
@@ -24,5 +24,6 @@ def test_a_negative_seed_is_one_line_before_the_command_runs(tmp_path, capsys, a
     argv = [str(tmp_path / a.lower()) if a in ("NOWHERE", "OUT") else a for a in argv]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"rt2 {' '.join(argv[:2]) if argv[0] in ('sim', 'eval') else argv[0]}: error: {message}"]
+    command = " ".join(argv[:2]) if tuple(argv[:2]) in COMMANDS else argv[0]
+    assert err == [f"rt2 {command}: error: {message}"]
     assert list(tmp_path.iterdir()) == []  # nothing made: not even the outputs' folders
