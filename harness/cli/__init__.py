@@ -12,6 +12,7 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 
 __all__ = ["COMMANDS", "main"]
 
@@ -112,6 +113,24 @@ def _check_seeds(args) -> None:
                 raise ValueError(f"{flag} must be >= 0, got {v}")
 
 
+#: the folder of rt2's own packages (a warning raised in their code speaks to the user; a library's names its origin)
+_OWN_CODE = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def _warning_line(cmd: str):
+    """``warnings.formatwarning`` for a command's run: one line, ``rt2 CMD: warning: ...`` (Python's own format adds the
+    source line the warning was raised from, which says nothing to a user). A warning of a library's code other than
+    a ``UserWarning`` (numpy's ``RuntimeWarning``, a ``DeprecationWarning``) keeps its category and where it came from."""
+
+    def line(message, category, filename, lineno, line=None):
+        own = os.path.abspath(str(filename)).startswith(_OWN_CODE + os.sep) and "site-packages" not in str(filename)
+        if own or issubclass(category, UserWarning):
+            return f"rt2 {cmd}: warning: {message}\n"
+        return f"rt2 {cmd}: {category.__name__}: {message} ({filename}:{lineno})\n"
+
+    return line
+
+
 def main(argv: list[str] | None = None) -> int:
     if argv is None:  # a process of its own (not a call from a test): started by ReadyProcess, die with the parent
         from harness.common.spawn import die_with_parent_from_env
@@ -122,6 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     words = tuple(w for w in (args.command, getattr(args, "subcommand", None)) if w)
     cmd = " ".join(words)
+    before = warnings.formatwarning
+    warnings.formatwarning = _warning_line(cmd)
     try:
         _check_seeds(args)
         return int(importlib.import_module(COMMANDS[words][0]).run(args) or 0)
@@ -141,6 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:  # Ctrl-C; or SIGINT / SIGTERM inside stop_on_signals (exit 128 + signal)
         print(f"rt2 {cmd}: {exc or 'interrupted'}", file=sys.stderr)
         return getattr(exc, "exit_code", 130)
+    finally:
+        warnings.formatwarning = before
 
 
 if __name__ == "__main__":
