@@ -84,7 +84,8 @@ def config_from_args(args) -> AccuracyConfig:
         raise FileNotFoundError(f"--model {args.model!r}: no such file")
     arm = "wam" if args.robot is None or is_link_address(args.robot) else args.robot
     load_arm(arm)  # a bad arm: one line naming the file and field, before anything runs
-    with named_by_options("AccuracyConfig", FLAGS):
+    # None is the config's "the tracker's own", not a value anyone types
+    with named_by_options("AccuracyConfig", FLAGS, {"eps_px must be a positive number of pixels or None": "eps_px must be a positive number of pixels"}):
         config = AccuracyConfig(seed=args.seed, n_frames=frames, rate_hz=args.rate_hz, rig=args.rig, model=args.model,
                                 trackers=tuple(args.trackers), eps_px=args.eps_px, inject_faults=args.inject_faults,
                                 scene=SCENES[args.scene], robot=arm)

@@ -145,7 +145,7 @@ def test_cli_ideal_switches_the_realism_off(accuracy_session, tmp_path, capsys):
 @pytest.mark.parametrize("argv, match", [
     (["--frames", "5"], "--frames must be an integer >= 20, got 5"),
     (["--seed", "-1"], "--seed must be >= 0, got -1"),
-    (["--eps-px", "-1"], "--eps-px must be a positive number of pixels"),
+    (["--eps-px", "-1"], "--eps-px must be a positive number of pixels, got -1.0"),  # not "or None": nobody types None
     (["--trackers", "rt2", "rt2"], "--trackers must be distinct kinds of"),
     (["--rate-hz", "0"], "--rate-hz must be in [1, 10000] Hz, got 0.0"),
     (["--model", "/nonexistent/model.npz"], "no such file"),
