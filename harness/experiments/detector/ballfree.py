@@ -34,7 +34,7 @@ def mask_balls(image: np.ndarray, boxes_xywh, margin_px: float = 4.0) -> np.ndar
 
 def without_balls(labelled):
     """``labelled`` (a ``LabelledImage``) with no ball: the labels of its ball-free frame."""
-    return dataclasses.replace(labelled, boxes_xywh=np.zeros((0, 4)), centers_px=np.zeros((0, 2)))
+    return dataclasses.replace(labelled, boxes_xywh=np.zeros((0, 4)), centers_px=np.zeros((0, 2)), ball_colours=())
 
 
 def ball_free(image: np.ndarray, labelled, margin_px: float = 4.0):

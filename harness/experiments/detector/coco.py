@@ -8,7 +8,7 @@ their own labelled images the same way as our synthetic data sets. A data set is
      "images":      [{"id": 1, "file_name": "f000000_cam0.png", "width": 640, "height": 480}, ...],
      "annotations": [{"id": 1, "image_id": 1, "category_id": 1, "bbox": [x, y, w, h],
                       "area": w * h, "iscrowd": 0,
-                      "center_px": [u, v], "diameter_px": d, "visibility": 0.93}, ...],
+                      "center_px": [u, v], "diameter_px": d, "visibility": 0.93, "ball_colour": "white"}, ...],
      "categories":  [{"id": 1, "name": "ball"}]}
 
 Pixel conventions (they differ by half a pixel, and a sub-pixel tracker cares):
@@ -21,10 +21,17 @@ Pixel conventions (they differ by half a pixel, and a sub-pixel tracker cares):
 
 Images with no ball annotation are background examples. Only the category named ``ball`` is read;
 other categories are ignored, and a file without a ``ball`` category is refused.
+
+``ball_colour`` (ours, optional per annotation: ``"white"`` or ``"orange"``) says what the ball is, where the
+set's maker knows it (``rt2 sim dataset``, the drawn stand-ins): a white ball under warm light or on a red rug
+can look saturated enough to be measured orange (:func:`harness.experiments.detector.train.ball_colour`), and a
+colour chosen by measuring would drop it from a white ball's evaluation and count the detector's hit on it as an
+outlier. Without it, the colour is measured.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -37,11 +44,13 @@ import numpy as np
 from harness.common.outputs import atomic_write_text
 from checks.files import MAX_DATA_BYTES, read_text_capped, short
 
-__all__ = ["ANNOTATIONS_FILE", "BALL_CATEGORY", "LabelledImage", "read_coco", "write_coco"]
+__all__ = ["ANNOTATIONS_FILE", "BALL_CATEGORY", "LABEL_COLOURS", "LabelledImage", "read_coco", "write_coco"]
 
 ANNOTATIONS_FILE = "annotations.json"
 BALL_CATEGORY = "ball"
 _CORE_KEYS = ("id", "image_id", "category_id", "bbox", "area", "iscrowd", "center_px")
+#: what an annotation's ``ball_colour`` may say (module docstring)
+LABEL_COLOURS = ("white", "orange")
 _BOX_TOL_PX = 1e-3  # boxes may touch the image border up to rounding
 
 
@@ -58,6 +67,8 @@ class LabelledImage:
         --auto`` write it: a name, or an integer read as one; a field of another kind is not read), or None
     time_s : when the camera took it, seconds (COCO image field ``time_s``, as ``rt2 sim dataset`` writes it), or None;
         a fixed camera's images in time order are a sequence (``rt2 eval detector --motion-cue``)
+    ball_colours : () (no box's colour known: it is measured where it matters), or per box ``"white"``, ``"orange"``
+        or None (unknown): the annotations' ``ball_colour`` (module docstring)
     """
 
     path: Path
@@ -67,6 +78,7 @@ class LabelledImage:
     centers_px: np.ndarray
     camera: str | None = None
     time_s: float | None = None
+    ball_colours: tuple = ()
 
     def __post_init__(self):
         object.__setattr__(self, "path", Path(self.path))
@@ -97,6 +109,17 @@ class LabelledImage:
             arr.setflags(write=False)
         object.__setattr__(self, "boxes_xywh", boxes)
         object.__setattr__(self, "centers_px", centers)
+        colours = tuple(self.ball_colours)
+        if colours and (len(colours) != len(boxes) or any(c is not None and c not in LABEL_COLOURS for c in colours)):
+            raise ValueError(f"LabelledImage {str(self.path)!r}: ball_colours must be () or one of {LABEL_COLOURS} or None per box "
+                             f"({len(boxes)}), got {short(self.ball_colours)}")
+        object.__setattr__(self, "ball_colours", colours if any(c is not None for c in colours) else ())
+
+    def only(self, keep) -> "LabelledImage":
+        """The same image with only the boxes ``keep`` (a boolean mask or indices), their centres and colours."""
+        idx = np.arange(self.n_balls)[np.asarray(keep)] if self.n_balls else np.zeros(0, int)
+        colours = tuple(self.ball_colours[i] for i in idx) if self.ball_colours else ()
+        return dataclasses.replace(self, boxes_xywh=self.boxes_xywh[idx], centers_px=self.centers_px[idx], ball_colours=colours)
 
     @property
     def n_balls(self) -> int:
@@ -170,7 +193,7 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
         t = im.get("time_s")
         if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t)):
             raise ValueError(f"{where}: field 'time_s' must be a finite number of seconds, got {short(t)}")
-        images[im["id"]] = (file, w, h, [], [], camera, t)
+        images[im["id"]] = (file, w, h, [], [], camera, t, [])
         order.append(im["id"])
 
     seen_ann = set()
@@ -188,7 +211,7 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
             raise ValueError(f"{where}: field 'image_id' refers to unknown image id {short(ann['image_id'])}")
         if ann["category_id"] not in ball_ids:
             continue
-        file, w, h, boxes, centers, _, _ = images[ann["image_id"]]
+        file, w, h, boxes, centers, _, _, colours = images[ann["image_id"]]
         box = _numbers(ann["bbox"], 4, "bbox", where)
         x, y, bw, bh = box
         if bw <= 0 or bh <= 0:
@@ -201,12 +224,16 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
             center = _numbers(ann["center_px"], 2, "center_px", where)
         else:
             center = [x + bw / 2 - 0.5, y + bh / 2 - 0.5]
+        colour = ann.get("ball_colour")
+        if colour is not None and colour not in LABEL_COLOURS:
+            raise ValueError(f"{where}: field 'ball_colour' must be one of {list(LABEL_COLOURS)}, got {short(colour)}")
         boxes.append(box)
         centers.append(center)
+        colours.append(colour)
 
     out = []
     for image_id in order:
-        file, w, h, boxes, centers, camera, t = images[image_id]
+        file, w, h, boxes, centers, camera, t, colours = images[image_id]
         out.append(
             LabelledImage(
                 path=file,
@@ -216,6 +243,7 @@ def read_coco(path, *, image_root=None) -> list[LabelledImage]:
                 centers_px=np.array(centers, float).reshape(-1, 2),
                 camera=camera,
                 time_s=t,
+                ball_colours=tuple(colours),
             )
         )
     return out
@@ -272,7 +300,8 @@ def write_coco(
     returns the path of the JSON file
 
     Every annotation has category ``ball`` (id 1), ``iscrowd: 0``, ``area = w * h`` and
-    ``center_px`` (rt2 pixel convention, see the module docstring).
+    ``center_px`` (rt2 pixel convention, see the module docstring); ``ball_colour`` where the image's
+    :attr:`LabelledImage.ball_colours` knows it. An image's ``camera`` and ``time_s`` are written where it has them.
     """
     out_dir = Path(out_dir)
     images = list(images)
@@ -298,6 +327,10 @@ def write_coco(
             raise ValueError(f"write_coco: image {str(im.path)!r} lies outside the output folder {str(root)!r}; "
                              "a data set's images live in its folder")
         row = {"id": i + 1, "file_name": rel.as_posix(), "width": im.width, "height": im.height}
+        if im.camera is not None:  # what read_coco reads back (image_extra may say it again)
+            row["camera"] = im.camera
+        if im.time_s is not None:
+            row["time_s"] = im.time_s
         if image_extra is not None:
             row.update(_extra_fields(image_extra[i], ("id", "file_name", "width", "height"), f"image_extra[{i}]"))
         img_rows.append(row)
@@ -319,8 +352,13 @@ def write_coco(
                 "iscrowd": 0,
                 "center_px": [float(center[0]), float(center[1])],
             }
-            if per_box is not None:
+            if im.ball_colours and im.ball_colours[j] is not None:
+                ann["ball_colour"] = im.ball_colours[j]
+            if per_box is not None:  # (may give ``ball_colour`` too: the label page keeps a file's fields so)
                 ann.update(_extra_fields(per_box[j], _CORE_KEYS, f"extra[{i}][{j}]"))
+                if ann.get("ball_colour") not in (None, *LABEL_COLOURS):
+                    raise ValueError(f"write_coco: extra[{i}][{j}] field 'ball_colour' must be one of {list(LABEL_COLOURS)}, "
+                                     f"got {short(ann['ball_colour'])}")
             ann_rows.append(ann)
 
     info = dict(info or {})

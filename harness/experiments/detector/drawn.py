@@ -194,7 +194,8 @@ def draw_frame(image: np.ndarray, name: str, rng: np.random.Generator, opts: Dra
         if truth.box_xywh[2] > 0 and truth.box_xywh[3] > 0:
             boxes.append(truth.box_xywh)
             centers.append(truth.center_px)
-    li = LabelledImage(name, w, h, np.array(boxes, float).reshape(-1, 4), np.array(centers, float).reshape(-1, 2))
+    li = LabelledImage(name, w, h, np.array(boxes, float).reshape(-1, 4), np.array(centers, float).reshape(-1, 2),
+                       ball_colours=(opts.colour,) * len(boxes))  # what the ball is: in warm light it may look orange
     if rng.random() < opts.p_camera:
         if rng.random() < 0.5:
             frame = _bayer(frame)

@@ -322,7 +322,8 @@ def ball_colour(image: np.ndarray, box_xywh) -> str:
 
 
 def select_ball_colour(labelled, colour: str, *, progress: bool = False):
-    """Keep only the boxes of balls of ``colour`` ("any", "orange" or "white", see :func:`ball_colour`).
+    """Keep only the boxes of balls of ``colour`` ("any", "orange" or "white"): the colour a box's label declares
+    (:attr:`LabelledImage.ball_colours`, the annotation's ``ball_colour``), else the one measured (:func:`ball_colour`).
 
     Balls of the other colour lose their boxes: for training they become background (an orange-ball
     model must not fire on white balls), for evaluation detections on them count as outliers.
@@ -338,9 +339,10 @@ def select_ball_colour(labelled, colour: str, *, progress: bool = False):
         if li.n_balls == 0:
             out.append(li)
             continue
-        image = load_image(li)
-        keep = np.array([ball_colour(image, box) == colour for box in li.boxes_xywh])
-        out.append(dataclasses.replace(li, boxes_xywh=li.boxes_xywh[keep], centers_px=li.centers_px[keep]))
+        declared = li.ball_colours or (None,) * li.n_balls
+        image = load_image(li) if None in declared else None
+        keep = np.array([(c if c is not None else ball_colour(image, box)) == colour for c, box in zip(declared, li.boxes_xywh)])
+        out.append(li.only(keep))
     return out
 
 

@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 from harness.common.progress import progress_bar
 
-from harness.experiments.detector.coco import ANNOTATIONS_FILE, LabelledImage, write_coco
+from harness.experiments.detector.coco import ANNOTATIONS_FILE, LABEL_COLOURS, LabelledImage, write_coco
 from harness.common.executor import Executor, SweepOptions
 from harness.common.outputs import OutputError, check_output_dir
 
@@ -231,7 +231,8 @@ def _semireal_chunk(task):
             elif t.visibility > 0:
                 hidden.append({"ball": 0, "center_px": [round(float(c), 4) for c in t.center_px], "visibility": round(t.visibility, 4)})
             w, h = rig[i].image_size
-            labelled = LabelledImage(Path(name), w, h, np.array(boxes).reshape(-1, 4), np.array(centers).reshape(-1, 2))
+            labelled = LabelledImage(Path(name), w, h, np.array(boxes).reshape(-1, 4), np.array(centers).reshape(-1, 2),
+                                     ball_colours=(options.ball_colour,) * len(boxes))  # what the ball is, not what it looks like
             fields = {"camera": rig[i].name, "frame": f, "flight": n, "flight_frame": j, "background": int(k),
                       "time_s": round(j / SEMIREAL_RATE_HZ, 6), "hidden_balls": hidden}
             rows.append(((f, i), labelled, extras, fields))
@@ -280,6 +281,13 @@ def _renderer(rig_dict: dict, seed: int):
     return _WORKER[key]
 
 
+def _colour_name(rgb) -> str | None:
+    """The ball colour (of :data:`LABEL_COLOURS`) whose reflectance a rendered ball has, or None (another colour)."""
+    from harness.sim.render.scene_state import COLOURS
+
+    return next((c for c in LABEL_COLOURS if np.allclose(rgb, COLOURS[c])), None)
+
+
 def _render_chunk(task):
     """Render and write the frames of one task; returns rows (key, LabelledImage, extras, image fields)."""
     from harness.sim.render.scenes import SceneOptions, random_scene
@@ -296,16 +304,18 @@ def _render_chunk(task):
             name = f"f{f:06d}_cam{i}.png"
             if not cv2.imwrite(str(Path(out) / name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):  # cv2 wants BGR
                 raise ValueError(f"could not write image {name!r} of the data set (disk full or a file-size limit?)")
-            boxes, centers, extras, hidden = [], [], [], []
+            boxes, centers, extras, hidden, colours = [], [], [], [], []
             for b, (ball, t) in enumerate(zip(scene.balls, truth)):
                 if t.visible and t.box_xywh[2] > 0 and t.box_xywh[3] > 0:
                     boxes.append(t.box_xywh)
                     centers.append(t.center_px)
+                    colours.append(_colour_name(ball.colour))
                     extras.append({"diameter_px": round(t.diameter_px, 4), "visibility": round(t.visibility, 4), "speed_mps": round(float(np.linalg.norm(ball.velocity_mps)), 3), "ball": b})
                 elif t.visibility > 0:
                     hidden.append({"ball": b, "center_px": [round(float(c), 4) for c in t.center_px], "visibility": round(t.visibility, 4)})
             w, h = rig[i].image_size
-            labelled = LabelledImage(Path(name), w, h, np.array(boxes).reshape(-1, 4), np.array(centers).reshape(-1, 2))
+            labelled = LabelledImage(Path(name), w, h, np.array(boxes).reshape(-1, 4), np.array(centers).reshape(-1, 2),
+                                     ball_colours=tuple(colours))
             image_fields = {"camera": rig[i].name, "frame": f, "hidden_balls": hidden}
             rows.append(((f, i), labelled, extras, image_fields))
     return rows

@@ -136,6 +136,14 @@ def test_missing_top_level_field(tmp_path, key):
         ({"annotations": [{"id": 3, "image_id": 7, "category_id": 1, "bbox": [1, 1, 2, 2], "center_px": [1, None]}]}, "annotation id 3: field 'center_px' must be a list of 2"),
         ({"categories": [{"id": 1, "name": "person"}, {"id": 2, "name": "racket"}]}, r"no 'ball' category; categories present: \['person', 'racket'\]"),
         ({"images": "a.png"}, "field 'images' must be a list"),
+        ({"annotations": [{"id": 3, "image_id": 7, "category_id": 1, "bbox": [1, 1, 2, 2], "ball_colour": "pink"}]},
+         r"annotation id 3: field 'ball_colour' must be one of \['white', 'orange'\], got 'pink'"),
+        ({"annotations": [{"id": 3, "image_id": 7, "category_id": 1, "bbox": [1, 1, 2, 2], "ball_colour": 1}]},
+         "annotation id 3: field 'ball_colour' must be one of"),
+        ({"annotations": [{"id": 3, "image_id": 7, "category_id": 1, "bbox": [1, 1, 2, 2], "ball_colour": "White"}]},
+         "annotation id 3: field 'ball_colour' must be one of"),
+        ({"annotations": [{"id": 3, "image_id": 7, "category_id": 1, "bbox": [1, 1, 2, 2], "ball_colour": ["white"]}]},
+         "annotation id 3: field 'ball_colour' must be one of"),
     ],
 )
 def test_bad_fields_are_named(tmp_path, change, match):
@@ -213,3 +221,38 @@ def test_random_round_trips_are_exact(tmp_path):
     for a, b in zip(images, back):
         np.testing.assert_array_equal(a.boxes_xywh, b.boxes_xywh)
         np.testing.assert_array_equal(a.centers_px, b.centers_px)
+
+
+def test_a_declared_ball_colour_round_trips_per_box(tmp_path):
+    _touch_images(tmp_path, ["a.png", "b.png"])
+    images = [LabelledImage(tmp_path / "a.png", 100, 50, [[1, 1, 4, 4], [10, 10, 5, 5], [20, 20, 6, 6]], [[2, 2], [12, 12], [22, 22]],
+                            ball_colours=("white", None, "orange")),
+              LabelledImage(tmp_path / "b.png", 100, 50, [[1, 1, 4, 4]], [[2, 2]])]
+    write_coco(tmp_path, images)
+    doc = json.loads((tmp_path / "annotations.json").read_text())
+    assert [a.get("ball_colour") for a in doc["annotations"]] == ["white", None, "orange", None]
+    back = read_coco(tmp_path)
+    assert back[0].ball_colours == ("white", None, "orange") and back[1].ball_colours == ()
+    kept = back[0].only([True, False, True])
+    assert kept.ball_colours == ("white", "orange") and kept.centers_px.tolist() == [[2, 2], [22, 22]]
+    assert back[0].only([1]).ball_colours == ()  # no colour known among what is left: none
+    assert back[1].only([False]).n_balls == 0
+
+
+@pytest.mark.parametrize("colours, match", [
+    (("white",), r"ball_colours must be \(\) or one of"),  # one for two boxes
+    (("white", "pink"), "ball_colours must be"),
+    (("white", 3), "ball_colours must be"),
+])
+def test_labelled_image_refuses_bad_ball_colours(tmp_path, colours, match):
+    with pytest.raises(ValueError, match=match):
+        LabelledImage(tmp_path / "a.png", 100, 50, [[1, 1, 4, 4], [10, 10, 5, 5]], [[2, 2], [12, 12]], ball_colours=colours)
+
+
+def test_the_writer_refuses_a_bad_ball_colour_among_the_extras(tmp_path):
+    _touch_images(tmp_path, ["a.png"])
+    li = LabelledImage(tmp_path / "a.png", 100, 50, [[1, 1, 4, 4]], [[2, 2]])
+    with pytest.raises(ValueError, match=r"extra\[0\]\[0\] field 'ball_colour' must be one of"):
+        write_coco(tmp_path, [li], [[{"ball_colour": "blue"}]])
+    write_coco(tmp_path, [li], [[{"ball_colour": "orange"}]])  # the label page keeps a file's own field so
+    assert read_coco(tmp_path)[0].ball_colours == ("orange",)

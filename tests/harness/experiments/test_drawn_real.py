@@ -70,3 +70,20 @@ def test_shipped_model_rejects_large_balls_by_size_not_colour(drawn_set, tmp_pat
     o, w = json.loads(own.read_text()), json.loads(wide.read_text())
     assert o[1]["method"] == "ours" and o[1]["recall"] == 0.0  # every ball is too large for the trained area range
     assert w[2]["recall"] > 0.0  # with the balls' sizes given, candidates reach some of them
+
+
+def test_drawn_white_balls_say_what_they_are_where_they_look_orange(tmp_path):
+    """A white ball drawn on the rally's red rug or under its warm light can measure orange (its core's saturation above
+    the cut of ``ball_colour``); measured, it was dropped from a white ball's evaluation and a hit on it counted as an
+    outlier. The drawn set's labels say "white", and the selection keeps every ball."""
+    from harness.experiments.detector.train import ball_colour, select_ball_colour
+
+    out = tmp_path / "white"
+    assert drawn_main(["--sources", f"{RALLY}@58:70", "--out", str(out), "--seed", "3", "--diameter-px", "12:40", "--p-empty", "0",
+                       "--colour", "white"]) == 0
+    labelled = read_coco(out)
+    assert len(labelled) == 12 and all(li.ball_colours == ("white",) for li in labelled)
+    measured = [ball_colour(load_image(li), li.boxes_xywh[0]) for li in labelled]
+    assert "orange" in measured  # the case is real in these frames
+    assert sum(li.n_balls for li in select_ball_colour(labelled, "white")) == 12
+    assert sum(li.n_balls for li in select_ball_colour(labelled, "orange")) == 0

@@ -395,3 +395,19 @@ def test_convert_command_and_label_format_in_eval(tmp_path):
     assert "2 images" in ev.stdout
     wrong = _rt2("eval", "detector", "--data", str(tmp_path / "y"), "--label-format", "cvat")
     assert wrong.returncode == 2 and "annotations.xml" in wrong.stderr
+
+
+def test_coco_to_coco_keeps_camera_time_and_ball_colour(tmp_path):
+    """What rt2's own sets carry besides the boxes (the camera a frame came from and when: folds by camera and the
+    motion cue; what each ball is) survives ``rt2 labels convert --to coco`` (it was dropped: a converted semi-real
+    set had no cameras)."""
+    from harness.experiments.detector.coco import LabelledImage
+
+    src = tmp_path / "src"
+    a, b = _png(src / "a.png"), _png(src / "b.png")
+    write_coco(src, [LabelledImage(a, 640, 480, [[10, 10, 8, 8]], [[13.5, 13.5]], camera="cam2", time_s=0.25, ball_colours=("white",)),
+                     LabelledImage(b, 640, 480, [[20, 20, 8, 8], [40, 40, 9, 9]], [[23.5, 23.5], [44, 44]], ball_colours=(None, "orange"))])
+    r = _rt2("labels", "convert", str(src), "--to", "coco", "--out", str(tmp_path / "c"))
+    assert r.returncode == 0, r.stderr
+    back = read_coco(tmp_path / "c")
+    assert [(li.camera, li.time_s, li.ball_colours) for li in back] == [("cam2", 0.25, ("white",)), (None, None, (None, "orange"))]

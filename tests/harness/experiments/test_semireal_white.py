@@ -136,7 +136,7 @@ def test_dataset_of_sequences_same_seed_same_bytes(folder, rally, tmp_path, caps
         P = session.flight(im["flight"], 2, 100.0)[1]
         cam = rig[rig.names.index(im["camera"])]
         assert np.abs(np.array(a["center_px"]) - cam.project(P[im["flight_frame"]])).max() < 1e-6
-        assert "crop" in a and a["crop"].startswith("images/")
+        assert "crop" in a and a["crop"].startswith("images/") and a["ball_colour"] == "white"
     bad = (
         (["--ball", "red"], "invalid choice: 'red'"),
         (["--session", str(tmp_path / "none")], "no camera_array.toml"),

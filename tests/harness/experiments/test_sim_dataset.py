@@ -86,6 +86,10 @@ def test_ball_colour_makes_every_ball_that_colour_and_keeps_the_scenes(rig_file,
     mixed = [random_scene(np.random.default_rng([5, f]), ws, frame_index=f) for f in range(12)]
     only = [random_scene(np.random.default_rng([5, f]), ws, SceneOptions(ball_colour="white"), frame_index=f) for f in range(12)]
     assert any(np.allclose(b.colour, rgb["orange"]) for s in mixed for b in s.balls)  # the default mixes colours
+    # each label says what its ball is (not what it looks like after shading and exposure): the mixed set both colours
+    assert {a["ball_colour"] for a in doc["annotations"]} == {"white"}
+    mixed_doc = json.loads((dataset / "annotations.json").read_text())
+    assert {a["ball_colour"] for a in mixed_doc["annotations"]} == {"white", "orange"}
     for a, b in zip(mixed, only):
         assert [x.position_m.tolist() for x in a.balls] == [x.position_m.tolist() for x in b.balls]
         assert all(np.allclose(x.colour, rgb["white"]) for x in b.balls)

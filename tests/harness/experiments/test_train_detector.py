@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import cv2
@@ -113,6 +114,13 @@ def test_ball_colour_and_selection(tmp_path):
     assert select_ball_colour([li], "any")[0] is li
     with pytest.raises(ValueError, match="ball colour must be one of"):
         select_ball_colour([li], "pink")
+    # a label that says what its ball is wins over the measure: the orange-looking first ball is white (a white ball
+    # under warm light), the second is unknown and measured
+    said = dataclasses.replace(li, ball_colours=("white", None))
+    (white,) = select_ball_colour([said], "white")
+    np.testing.assert_array_equal(white.boxes_xywh, boxes)
+    assert white.ball_colours == ("white", None)
+    assert select_ball_colour([said], "orange")[0].n_balls == 0
 
 
 def test_split_keeps_frame_sets_together(tmp_path):

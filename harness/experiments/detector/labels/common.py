@@ -8,6 +8,8 @@ formats store no centre of their own, so the centre is the box centre in rt2 pix
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 import os
 import shutil
@@ -107,7 +109,7 @@ def place_images(images, out_dir: Path, sub: str = "images") -> list[LabelledIma
                 os.link(src, dst)
             except OSError:
                 shutil.copy2(src, dst)
-        placed.append(LabelledImage(path=dst, width=li.width, height=li.height, boxes_xywh=li.boxes_xywh, centers_px=li.centers_px))
+        placed.append(dataclasses.replace(li, path=dst))  # its camera, time and balls' colours kept
     return placed
 
 
