@@ -64,6 +64,7 @@ __all__ = [
     "keeps_filter",
     "run",
     "select_ball_colour",
+    "colour_note",
     "split_groups",
     "train",
     "written_scores",
@@ -344,6 +345,19 @@ def select_ball_colour(labelled, colour: str, *, progress: bool = False):
         keep = np.array([(c if c is not None else ball_colour(image, box)) == colour for c, box in zip(declared, li.boxes_xywh)])
         out.append(li.only(keep))
     return out
+
+
+def colour_note(before, after, colour: str, what: str) -> str | None:
+    """One line saying how many labelled balls of ``before`` :func:`select_ball_colour` left out for their measured colour
+    (``after`` is what it kept) and what became of them (``what``); None where it left none out so (a ball left out
+    by its label's ``ball_colour`` is what its label says)."""
+    dropped = sum(li.n_balls for li in before) - sum(li.n_balls for li in after)
+    said = sum(1 for li in before for c in li.ball_colours if c is not None and c != colour)
+    if dropped - said <= 0:
+        return None
+    return (f"{dropped - said} of the {sum(li.n_balls for li in before)} labelled balls measure as not {colour} "
+            f"(docs/detector.md, \"Ball colour\"): {what}; a label's \"ball_colour\": \"{colour}\" keeps a ball, "
+            f"--ball-colour any keeps every ball")
 
 
 def split_groups(labelled, val_fraction: float, rng: np.random.Generator):
@@ -778,7 +792,11 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     # the learned stage's folds, before any image is read (--learned-folds-by camera on labels it cannot fold: one line);
     # the colour's selection below keeps every image, in order
     folds, by = learned_folds(labelled, opts.learned_folds, opts.learned_folds_by) if opts.learned != "off" else (None, None)
-    labelled = select_ball_colour(labelled, opts.ball_colour, progress=progress)
+    chosen = select_ball_colour(labelled, opts.ball_colour, progress=progress)
+    note = colour_note(labelled, chosen, opts.ball_colour, "they are trained as background")
+    if note:
+        log(note)
+    labelled = chosen
     if kept_filter:
         if base is None:
             raise ValueError("--filter keep keeps the base model's filter: there is no base model (--from none)")

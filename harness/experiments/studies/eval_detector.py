@@ -405,7 +405,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from harness.experiments.detector.labels import read_labels
-    from harness.experiments.detector.train import select_ball_colour
+    from harness.experiments.detector.train import colour_note, select_ball_colour
     from tracker import BallSegmentationModel
 
     from harness.common.outputs import atomic_write_json, check_output_file
@@ -477,7 +477,9 @@ def run(args) -> int:
         raise ValueError(f"--data {args.data}: no images")
     warmup = frames_before(every, labelled) if motion_cue is not None else []
     colour = model.ball_colour if args.ball_colour == "model" else args.ball_colour
-    labelled = select_ball_colour(labelled, colour, progress=True)
+    chosen = select_ball_colour(labelled, colour, progress=True)
+    note = colour_note(labelled, chosen, colour, "they are not counted, and a detection on one is an outlier")
+    labelled = chosen
     scores = evaluate(model, labelled, max_candidates=args.max_candidates, min_diameter_px=args.min_diameter_px, t_high=args.t_high, t_low=args.t_low,
                       ball_free_margin_px=ball_free_margin, area_px=area_px, learned_threshold=learned_threshold, motion_cue=motion_cue,
                       cue_warmup=warmup)
@@ -486,6 +488,8 @@ def run(args) -> int:
         f"{colour} balls >= {args.min_diameter_px:g} px"
         + (f" (the model's own colour; --ball-colour any scores every ball)" if args.ball_colour == "model" and colour != "any" else "")
     )
+    if note:
+        print(f"note: {note}")
     if model.learned is not None:
         confirm = model.learned.confirm
         own = model.learned.threshold if confirm is None else confirm.threshold

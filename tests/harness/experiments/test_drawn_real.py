@@ -16,7 +16,7 @@ from harness.cli import main
 from harness.experiments.detector.coco import read_coco
 from harness.experiments.detector.drawn import DrawnOptions, draw_frame, main as drawn_main
 from harness.experiments.detector.train import load_image
-from tests.conftest import REAL
+from tests.conftest import REAL, ROOT
 
 RALLY = REAL / "phone_rally"
 pytestmark = pytest.mark.skipif(not (RALLY / "annotations.json").is_file(), reason=f"real rally frames not found at {RALLY}")
@@ -72,12 +72,13 @@ def test_shipped_model_rejects_large_balls_by_size_not_colour(drawn_set, tmp_pat
     assert w[2]["recall"] > 0.0  # with the balls' sizes given, candidates reach some of them
 
 
-def test_drawn_white_balls_say_what_they_are_where_they_look_orange(tmp_path):
+def test_drawn_white_balls_say_what_they_are_where_they_look_orange(tmp_path, capsys, monkeypatch):
     """A white ball drawn on the rally's red rug or under its warm light can measure orange (its core's saturation above
     the cut of ``ball_colour``); measured, it was dropped from a white ball's evaluation and a hit on it counted as an
     outlier. The drawn set's labels say "white", and the selection keeps every ball."""
     from harness.experiments.detector.train import ball_colour, select_ball_colour
 
+    monkeypatch.chdir(ROOT)
     out = tmp_path / "white"
     assert drawn_main(["--sources", f"{RALLY}@58:70", "--out", str(out), "--seed", "3", "--diameter-px", "12:40", "--p-empty", "0",
                        "--colour", "white"]) == 0
@@ -87,3 +88,11 @@ def test_drawn_white_balls_say_what_they_are_where_they_look_orange(tmp_path):
     assert "orange" in measured  # the case is real in these frames
     assert sum(li.n_balls for li in select_ball_colour(labelled, "white")) == 12
     assert sum(li.n_balls for li in select_ball_colour(labelled, "orange")) == 0
+    # a set made before the labels said it (or another tool's): measured, and rt2 eval detector says what it left out
+    doc = json.loads((out / "annotations.json").read_text())
+    for a in doc["annotations"]:
+        del a["ball_colour"]
+    (out / "annotations.json").write_text(json.dumps(doc))
+    assert main(["eval", "detector", "--data", str(out), "--model", "data/models/ball_seg_white.npz", "--ball-colour", "white"]) == 0
+    n = measured.count("orange")
+    assert f"note: {n} of the 12 labelled balls measure as not white" in capsys.readouterr().out

@@ -24,6 +24,7 @@ from harness.experiments.detector.train import (
     choose_thresholds,
     load_image,
     pixel_targets,
+    colour_note,
     select_ball_colour,
     split_groups,
     train,
@@ -121,6 +122,13 @@ def test_ball_colour_and_selection(tmp_path):
     np.testing.assert_array_equal(white.boxes_xywh, boxes)
     assert white.ball_colours == ("white", None)
     assert select_ball_colour([said], "orange")[0].n_balls == 0
+    # what was left out for its measured colour is said in one line (rt2 train logs it, rt2 eval detector prints it);
+    # what a label left out is not news
+    assert colour_note([li], [orange], "orange", "trained as background").startswith(
+        "1 of the 2 labelled balls measure as not orange (docs/detector.md, \"Ball colour\"): trained as background;")
+    assert colour_note([said], select_ball_colour([said], "orange"), "orange", "x").startswith("1 of the 2 labelled balls measure")
+    assert colour_note([said], [white], "white", "x") is None
+    assert colour_note([li], [li], "any", "x") is None
 
 
 def test_split_keeps_frame_sets_together(tmp_path):
