@@ -24,6 +24,8 @@ LOG_FILE = "train.log"
 TAIL_CHARS = 4000
 #: a line of rt2 train's held-out figures (not an epoch's progress line)
 _FIGURES = re.compile(r"^(?!epoch ).*\b(ours|top-[0-9]+) recall [0-9.]+%")
+#: rt2 train's line on labelled balls left out for their measured colour (trained as background): the page shows it
+_COLOUR_NOTE = re.compile(r"^[0-9]+ of the [0-9]+ labelled balls measure as not ")
 
 
 class TrainingJob:
@@ -83,14 +85,16 @@ class TrainingJob:
         proc.stderr.close()
 
     def status(self) -> dict:
-        """``{"state": "idle"|"running"|"done"|"failed", "returncode", "log_tail", "model", "figures", "error", "ball_colour"}``.
+        """``{"state": "idle"|"running"|"done"|"failed", "returncode", "log_tail", "model", "figures", "notes", "error", "ball_colour"}``.
 
-        figures : rt2 train's held-out figure lines so far (list of str); error : a failed run's last stderr line
+        figures : rt2 train's held-out figure lines so far (list of str); notes : its line on labelled balls it trains
+        as background for their measured colour, if any (list of str; it scrolls out of the log's tail); error : a
+        failed run's last stderr line
         """
         with self._lock:
             proc, thread = self._proc, self._stderr_thread
         if proc is None:
-            return {"state": "idle", "returncode": None, "log_tail": "", "model": None, "figures": [], "error": None,
+            return {"state": "idle", "returncode": None, "log_tail": "", "model": None, "figures": [], "notes": [], "error": None,
                     "ball_colour": None}
         rc = proc.poll()
         if rc is not None and thread is not None:
@@ -102,10 +106,11 @@ class TrainingJob:
             text = ""
         lines = [ln.rstrip() for ln in text.replace("\r", "\n").split("\n") if ln.strip()]
         figures = [ln.strip() for ln in lines if _FIGURES.match(ln.strip())][-2:]
+        notes = [ln.strip() for ln in lines if _COLOUR_NOTE.match(ln.strip())][-1:]
         model = str(self.model_path) if state == "done" and self.model_path.is_file() else None
         error = (self._last_err or f"rt2 train ended with exit code {rc}") if state == "failed" else None
         return {"state": state, "returncode": rc, "log_tail": "\n".join(lines[-12:]), "model": model, "figures": figures,
-                "error": error, "ball_colour": self.ball_colour}
+                "notes": notes, "error": error, "ball_colour": self.ball_colour}
 
     def _close_log(self) -> None:
         if self._stderr_thread is not None:

@@ -796,6 +796,11 @@ def train(labelled, opts: TrainOptions = TrainOptions(), *, progress: bool = Tru
     note = colour_note(labelled, chosen, opts.ball_colour, "they are trained as background")
     if note:
         log(note)
+    n_labelled = sum(li.n_balls for li in labelled)
+    if n_labelled and not any(li.n_balls for li in chosen):  # every ball of another colour: the colour asked is wrong
+        raise ValueError(f"--ball-colour {opts.ball_colour}: none of the {n_labelled} labelled balls is {opts.ball_colour} (by its "
+                         f"label's ball_colour or its measured colour, docs/detector.md \"Ball colour\"): is the ball of "
+                         f"another colour? (--ball-colour any keeps every ball)")
     labelled = chosen
     if kept_filter:
         if base is None:

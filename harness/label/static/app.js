@@ -156,6 +156,7 @@ const rt2label = (() => {
     $("train-state").textContent = text;
     $("train-state").className = t.state;
     $("train-figures").textContent = (t.figures || []).length ? "held-out figures: " + t.figures.join(" | ") : "";
+    $("train-notes").textContent = (t.notes || []).length ? "note: " + t.notes.join(" | ") : "";
     $("train-log").textContent = t.log_tail || "";
     if (t.state === "running" && !S.trainPoll) {
       S.trainPoll = setInterval(async () => {

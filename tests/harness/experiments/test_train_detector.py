@@ -322,3 +322,16 @@ def test_no_balls_refused(tmp_path):
         TrainOptions(input_transform="sqrt")
     with pytest.raises(ValueError, match="hard_weight"):
         TrainOptions(hard_weight=1.0)
+
+
+def test_a_colour_that_no_labelled_ball_has_is_refused_naming_it(synthetic_ball_coco, tmp_path, capsys):
+    """Orange balls trained as --ball-colour white: every ball measures orange and would be background; rt2 train says
+    so (it used to end in "no ball boxes among the 12 images", with 10 balls labelled)."""
+    folder = synthetic_ball_coco(12, 4)
+    assert main(["train", "--data", str(folder), "--ball-colour", "white", "--epochs", "1", "--out", str(tmp_path / "m.npz")]) == 2
+    out, err = capsys.readouterr()
+    assert "10 of the 10 labelled balls measure as not white" in out
+    assert err.strip().splitlines()[-1] == ('rt2 train: error: --ball-colour white: none of the 10 labelled balls is white (by its label\'s ball_colour '
+                           'or its measured colour, docs/detector.md "Ball colour"): is the ball of another colour? '
+                           '(--ball-colour any keeps every ball)')
+    assert not (tmp_path / "m.npz").exists()

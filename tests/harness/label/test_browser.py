@@ -372,6 +372,18 @@ def test_train_asks_for_the_colour_and_shows_a_failure_line_above_the_fold(brows
         assert bottom <= page.js("window.innerHeight"), "the Train state is below the fold at 1600x757"
         info = json.loads((out / "annotations.json").read_text())["info"]
         assert info["ball_colour"] == "white"  # read back on the next start: the select shows it
+        # the out folder writable again: the run now fails for the colour (these synthetic balls are orange), and the
+        # page says why, with rt2 train's line on the balls it left out (it scrolls out of the log's tail)
+        (out / "model.npz").rmdir()
+        browser.find_element("id", "train-btn").click()
+        WebDriverWait(browser, 300, poll_frequency=0.3).until(lambda d: page.js("rt2label.state.training.state") != "running"
+                                                               and page.js("rt2label.state.training.returncode") == 2
+                                                               and "colour" in page.text("train-state"))
+        state = page.text("train-state")
+        assert state.startswith("failed (white balls), no model written (exit code 2): rt2 train: error: --ball-colour white: "
+                                "none of the 10 labelled balls is white"), state
+        assert page.text("train-notes").startswith("note: 10 of the 10 labelled balls measure as not white"), page.text("train-notes")
+        assert not (out / "model.npz").exists()
     finally:
         browser.set_window_size(1400, 800)
         server.stop()
