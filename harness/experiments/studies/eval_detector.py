@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.experiments.detector.scores import score_detections, truth_of
+from harness.experiments.detector.scores import operating_points, score_detections, truth_of
 from harness.experiments.detector.subsets import camera_sequences, frames_before, image_camera, select_cameras, sequence_key
 
 __all__ = ["DEFAULT_MODEL", "EVAL_METHODS", "add_arguments", "evaluate", "format_cameras", "run"]
@@ -78,6 +78,7 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
         labelled = [labelled[i] for seq in camera_sequences(labelled) for i in seq]
     cues = None if motion_cue is None else _CameraCues(motion_cue, cue_warmup, ball_free_margin_px)
     found = {m: [] for m in methods}
+    first_scores = []  # the score of ours' detection per image (nan: none): its operating points
     centers, diameters = [], []
     for li in progress_bar(labelled, desc="eval detector", unit="img", disable=not progress, leave=False):
         image = _evaluated_image(li, ball_free_margin_px)
@@ -91,12 +92,16 @@ def evaluate(model, labelled, *, methods=EVAL_METHODS, max_candidates: int = 4, 
             found["paper"].append(paper.detect(image).uv_px)
         if "ours" in methods or "topk" in methods:
             det = ours.detect(image)
-            uv = det.uv_px if gate is None else cues.moving(gate, det)
+            uv, sc = (det.uv_px, det.scores) if gate is None else cues.moving(gate, det)
             if "ours" in methods:
                 found["ours"].append(uv[:1])
+                first_scores.append(float(sc[0]) if len(sc) else float("nan"))
             if "topk" in methods:
                 found["topk"].append(uv)
     scores = [score_detections(m, centers, diameters, found[m], min_diameter_px=min_diameter_px) for m in methods]
+    if "ours" in methods:
+        points = operating_points(centers, diameters, found["ours"], first_scores, min_diameter_px=min_diameter_px)
+        scores = [replace(s, operating_points=points) if s.method == "ours" else s for s in scores]
     if cues is not None:
         scores = [replace(s, motion_cue=cues.summary()) if s.method in ("ours", "topk") else s for s in scores]
     cameras = [image_camera(li) for li in labelled]
@@ -133,11 +138,11 @@ class _CameraCues:
         self.without_cue += cue is None
         return cue
 
-    def moving(self, cue, det) -> np.ndarray:
-        """The centres of ``det``'s candidates on cells ``cue`` saw move (best first)."""
+    def moving(self, cue, det) -> tuple[np.ndarray, np.ndarray]:
+        """The centres and scores of ``det``'s candidates on cells ``cue`` saw move (best first)."""
         keep = cue.moved(det.uv_px, det.boxes_xywh[:, 2:].max(axis=1)) if len(det) else np.zeros(0, bool)
         self.dropped += int((~keep).sum())
-        return det.uv_px[keep]
+        return det.uv_px[keep], det.scores[keep]
 
     def summary(self) -> dict:
         return {"sequences": len(self.cues), "images_without_cue": self.without_cue, "candidates_dropped": self.dropped}
@@ -192,6 +197,22 @@ def format_cameras(scores, methods=("ours", "topk")) -> str:
             lines.append(f"{name:<{width}} {s.method:<7} {recall:>8} {100 * c.outlier_rate:8.2f}% {c.median_center_error_px:10.3f} "
                          f"{c.n_balls:6d} {c.n_detections:6d} {c.n_images:7d}")
     return "\n".join(lines)
+
+
+def format_operating_points(scores, option: str) -> str | None:
+    """One line: ``ours``' best recall at each outlier bound of its operating points (thresholds at or above the one
+    scored) and the threshold (``option``) that gives it; None without them."""
+    s = next((s for s in scores if s.method == "ours" and s.operating_points), None)
+    if s is None:
+        return None
+    parts = []
+    for bound, p in sorted(s.operating_points.items(), key=lambda kv: -kv[0]):
+        if p["threshold"] is None:
+            parts.append(f"<= {100 * bound:g} % outliers: no ball")
+        else:
+            which = "this run's threshold" if p["n_detections"] == s.n_detections else f"{option} {p['threshold']:g}"
+            parts.append(f"<= {100 * bound:g} % outliers: recall {100 * p['recall']:.2f} % at {100 * p['outlier_rate']:.2f} % ({which})")
+    return "ours at a stricter threshold (the best candidate kept where it scores at least it): " + "; ".join(parts)
 
 
 def learned_threshold_of(model, text) -> float | None:
@@ -519,6 +540,9 @@ def run(args) -> int:
     print(format_table(scores))
     if format_cameras(scores):
         print(format_cameras(scores))
+    line = format_operating_points(scores, "--learned-threshold" if model.learned is not None else "--t-high")
+    if line and ball_free_margin is None:
+        print(line)
     goals = f"goals: recall >= {100 * GOALS['recall']:.0f}%, outliers <= {100 * GOALS['outlier_rate']:.0f}%, median error <= {GOALS['median_center_error_px']} px"
     print(goals + " (topk's outlier rate counts every extra candidate; the robust estimator rejects them)")
     if args.json:

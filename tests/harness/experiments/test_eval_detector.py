@@ -9,7 +9,7 @@ import pytest
 
 from harness.cli import main
 from harness.experiments.detector.coco import read_coco
-from harness.experiments.detector.scores import score_detections
+from harness.experiments.detector.scores import operating_points, score_detections
 from harness.experiments.studies.eval_detector import EVAL_METHODS, evaluate
 from tracker.detection.synthetic import hand_made_model
 
@@ -54,6 +54,33 @@ def test_outlier_breakdown():
     assert s.n_images_without_ball == 2 and s.n_false_alarm_images == 1
 
 
+# -- the operating points: the best recall under an outlier bound at a stricter threshold -------------------
+def _points_case(kinds_scores, bounds=(0.02, 0.25)):
+    """One ball (d 10 at (50, 50)) per image; per image (kind, score): "hit" on it, "out" off it, "none" no detection."""
+    c = [np.array([[50.0, 50.0]]) for _ in kinds_scores]
+    d = [np.array([10.0]) for _ in kinds_scores]
+    uv = {"hit": np.array([[50.0, 50.0]]), "out": np.array([[0.0, 0.0]]), "none": np.zeros((0, 2))}
+    return operating_points(c, d, [uv[k] for k, _ in kinds_scores], [s for _, s in kinds_scores], bounds=bounds)
+
+
+def test_operating_points_take_the_highest_threshold_with_the_most_balls_within_each_bound():
+    p = _points_case([("hit", 0.91), ("out", 0.8), ("hit", 0.7), ("hit", 0.6), ("hit", 0.5), ("none", float("nan"))])
+    # <= 2 %: the first image alone (the outlier at 0.8 comes next); a threshold in (0.8, 0.91], short: 0.9
+    assert p[0.02] == {"recall": pytest.approx(1 / 6), "outlier_rate": 0.0, "threshold": 0.9, "n_detections": 1}
+    # <= 25 %: all five detections (one outlier in five); no lower score seen: the lowest kept, at 6 decimals
+    assert p[0.25] == {"recall": pytest.approx(4 / 6), "outlier_rate": pytest.approx(0.2), "threshold": 0.5, "n_detections": 5}
+
+
+def test_operating_points_keep_a_score_whole_and_say_none_where_no_threshold_fits():
+    # two candidates of one score are kept together: 1 outlier in 2 is over 25 %, so only the 0.95 image counts
+    p = _points_case([("hit", 0.95), ("hit", 0.6), ("out", 0.6)])
+    assert p[0.25]["n_detections"] == 1 and p[0.25]["threshold"] == 0.9
+    p = _points_case([("out", 0.9), ("hit", 0.5)], bounds=(0.02,))
+    assert p[0.02] == {"recall": 0.0, "outlier_rate": 0.0, "threshold": None, "n_detections": 0}
+    assert _points_case([("hit", 0.7)])[0.02]["threshold"] == 0.7  # the lowest kept itself, no lower score
+    assert _points_case([("hit", 0.654321987), ("out", 0.6543)])[0.02]["threshold"] == 0.65432  # in (0.6543, 0.654321987]
+
+
 def test_small_balls_not_in_recall_but_not_outliers():
     s = score_detections("x", [np.array([[10.0, 10.0]])], [np.array([4.0])], [np.array([[11.0, 10.0]])], min_diameter_px=6)
     assert s.n_balls == 0 and np.isnan(s.recall) and s.outlier_rate == 0.0
@@ -87,9 +114,16 @@ def test_cli_json(synthetic_ball_coco, tmp_path, capsys):
     assert "paper" in table and "topk" in table and "recall" in table
     rows = json.loads(out1.read_text())
     assert [r["method"] for r in rows] == ["paper", "ours", "topk"]
-    assert all(set(r) == JSON_KEYS for r in rows)
+    assert set(rows[0]) == set(rows[2]) == JSON_KEYS and set(rows[1]) == JSON_KEYS | {"operating_points"}
     assert main(["eval", "detector", "--data", data, "--model", str(model), "--json", str(out2)]) == 0
     assert out1.read_text() == out2.read_text()  # same data, same figures
+    # ours' best recall at <= 2 % outliers, and the threshold that gives it: the run at that threshold has those figures
+    point = rows[1]["operating_points"]["0.02"]
+    assert set(rows[1]["operating_points"]) == {"0.01", "0.02"} and point["outlier_rate"] <= 0.02 and point["recall"] > 0
+    assert f"<= 2 % outliers: recall {100 * point['recall']:.2f} %" in table and "(--t-high " in table or "this run's" in table
+    assert main(["eval", "detector", "--data", data, "--model", str(model), "--t-high", str(point["threshold"]), "--json", str(out2)]) == 0
+    strict = json.loads(out2.read_text())[1]
+    assert strict["recall"] == pytest.approx(point["recall"]) and strict["outlier_rate"] == pytest.approx(point["outlier_rate"])
 
 
 def test_cli_colour_selection_and_figure(synthetic_ball_coco, tmp_path, capsys):
@@ -160,7 +194,7 @@ def test_cli_per_camera_rows_and_the_camera_option(synthetic_ball_coco, tmp_path
         assert main(["eval", "detector", "--data", str(data), "--model", str(model), "--camera", name, "--json", str(one)]) == 0
         assert "per camera" not in capsys.readouterr().out  # one camera: no split
         for r in json.loads(one.read_text()):
-            assert set(r) == JSON_KEYS
+            assert set(r) - {"operating_points"} == JSON_KEYS
             assert {k: r[k] for k in JSON_KEYS - {"method"}} == {k: rows[r["method"]]["per_camera"][name][k] for k in JSON_KEYS - {"method"}}
 
 
