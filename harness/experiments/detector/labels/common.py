@@ -9,7 +9,6 @@ formats store no centre of their own, so the centre is the box centre in rt2 pix
 from __future__ import annotations
 
 import dataclasses
-
 import math
 import os
 import shutil
