@@ -33,8 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the IK restarts")
 
 
-def check_config(spec: str, *, grid=(3, 5, 3), min_share: float = 0.8, seed: int = 0) -> tuple[list[str], list[str]]:
-    """``(problems, notes)``: one line each. No problems = the config is usable."""
+def check_config(spec: str, *, grid=(3, 5, 3), min_share: float = 0.8, seed: int = 0, progress: bool = False) -> tuple[list[str], list[str]]:
+    """``(problems, notes)``: one line each. No problems = the config is usable. ``progress``: the IK grid's progress
+    bar on stderr (a fine ``grid`` takes minutes: ~2.5 ms per point)."""
     from harness.experiments.studies.learn_promp import default_promp
     from harness.experiments.studies.reach import reachability
     from harness.sim.robot.arms import HITTING_REGION_M, check_mount_reach
@@ -58,7 +59,7 @@ def check_config(spec: str, *, grid=(3, 5, 3), min_share: float = 0.8, seed: int
     except ValueError as exc:
         problems.append(str(exc))
     else:
-        res = reachability(kin, HITTING_REGION_M, tuple(grid), seed=seed)
+        res = reachability(kin, HITTING_REGION_M, tuple(grid), seed=seed, progress=progress)
         share = float(np.mean(res["success"]))
         line = (f"the racket reaches {int(res['success'].sum())}/{len(res['success'])} points of the hitting region "
                 f"{np.asarray(HITTING_REGION_M).tolist()} m facing the opponent ({100 * share:.0f} %)")
@@ -77,7 +78,7 @@ def run(args) -> int:
         raise ValueError(f"--min-share must be in (0, 1], got {args.min_share}")
     if min(args.grid) < 1:
         raise ValueError(f"--grid needs at least one point per axis, got {args.grid}")
-    problems, notes = check_config(args.robot, grid=args.grid, min_share=args.min_share, seed=args.seed)
+    problems, notes = check_config(args.robot, grid=args.grid, min_share=args.min_share, seed=args.seed, progress=True)
     for line in notes:
         print(line)
     for line in problems:

@@ -22,6 +22,16 @@ def test_check_config_of_the_wam(capsys):
     assert "45/45 points of the hitting region" in out and "wam_hitting.npz" in out and out.rstrip().endswith("wam: usable")
 
 
+def test_check_config_shows_the_ik_grid_going(capsys, monkeypatch):
+    """A fine --grid takes minutes (~2.5 ms a point): its progress is on stderr (here every update: TQDM_MININTERVAL=0),
+    the report on stdout unchanged."""
+    monkeypatch.setenv("TQDM_MININTERVAL", "0")
+    assert main(["robot", "check-config", "wam", "--grid", "2", "2", "2"]) == 0
+    out, err = capsys.readouterr()
+    assert "8/8 points of the hitting region" in out and "IK" not in out
+    assert "IK: 100%" in err and "8/8" in err
+
+
 @pytest.mark.parametrize("name", ["panda", "ur10", "xarm7"])
 def test_check_config_of_the_shipped_arms(capsys, name):
     _needs_robot_data()
