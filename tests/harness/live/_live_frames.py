@@ -40,10 +40,16 @@ def rendered_images(n: int = 24) -> tuple:
 
 
 def assembled(n_sets: int, *, rate_hz: float = 200.0, drop_camera: int | None = None, drop_from: int = 0,
-              pace: bool = False):
+              pace: bool = False, due_stamps: bool = False):
     """Yield ``n_sets`` AssembledFrameSet cycling the rendered images; camera ``drop_camera`` has no frame
     from set ``drop_from`` on (None image and a note, as the assembler reports a stopped camera).
-    pace : wait for each set's due time (a live camera's rate) instead of yielding at once."""
+    pace : wait for each set's due time (a live camera's rate) instead of yielding at once.
+    due_stamps : (with ``pace``) stamp each set at its due time, not at the moment it is yielded: the ball's times
+        are a camera's at ``rate_hz`` however late a loaded machine yields them (with host stamps a consumer that
+        lags spreads them out, and the ball of 5 m/s seems to crawl: the tracker's hypotheses then take it for no
+        ball in play and search full frames)."""
+    if due_stamps and not pace:
+        raise ValueError("due_stamps needs pace (a set stamped before it is due would arrive from the future)")
     images = rendered_images()
     n_cams = len(images[0])
     t0 = time.monotonic()
@@ -55,7 +61,7 @@ def assembled(n_sets: int, *, rate_hz: float = 200.0, drop_camera: int | None = 
                 time.sleep(delay)
         imgs = list(images[k % len(images)])
         notes = ()
-        t_host = np.full(n_cams, time.monotonic())
+        t_host = np.full(n_cams, due if due_stamps else time.monotonic())
         if drop_camera is not None and k >= drop_from:
             imgs[drop_camera] = None
             t_host[drop_camera] = np.nan
