@@ -99,7 +99,7 @@ def test_session_log_is_the_experiments_format_and_reevaluates_exactly(rig, tmp_
         service = TrackingService(rig, tr, log=log, options=ServiceOptions(status_period_s=0))
         # 40 frame sets (a third fewer PNG images to write and track again than before, the same code): cam1 stops at 20,
         # before the rendered clip restarts (set 24), so a new ball is searched for without it
-        summary = service.run(assembled(40, drop_camera=1, drop_from=20))
+        summary = service.run(assembled(40, drop_camera=1, drop_from=20, pace=True, due_stamps=True))  # 200 Hz times, whatever the load
     # the tracker's counters over the run (rt2 track's JSON): every frame set, the 20 without cam1's frame
     st = summary["tracker_stats"]
     assert st["frames"] == 40 and st["missing_frames"] == 20 and st["ok"] == summary["status"].get("ok", 0)
