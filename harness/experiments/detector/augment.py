@@ -129,8 +129,7 @@ def augment(image: np.ndarray, labelled, rng: np.random.Generator, opts: Augment
     boxes[:, 2] = np.minimum(boxes[:, 2], nw - boxes[:, 0])
     boxes[:, 3] = np.minimum(boxes[:, 3], nh - boxes[:, 1])
     keep = (boxes[:, 2] > 0.5) & (boxes[:, 3] > 0.5)
-    colours = tuple(c for c, k in zip(labelled.ball_colours, keep) if k) if labelled.ball_colours else ()
-    return out, dataclasses.replace(labelled, width=nw, height=nh, boxes_xywh=boxes[keep], centers_px=centers[keep], ball_colours=colours)
+    return out, dataclasses.replace(labelled, width=nw, height=nh, boxes_xywh=boxes, centers_px=centers).only(keep)
 
 
 def augmented_copies(items, n_copies: int, rng: np.random.Generator, opts: AugmentOptions = AugmentOptions()) -> list:
